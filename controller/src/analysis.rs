@@ -1,0 +1,170 @@
+//! Stability analysis of each compensator with the feedthrough loop closed.
+//!
+//! The closed loop is analysed in discrete time at the loop rate, exactly as it runs: its
+//! one-tick state map is read off the real `ClosedLoop::tick` by probing each state (the
+//! loop is linear while nothing saturates, and noise and dead-band are switched off). The
+//! shaper's delays are then just more states, so the verdict — all eigenvalues strictly
+//! inside the unit circle — is sound for them too. Poles are reported in rad/s as
+//! s = ln(z)/dt (exact for the plant's zero-order-hold modes).
+//!
+//! K_BF enters the map affinely (r_c = K_BF·(p_h − h)), so A(K) = A₀ + K·(A₁ − A₀) is read
+//! once and the largest stable K_BF is found by scanning and bisecting on K.
+
+use nalgebra::DMatrix;
+use serde::{Deserialize, Serialize};
+
+use crate::closed_loop::{ClosedLoop, Drive, LoopSetup};
+use crate::error::DesignError;
+use crate::linalg::{eigenvalues, spectral_radius};
+use crate::params::{MAX_KBF, Station, check};
+use crate::state::LinearState;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CompensatorAnalysis {
+    pub name: String,
+    pub stable: bool,
+    /// Largest closed-loop eigenvalue magnitude at the loop rate (< 1 is stable).
+    pub spectral_radius: f64,
+    /// Largest K_BF such that the loop is stable for every K in [0, K_BF]; `null` when it is
+    /// stable over the whole searched range [0, MAX_KBF]; 0 when unstable even without
+    /// feedthrough.
+    pub max_stable_kbf: Option<f64>,
+    /// Closed-loop poles [re, im] in rad/s; empty for loops with pure delays (the shaper),
+    /// whose delay-line eigenvalues are not poles of a rational system.
+    pub poles: Vec<[f64; 2]>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AnalysisReport {
+    pub kbf: f64,
+    pub compensators: Vec<CompensatorAnalysis>,
+}
+
+/// The one-tick map of a closed loop, affine in K_BF.
+#[derive(Debug, Clone)]
+pub struct LinearizedLoop {
+    a0: DMatrix<f64>,
+    a1: DMatrix<f64>,
+    dt: f64,
+    has_delays: bool,
+}
+
+impl LinearizedLoop {
+    /// Reads the loop's map off `tick` at the station "on" (feedthrough closed).
+    pub fn new(setup: &LoopSetup) -> Result<Self, DesignError> {
+        let mut setup = setup.clone();
+        setup.station = Station::On;
+        setup.plant.accel_noise_std = 0.0;
+        setup.plant.dead_band = 0.0;
+        let mut lp = ClosedLoop::new(&setup, 0)?;
+        let a0 = probe(&mut lp, 0.0);
+        let a1 = probe(&mut lp, 1.0);
+        Ok(Self {
+            a1: a1 - &a0,
+            a0,
+            dt: setup.loop_params.dt,
+            has_delays: lp.compensator().has_delays(),
+        })
+    }
+
+    pub fn matrix(&self, k_bf: f64) -> DMatrix<f64> {
+        &self.a0 + &self.a1 * k_bf
+    }
+
+    pub fn spectral_radius(&self, k_bf: f64) -> Result<f64, DesignError> {
+        spectral_radius(&self.matrix(k_bf))
+    }
+
+    pub fn is_stable(&self, k_bf: f64) -> Result<bool, DesignError> {
+        Ok(self.spectral_radius(k_bf)? < 1.0 - 1e-12)
+    }
+
+    /// Closed-loop poles in rad/s, sorted by real then imaginary part.
+    pub fn poles(&self, k_bf: f64) -> Result<Vec<[f64; 2]>, DesignError> {
+        let mut poles: Vec<[f64; 2]> = eigenvalues(&self.matrix(k_bf))?
+            .into_iter()
+            .filter(|z| z.norm() > 1e-9)
+            .map(|z| {
+                let s = z.ln() / self.dt;
+                [s.re, s.im]
+            })
+            .collect();
+        poles.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
+        Ok(poles)
+    }
+
+    /// Largest K with the loop stable on all of [0, K] (see [`CompensatorAnalysis`]).
+    pub fn max_stable_kbf(&self) -> Result<Option<f64>, DesignError> {
+        if !self.is_stable(0.0)? {
+            return Ok(Some(0.0));
+        }
+        // Scan on a grid fine enough not to step over a stability window of the loops we
+        // have (their margins are 0.3–4), then bisect the first loss of stability.
+        let grid = 0.05;
+        let mut lo = 0.0;
+        let mut hi = None;
+        while lo < MAX_KBF {
+            let k = (lo + grid).min(MAX_KBF);
+            if self.is_stable(k)? {
+                lo = k;
+            } else {
+                hi = Some(k);
+                break;
+            }
+        }
+        let Some(mut hi) = hi else {
+            return Ok(None);
+        };
+        while hi - lo > 1e-5 {
+            let mid = 0.5 * (lo + hi);
+            if self.is_stable(mid)? {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        Ok(Some(lo))
+    }
+}
+
+/// Column i of the map is tick(εeᵢ)/ε with no input; ε is small enough that nothing
+/// saturates (valve, stroke) and large enough to stay far above rounding.
+fn probe(lp: &mut ClosedLoop, k_bf: f64) -> DMatrix<f64> {
+    const EPS: f64 = 1e-6;
+    lp.set_k_bf(k_bf);
+    let n = lp.state_len();
+    let mut a = DMatrix::zeros(n, n);
+    let mut x = vec![0.0; n];
+    let mut next = vec![0.0; n];
+    for i in 0..n {
+        x.fill(0.0);
+        x[i] = EPS;
+        lp.write_state(&x);
+        lp.tick(Drive::Hand(0.0));
+        lp.read_state(&mut next);
+        for (r, v) in next.iter().enumerate() {
+            a[(r, i)] = v / EPS;
+        }
+    }
+    lp.reset();
+    a
+}
+
+/// Analyses one compensator at the setup's K_BF.
+pub fn analyze(setup: &LoopSetup) -> Result<CompensatorAnalysis, DesignError> {
+    let k_bf = setup.loop_params.k_bf;
+    check("kbf", k_bf, 0.0, MAX_KBF)?;
+    let lin = LinearizedLoop::new(setup)?;
+    let rho = lin.spectral_radius(k_bf)?;
+    Ok(CompensatorAnalysis {
+        name: setup.compensator.kind().name().to_string(),
+        stable: rho < 1.0 - 1e-12,
+        spectral_radius: rho,
+        max_stable_kbf: lin.max_stable_kbf()?,
+        poles: if lin.has_delays {
+            Vec::new()
+        } else {
+            lin.poles(k_bf)?
+        },
+    })
+}

@@ -1,0 +1,300 @@
+//! Command-line interface. Other tools call these commands; the names and JSON fields are a
+//! contract.
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+use std::io::Write;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use bdft_controller::analysis::{AnalysisReport, analyze};
+use bdft_controller::closed_loop::LoopSetup;
+use bdft_controller::compensator::{CompensatorKind, CompensatorSpec};
+use bdft_controller::operator::OperatorParams;
+use bdft_controller::params::{BodyModel, LoopParams, MAX_KBF, NOMINAL_KBF, PlantParams, Station};
+use bdft_controller::signals::StepParams;
+use bdft_controller::simulate::{SAMPLE_COLUMNS, SignalKind, SimConfig, simulate};
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "bdft-controller",
+    version,
+    about = "Biodynamic-feedthrough controller: design analysis and simulation of the five compensators"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Stability of every compensator with the feedthrough loop closed at K_BF: verdict,
+    /// largest stable K_BF and closed-loop poles.
+    Analyze {
+        /// Device-to-cylinder gain K_BF at which to close the feedthrough loop.
+        #[arg(long, default_value_t = NOMINAL_KBF, value_parser = parse_kbf)]
+        kbf: f64,
+        /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Simulate one compensator on the validated rig model, faster than real time.
+    Simulate {
+        /// pid, pid-notch, pid-shaper, lqr, lqr-cabvel or lqr-cabacc.
+        #[arg(long)]
+        compensator: CompensatorKind,
+        /// swept-sine (0.01→8 Hz, 5 mm) and trapezoid (±25 mm, 6 s) drive the cylinder
+        /// reference directly; steps runs the protocol's random-step target tracked by the
+        /// synthetic operator through the input device.
+        #[arg(long)]
+        signal: SignalKind,
+        /// Length in seconds [default: 30 for bench signals, 140 for steps].
+        #[arg(long, value_parser = parse_duration)]
+        duration: Option<f64>,
+        /// Operator station: on (feedthrough loop closed) or off [default: on for steps,
+        /// off for bench signals, which have no operator].
+        #[arg(long)]
+        station: Option<Station>,
+        /// Device-to-cylinder gain K_BF.
+        #[arg(long, default_value_t = NOMINAL_KBF, value_parser = parse_kbf_positive)]
+        kbf: f64,
+        /// Operator model driving the device (steps only).
+        #[arg(long, default_value = "synthetic", value_parser = ["synthetic"])]
+        operator: String,
+        /// Seed of the target, the accelerometer noise and the operator's remnant.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+        /// Write the full 1 kHz record as CSV to this file.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+}
+
+fn parse_finite(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|_| format!("{s:?} is not a number"))?;
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(format!("{s} is not a finite number"))
+    }
+}
+
+fn parse_kbf(s: &str) -> Result<f64, String> {
+    let v = parse_finite(s)?;
+    if (0.0..=MAX_KBF).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{v} is out of range: K_BF must be in [0, {MAX_KBF}]"
+        ))
+    }
+}
+
+fn parse_kbf_positive(s: &str) -> Result<f64, String> {
+    let v = parse_finite(s)?;
+    if v > 0.0 && v <= MAX_KBF {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{v} is out of range: K_BF must be in (0, {MAX_KBF}]"
+        ))
+    }
+}
+
+fn parse_duration(s: &str) -> Result<f64, String> {
+    let v = parse_finite(s)?;
+    if v > 0.0 && v <= 3600.0 {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{v} is out of range: the duration must be in (0, 3600] seconds"
+        ))
+    }
+}
+
+fn setup(kind: CompensatorKind, station: Station, k_bf: f64) -> LoopSetup {
+    let plant = PlantParams::default();
+    LoopSetup {
+        compensator: CompensatorSpec::default_for(kind, &plant),
+        plant,
+        body: BodyModel::default(),
+        loop_params: LoopParams {
+            k_bf,
+            ..LoopParams::default()
+        },
+        station,
+    }
+}
+
+pub fn run() -> ExitCode {
+    let cli = Cli::parse();
+    match execute(cli.command) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn execute(command: Command) -> anyhow::Result<()> {
+    let stdout = std::io::stdout();
+    let mut out = stdout.lock();
+    match command {
+        Command::Analyze { kbf, json } => {
+            let compensators = CompensatorKind::ALL
+                .into_iter()
+                .map(|k| {
+                    analyze(&setup(k, Station::On, kbf)).with_context(|| format!("analysing {k}"))
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            let report = AnalysisReport { kbf, compensators };
+            if json {
+                serde_json::to_writer(&mut out, &report)?;
+                writeln!(out)?;
+            } else {
+                print_analysis(&mut out, &report)?;
+            }
+        }
+        Command::Simulate {
+            compensator,
+            signal,
+            duration,
+            station,
+            kbf,
+            operator: _,
+            seed,
+            json,
+            out: record,
+        } => {
+            let station = station.unwrap_or(if signal == SignalKind::Steps {
+                Station::On
+            } else {
+                Station::Off
+            });
+            let cfg = SimConfig {
+                setup: setup(compensator, station, kbf),
+                signal,
+                duration_s: duration.unwrap_or(signal.default_duration_s()),
+                seed,
+                operator: OperatorParams::default(),
+                steps: StepParams::default(),
+            };
+            let summary = match record {
+                Some(path) => write_record(&cfg, &path)?,
+                None => simulate(&cfg, |_| {})?,
+            };
+            if json {
+                serde_json::to_writer(&mut out, &summary)?;
+                writeln!(out)?;
+            } else {
+                writeln!(out, "compensator       {}", summary.compensator)?;
+                writeln!(
+                    out,
+                    "signal            {} ({} s, seed {})",
+                    summary.signal, summary.duration_s, summary.seed
+                )?;
+                writeln!(
+                    out,
+                    "station           {} (K_BF {})",
+                    summary.station, summary.kbf
+                )?;
+                writeln!(out, "tracking MSE      {:.3} mm²", summary.mse_tracking_mm2)?;
+                writeln!(
+                    out,
+                    "cab accel MS      {:.1} (mm/s²)²",
+                    summary.ms_cab_accel
+                )?;
+                if let (Some(m), Some(s)) = (summary.target_mean_mm, summary.target_std_mm) {
+                    writeln!(out, "target            mean {m:.3} mm, std {s:.3} mm")?;
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Simulates while streaming the record to a CSV file; the file only appears complete
+/// (written to a temporary name, renamed at the end) so a failed run leaves no half file.
+fn write_record(
+    cfg: &SimConfig,
+    path: &PathBuf,
+) -> anyhow::Result<bdft_controller::simulate::SimSummary> {
+    let tmp = path.with_extension("partial");
+    let file =
+        std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+    let mut w = std::io::BufWriter::new(file);
+    writeln!(w, "{}", SAMPLE_COLUMNS.join(","))?;
+    let mut io_err = None;
+    let summary = simulate(cfg, |s| {
+        if io_err.is_some() {
+            return;
+        }
+        let v = s.values();
+        let res = writeln!(
+            w,
+            "{:.3},{},{},{},{},{},{},{}",
+            v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7]
+        );
+        if let Err(e) = res {
+            io_err = Some(e);
+        }
+    });
+    let summary = match (summary, io_err) {
+        (Ok(s), None) => s,
+        (Err(e), _) => {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(e.into());
+        }
+        (_, Some(e)) => {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(anyhow::Error::from(e).context(format!("writing {}", tmp.display())));
+        }
+    };
+    w.flush()?;
+    drop(w);
+    std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))?;
+    Ok(summary)
+}
+
+fn print_analysis(out: &mut impl Write, r: &AnalysisReport) -> std::io::Result<()> {
+    writeln!(
+        out,
+        "Feedthrough loop closed at K_BF = {} (station on), loop rate {:.0} Hz",
+        r.kbf,
+        1.0 / LoopParams::default().dt
+    )?;
+    writeln!(
+        out,
+        "{:<12} {:<7} {:>16} {:>16}   least-damped pole (rad/s)",
+        "compensator", "stable", "max stable K_BF", "spectral radius"
+    )?;
+    for c in &r.compensators {
+        let max = match c.max_stable_kbf {
+            Some(k) => format!("{k:.4}"),
+            None => format!("> {MAX_KBF}"),
+        };
+        let pole = c
+            .poles
+            .iter()
+            .max_by(|a, b| {
+                a[0].total_cmp(&b[0])
+                    .then(a[1].abs().total_cmp(&b[1].abs()))
+            })
+            .map(|p| format!("{:.3} ± {:.3}j", p[0], p[1].abs()))
+            .unwrap_or_else(|| "(delays: see spectral radius)".into());
+        writeln!(
+            out,
+            "{:<12} {:<7} {:>16} {:>16.6}   {}",
+            c.name,
+            if c.stable { "yes" } else { "NO" },
+            max,
+            c.spectral_radius,
+            pole
+        )?;
+    }
+    Ok(())
+}

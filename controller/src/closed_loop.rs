@@ -1,0 +1,138 @@
+//! One tick of the simulated rig in closed loop: plant, accelerometer, body, feedthrough and
+//! compensator, in the order the real-time loop runs them. The offline simulation, the
+//! analysis and the real-time process all call this same `tick`.
+
+use serde::{Deserialize, Serialize};
+
+use crate::compensator::{Compensator, CompensatorSpec};
+use crate::error::DesignError;
+use crate::model::{Body, Measurement, Plant};
+use crate::params::{BodyModel, LoopParams, PlantParams, Station};
+use crate::state::LinearState;
+
+/// Everything that defines a closed loop.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LoopSetup {
+    pub plant: PlantParams,
+    pub body: BodyModel,
+    pub loop_params: LoopParams,
+    pub station: Station,
+    pub compensator: CompensatorSpec,
+}
+
+/// What drives the loop this tick.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Drive {
+    /// The operator's intended hand position p_h (mm of device travel); the device reads
+    /// p_h − h and the cylinder reference is K_BF·(p_h − h).
+    Hand(f64),
+    /// The cylinder reference itself (bench tests: no operator, no feedthrough).
+    Reference(f64),
+}
+
+/// Signals of one tick.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct TickRecord {
+    /// Intended hand position p_h (mm); 0 when driven by a reference.
+    pub hand: f64,
+    /// Hand motion forced by cab vibration h (mm).
+    pub feedthrough: f64,
+    /// Cylinder reference r_c (mm).
+    pub r_c: f64,
+    /// Valve command applied (saturated).
+    pub valve: f64,
+    /// Cylinder position y (mm), measured at the start of the tick.
+    pub y: f64,
+    /// Seat accelerometer (mm/s²), measured at the start of the tick.
+    pub cab_accel: f64,
+}
+
+#[derive(Debug, Clone)]
+pub struct ClosedLoop {
+    plant: Plant,
+    body: Body,
+    compensator: Compensator,
+    k_bf: f64,
+    station: Station,
+    last: Measurement,
+}
+
+impl ClosedLoop {
+    pub fn new(setup: &LoopSetup, noise_seed: u64) -> Result<Self, DesignError> {
+        setup.loop_params.validate()?;
+        setup.body.validate()?;
+        let dt = setup.loop_params.dt;
+        Ok(Self {
+            plant: Plant::new(setup.plant, dt, noise_seed)?,
+            body: Body::new(setup.body, dt),
+            compensator: Compensator::build(&setup.compensator, &setup.plant, dt)?,
+            k_bf: setup.loop_params.k_bf,
+            station: setup.station,
+            last: Measurement::default(),
+        })
+    }
+
+    pub fn compensator(&self) -> &Compensator {
+        &self.compensator
+    }
+
+    /// The measurement of the last tick (what a pursuit display shows now).
+    pub fn last_measurement(&self) -> Measurement {
+        self.last
+    }
+
+    pub fn set_k_bf(&mut self, k_bf: f64) {
+        self.k_bf = k_bf;
+    }
+
+    #[inline]
+    pub fn tick(&mut self, drive: Drive) -> TickRecord {
+        let m = self.plant.measure();
+        self.last = m;
+        // The body responds to the true cab motion; at the desk station it is not shaken.
+        let h = match self.station {
+            Station::On => self.body.step(self.plant.cab_displacement()),
+            Station::Off => 0.0,
+        };
+        let (hand, r_c) = match drive {
+            Drive::Hand(p_h) => (p_h, self.k_bf * (p_h - h)),
+            Drive::Reference(r) => (0.0, r),
+        };
+        let v = self.compensator.step(r_c, m);
+        let applied = self.plant.step(v);
+        TickRecord {
+            hand,
+            feedthrough: h,
+            r_c,
+            valve: applied,
+            y: m.y,
+            cab_accel: m.cab_accel,
+        }
+    }
+
+    /// Back to rest: plant, body and compensator states zeroed.
+    pub fn reset(&mut self) {
+        self.plant.write_state(&[0.0; 7]);
+        self.body.reset();
+        self.compensator.reset();
+        self.last = Measurement::default();
+    }
+}
+
+impl LinearState for ClosedLoop {
+    fn state_len(&self) -> usize {
+        self.plant.state_len() + self.body.state_len() + self.compensator.state_len()
+    }
+    fn read_state(&self, out: &mut [f64]) {
+        let (p, b) = (self.plant.state_len(), self.body.state_len());
+        self.plant.read_state(out);
+        self.body.read_state(&mut out[p..]);
+        self.compensator.read_state(&mut out[p + b..]);
+    }
+    fn write_state(&mut self, s: &[f64]) {
+        let (p, b) = (self.plant.state_len(), self.body.state_len());
+        self.plant.write_state(s);
+        self.body.write_state(&s[p..]);
+        self.compensator.write_state(&s[p + b..]);
+    }
+}

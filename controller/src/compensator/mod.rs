@@ -1,0 +1,369 @@
+//! The six compensators behind one interface: one `step` per tick from the cylinder
+//! reference and the measurements to a saturated valve command, a `reset`, and the
+//! parameters they were built from (recorded with every trial).
+//!
+//! `build` designs everything (Riccati, observer, shaper) and allocates once; `step` never
+//! allocates, locks or blocks.
+
+mod lqr;
+mod pid;
+
+pub use lqr::{CabOutput, Lqr, LqrDesign, LqrParams};
+pub use pid::{NotchParams, Pid, PidParams};
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{DesignError, ParamError};
+use crate::filters::Biquad;
+use crate::model::Measurement;
+use crate::params::PlantParams;
+use crate::shaper::{Shaper, ShaperParams};
+use crate::state::LinearState;
+
+/// The compensators, by the names used everywhere (CLI, protocol, database, exports).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CompensatorKind {
+    Pid,
+    PidNotch,
+    PidShaper,
+    Lqr,
+    LqrCabvel,
+    LqrCabacc,
+}
+
+impl CompensatorKind {
+    /// All six, the five of the human-subject study first.
+    pub const ALL: [Self; 6] = [
+        Self::Pid,
+        Self::PidNotch,
+        Self::PidShaper,
+        Self::Lqr,
+        Self::LqrCabvel,
+        Self::LqrCabacc,
+    ];
+    /// The five compared in the human-subject study.
+    pub const STUDY: [Self; 5] = [
+        Self::Pid,
+        Self::PidNotch,
+        Self::PidShaper,
+        Self::Lqr,
+        Self::LqrCabvel,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Pid => "pid",
+            Self::PidNotch => "pid-notch",
+            Self::PidShaper => "pid-shaper",
+            Self::Lqr => "lqr",
+            Self::LqrCabvel => "lqr-cabvel",
+            Self::LqrCabacc => "lqr-cabacc",
+        }
+    }
+}
+
+impl std::fmt::Display for CompensatorKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for CompensatorKind {
+    type Err = ParamError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.name() == s)
+            .ok_or_else(|| ParamError::Invalid {
+                name: "compensator",
+                message: format!(
+                    "unknown compensator {s:?}; valid: {}",
+                    Self::ALL.map(|k| k.name()).join(", ")
+                ),
+            })
+    }
+}
+
+/// A compensator and all its parameters: enough to rebuild it exactly.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum CompensatorSpec {
+    Pid {
+        pid: PidParams,
+    },
+    PidNotch {
+        pid: PidParams,
+        notch: NotchParams,
+    },
+    PidShaper {
+        pid: PidParams,
+        shaper: ShaperParams,
+    },
+    Lqr {
+        lqr: LqrParams,
+    },
+    LqrCabvel {
+        lqr: LqrParams,
+    },
+    LqrCabacc {
+        lqr: LqrParams,
+    },
+}
+
+impl CompensatorSpec {
+    /// The documented default design of `kind` for this plant (PID tuned by Ziegler–Nichols
+    /// from the plant's ultimate gain).
+    pub fn default_for(kind: CompensatorKind, plant: &PlantParams) -> Self {
+        let pid = PidParams::ziegler_nichols(plant);
+        match kind {
+            CompensatorKind::Pid => Self::Pid { pid },
+            CompensatorKind::PidNotch => Self::PidNotch {
+                pid,
+                notch: NotchParams::default(),
+            },
+            CompensatorKind::PidShaper => Self::PidShaper {
+                pid,
+                shaper: ShaperParams::default(),
+            },
+            CompensatorKind::Lqr => Self::Lqr {
+                lqr: LqrParams::for_output(CabOutput::Velocity, 0.0),
+            },
+            CompensatorKind::LqrCabvel => Self::LqrCabvel {
+                lqr: LqrParams::for_output(CabOutput::Velocity, 2.0),
+            },
+            CompensatorKind::LqrCabacc => Self::LqrCabacc {
+                lqr: LqrParams::for_output(CabOutput::Acceleration, 0.05),
+            },
+        }
+    }
+
+    pub fn kind(&self) -> CompensatorKind {
+        match self {
+            Self::Pid { .. } => CompensatorKind::Pid,
+            Self::PidNotch { .. } => CompensatorKind::PidNotch,
+            Self::PidShaper { .. } => CompensatorKind::PidShaper,
+            Self::Lqr { .. } => CompensatorKind::Lqr,
+            Self::LqrCabvel { .. } => CompensatorKind::LqrCabvel,
+            Self::LqrCabacc { .. } => CompensatorKind::LqrCabacc,
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), ParamError> {
+        match self {
+            Self::Pid { pid } => pid.validate(),
+            Self::PidNotch { pid, notch } => pid.validate().and(notch.validate()),
+            Self::PidShaper { pid, shaper } => pid.validate().and(shaper.validate()),
+            Self::Lqr { lqr } | Self::LqrCabvel { lqr } | Self::LqrCabacc { lqr } => lqr.validate(),
+        }
+    }
+}
+
+/// What acts on the cylinder reference before the PID loop.
+#[derive(Debug, Clone)]
+pub enum Prefilter {
+    None,
+    Notch(Biquad),
+    Shaper(Shaper),
+}
+
+/// A compensator ready to run.
+#[derive(Debug, Clone)]
+pub enum Compensator {
+    Pid { pre: Prefilter, pid: Pid },
+    Lqr(Box<Lqr>),
+}
+
+impl Compensator {
+    /// Designs and builds the compensator for the plant at sample period `dt`.
+    pub fn build(
+        spec: &CompensatorSpec,
+        plant: &PlantParams,
+        dt: f64,
+    ) -> Result<Self, DesignError> {
+        spec.validate()?;
+        plant.validate()?;
+        Ok(match spec {
+            CompensatorSpec::Pid { pid } => Self::Pid {
+                pre: Prefilter::None,
+                pid: Pid::new(pid, plant.v_max, dt),
+            },
+            CompensatorSpec::PidNotch { pid, notch } => Self::Pid {
+                pre: Prefilter::Notch(notch.filter(dt)),
+                pid: Pid::new(pid, plant.v_max, dt),
+            },
+            CompensatorSpec::PidShaper { pid, shaper } => Self::Pid {
+                pre: Prefilter::Shaper(Shaper::new(shaper, dt)),
+                pid: Pid::new(pid, plant.v_max, dt),
+            },
+            CompensatorSpec::Lqr { lqr }
+            | CompensatorSpec::LqrCabvel { lqr }
+            | CompensatorSpec::LqrCabacc { lqr } => Self::Lqr(Box::new(Lqr::new(lqr, plant, dt)?)),
+        })
+    }
+
+    /// One tick: cylinder reference r_c (mm) and measurements → valve command, saturated.
+    #[inline]
+    pub fn step(&mut self, r_c: f64, m: Measurement) -> f64 {
+        match self {
+            Self::Pid { pre, pid } => {
+                let r = match pre {
+                    Prefilter::None => r_c,
+                    Prefilter::Notch(f) => f.step(r_c),
+                    Prefilter::Shaper(s) => s.step(r_c),
+                };
+                pid.step(r - m.y)
+            }
+            Self::Lqr(l) => l.step(r_c, m),
+        }
+    }
+
+    /// Back to the state at construction: a new trial starts from rest.
+    pub fn reset(&mut self) {
+        match self {
+            Self::Pid { pre, pid } => {
+                match pre {
+                    Prefilter::None => {}
+                    Prefilter::Notch(f) => f.reset(),
+                    Prefilter::Shaper(s) => s.reset(),
+                }
+                pid.reset();
+            }
+            Self::Lqr(l) => l.reset(),
+        }
+    }
+
+    /// True if the reference path contains pure delays (the shaper): its discrete
+    /// closed-loop eigenvalues then include the delay line's, which are not poles in rad/s.
+    pub fn has_delays(&self) -> bool {
+        matches!(
+            self,
+            Self::Pid {
+                pre: Prefilter::Shaper(_),
+                ..
+            }
+        )
+    }
+
+    fn prefilter_state(pre: &Prefilter) -> Option<&dyn LinearState> {
+        match pre {
+            Prefilter::None => None,
+            Prefilter::Notch(f) => Some(f),
+            Prefilter::Shaper(s) => Some(s),
+        }
+    }
+}
+
+impl LinearState for Compensator {
+    fn state_len(&self) -> usize {
+        match self {
+            Self::Pid { pre, pid } => {
+                Self::prefilter_state(pre).map_or(0, |p| p.state_len()) + pid.state_len()
+            }
+            Self::Lqr(l) => l.state_len(),
+        }
+    }
+    fn read_state(&self, out: &mut [f64]) {
+        match self {
+            Self::Pid { pre, pid } => {
+                let n = Self::prefilter_state(pre).map_or(0, |p| {
+                    p.read_state(out);
+                    p.state_len()
+                });
+                pid.read_state(&mut out[n..]);
+            }
+            Self::Lqr(l) => l.read_state(out),
+        }
+    }
+    fn write_state(&mut self, s: &[f64]) {
+        match self {
+            Self::Pid { pre, pid } => {
+                let n = match pre {
+                    Prefilter::None => 0,
+                    Prefilter::Notch(f) => {
+                        f.write_state(s);
+                        f.state_len()
+                    }
+                    Prefilter::Shaper(sh) => {
+                        sh.write_state(s);
+                        sh.state_len()
+                    }
+                };
+                pid.write_state(&s[n..]);
+            }
+            Self::Lqr(l) => l.write_state(s),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_round_trip_and_unknown_names_list_the_valid_ones() {
+        for k in CompensatorKind::ALL {
+            assert_eq!(k.name().parse::<CompensatorKind>().unwrap(), k);
+            let json = serde_json::to_string(&k).unwrap();
+            assert_eq!(json, format!("\"{}\"", k.name()));
+        }
+        let err = "pidd".parse::<CompensatorKind>().unwrap_err().to_string();
+        assert!(
+            err.contains("pid-notch") && err.contains("lqr-cabacc"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn every_compensator_saturates_and_resets_to_identical_behaviour() {
+        let plant = PlantParams::default();
+        for kind in CompensatorKind::ALL {
+            let spec = CompensatorSpec::default_for(kind, &plant);
+            let mut c = Compensator::build(&spec, &plant, 1e-3).unwrap();
+            let run = |c: &mut Compensator| -> Vec<f64> {
+                (0..500)
+                    .map(|k| {
+                        c.step(
+                            1e4,
+                            Measurement {
+                                y: -(k as f64),
+                                cab_accel: 1e5,
+                            },
+                        )
+                    })
+                    .collect()
+            };
+            let first = run(&mut c);
+            assert!(
+                first.iter().all(|v| v.abs() <= plant.v_max),
+                "{kind} exceeds v_max"
+            );
+            c.reset();
+            assert_eq!(
+                run(&mut c),
+                first,
+                "{kind}: reset must restore the initial state"
+            );
+            // Non-finite measurements never produce a non-finite or unsaturated command.
+            let v = c.step(
+                f64::NAN,
+                Measurement {
+                    y: f64::INFINITY,
+                    cab_accel: f64::NAN,
+                },
+            );
+            assert!(v.is_finite() && v.abs() <= plant.v_max, "{kind}: {v}");
+        }
+    }
+
+    #[test]
+    fn spec_serializes_with_its_kind_and_parameters() {
+        let plant = PlantParams::default();
+        let spec = CompensatorSpec::default_for(CompensatorKind::LqrCabvel, &plant);
+        let json = serde_json::to_value(&spec).unwrap();
+        assert_eq!(json["kind"], "lqr-cabvel");
+        assert_eq!(json["lqr"]["beta"], 2.0);
+        let back: CompensatorSpec = serde_json::from_value(json).unwrap();
+        assert_eq!(back, spec);
+    }
+}

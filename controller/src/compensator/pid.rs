@@ -1,0 +1,246 @@
+//! The PID position loop shared by `pid`, `pid-notch` and `pid-shaper`, and the notch.
+
+use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
+
+use crate::error::ParamError;
+use crate::filters::{Biquad, FirstOrder};
+use crate::model::saturate;
+use crate::params::{PlantParams, check};
+use crate::state::LinearState;
+
+/// PID gains in the standard (ISA) form V = Kp·(e + (1/Ti)∫e + Td·de/dt), the derivative
+/// low-passed at N/Td.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PidParams {
+    pub kp: f64,
+    /// Integral time (s).
+    pub ti: f64,
+    /// Derivative time (s); 0 disables the derivative.
+    pub td: f64,
+    /// Derivative filter ratio N.
+    pub n: f64,
+}
+
+impl PidParams {
+    /// Ziegler–Nichols from the valve/cylinder model's ultimate gain. With V = K·e the loop
+    /// s³ + 2ζωs² + ω²s + K_VCω²K = 0 is marginal (Routh) at K_u = 2ζω/K_VC, oscillating at ω,
+    /// so T_u = 2π/ω; then Kp = 0.6K_u, Ti = T_u/2, Td = T_u/8.
+    pub fn ziegler_nichols(p: &PlantParams) -> Self {
+        let (ku, tu) = ultimate_gain(p);
+        Self {
+            kp: 0.6 * ku,
+            ti: tu / 2.0,
+            td: tu / 8.0,
+            n: 10.0,
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), ParamError> {
+        check("pid.kp", self.kp, 1e-6, 1e3)?;
+        check("pid.ti", self.ti, 1e-3, 1e4)?;
+        check("pid.td", self.td, 0.0, 100.0)?;
+        check("pid.n", self.n, 1.0, 1e3)
+    }
+}
+
+/// (K_u, T_u) of the valve/cylinder under proportional control.
+pub fn ultimate_gain(p: &PlantParams) -> (f64, f64) {
+    (2.0 * p.z_vc * p.w_vc / p.k_vc, 2.0 * PI / p.w_vc)
+}
+
+/// Discrete PID: proportional, forward-Euler integral with conditional integration
+/// (anti-windup: the integral does not grow while the valve is saturated in the direction
+/// the error pushes), Tustin-discretized filtered derivative, all on e = r − y.
+#[derive(Debug, Clone)]
+pub struct Pid {
+    kp: f64,
+    ki_dt: f64,
+    derivative: FirstOrder,
+    integral: f64,
+    v_max: f64,
+}
+
+impl Pid {
+    pub fn new(p: &PidParams, v_max: f64, dt: f64) -> Self {
+        let derivative = if p.td > 0.0 {
+            FirstOrder::derivative(p.kp * p.td, p.n / p.td, dt)
+        } else {
+            FirstOrder::tustin([0.0, 0.0], [1.0, 1.0], dt, None)
+        };
+        Self {
+            kp: p.kp,
+            ki_dt: p.kp * dt / p.ti,
+            derivative,
+            integral: 0.0,
+            v_max,
+        }
+    }
+
+    /// One tick on the error e; returns the saturated valve command.
+    #[inline]
+    pub fn step(&mut self, e: f64) -> f64 {
+        // A non-finite error (bad measurement) must not poison the integrator or filter.
+        let e = if e.is_finite() { e } else { 0.0 };
+        let unsat = self.kp * e + self.integral + self.derivative.step(e);
+        let v = saturate(unsat, self.v_max);
+        let winding_up = (unsat > self.v_max && e > 0.0) || (unsat < -self.v_max && e < 0.0);
+        if !winding_up {
+            self.integral += self.ki_dt * e;
+        }
+        v
+    }
+
+    pub fn reset(&mut self) {
+        self.integral = 0.0;
+        self.derivative.reset();
+    }
+}
+
+impl LinearState for Pid {
+    fn state_len(&self) -> usize {
+        2
+    }
+    fn read_state(&self, out: &mut [f64]) {
+        out[0] = self.integral;
+        self.derivative.read_state(&mut out[1..]);
+    }
+    fn write_state(&mut self, s: &[f64]) {
+        self.integral = s[0];
+        self.derivative.write_state(&s[1..]);
+    }
+}
+
+/// Notch on the cylinder reference, inside the feedthrough loop and outside the position
+/// loop: D_N(s) = (s² + 2ζ_Nω_N s + ω_N²)/(s + ω_N)². Zeros midway between the structure
+/// modes, critically damped poles at the same frequency; the gain at ω_N is exactly ζ_N.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NotchParams {
+    pub f_hz: f64,
+    pub zeta: f64,
+}
+
+impl Default for NotchParams {
+    fn default() -> Self {
+        Self {
+            f_hz: 5.1,
+            zeta: 0.3,
+        }
+    }
+}
+
+impl NotchParams {
+    pub fn validate(&self) -> Result<(), ParamError> {
+        check("notch.f_hz", self.f_hz, 0.1, 100.0)?;
+        check("notch.zeta", self.zeta, 0.0, 1.0)
+    }
+
+    /// Tustin, pre-warped at ω_N so the notch centre lands exactly.
+    pub fn filter(&self, dt: f64) -> Biquad {
+        let w = 2.0 * PI * self.f_hz;
+        Biquad::tustin(
+            [1.0, 2.0 * self.zeta * w, w * w],
+            [1.0, 2.0 * w, w * w],
+            dt,
+            Some(w),
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fixtures::reference;
+
+    #[test]
+    fn ziegler_nichols_matches_the_reference_and_the_ultimate_gain_is_marginal() {
+        let p = PlantParams::default();
+        let pid = PidParams::ziegler_nichols(&p);
+        let fx = &reference()["pid_tuning"];
+        for (got, key) in [(pid.kp, "Kp"), (pid.ti, "Ti"), (pid.td, "Td"), (pid.n, "N")] {
+            let want = fx[key].as_f64().unwrap();
+            assert!((got - want).abs() < 1e-12 * want, "{key}");
+        }
+        // At K_u the P-controlled cylinder has a pole pair on the imaginary axis at ±jω.
+        let (ku, _) = ultimate_gain(&p);
+        let w2 = p.w_vc * p.w_vc;
+        let m = nalgebra::DMatrix::from_row_slice(
+            3,
+            3,
+            &[
+                0.0,
+                1.0,
+                0.0,
+                0.0,
+                0.0,
+                1.0,
+                -p.k_vc * w2 * ku,
+                -w2,
+                -2.0 * p.z_vc * p.w_vc,
+            ],
+        );
+        let ev = crate::linalg::eigenvalues(&m).unwrap();
+        assert!(
+            ev.iter()
+                .any(|z| z.re.abs() < 1e-9 && (z.im - p.w_vc).abs() < 1e-9),
+            "{ev:?}"
+        );
+    }
+
+    #[test]
+    fn notch_depth_equals_zeta_at_the_centre_and_matches_scipy_bilinear() {
+        let fx = &reference()["notch_discrete"];
+        let dt = 1e-3;
+        let f = NotchParams::default().filter(dt);
+        let (b, a) = f.coefficients();
+        for i in 0..3 {
+            let wb = fx["b"][i].as_f64().unwrap();
+            let wa = fx["a"][i].as_f64().unwrap();
+            assert!(
+                (b[i] - wb).abs() < 1e-12 && (a[i] - wa).abs() < 1e-12,
+                "coefficient {i}"
+            );
+        }
+        // Analytic: |D_N(jω_N)| = 2ζω²/(2ω²) = ζ, and the prewarped filter keeps it exactly.
+        let w_n = 2.0 * PI * 5.1;
+        assert!((f.response(w_n, dt).norm() - 0.3).abs() < 1e-12);
+        // Depth at the two structure modes, from the continuous formula
+        // |ω_N² − ω² + 2jζω_Nω| / (ω_N² + ω²), shifted slightly by the warping.
+        for f_hz in [4.0, 6.2] {
+            let w = 2.0 * PI * f_hz;
+            let analytic = ((w_n * w_n - w * w).powi(2) + (2.0 * 0.3 * w_n * w).powi(2)).sqrt()
+                / (w_n * w_n + w * w);
+            let got = f.response(w, dt).norm();
+            assert!(
+                (got - analytic).abs() < 2e-3,
+                "{f_hz} Hz: {got} vs {analytic}"
+            );
+            assert!(got < 0.4, "the notch must cut both modes by more than 60 %");
+        }
+        assert!((f.response(0.0, dt).norm() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn anti_windup_stops_integration_while_saturated() {
+        let p = PidParams {
+            kp: 1.0,
+            ti: 0.1,
+            td: 0.0,
+            n: 10.0,
+        };
+        let mut pid = Pid::new(&p, 10.0, 1e-3);
+        for _ in 0..5000 {
+            assert_eq!(pid.step(50.0), 10.0);
+        }
+        // Without anti-windup the integral would be 50·5 s/0.1 s = 2500; it stays bounded so
+        // the command leaves saturation as soon as the error reverses.
+        assert!(
+            pid.integral <= 10.0,
+            "integral wound up to {}",
+            pid.integral
+        );
+        assert!(pid.step(-12.0) < 0.0);
+    }
+}

@@ -1,0 +1,31 @@
+//! bdft-lab's control core: models of the backhoe rig and the operator's body, the five
+//! compensators of the biodynamic-feedthrough study (plus cab-acceleration feedback for
+//! comparison), their design routines, a stability analysis of each with the feedthrough
+//! loop closed, and a deterministic offline simulation.
+//!
+//! Everything is pure: time is passed in (one `step` per tick at `dt`), randomness comes
+//! from seeds. The real-time runtime runs exactly these `step` functions.
+//!
+//! Map: [`params`] (named parameters with the identified defaults) → [`model`] (plant, body)
+//! and [`compensator`] (designs in [`linalg`], filters in [`filters`], [`shaper`]) →
+//! [`closed_loop`] (one tick) → [`simulate`] and [`analysis`].
+
+pub mod analysis;
+pub mod closed_loop;
+pub mod compensator;
+pub mod error;
+pub mod filters;
+pub mod linalg;
+pub mod model;
+pub mod operator;
+pub mod params;
+pub mod rng;
+pub mod shaper;
+pub mod signals;
+pub mod simulate;
+pub mod state;
+
+#[cfg(test)]
+mod fixtures;
+#[cfg(test)]
+mod tests;

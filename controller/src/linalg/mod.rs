@@ -1,0 +1,15 @@
+//! Linear-algebra design routines written for this project: zero-order-hold discretization,
+//! eigenvalues, the continuous algebraic Riccati equation and observer pole placement.
+//!
+//! Design code runs once per trial set-up, so it works on heap matrices (`DMatrix`); only the
+//! per-tick code uses fixed-size types.
+
+mod care;
+mod discretize;
+mod eigen;
+mod place;
+
+pub use care::{CareSolution, care, care_residual, lyapunov};
+pub use discretize::zoh;
+pub use eigen::{eigenvalues, spectral_radius};
+pub use place::place_observer;

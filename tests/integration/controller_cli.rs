@@ -1,0 +1,220 @@
+//! `bdft-controller analyze` and `simulate` as other tools call them.
+
+use bdft_tests::{TempDir, controller};
+use serde_json::Value;
+
+fn json_of(args: &[&str]) -> Value {
+    let out = controller(args);
+    assert!(
+        out.status.success(),
+        "{args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("stdout is one JSON document")
+}
+
+fn stderr_of_failure(args: &[&str]) -> String {
+    let out = controller(args);
+    assert!(!out.status.success(), "{args:?} should have failed");
+    assert!(out.stdout.is_empty(), "a failure prints nothing on stdout");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+#[test]
+fn analyze_reports_every_compensator_with_the_documented_fields() {
+    let v = json_of(&["analyze", "--kbf", "0.6", "--json"]);
+    assert_eq!(v["kbf"], 0.6);
+    let comps = v["compensators"].as_array().unwrap();
+    let names: Vec<&str> = comps.iter().map(|c| c["name"].as_str().unwrap()).collect();
+    assert_eq!(
+        names,
+        [
+            "pid",
+            "pid-notch",
+            "pid-shaper",
+            "lqr",
+            "lqr-cabvel",
+            "lqr-cabacc"
+        ]
+    );
+    for c in comps {
+        assert!(c["stable"].is_boolean());
+        assert!(c["max_stable_kbf"].is_number() || c["max_stable_kbf"].is_null());
+        for p in c["poles"].as_array().unwrap() {
+            assert_eq!(p.as_array().unwrap().len(), 2);
+        }
+        // Stability at 0.6 and the margin must agree.
+        if let Some(m) = c["max_stable_kbf"].as_f64() {
+            assert_eq!(c["stable"].as_bool().unwrap(), m > 0.6, "{c}");
+        }
+    }
+    // The verdict the system model predicts: plain PID loses stability through the
+    // feedthrough, every compensated design keeps it.
+    assert_eq!(comps[0]["stable"], false);
+    assert!(comps[1..].iter().all(|c| c["stable"] == true));
+    // An unstable loop has a pole in the right half plane, a stable one has none.
+    let rhp = |c: &Value| {
+        c["poles"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|p| p[0].as_f64().unwrap() > 0.0)
+    };
+    assert!(rhp(&comps[0]));
+    assert!(!rhp(&comps[3]));
+}
+
+#[test]
+fn analyze_at_a_small_kbf_finds_plain_pid_stable() {
+    // The reference margin of plain PID is 0.347 (continuous loop, python-control).
+    let v = json_of(&["analyze", "--kbf", "0.2", "--json"]);
+    assert_eq!(v["compensators"][0]["stable"], true);
+}
+
+#[test]
+fn simulate_writes_the_full_record_and_is_reproducible_across_processes() {
+    let dir = TempDir::new("sim");
+    let csv = dir.path().join("samples.csv");
+    let args = [
+        "simulate",
+        "--compensator",
+        "lqr-cabvel",
+        "--signal",
+        "steps",
+        "--duration",
+        "6",
+        "--station",
+        "on",
+        "--kbf",
+        "0.78",
+        "--seed",
+        "17",
+        "--json",
+    ];
+    let mut with_out: Vec<&str> = args.to_vec();
+    let csv_str = csv.to_str().unwrap();
+    with_out.extend(["--out", csv_str]);
+    let a = json_of(&with_out);
+    let b = json_of(&args);
+    assert_eq!(a, b, "same seed, same result");
+    assert_eq!(a["compensator"], "lqr-cabvel");
+    assert_eq!(a["signal"], "steps");
+    assert_eq!(a["duration_s"], 6.0);
+    assert!(a["mse_tracking_mm2"].as_f64().unwrap() > 0.0);
+    assert!(a["ms_cab_accel"].as_f64().unwrap() > 0.0);
+
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(header[0], "t_s");
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| l.split(',').map(|x| x.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(rows.len(), 6000, "1 kHz for 6 s");
+    // The metrics are the means over the record: recompute them from the CSV.
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let (t, y, a_c) = (col("target_mm"), col("cyl_pos_mm"), col("cab_accel_mm_s2"));
+    let mse = rows.iter().map(|r| (r[t] - r[y]).powi(2)).sum::<f64>() / rows.len() as f64;
+    let msa = rows.iter().map(|r| r[a_c].powi(2)).sum::<f64>() / rows.len() as f64;
+    let rel = |x: f64, y: f64| ((x - y) / y).abs();
+    assert!(rel(mse, a["mse_tracking_mm2"].as_f64().unwrap()) < 1e-6);
+    assert!(rel(msa, a["ms_cab_accel"].as_f64().unwrap()) < 1e-6);
+    // Valve commands are always saturated.
+    let v = col("valve_cmd");
+    assert!(rows.iter().all(|r| r[v].abs() <= 10.0));
+    // A different seed gives a different target.
+    let c = json_of(&[
+        "simulate",
+        "--compensator",
+        "lqr-cabvel",
+        "--signal",
+        "steps",
+        "--duration",
+        "6",
+        "--seed",
+        "18",
+        "--json",
+    ]);
+    assert_ne!(c["mse_tracking_mm2"], a["mse_tracking_mm2"]);
+}
+
+#[test]
+fn bench_signals_run_without_operator() {
+    for signal in ["swept-sine", "trapezoid"] {
+        let v = json_of(&[
+            "simulate",
+            "--compensator",
+            "pid-notch",
+            "--signal",
+            signal,
+            "--duration",
+            "5",
+            "--json",
+        ]);
+        assert_eq!(v["station"], "off");
+        assert!(v["mse_tracking_mm2"].as_f64().unwrap().is_finite());
+    }
+}
+
+#[test]
+fn bad_arguments_get_clear_errors() {
+    let err = stderr_of_failure(&["simulate", "--compensator", "pdi", "--signal", "steps"]);
+    assert!(
+        err.contains("pid-notch") && err.contains("lqr-cabvel"),
+        "lists the valid names: {err}"
+    );
+    let err = stderr_of_failure(&["analyze", "--kbf", "NaN"]);
+    assert!(err.contains("finite"), "{err}");
+    let err = stderr_of_failure(&["analyze", "--kbf", "25"]);
+    assert!(err.contains("[0, 20]"), "{err}");
+    let err = stderr_of_failure(&[
+        "simulate",
+        "--compensator",
+        "pid",
+        "--signal",
+        "steps",
+        "--duration=-3",
+    ]);
+    assert!(err.contains("(0, 3600]"), "{err}");
+    let err = stderr_of_failure(&["simulate", "--compensator", "pid", "--signal", "chirp"]);
+    assert!(err.contains("swept-sine"), "{err}");
+    let err = stderr_of_failure(&[
+        "simulate",
+        "--compensator",
+        "pid",
+        "--signal",
+        "trapezoid",
+        "--station",
+        "on",
+    ]);
+    assert!(err.contains("station"), "{err}");
+    let err = stderr_of_failure(&[
+        "simulate",
+        "--compensator",
+        "pid",
+        "--signal",
+        "steps",
+        "--operator",
+        "human",
+    ]);
+    assert!(err.contains("synthetic"), "{err}");
+}
+
+#[test]
+fn a_failed_record_write_leaves_no_file() {
+    let dir = TempDir::new("nofile");
+    let csv = dir.path().join("missing-dir").join("x.csv");
+    let err = stderr_of_failure(&[
+        "simulate",
+        "--compensator",
+        "pid",
+        "--signal",
+        "steps",
+        "--duration",
+        "2",
+        "--out",
+        csv.to_str().unwrap(),
+    ]);
+    assert!(err.contains("creating"), "{err}");
+    assert!(!csv.exists());
+}

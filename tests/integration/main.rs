@@ -1,0 +1,3 @@
+//! End-to-end tests, one binary: each module drives real processes of the product.
+
+mod controller_cli;
