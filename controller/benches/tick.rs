@@ -58,7 +58,9 @@ fn time_ticks(lp: &mut ClosedLoop, ticks: usize) -> f64 {
 
 fn main() {
     let mut report = serde_json::Map::new();
-    println!("tick cost (plant + accelerometer noise + body + compensator), median of {RUNS} × 200,000 ticks");
+    println!(
+        "tick cost (plant + accelerometer noise + body + compensator), median of {RUNS} × 200,000 ticks"
+    );
     let mut ticks = serde_json::Map::new();
     for kind in CompensatorKind::ALL {
         let mut lp = ClosedLoop::new(&setup(kind, true), 1).expect("design");
@@ -99,22 +101,44 @@ fn main() {
     // The loop of tools/bench/forced_response.py: PID-notch, station on, K_BF 0.6, no noise.
     let mut lp = ClosedLoop::new(&setup(CompensatorKind::PidNotch, false), 1).expect("design");
     let ours_s = time_ticks(&mut lp, 140_000) * 140_000.0 * 1e-9;
-    println!("PID-notch loop, 140,000 ticks: bdft-lab {:.3} ms", ours_s * 1e3);
+    println!(
+        "PID-notch loop, 140,000 ticks: bdft-lab {:.3} ms",
+        ours_s * 1e3
+    );
     report.insert("pid_notch_140k_s".into(), ours_s.into());
-    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/../tools/bench/forced_response.py");
-    match Command::new("python3").arg(script).args(["--runs", "7"]).output() {
+    let script = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../tools/bench/forced_response.py"
+    );
+    match Command::new("python3")
+        .arg(script)
+        .args(["--runs", "7"])
+        .output()
+    {
         Ok(out) if out.status.success() => {
             let line = String::from_utf8_lossy(&out.stdout);
-            let theirs: serde_json::Value = serde_json::from_str(line.trim()).expect("script prints JSON");
+            let theirs: serde_json::Value =
+                serde_json::from_str(line.trim()).expect("script prints JSON");
             let theirs_s = theirs["median_s"].as_f64().expect("median_s");
             println!(
                 "  python-control {} forced_response: {:.1} ms → bdft-lab is {:.0}× faster",
-                theirs["version"], theirs_s * 1e3, theirs_s / ours_s
+                theirs["version"],
+                theirs_s * 1e3,
+                theirs_s / ours_s
             );
             report.insert("python_control".into(), theirs);
-            report.insert("speedup_vs_python_control".into(), (theirs_s / ours_s).into());
+            report.insert(
+                "speedup_vs_python_control".into(),
+                (theirs_s / ours_s).into(),
+            );
         }
-        Ok(out) => println!("  python-control comparison skipped: {}", String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("")),
+        Ok(out) => println!(
+            "  python-control comparison skipped: {}",
+            String::from_utf8_lossy(&out.stderr)
+                .lines()
+                .last()
+                .unwrap_or("")
+        ),
         Err(e) => println!("  python-control comparison skipped: {e}"),
     }
     println!("{}", serde_json::Value::Object(report));

@@ -8,11 +8,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use bdft_controller::analysis::{AnalysisReport, analyze};
-use bdft_controller::closed_loop::LoopSetup;
-use bdft_controller::compensator::{CompensatorKind, CompensatorSpec};
-use bdft_controller::operator::OperatorParams;
-use bdft_controller::params::{BodyModel, LoopParams, MAX_KBF, NOMINAL_KBF, PlantParams, Station};
-use bdft_controller::signals::StepParams;
+use bdft_controller::compensator::CompensatorKind;
+use bdft_controller::param_set::ParamSet;
+use bdft_controller::params::{LoopParams, MAX_KBF, NOMINAL_KBF, Station};
 use bdft_controller::simulate::{SAMPLE_COLUMNS, SignalKind, SimConfig, simulate};
 
 #[derive(Debug, Parser)]
@@ -31,6 +29,9 @@ enum Command {
     /// Stability of every compensator with the feedthrough loop closed at K_BF: verdict,
     /// largest stable K_BF and closed-loop poles.
     Analyze {
+        /// JSON file of parameters (as printed by `defaults`; keys left out keep their default).
+        #[arg(long)]
+        params: Option<PathBuf>,
         /// Device-to-cylinder gain K_BF at which to close the feedthrough loop.
         #[arg(long, default_value_t = NOMINAL_KBF, value_parser = parse_kbf)]
         kbf: f64,
@@ -40,6 +41,9 @@ enum Command {
     },
     /// Simulate one compensator on the validated rig model, faster than real time.
     Simulate {
+        /// JSON file of parameters (as printed by `defaults`; keys left out keep their default).
+        #[arg(long)]
+        params: Option<PathBuf>,
         /// pid, pid-notch, pid-shaper, lqr, lqr-cabvel or lqr-cabacc.
         #[arg(long)]
         compensator: CompensatorKind,
@@ -71,6 +75,9 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Print every parameter with its default value as JSON (edit it and pass it back with
+    /// --params).
+    Defaults,
 }
 
 fn parse_finite(s: &str) -> Result<f64, String> {
@@ -115,18 +122,18 @@ fn parse_duration(s: &str) -> Result<f64, String> {
     }
 }
 
-fn setup(kind: CompensatorKind, station: Station, k_bf: f64) -> LoopSetup {
-    let plant = PlantParams::default();
-    LoopSetup {
-        compensator: CompensatorSpec::default_for(kind, &plant),
-        plant,
-        body: BodyModel::default(),
-        loop_params: LoopParams {
-            k_bf,
-            ..LoopParams::default()
-        },
-        station,
-    }
+fn load_params(path: Option<&PathBuf>) -> anyhow::Result<ParamSet> {
+    let Some(path) = path else {
+        return Ok(ParamSet::default());
+    };
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let params: ParamSet = serde_json::from_str(&text)
+        .with_context(|| format!("{} is not a valid parameter file", path.display()))?;
+    params
+        .validate()
+        .with_context(|| format!("in {}", path.display()))?;
+    Ok(params)
 }
 
 pub fn run() -> ExitCode {
@@ -144,11 +151,17 @@ fn execute(command: Command) -> anyhow::Result<()> {
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     match command {
-        Command::Analyze { kbf, json } => {
+        Command::Defaults => {
+            serde_json::to_writer_pretty(&mut out, &ParamSet::default())?;
+            writeln!(out)?;
+        }
+        Command::Analyze { params, kbf, json } => {
+            let params = load_params(params.as_ref())?;
             let compensators = CompensatorKind::ALL
                 .into_iter()
                 .map(|k| {
-                    analyze(&setup(k, Station::On, kbf)).with_context(|| format!("analysing {k}"))
+                    analyze(&params.setup(k, Station::On, kbf))
+                        .with_context(|| format!("analysing {k}"))
                 })
                 .collect::<anyhow::Result<Vec<_>>>()?;
             let report = AnalysisReport { kbf, compensators };
@@ -160,6 +173,7 @@ fn execute(command: Command) -> anyhow::Result<()> {
             }
         }
         Command::Simulate {
+            params,
             compensator,
             signal,
             duration,
@@ -175,13 +189,14 @@ fn execute(command: Command) -> anyhow::Result<()> {
             } else {
                 Station::Off
             });
+            let params = load_params(params.as_ref())?;
             let cfg = SimConfig {
-                setup: setup(compensator, station, kbf),
+                setup: params.setup(compensator, station, kbf),
                 signal,
                 duration_s: duration.unwrap_or(signal.default_duration_s()),
                 seed,
-                operator: OperatorParams::default(),
-                steps: StepParams::default(),
+                operator: params.operator,
+                steps: params.steps,
             };
             let summary = match record {
                 Some(path) => write_record(&cfg, &path)?,

@@ -18,6 +18,7 @@ pub mod filters;
 pub mod linalg;
 pub mod model;
 pub mod operator;
+pub mod param_set;
 pub mod params;
 pub mod rng;
 pub mod shaper;
@@ -25,6 +26,8 @@ pub mod signals;
 pub mod simulate;
 pub mod state;
 
+#[cfg(test)]
+mod alloc_check;
 #[cfg(test)]
 mod fixtures;
 #[cfg(test)]

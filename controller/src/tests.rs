@@ -251,3 +251,24 @@ fn bench_signals_are_tracked_and_reject_the_on_station() {
     let err = simulate(&cfg, |_| {}).unwrap_err().to_string();
     assert!(err.contains("station"), "{err}");
 }
+
+#[test]
+fn the_body_model_is_replaceable_and_enters_the_loop() {
+    // A seated body with a resonance near the first structure mode amplifies the hand
+    // motion there, so the notch loop tolerates less K_BF than with the rigid mass of the
+    // same static gain; at zero gain there is no feedthrough and no K_BF limit.
+    let mut s = setup(CompensatorKind::PidNotch, Station::On, 0.6);
+    let rigid = analyze(&s).unwrap().max_stable_kbf.unwrap();
+    s.body = BodyModel::SingleResonance {
+        k_h: 0.56,
+        f_hz: 4.0,
+        zeta: 0.3,
+    };
+    let resonant = analyze(&s).unwrap().max_stable_kbf.unwrap();
+    assert!(
+        resonant < 0.8 * rigid,
+        "resonant {resonant} vs rigid {rigid}"
+    );
+    s.body = BodyModel::RigidMass { k_h: 0.0 };
+    assert_eq!(analyze(&s).unwrap().max_stable_kbf, None);
+}

@@ -218,3 +218,39 @@ fn a_failed_record_write_leaves_no_file() {
     assert!(err.contains("creating"), "{err}");
     assert!(!csv.exists());
 }
+
+#[test]
+fn parameters_round_trip_through_a_file() {
+    let dir = TempDir::new("params");
+    let out = controller(&["defaults"]);
+    assert!(out.status.success());
+    let mut params: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(params["plant"]["k_vc"], 22.0);
+    assert_eq!(params["compensators"].as_array().unwrap().len(), 6);
+    // Without a body response there is no feedthrough: plain PID is stable at any K_BF.
+    params["body"]["k_h"] = 0.0.into();
+    let file = dir.path().join("params.json");
+    std::fs::write(&file, serde_json::to_vec(&params).unwrap()).unwrap();
+    let v = json_of(&["analyze", "--json", "--params", file.to_str().unwrap()]);
+    assert_eq!(v["compensators"][0]["stable"], true);
+    assert!(v["compensators"][0]["max_stable_kbf"].is_null());
+
+    // A misspelt key and an out-of-range value are named in the error.
+    std::fs::write(&file, r#"{"plant": {"kvc": 3}}"#).unwrap();
+    let err = stderr_of_failure(&["analyze", "--params", file.to_str().unwrap()]);
+    assert!(err.contains("kvc"), "{err}");
+    std::fs::write(&file, r#"{"plant": {"v_max": -1}}"#).unwrap();
+    let err = stderr_of_failure(&[
+        "simulate",
+        "--compensator",
+        "pid",
+        "--signal",
+        "steps",
+        "--params",
+        file.to_str().unwrap(),
+    ]);
+    assert!(
+        err.contains("plant.v_max") && err.contains("[0.001, 1000]"),
+        "{err}"
+    );
+}

@@ -369,3 +369,32 @@ mod tests {
         let _ = matrix; // fixture helper used above
     }
 }
+
+#[cfg(test)]
+mod cab_velocity_tests {
+    use crate::filters::FirstOrder;
+
+    #[test]
+    fn highpass_and_leaky_integrator_turn_acceleration_into_velocity_at_the_modes() {
+        // Velocity = acceleration/(jω): at the structure modes the chain must have gain 1/ω
+        // within 1 % and a phase of −90° within 3°, while a constant offset is removed.
+        let dt = 1e-3;
+        let hp = FirstOrder::high_pass(0.5, dt);
+        let leak = FirstOrder::leaky_integrator(0.5, dt);
+        for f_hz in [4.0, 6.2] {
+            let w = 2.0 * std::f64::consts::PI * f_hz;
+            let h = hp.response(w, dt) * leak.response(w, dt);
+            assert!(
+                (h.norm() * w - 1.0).abs() < 0.01,
+                "{f_hz} Hz gain {}",
+                h.norm() * w
+            );
+            assert!(
+                (h.arg().to_degrees() + 90.0).abs() < 3.0,
+                "{f_hz} Hz phase {}",
+                h.arg().to_degrees()
+            );
+        }
+        assert!((hp.response(0.0, dt) * leak.response(0.0, dt)).norm() < 1e-12);
+    }
+}

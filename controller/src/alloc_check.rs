@@ -1,0 +1,88 @@
+//! Proof that the per-tick code never allocates: a counting global allocator for the test
+//! binary, counting per thread so that parallel tests do not disturb each other.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+struct Counting;
+
+thread_local! {
+    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+}
+
+#[allow(unsafe_code)]
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        // SAFETY: forwarded unchanged to the system allocator.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: forwarded unchanged to the system allocator.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        // SAFETY: forwarded unchanged to the system allocator.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+/// Allocations made by this thread while running `f`.
+pub fn allocations_during(f: impl FnOnce()) -> u64 {
+    let before = ALLOCATIONS.with(Cell::get);
+    f();
+    ALLOCATIONS.with(Cell::get) - before
+}
+
+#[cfg(test)]
+mod tests {
+    use super::allocations_during;
+    use crate::closed_loop::{ClosedLoop, Drive, LoopSetup};
+    use crate::compensator::{CompensatorKind, CompensatorSpec};
+    use crate::operator::{OperatorParams, SyntheticOperator};
+    use crate::params::{BodyModel, LoopParams, PlantParams, Station};
+
+    #[test]
+    fn the_counter_sees_allocations() {
+        assert!(allocations_during(|| drop(std::hint::black_box(vec![1u8; 64]))) >= 1);
+    }
+
+    #[test]
+    fn a_closed_loop_tick_never_allocates() {
+        let plant = PlantParams::default();
+        for kind in CompensatorKind::ALL {
+            for body in [
+                BodyModel::default(),
+                BodyModel::SingleResonance {
+                    k_h: 0.5,
+                    f_hz: 5.0,
+                    zeta: 0.3,
+                },
+            ] {
+                let setup = LoopSetup {
+                    compensator: CompensatorSpec::default_for(kind, &plant),
+                    plant,
+                    body,
+                    loop_params: LoopParams::default(),
+                    station: Station::On,
+                };
+                let mut lp = ClosedLoop::new(&setup, 1).unwrap();
+                let mut op =
+                    SyntheticOperator::new(OperatorParams::default(), 1e-3, 0.6, 1).unwrap();
+                let n = allocations_during(|| {
+                    for k in 0..5_000 {
+                        let target = if k < 2_500 { 20.0 } else { -30.0 };
+                        let p_h = op.step(target, lp.last_measurement().y);
+                        std::hint::black_box(lp.tick(Drive::Hand(p_h)));
+                    }
+                    lp.reset();
+                });
+                assert_eq!(n, 0, "{kind} allocated {n} times in 5,000 ticks");
+            }
+        }
+    }
+}
