@@ -12,7 +12,7 @@ use std::process::Command;
 use std::time::Instant;
 
 use bdft_controller::closed_loop::{ClosedLoop, Drive, LoopSetup};
-use bdft_controller::compensator::{CompensatorKind, CompensatorSpec};
+use bdft_controller::compensator::{CompensatorKind, default_spec};
 use bdft_controller::operator::OperatorParams;
 use bdft_controller::params::{BodyModel, LoopParams, PlantParams, Station};
 use bdft_controller::signals::StepParams;
@@ -31,7 +31,7 @@ fn setup(kind: CompensatorKind, noise: bool) -> LoopSetup {
         ..PlantParams::default()
     };
     LoopSetup {
-        compensator: CompensatorSpec::default_for(kind, &plant),
+        compensator: default_spec(kind, &plant),
         plant,
         body: BodyModel::default(),
         loop_params: LoopParams::default(),

@@ -42,7 +42,7 @@ pub fn allocations_during(f: impl FnOnce()) -> u64 {
 mod tests {
     use super::allocations_during;
     use crate::closed_loop::{ClosedLoop, Drive, LoopSetup};
-    use crate::compensator::{CompensatorKind, CompensatorSpec};
+    use crate::compensator::{CompensatorKind, default_spec};
     use crate::operator::{OperatorParams, SyntheticOperator};
     use crate::params::{BodyModel, LoopParams, PlantParams, Station};
 
@@ -64,7 +64,7 @@ mod tests {
                 },
             ] {
                 let setup = LoopSetup {
-                    compensator: CompensatorSpec::default_for(kind, &plant),
+                    compensator: default_spec(kind, &plant),
                     plant,
                     body,
                     loop_params: LoopParams::default(),

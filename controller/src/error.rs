@@ -2,19 +2,7 @@
 
 use thiserror::Error;
 
-/// A parameter a user supplied is not acceptable.
-#[derive(Debug, Error, Clone, PartialEq)]
-pub enum ParamError {
-    #[error("{name} = {value} is out of range: it must be a finite number in [{lo}, {hi}]")]
-    OutOfRange {
-        name: &'static str,
-        value: f64,
-        lo: f64,
-        hi: f64,
-    },
-    #[error("{name}: {message}")]
-    Invalid { name: &'static str, message: String },
-}
+pub use bdft_protocol::params::ParamError;
 
 /// A design routine could not produce a result for these parameters.
 #[derive(Debug, Error, Clone, PartialEq)]

@@ -8,53 +8,11 @@
 //! — the part of human output not explained by the model — is white noise through the same
 //! lag.
 
-use serde::{Deserialize, Serialize};
+pub use bdft_protocol::params::OperatorParams;
 
 use crate::error::ParamError;
 use crate::params::check;
 use crate::rng::Rng;
-
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct OperatorParams {
-    /// Visual-motor reaction delay τ (s).
-    pub reaction_delay_s: f64,
-    /// Neuromuscular lag corner ω_nm (rad/s): arm ≈ ω_nm/(s + ω_nm).
-    pub neuromuscular_w: f64,
-    /// Proportional gain on the seen error (mm of cylinder per mm of error).
-    pub error_gain: f64,
-    /// Integral gain on the seen error (1/s).
-    pub error_integral_gain: f64,
-    /// Standard deviation of the remnant at the hand (mm of device travel); 0 = none.
-    pub remnant_std_mm: f64,
-}
-
-impl Default for OperatorParams {
-    fn default() -> Self {
-        Self {
-            reaction_delay_s: 0.25,
-            neuromuscular_w: 12.0,
-            error_gain: 0.3,
-            error_integral_gain: 0.5,
-            remnant_std_mm: 0.5,
-        }
-    }
-}
-
-impl OperatorParams {
-    pub fn validate(&self) -> Result<(), ParamError> {
-        check("operator.reaction_delay_s", self.reaction_delay_s, 0.0, 1.0)?;
-        check("operator.neuromuscular_w", self.neuromuscular_w, 0.5, 200.0)?;
-        check("operator.error_gain", self.error_gain, 0.0, 2.0)?;
-        check(
-            "operator.error_integral_gain",
-            self.error_integral_gain,
-            0.0,
-            10.0,
-        )?;
-        check("operator.remnant_std_mm", self.remnant_std_mm, 0.0, 50.0)
-    }
-}
 
 #[derive(Debug, Clone)]
 pub struct SyntheticOperator {

@@ -6,7 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::closed_loop::LoopSetup;
-use crate::compensator::{CompensatorKind, CompensatorSpec};
+use crate::compensator::{CompensatorKind, CompensatorSpec, default_spec};
 use crate::error::ParamError;
 use crate::operator::OperatorParams;
 use crate::params::{BodyModel, LoopParams, PlantParams, Station, check};
@@ -32,7 +32,7 @@ impl Default for ParamSet {
             dt: LoopParams::default().dt,
             compensators: CompensatorKind::ALL
                 .iter()
-                .map(|&k| CompensatorSpec::default_for(k, &plant))
+                .map(|&k| default_spec(k, &plant))
                 .collect(),
             plant,
             body: BodyModel::default(),
@@ -67,7 +67,7 @@ impl ParamSet {
             .iter()
             .find(|c| c.kind() == kind)
             .cloned()
-            .unwrap_or_else(|| CompensatorSpec::default_for(kind, &self.plant))
+            .unwrap_or_else(|| default_spec(kind, &self.plant))
     }
 
     pub fn setup(&self, kind: CompensatorKind, station: Station, k_bf: f64) -> LoopSetup {

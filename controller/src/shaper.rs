@@ -8,66 +8,8 @@
 //! response exactly — the discrete shaper's zeros sit on the sampled mode's poles. The
 //! multi-mode shaper is the convolution of the single-mode ones.
 
-use serde::{Deserialize, Serialize};
-
-use crate::error::ParamError;
-use crate::params::check;
 use crate::state::LinearState;
-
-/// One structural mode to suppress.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Mode {
-    pub f_hz: f64,
-    pub zeta: f64,
-}
-
-impl Mode {
-    fn omegas(&self) -> (f64, f64) {
-        let w = 2.0 * std::f64::consts::PI * self.f_hz;
-        (w, w * (1.0 - self.zeta * self.zeta).sqrt())
-    }
-}
-
-/// The shaper's design modes (default: the two identified structure modes).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct ShaperParams {
-    pub modes: Vec<Mode>,
-}
-
-impl Default for ShaperParams {
-    fn default() -> Self {
-        Self {
-            modes: vec![
-                Mode {
-                    f_hz: 4.0,
-                    zeta: 0.06,
-                },
-                Mode {
-                    f_hz: 6.2,
-                    zeta: 0.04,
-                },
-            ],
-        }
-    }
-}
-
-impl ShaperParams {
-    pub fn validate(&self) -> Result<(), ParamError> {
-        if self.modes.is_empty() || self.modes.len() > 4 {
-            return Err(ParamError::Invalid {
-                name: "shaper.modes",
-                message: format!("{} modes given; allowed: 1 to 4", self.modes.len()),
-            });
-        }
-        for m in &self.modes {
-            check("shaper.modes.f_hz", m.f_hz, 0.1, 100.0)?;
-            check("shaper.modes.zeta", m.zeta, 0.0, 0.7)?;
-        }
-        Ok(())
-    }
-}
+pub use bdft_protocol::params::{Mode, ShaperParams};
 
 /// An impulse of the shaper: delay in seconds and amplitude.
 #[derive(Debug, Clone, Copy, PartialEq)]

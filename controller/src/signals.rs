@@ -6,6 +6,7 @@ use std::f64::consts::PI;
 use crate::error::ParamError;
 use crate::params::check;
 use crate::rng::Rng;
+pub use bdft_protocol::params::StepParams;
 
 /// Linear swept sine from f0 to f1 over `duration` seconds:
 /// r(t) = A·sin(2π(f0·t + (f1 − f0)·t²/(2T))).
@@ -83,38 +84,6 @@ impl Trapezoid {
         } else {
             self.amplitude_mm - self.travelled(phase - half)
         }
-    }
-}
-
-/// How the protocol's random-step targets are drawn.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct StepParams {
-    /// Time between steps (s).
-    pub interval_s: f64,
-    /// Step levels stay within ±range_mm (the machine's desired range of motion).
-    pub range_mm: f64,
-    /// Standard deviation every target must have, so no controller gets a harder signal.
-    pub std_mm: f64,
-}
-
-impl Default for StepParams {
-    fn default() -> Self {
-        Self {
-            interval_s: 2.0,
-            range_mm: 40.0,
-            std_mm: 20.0,
-        }
-    }
-}
-
-impl StepParams {
-    pub fn validate(&self) -> Result<(), ParamError> {
-        check("steps.interval_s", self.interval_s, 0.05, 60.0)?;
-        check("steps.range_mm", self.range_mm, 0.1, 1000.0)?;
-        // Zero-mean levels confined to ±R have a standard deviation of at most R; near that
-        // bound almost every draw would be rejected, so keep a margin.
-        check("steps.std_mm", self.std_mm, 0.01, 0.8 * self.range_mm)
     }
 }
 

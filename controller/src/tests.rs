@@ -3,7 +3,7 @@
 
 use crate::analysis::{LinearizedLoop, analyze};
 use crate::closed_loop::LoopSetup;
-use crate::compensator::{CompensatorKind, CompensatorSpec};
+use crate::compensator::{CompensatorKind, default_spec};
 use crate::fixtures::{poles, reference};
 use crate::operator::OperatorParams;
 use crate::params::{BodyModel, LoopParams, PlantParams, Station};
@@ -13,7 +13,7 @@ use crate::simulate::{SignalKind, SimConfig, simulate};
 fn setup(kind: CompensatorKind, station: Station, k_bf: f64) -> LoopSetup {
     let plant = PlantParams::default();
     LoopSetup {
-        compensator: CompensatorSpec::default_for(kind, &plant),
+        compensator: default_spec(kind, &plant),
         plant,
         body: BodyModel::default(),
         loop_params: LoopParams {

@@ -3,31 +3,19 @@
 //! acceleration feedback (`lqr-cabacc`, for comparison).
 
 use nalgebra::{DMatrix, RowSVector, SMatrix, SVector, Vector2};
-use serde::{Deserialize, Serialize};
 
-use crate::error::{DesignError, ParamError};
+use crate::error::DesignError;
 use crate::filters::FirstOrder;
 use crate::linalg::{care, place_observer, zoh};
 use crate::model::{Measurement, design_model, idx, saturate};
-use crate::params::{PlantParams, check};
+use crate::params::PlantParams;
 use crate::state::LinearState;
+pub use bdft_protocol::params::{CabOutput, LqrParams};
 
-/// Which cab signal the observer measures besides the cylinder position.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum CabOutput {
-    /// ẋ_c, from the accelerometer high-passed then leakily integrated.
-    Velocity,
-    /// ẍ_c, the accelerometer itself (noisy, hence a small weight).
-    Acceleration,
-}
-
-impl CabOutput {
-    fn state_index(self) -> usize {
-        match self {
-            Self::Velocity => idx::XC_D,
-            Self::Acceleration => idx::XC_DD,
-        }
+fn cab_state_index(cab: CabOutput) -> usize {
+    match cab {
+        CabOutput::Velocity => idx::XC_D,
+        CabOutput::Acceleration => idx::XC_DD,
     }
 }
 
@@ -40,63 +28,6 @@ enum CabSignal {
         leak: FirstOrder,
     },
     Acceleration,
-}
-
-/// LQR design and implementation parameters.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct LqrParams {
-    /// Inner velocity-loop gain K_P·K_VC (V = K_P(u − ẏ)).
-    pub inner_loop_gain: f64,
-    /// Output weights Λ = diag(α, β) in Q = (ΛC)ᵀ(ΛC), C = [y; cab output]; R = 1.
-    pub alpha: f64,
-    pub beta: f64,
-    pub cab_output: CabOutput,
-    /// Observer poles (rad/s), real, one per state.
-    pub observer_poles: [f64; 7],
-    /// Corner (rad/s) of the low-pass on the differentiated cylinder position giving ẏ.
-    pub rate_filter_w: f64,
-    /// Corner (rad/s) of the high-pass removing the accelerometer offset.
-    pub cab_highpass_w: f64,
-    /// Leak (rad/s) of the integrator turning acceleration into velocity; far below the
-    /// structure modes (25 and 39 rad/s) so that it integrates there, yet cannot drift.
-    pub cab_leak_w: f64,
-}
-
-impl LqrParams {
-    pub fn for_output(cab_output: CabOutput, beta: f64) -> Self {
-        Self {
-            inner_loop_gain: 0.25,
-            alpha: 40.0,
-            beta,
-            cab_output,
-            observer_poles: [-175.0, -176.0, -180.0, -190.0, -191.0, -195.0, -196.0],
-            rate_filter_w: 2.0 * std::f64::consts::PI * 50.0,
-            cab_highpass_w: 0.5,
-            cab_leak_w: 0.5,
-        }
-    }
-
-    pub fn validate(&self) -> Result<(), ParamError> {
-        check("lqr.inner_loop_gain", self.inner_loop_gain, 1e-3, 100.0)?;
-        check("lqr.alpha", self.alpha, 1e-3, 1e4)?;
-        check("lqr.beta", self.beta, 0.0, 1e4)?;
-        check("lqr.rate_filter_w", self.rate_filter_w, 1.0, 1e4)?;
-        check("lqr.cab_highpass_w", self.cab_highpass_w, 1e-3, 100.0)?;
-        check("lqr.cab_leak_w", self.cab_leak_w, 1e-3, 100.0)?;
-        for p in self.observer_poles {
-            check("lqr.observer_poles", p, -1e4, -1e-3)?;
-        }
-        let mut sorted = self.observer_poles;
-        sorted.sort_by(f64::total_cmp);
-        if sorted.windows(2).any(|w| w[1] - w[0] < 1e-6) {
-            return Err(ParamError::Invalid {
-                name: "lqr.observer_poles",
-                message: "the seven observer poles must be distinct".into(),
-            });
-        }
-        Ok(())
-    }
 }
 
 /// The continuous-time design, kept for reports and tests.
@@ -121,7 +52,7 @@ impl LqrDesign {
         let b = DMatrix::from_column_slice(7, 1, b.as_slice());
         let mut c = DMatrix::zeros(2, 7);
         c[(0, idx::Y)] = 1.0;
-        c[(1, p.cab_output.state_index())] = 1.0;
+        c[(1, cab_state_index(p.cab_output))] = 1.0;
         let weighted =
             DMatrix::from_diagonal(&nalgebra::DVector::from_vec(vec![p.alpha, p.beta])) * &c;
         let q = weighted.transpose() * &weighted;
@@ -268,12 +199,12 @@ impl LinearState for Lqr {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::compensator::{CompensatorKind, CompensatorSpec};
+    use crate::compensator::{CompensatorKind, CompensatorSpec, default_spec};
     use crate::fixtures::{matrix, reference};
     use crate::linalg::{care_residual, eigenvalues};
 
     fn params_of(kind: CompensatorKind) -> LqrParams {
-        match CompensatorSpec::default_for(kind, &PlantParams::default()) {
+        match default_spec(kind, &PlantParams::default()) {
             CompensatorSpec::Lqr { lqr }
             | CompensatorSpec::LqrCabvel { lqr }
             | CompensatorSpec::LqrCabacc { lqr } => lqr,

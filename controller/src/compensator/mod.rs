@@ -8,154 +8,40 @@
 mod lqr;
 mod pid;
 
+pub use bdft_protocol::params::{CompensatorKind, CompensatorSpec};
 pub use lqr::{CabOutput, Lqr, LqrDesign, LqrParams};
-pub use pid::{NotchParams, Pid, PidParams};
+pub use pid::{NotchParams, Pid, PidParams, notch_filter, ziegler_nichols};
 
-use serde::{Deserialize, Serialize};
-
-use crate::error::{DesignError, ParamError};
+use crate::error::DesignError;
 use crate::filters::Biquad;
 use crate::model::Measurement;
 use crate::params::PlantParams;
 use crate::shaper::{Shaper, ShaperParams};
 use crate::state::LinearState;
 
-/// The compensators, by the names used everywhere (CLI, protocol, database, exports).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum CompensatorKind {
-    Pid,
-    PidNotch,
-    PidShaper,
-    Lqr,
-    LqrCabvel,
-    LqrCabacc,
-}
-
-impl CompensatorKind {
-    /// All six, the five of the human-subject study first.
-    pub const ALL: [Self; 6] = [
-        Self::Pid,
-        Self::PidNotch,
-        Self::PidShaper,
-        Self::Lqr,
-        Self::LqrCabvel,
-        Self::LqrCabacc,
-    ];
-    /// The five compared in the human-subject study.
-    pub const STUDY: [Self; 5] = [
-        Self::Pid,
-        Self::PidNotch,
-        Self::PidShaper,
-        Self::Lqr,
-        Self::LqrCabvel,
-    ];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Pid => "pid",
-            Self::PidNotch => "pid-notch",
-            Self::PidShaper => "pid-shaper",
-            Self::Lqr => "lqr",
-            Self::LqrCabvel => "lqr-cabvel",
-            Self::LqrCabacc => "lqr-cabacc",
-        }
-    }
-}
-
-impl std::fmt::Display for CompensatorKind {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl std::str::FromStr for CompensatorKind {
-    type Err = ParamError;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Self::ALL
-            .into_iter()
-            .find(|k| k.name() == s)
-            .ok_or_else(|| ParamError::Invalid {
-                name: "compensator",
-                message: format!(
-                    "unknown compensator {s:?}; valid: {}",
-                    Self::ALL.map(|k| k.name()).join(", ")
-                ),
-            })
-    }
-}
-
-/// A compensator and all its parameters: enough to rebuild it exactly.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
-pub enum CompensatorSpec {
-    Pid {
-        pid: PidParams,
-    },
-    PidNotch {
-        pid: PidParams,
-        notch: NotchParams,
-    },
-    PidShaper {
-        pid: PidParams,
-        shaper: ShaperParams,
-    },
-    Lqr {
-        lqr: LqrParams,
-    },
-    LqrCabvel {
-        lqr: LqrParams,
-    },
-    LqrCabacc {
-        lqr: LqrParams,
-    },
-}
-
-impl CompensatorSpec {
-    /// The documented default design of `kind` for this plant (PID tuned by Ziegler–Nichols
-    /// from the plant's ultimate gain).
-    pub fn default_for(kind: CompensatorKind, plant: &PlantParams) -> Self {
-        let pid = PidParams::ziegler_nichols(plant);
-        match kind {
-            CompensatorKind::Pid => Self::Pid { pid },
-            CompensatorKind::PidNotch => Self::PidNotch {
-                pid,
-                notch: NotchParams::default(),
-            },
-            CompensatorKind::PidShaper => Self::PidShaper {
-                pid,
-                shaper: ShaperParams::default(),
-            },
-            CompensatorKind::Lqr => Self::Lqr {
-                lqr: LqrParams::for_output(CabOutput::Velocity, 0.0),
-            },
-            CompensatorKind::LqrCabvel => Self::LqrCabvel {
-                lqr: LqrParams::for_output(CabOutput::Velocity, 2.0),
-            },
-            CompensatorKind::LqrCabacc => Self::LqrCabacc {
-                lqr: LqrParams::for_output(CabOutput::Acceleration, 0.05),
-            },
-        }
-    }
-
-    pub fn kind(&self) -> CompensatorKind {
-        match self {
-            Self::Pid { .. } => CompensatorKind::Pid,
-            Self::PidNotch { .. } => CompensatorKind::PidNotch,
-            Self::PidShaper { .. } => CompensatorKind::PidShaper,
-            Self::Lqr { .. } => CompensatorKind::Lqr,
-            Self::LqrCabvel { .. } => CompensatorKind::LqrCabvel,
-            Self::LqrCabacc { .. } => CompensatorKind::LqrCabacc,
-        }
-    }
-
-    pub fn validate(&self) -> Result<(), ParamError> {
-        match self {
-            Self::Pid { pid } => pid.validate(),
-            Self::PidNotch { pid, notch } => pid.validate().and(notch.validate()),
-            Self::PidShaper { pid, shaper } => pid.validate().and(shaper.validate()),
-            Self::Lqr { lqr } | Self::LqrCabvel { lqr } | Self::LqrCabacc { lqr } => lqr.validate(),
-        }
+/// The documented default design of `kind` for this plant (PID tuned by Ziegler–Nichols
+/// from the plant's ultimate gain).
+pub fn default_spec(kind: CompensatorKind, plant: &PlantParams) -> CompensatorSpec {
+    let pid = ziegler_nichols(plant);
+    match kind {
+        CompensatorKind::Pid => CompensatorSpec::Pid { pid },
+        CompensatorKind::PidNotch => CompensatorSpec::PidNotch {
+            pid,
+            notch: NotchParams::default(),
+        },
+        CompensatorKind::PidShaper => CompensatorSpec::PidShaper {
+            pid,
+            shaper: ShaperParams::default(),
+        },
+        CompensatorKind::Lqr => CompensatorSpec::Lqr {
+            lqr: LqrParams::for_output(CabOutput::Velocity, 0.0),
+        },
+        CompensatorKind::LqrCabvel => CompensatorSpec::LqrCabvel {
+            lqr: LqrParams::for_output(CabOutput::Velocity, 2.0),
+        },
+        CompensatorKind::LqrCabacc => CompensatorSpec::LqrCabacc {
+            lqr: LqrParams::for_output(CabOutput::Acceleration, 0.05),
+        },
     }
 }
 
@@ -189,7 +75,7 @@ impl Compensator {
                 pid: Pid::new(pid, plant.v_max, dt),
             },
             CompensatorSpec::PidNotch { pid, notch } => Self::Pid {
-                pre: Prefilter::Notch(notch.filter(dt)),
+                pre: Prefilter::Notch(notch_filter(notch, dt)),
                 pid: Pid::new(pid, plant.v_max, dt),
             },
             CompensatorSpec::PidShaper { pid, shaper } => Self::Pid {
@@ -318,7 +204,7 @@ mod tests {
     fn every_compensator_saturates_and_resets_to_identical_behaviour() {
         let plant = PlantParams::default();
         for kind in CompensatorKind::ALL {
-            let spec = CompensatorSpec::default_for(kind, &plant);
+            let spec = default_spec(kind, &plant);
             let mut c = Compensator::build(&spec, &plant, 1e-3).unwrap();
             let run = |c: &mut Compensator| -> Vec<f64> {
                 (0..500)
@@ -359,7 +245,7 @@ mod tests {
     #[test]
     fn spec_serializes_with_its_kind_and_parameters() {
         let plant = PlantParams::default();
-        let spec = CompensatorSpec::default_for(CompensatorKind::LqrCabvel, &plant);
+        let spec = default_spec(CompensatorKind::LqrCabvel, &plant);
         let json = serde_json::to_value(&spec).unwrap();
         assert_eq!(json["kind"], "lqr-cabvel");
         assert_eq!(json["lqr"]["beta"], 2.0);

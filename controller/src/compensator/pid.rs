@@ -1,47 +1,23 @@
 //! The PID position loop shared by `pid`, `pid-notch` and `pid-shaper`, and the notch.
 
-use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
-use crate::error::ParamError;
 use crate::filters::{Biquad, FirstOrder};
 use crate::model::saturate;
-use crate::params::{PlantParams, check};
+use crate::params::PlantParams;
 use crate::state::LinearState;
+pub use bdft_protocol::params::{NotchParams, PidParams};
 
-/// PID gains in the standard (ISA) form V = Kp·(e + (1/Ti)∫e + Td·de/dt), the derivative
-/// low-passed at N/Td.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PidParams {
-    pub kp: f64,
-    /// Integral time (s).
-    pub ti: f64,
-    /// Derivative time (s); 0 disables the derivative.
-    pub td: f64,
-    /// Derivative filter ratio N.
-    pub n: f64,
-}
-
-impl PidParams {
-    /// Ziegler–Nichols from the valve/cylinder model's ultimate gain. With V = K·e the loop
-    /// s³ + 2ζωs² + ω²s + K_VCω²K = 0 is marginal (Routh) at K_u = 2ζω/K_VC, oscillating at ω,
-    /// so T_u = 2π/ω; then Kp = 0.6K_u, Ti = T_u/2, Td = T_u/8.
-    pub fn ziegler_nichols(p: &PlantParams) -> Self {
-        let (ku, tu) = ultimate_gain(p);
-        Self {
-            kp: 0.6 * ku,
-            ti: tu / 2.0,
-            td: tu / 8.0,
-            n: 10.0,
-        }
-    }
-
-    pub fn validate(&self) -> Result<(), ParamError> {
-        check("pid.kp", self.kp, 1e-6, 1e3)?;
-        check("pid.ti", self.ti, 1e-3, 1e4)?;
-        check("pid.td", self.td, 0.0, 100.0)?;
-        check("pid.n", self.n, 1.0, 1e3)
+/// Ziegler–Nichols from the valve/cylinder model's ultimate gain. With V = K·e the loop
+/// s³ + 2ζωs² + ω²s + K_VCω²K = 0 is marginal (Routh) at K_u = 2ζω/K_VC, oscillating at ω,
+/// so T_u = 2π/ω; then Kp = 0.6K_u, Ti = T_u/2, Td = T_u/8.
+pub fn ziegler_nichols(p: &PlantParams) -> PidParams {
+    let (ku, tu) = ultimate_gain(p);
+    PidParams {
+        kp: 0.6 * ku,
+        ti: tu / 2.0,
+        td: tu / 8.0,
+        n: 10.0,
     }
 }
 
@@ -112,41 +88,15 @@ impl LinearState for Pid {
     }
 }
 
-/// Notch on the cylinder reference, inside the feedthrough loop and outside the position
-/// loop: D_N(s) = (s² + 2ζ_Nω_N s + ω_N²)/(s + ω_N)². Zeros midway between the structure
-/// modes, critically damped poles at the same frequency; the gain at ω_N is exactly ζ_N.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct NotchParams {
-    pub f_hz: f64,
-    pub zeta: f64,
-}
-
-impl Default for NotchParams {
-    fn default() -> Self {
-        Self {
-            f_hz: 5.1,
-            zeta: 0.3,
-        }
-    }
-}
-
-impl NotchParams {
-    pub fn validate(&self) -> Result<(), ParamError> {
-        check("notch.f_hz", self.f_hz, 0.1, 100.0)?;
-        check("notch.zeta", self.zeta, 0.0, 1.0)
-    }
-
-    /// Tustin, pre-warped at ω_N so the notch centre lands exactly.
-    pub fn filter(&self, dt: f64) -> Biquad {
-        let w = 2.0 * PI * self.f_hz;
-        Biquad::tustin(
-            [1.0, 2.0 * self.zeta * w, w * w],
-            [1.0, 2.0 * w, w * w],
-            dt,
-            Some(w),
-        )
-    }
+/// Tustin, pre-warped at ω_N so the notch centre lands exactly.
+pub fn notch_filter(notch: &NotchParams, dt: f64) -> Biquad {
+    let w = 2.0 * PI * notch.f_hz;
+    Biquad::tustin(
+        [1.0, 2.0 * notch.zeta * w, w * w],
+        [1.0, 2.0 * w, w * w],
+        dt,
+        Some(w),
+    )
 }
 
 #[cfg(test)]
@@ -157,7 +107,7 @@ mod tests {
     #[test]
     fn ziegler_nichols_matches_the_reference_and_the_ultimate_gain_is_marginal() {
         let p = PlantParams::default();
-        let pid = PidParams::ziegler_nichols(&p);
+        let pid = ziegler_nichols(&p);
         let fx = &reference()["pid_tuning"];
         for (got, key) in [(pid.kp, "Kp"), (pid.ti, "Ti"), (pid.td, "Td"), (pid.n, "N")] {
             let want = fx[key].as_f64().unwrap();
@@ -193,7 +143,7 @@ mod tests {
     fn notch_depth_equals_zeta_at_the_centre_and_matches_scipy_bilinear() {
         let fx = &reference()["notch_discrete"];
         let dt = 1e-3;
-        let f = NotchParams::default().filter(dt);
+        let f = notch_filter(&NotchParams::default(), dt);
         let (b, a) = f.coefficients();
         for i in 0..3 {
             let wb = fx["b"][i].as_f64().unwrap();

@@ -1,0 +1,291 @@
+//! Compensator designs as data: which controller and all its parameters. This is what a
+//! study records, the server stores and sends, and the controller builds from.
+
+use serde::{Deserialize, Serialize};
+
+use super::{ParamError, check};
+
+/// The compensators, by the names used everywhere (CLI, protocol, database, exports).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CompensatorKind {
+    Pid,
+    PidNotch,
+    PidShaper,
+    Lqr,
+    LqrCabvel,
+    LqrCabacc,
+}
+
+impl CompensatorKind {
+    /// All six, the five of the human-subject study first.
+    pub const ALL: [Self; 6] = [
+        Self::Pid,
+        Self::PidNotch,
+        Self::PidShaper,
+        Self::Lqr,
+        Self::LqrCabvel,
+        Self::LqrCabacc,
+    ];
+    /// The five compared in the human-subject study.
+    pub const STUDY: [Self; 5] = [
+        Self::Pid,
+        Self::PidNotch,
+        Self::PidShaper,
+        Self::Lqr,
+        Self::LqrCabvel,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Pid => "pid",
+            Self::PidNotch => "pid-notch",
+            Self::PidShaper => "pid-shaper",
+            Self::Lqr => "lqr",
+            Self::LqrCabvel => "lqr-cabvel",
+            Self::LqrCabacc => "lqr-cabacc",
+        }
+    }
+}
+
+impl std::fmt::Display for CompensatorKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for CompensatorKind {
+    type Err = ParamError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.name() == s)
+            .ok_or_else(|| ParamError::Invalid {
+                name: "compensator",
+                message: format!(
+                    "unknown compensator {s:?}; valid: {}",
+                    Self::ALL.map(|k| k.name()).join(", ")
+                ),
+            })
+    }
+}
+
+/// A compensator and all its parameters: enough to rebuild it exactly.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum CompensatorSpec {
+    Pid {
+        pid: PidParams,
+    },
+    PidNotch {
+        pid: PidParams,
+        notch: NotchParams,
+    },
+    PidShaper {
+        pid: PidParams,
+        shaper: ShaperParams,
+    },
+    Lqr {
+        lqr: LqrParams,
+    },
+    LqrCabvel {
+        lqr: LqrParams,
+    },
+    LqrCabacc {
+        lqr: LqrParams,
+    },
+}
+
+impl CompensatorSpec {
+    pub fn kind(&self) -> CompensatorKind {
+        match self {
+            Self::Pid { .. } => CompensatorKind::Pid,
+            Self::PidNotch { .. } => CompensatorKind::PidNotch,
+            Self::PidShaper { .. } => CompensatorKind::PidShaper,
+            Self::Lqr { .. } => CompensatorKind::Lqr,
+            Self::LqrCabvel { .. } => CompensatorKind::LqrCabvel,
+            Self::LqrCabacc { .. } => CompensatorKind::LqrCabacc,
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), ParamError> {
+        match self {
+            Self::Pid { pid } => pid.validate(),
+            Self::PidNotch { pid, notch } => pid.validate().and(notch.validate()),
+            Self::PidShaper { pid, shaper } => pid.validate().and(shaper.validate()),
+            Self::Lqr { lqr } | Self::LqrCabvel { lqr } | Self::LqrCabacc { lqr } => lqr.validate(),
+        }
+    }
+}
+
+/// PID gains in the standard (ISA) form V = Kp·(e + (1/Ti)∫e + Td·de/dt), the derivative
+/// low-passed at N/Td.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PidParams {
+    pub kp: f64,
+    /// Integral time (s).
+    pub ti: f64,
+    /// Derivative time (s); 0 disables the derivative.
+    pub td: f64,
+    /// Derivative filter ratio N.
+    pub n: f64,
+}
+
+impl PidParams {
+    pub fn validate(&self) -> Result<(), ParamError> {
+        check("pid.kp", self.kp, 1e-6, 1e3)?;
+        check("pid.ti", self.ti, 1e-3, 1e4)?;
+        check("pid.td", self.td, 0.0, 100.0)?;
+        check("pid.n", self.n, 1.0, 1e3)
+    }
+}
+
+/// Notch on the cylinder reference, inside the feedthrough loop and outside the position
+/// loop: D_N(s) = (s² + 2ζ_Nω_N s + ω_N²)/(s + ω_N)². Zeros midway between the structure
+/// modes, critically damped poles at the same frequency; the gain at ω_N is exactly ζ_N.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NotchParams {
+    pub f_hz: f64,
+    pub zeta: f64,
+}
+
+impl Default for NotchParams {
+    fn default() -> Self {
+        Self {
+            f_hz: 5.1,
+            zeta: 0.3,
+        }
+    }
+}
+
+impl NotchParams {
+    pub fn validate(&self) -> Result<(), ParamError> {
+        check("notch.f_hz", self.f_hz, 0.1, 100.0)?;
+        check("notch.zeta", self.zeta, 0.0, 1.0)
+    }
+}
+
+/// One structural mode to suppress.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Mode {
+    pub f_hz: f64,
+    pub zeta: f64,
+}
+
+impl Mode {
+    /// (ω, ω_d) in rad/s.
+    pub fn omegas(&self) -> (f64, f64) {
+        let w = 2.0 * std::f64::consts::PI * self.f_hz;
+        (w, w * (1.0 - self.zeta * self.zeta).sqrt())
+    }
+}
+
+/// The shaper's design modes (default: the two identified structure modes).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ShaperParams {
+    pub modes: Vec<Mode>,
+}
+
+impl Default for ShaperParams {
+    fn default() -> Self {
+        Self {
+            modes: vec![
+                Mode {
+                    f_hz: 4.0,
+                    zeta: 0.06,
+                },
+                Mode {
+                    f_hz: 6.2,
+                    zeta: 0.04,
+                },
+            ],
+        }
+    }
+}
+
+impl ShaperParams {
+    pub fn validate(&self) -> Result<(), ParamError> {
+        if self.modes.is_empty() || self.modes.len() > 4 {
+            return Err(ParamError::Invalid {
+                name: "shaper.modes",
+                message: format!("{} modes given; allowed: 1 to 4", self.modes.len()),
+            });
+        }
+        for m in &self.modes {
+            check("shaper.modes.f_hz", m.f_hz, 0.1, 100.0)?;
+            check("shaper.modes.zeta", m.zeta, 0.0, 0.7)?;
+        }
+        Ok(())
+    }
+}
+
+/// Which cab signal the observer measures besides the cylinder position.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CabOutput {
+    /// ẋ_c, from the accelerometer high-passed then leakily integrated.
+    Velocity,
+    /// ẍ_c, the accelerometer itself (noisy, hence a small weight).
+    Acceleration,
+}
+
+/// LQR design and implementation parameters.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LqrParams {
+    /// Inner velocity-loop gain K_P·K_VC (V = K_P(u − ẏ)).
+    pub inner_loop_gain: f64,
+    /// Output weights Λ = diag(α, β) in Q = (ΛC)ᵀ(ΛC), C = [y; cab output]; R = 1.
+    pub alpha: f64,
+    pub beta: f64,
+    pub cab_output: CabOutput,
+    /// Observer poles (rad/s), real, one per state.
+    pub observer_poles: [f64; 7],
+    /// Corner (rad/s) of the low-pass on the differentiated cylinder position giving ẏ.
+    pub rate_filter_w: f64,
+    /// Corner (rad/s) of the high-pass removing the accelerometer offset.
+    pub cab_highpass_w: f64,
+    /// Leak (rad/s) of the integrator turning acceleration into velocity; far below the
+    /// structure modes (25 and 39 rad/s) so that it integrates there, yet cannot drift.
+    pub cab_leak_w: f64,
+}
+
+impl LqrParams {
+    pub fn for_output(cab_output: CabOutput, beta: f64) -> Self {
+        Self {
+            inner_loop_gain: 0.25,
+            alpha: 40.0,
+            beta,
+            cab_output,
+            observer_poles: [-175.0, -176.0, -180.0, -190.0, -191.0, -195.0, -196.0],
+            rate_filter_w: 2.0 * std::f64::consts::PI * 50.0,
+            cab_highpass_w: 0.5,
+            cab_leak_w: 0.5,
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), ParamError> {
+        check("lqr.inner_loop_gain", self.inner_loop_gain, 1e-3, 100.0)?;
+        check("lqr.alpha", self.alpha, 1e-3, 1e4)?;
+        check("lqr.beta", self.beta, 0.0, 1e4)?;
+        check("lqr.rate_filter_w", self.rate_filter_w, 1.0, 1e4)?;
+        check("lqr.cab_highpass_w", self.cab_highpass_w, 1e-3, 100.0)?;
+        check("lqr.cab_leak_w", self.cab_leak_w, 1e-3, 100.0)?;
+        for p in self.observer_poles {
+            check("lqr.observer_poles", p, -1e4, -1e-3)?;
+        }
+        let mut sorted = self.observer_poles;
+        sorted.sort_by(f64::total_cmp);
+        if sorted.windows(2).any(|w| w[1] - w[0] < 1e-6) {
+            return Err(ParamError::Invalid {
+                name: "lqr.observer_poles",
+                message: "the seven observer poles must be distinct".into(),
+            });
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,79 @@
+//! Parameters of the experiment's signals and of the simulated subject.
+
+use serde::{Deserialize, Serialize};
+
+use super::{ParamError, check};
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct OperatorParams {
+    /// Visual-motor reaction delay τ (s).
+    pub reaction_delay_s: f64,
+    /// Neuromuscular lag corner ω_nm (rad/s): arm ≈ ω_nm/(s + ω_nm).
+    pub neuromuscular_w: f64,
+    /// Proportional gain on the seen error (mm of cylinder per mm of error).
+    pub error_gain: f64,
+    /// Integral gain on the seen error (1/s).
+    pub error_integral_gain: f64,
+    /// Standard deviation of the remnant at the hand (mm of device travel); 0 = none.
+    pub remnant_std_mm: f64,
+}
+
+impl Default for OperatorParams {
+    fn default() -> Self {
+        Self {
+            reaction_delay_s: 0.25,
+            neuromuscular_w: 12.0,
+            error_gain: 0.3,
+            error_integral_gain: 0.5,
+            remnant_std_mm: 0.5,
+        }
+    }
+}
+
+impl OperatorParams {
+    pub fn validate(&self) -> Result<(), ParamError> {
+        check("operator.reaction_delay_s", self.reaction_delay_s, 0.0, 1.0)?;
+        check("operator.neuromuscular_w", self.neuromuscular_w, 0.5, 200.0)?;
+        check("operator.error_gain", self.error_gain, 0.0, 2.0)?;
+        check(
+            "operator.error_integral_gain",
+            self.error_integral_gain,
+            0.0,
+            10.0,
+        )?;
+        check("operator.remnant_std_mm", self.remnant_std_mm, 0.0, 50.0)
+    }
+}
+
+/// How the protocol's random-step targets are drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct StepParams {
+    /// Time between steps (s).
+    pub interval_s: f64,
+    /// Step levels stay within ±range_mm (the machine's desired range of motion).
+    pub range_mm: f64,
+    /// Standard deviation every target must have, so no controller gets a harder signal.
+    pub std_mm: f64,
+}
+
+impl Default for StepParams {
+    fn default() -> Self {
+        Self {
+            interval_s: 2.0,
+            range_mm: 40.0,
+            std_mm: 20.0,
+        }
+    }
+}
+
+impl StepParams {
+    pub fn validate(&self) -> Result<(), ParamError> {
+        check("steps.interval_s", self.interval_s, 0.05, 60.0)?;
+        check("steps.range_mm", self.range_mm, 0.1, 1000.0)?;
+        // Zero-mean levels confined to ±R have a standard deviation of at most R; near that
+        // bound almost every draw would be rejected, so keep a margin.
+        check("steps.std_mm", self.std_mm, 0.01, 0.8 * self.range_mm)
+    }
+}
