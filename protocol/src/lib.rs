@@ -1,5 +1,21 @@
 //! bdft-lab's wire types: every message that crosses a process boundary, the parameters
 //! they carry, and their one encoding. Internals (nalgebra states, database rows) convert
 //! to these at the boundary.
+//!
+//! - [`server_to_controller`] / [`controller_to_server`]: the TCP link, framed by
+//!   [`framing`] (length-prefixed JSON), opened by `Hello` carrying [`PROTOCOL_VERSION`].
+//! - [`rig`]: the fixed binary UDP datagrams of a real rig and a haptic-device host.
+//! - [`params`], [`trial`]: the data those messages carry.
 
+pub mod controller_to_server;
+pub mod framing;
 pub mod params;
+pub mod rig;
+pub mod server_to_controller;
+pub mod trial;
+
+/// Version of the server ↔ controller protocol; both ends must agree in the hello.
+pub const PROTOCOL_VERSION: u32 = 1;
+
+#[cfg(test)]
+mod golden;

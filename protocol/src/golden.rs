@@ -1,0 +1,218 @@
+//! Golden tests: the wire text of each kind of message, written by hand from the documented
+//! format (docs/protocol.md). A change that alters what goes on the wire fails here.
+
+use crate::PROTOCOL_VERSION;
+use crate::controller_to_server::{ControllerToServer, LiveSample, RecordChunk, TrialResult};
+use crate::framing::{FrameError, MAX_FRAME, decode, encode, payload_len, read_frame};
+use crate::params::{CompensatorSpec, NotchParams, OperatorParams, PidParams, Station};
+use crate::server_to_controller::{ServerToController, StartTrial};
+use crate::trial::{
+    FaultKind, InputSource, Metrics, Outcome, Percentiles, TargetSpec, TimingSummary,
+};
+
+fn assert_golden<T>(value: &T, text: &str)
+where
+    T: serde::Serialize + serde::de::DeserializeOwned + PartialEq + std::fmt::Debug,
+{
+    let frame = encode(value);
+    assert_eq!(std::str::from_utf8(&frame[4..]).unwrap(), text);
+    assert_eq!(
+        payload_len(frame[..4].try_into().unwrap()).unwrap(),
+        text.len()
+    );
+    assert_eq!(&decode::<T>(text.as_bytes()).unwrap(), value);
+}
+
+#[test]
+fn hello_and_small_messages() {
+    assert_golden(
+        &ServerToController::Hello {
+            protocol_version: PROTOCOL_VERSION,
+            client: "bdft-server".into(),
+        },
+        r#"{"type":"hello","protocol_version":1,"client":"bdft-server"}"#,
+    );
+    assert_golden(
+        &ServerToController::OperatorInput {
+            trial_id: 7,
+            seq: 42,
+            position_mm: -3.5,
+        },
+        r#"{"type":"operator_input","trial_id":7,"seq":42,"position_mm":-3.5}"#,
+    );
+    assert_golden(&ServerToController::EStop, r#"{"type":"e_stop"}"#);
+    assert_golden(
+        &ServerToController::Step { ticks: 10 },
+        r#"{"type":"step","ticks":10}"#,
+    );
+    assert_golden(
+        &ControllerToServer::Fault {
+            trial_id: Some(7),
+            kind: FaultKind::StaleInput,
+            message: "no input for 100 ms".into(),
+        },
+        r#"{"type":"fault","trial_id":7,"kind":"stale-input","message":"no input for 100 ms"}"#,
+    );
+    assert_golden(
+        &ControllerToServer::Live(LiveSample {
+            trial_id: 7,
+            t: 0.5,
+            target_mm: 10.0,
+            device_mm: 16.0,
+            cylinder_mm: 9.5,
+            cab_accel_mm_s2: -120.0,
+            input_seq: 41,
+        }),
+        r#"{"type":"live","trial_id":7,"t":0.5,"target_mm":10.0,"device_mm":16.0,"cylinder_mm":9.5,"cab_accel_mm_s2":-120.0,"input_seq":41}"#,
+    );
+}
+
+#[test]
+fn start_trial_with_defaults_filled_in() {
+    let text = r#"{"type":"start_trial","trial_id":3,"compensator":{"kind":"pid-notch","pid":{"kp":0.5,"ti":0.15,"td":0.04,"n":10.0},"notch":{"f_hz":5.1,"zeta":0.3}},"station":"on","k_bf":0.78,"target":{"kind":"steps","interval_s":2.0,"levels_mm":[10.0,-5.0]},"duration_s":4.0,"input":{"kind":"server"}}"#;
+    let msg: ServerToController = decode(text.as_bytes()).unwrap();
+    let ServerToController::StartTrial(st) = &msg else {
+        panic!("{msg:?}")
+    };
+    assert_eq!(
+        st.compensator,
+        CompensatorSpec::PidNotch {
+            pid: PidParams {
+                kp: 0.5,
+                ti: 0.15,
+                td: 0.04,
+                n: 10.0
+            },
+            notch: NotchParams::default()
+        }
+    );
+    assert_eq!(st.station, Station::On);
+    assert_eq!(st.live_rate_hz, 100.0);
+    assert_eq!(st.stale_input_ms, 100.0);
+    assert_eq!(st.plant.k_vc, 22.0);
+    st.validate().unwrap();
+    let again: ServerToController = decode(&encode(&msg)[4..]).unwrap();
+    assert_eq!(again, msg);
+}
+
+#[test]
+fn start_trial_validation_names_the_bad_field() {
+    let st = StartTrial {
+        trial_id: 1,
+        compensator: CompensatorSpec::Pid {
+            pid: PidParams {
+                kp: 0.5,
+                ti: 0.15,
+                td: 0.04,
+                n: 10.0,
+            },
+        },
+        station: Station::Off,
+        k_bf: f64::NAN,
+        target: TargetSpec::Steps {
+            interval_s: 2.0,
+            levels_mm: vec![1.0],
+        },
+        duration_s: 10.0,
+        input: InputSource::Synthetic {
+            operator: OperatorParams::default(),
+            seed: 1,
+        },
+        plant: Default::default(),
+        body: Default::default(),
+        noise_seed: 0,
+        live_rate_hz: 100.0,
+        stale_input_ms: 100.0,
+    };
+    assert!(st.validate().unwrap_err().to_string().contains("k_bf"));
+    let st = StartTrial {
+        k_bf: 0.6,
+        duration_s: 1e9,
+        ..st
+    };
+    assert!(
+        st.validate()
+            .unwrap_err()
+            .to_string()
+            .contains("duration_s")
+    );
+    let st = StartTrial {
+        duration_s: 10.0,
+        target: TargetSpec::Steps {
+            interval_s: 2.0,
+            levels_mm: vec![],
+        },
+        ..st
+    };
+    assert!(st.validate().unwrap_err().to_string().contains("levels_mm"));
+}
+
+#[test]
+fn trial_result_and_record_chunk() {
+    let result = ControllerToServer::TrialResult(Box::new(TrialResult {
+        trial_id: 3,
+        outcome: Outcome::Faulted {
+            fault: FaultKind::EStop,
+            message: "e-stop".into(),
+        },
+        metrics: Metrics {
+            ticks: 2,
+            mse_tracking_mm2: 1.5,
+            ms_cab_accel: 4.0,
+        },
+        timing: TimingSummary {
+            ticks: 2,
+            overruns: 0,
+            wake_latency_us: Percentiles {
+                p50: 1.0,
+                p99: 2.0,
+                max: 3.0,
+            },
+            compute_us: Percentiles {
+                p50: 0.5,
+                p99: 0.5,
+                max: 0.5,
+            },
+        },
+        dt: 0.001,
+        record_chunks: 1,
+    }));
+    assert_golden(
+        &result,
+        r#"{"type":"trial_result","trial_id":3,"outcome":{"status":"faulted","fault":"e-stop","message":"e-stop"},"metrics":{"ticks":2,"mse_tracking_mm2":1.5,"ms_cab_accel":4.0},"timing":{"ticks":2,"overruns":0,"wake_latency_us":{"p50":1.0,"p99":2.0,"max":3.0},"compute_us":{"p50":0.5,"p99":0.5,"max":0.5}},"dt":0.001,"record_chunks":1}"#,
+    );
+    assert_golden(
+        &ControllerToServer::RecordChunk(RecordChunk {
+            trial_id: 3,
+            index: 0,
+            start_tick: 0,
+            channels: vec![vec![1.5, -2.0]],
+        }),
+        r#"{"type":"record_chunk","trial_id":3,"index":0,"start_tick":0,"channels":[[1.5,-2.0]]}"#,
+    );
+    assert_golden(&Outcome::Complete, r#"{"status":"complete"}"#);
+}
+
+#[test]
+fn framing_rejects_oversized_empty_and_malformed_frames() {
+    assert!(matches!(
+        payload_len((MAX_FRAME as u32 + 1).to_be_bytes()),
+        Err(FrameError::TooLarge(_))
+    ));
+    assert!(matches!(payload_len([0; 4]), Err(FrameError::Empty)));
+    assert!(matches!(
+        decode::<ServerToController>(b"{\"type\":\"launch\"}"),
+        Err(FrameError::Malformed(_))
+    ));
+    assert!(decode::<ServerToController>(br#"{"type":"heartbeat","seq":1,"extra":2}"#).is_err());
+    // A stream of two frames reads back as two messages, then a clean end.
+    let mut bytes = encode(&ServerToController::Heartbeat { seq: 1 });
+    bytes.extend(encode(&ServerToController::Status));
+    let mut r = std::io::Cursor::new(bytes);
+    assert!(read_frame(&mut r).unwrap().is_some());
+    assert_eq!(
+        decode::<ServerToController>(&read_frame(&mut r).unwrap().unwrap()).unwrap(),
+        ServerToController::Status
+    );
+    assert!(read_frame(&mut r).unwrap().is_none());
+}

@@ -1,0 +1,95 @@
+//! Messages the server sends the controller.
+
+use serde::{Deserialize, Serialize};
+
+use crate::params::{BodyModel, CompensatorSpec, MAX_KBF, ParamError, PlantParams, Station, check};
+use crate::trial::{InputSource, MAX_TRIAL_S, TargetSpec, TrialId};
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ServerToController {
+    /// First message on a connection; answered by `HelloAck` or `Rejected` + close.
+    Hello {
+        protocol_version: u32,
+        client: String,
+    },
+    StartTrial(Box<StartTrial>),
+    /// Stop a running trial early, as aborted with this reason.
+    AbortTrial {
+        trial_id: TrialId,
+        reason: String,
+    },
+    /// The operator's intended hand position (mm of device travel) for a trial fed by the
+    /// server; `seq` increases per trial and is echoed in live samples (round-trip timing).
+    OperatorInput {
+        trial_id: TrialId,
+        seq: u64,
+        position_mm: f64,
+    },
+    /// Keeps the link alive; the controller treats silence as a lost link.
+    Heartbeat {
+        seq: u64,
+    },
+    /// Emergency stop: every valve to zero at once, every trial faulted; latched.
+    EStop,
+    /// Clears a latched E-stop.
+    ResetEStop,
+    /// Asks for a `Status`.
+    Status,
+    /// Lockstep mode only: run this many ticks, then answer `Stepped`.
+    Step {
+        ticks: u32,
+    },
+}
+
+/// Everything a trial needs. Parameters are recorded with the trial by the server.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StartTrial {
+    pub trial_id: TrialId,
+    pub compensator: CompensatorSpec,
+    pub station: Station,
+    pub k_bf: f64,
+    pub target: TargetSpec,
+    pub duration_s: f64,
+    pub input: InputSource,
+    /// Simulated rig and body (ignored by a real rig, which has its own).
+    #[serde(default)]
+    pub plant: PlantParams,
+    #[serde(default)]
+    pub body: BodyModel,
+    /// Seed of the simulated accelerometer noise.
+    #[serde(default)]
+    pub noise_seed: u64,
+    /// Rate of the decimated live samples (Hz).
+    #[serde(default = "default_live_rate")]
+    pub live_rate_hz: f64,
+    /// Operator input older than this stops the trial (ms).
+    #[serde(default = "default_stale_ms")]
+    pub stale_input_ms: f64,
+}
+
+fn default_live_rate() -> f64 {
+    100.0
+}
+
+fn default_stale_ms() -> f64 {
+    100.0
+}
+
+impl StartTrial {
+    pub fn validate(&self) -> Result<(), ParamError> {
+        self.compensator.validate()?;
+        check("k_bf", self.k_bf, 0.0, MAX_KBF)?;
+        self.target.validate()?;
+        check("duration_s", self.duration_s, 0.001, MAX_TRIAL_S)?;
+        self.plant.validate()?;
+        self.body.validate()?;
+        check("live_rate_hz", self.live_rate_hz, 1.0, 1000.0)?;
+        check("stale_input_ms", self.stale_input_ms, 5.0, 10_000.0)?;
+        if let InputSource::Synthetic { operator, .. } = &self.input {
+            operator.validate()?;
+        }
+        Ok(())
+    }
+}
