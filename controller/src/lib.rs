@@ -21,6 +21,7 @@ pub mod operator;
 pub mod param_set;
 pub mod params;
 pub mod rng;
+pub mod runner;
 pub mod shaper;
 pub mod signals;
 pub mod simulate;

@@ -7,6 +7,7 @@ use crate::error::ParamError;
 use crate::params::check;
 use crate::rng::Rng;
 pub use bdft_protocol::params::StepParams;
+use bdft_protocol::trial::TargetSpec;
 
 /// Linear swept sine from f0 to f1 over `duration` seconds:
 /// r(t) = A·sin(2π(f0·t + (f1 − f0)·t²/(2T))).
@@ -144,9 +145,12 @@ impl StepTarget {
         })
     }
 
-    pub fn at(&self, t: f64) -> f64 {
-        let i = ((t / self.interval_s).max(0.0) as usize).min(self.levels_mm.len() - 1);
-        self.levels_mm[i]
+    /// The target as a signal.
+    pub fn signal(&self) -> Signal {
+        Signal::Steps {
+            interval_s: self.interval_s,
+            levels_mm: self.levels_mm.clone(),
+        }
     }
 }
 
@@ -163,7 +167,11 @@ pub fn mean_std(xs: &[f64]) -> (f64, f64) {
 pub enum Signal {
     SweptSine(SweptSine),
     Trapezoid(Trapezoid),
-    Steps(StepTarget),
+    /// `levels_mm[i]` from `i·interval_s` on; the last level holds after the end.
+    Steps {
+        interval_s: f64,
+        levels_mm: Vec<f64>,
+    },
 }
 
 impl Signal {
@@ -171,7 +179,43 @@ impl Signal {
         match self {
             Self::SweptSine(s) => s.at(t),
             Self::Trapezoid(s) => s.at(t),
-            Self::Steps(s) => s.at(t),
+            Self::Steps {
+                interval_s,
+                levels_mm,
+            } => {
+                let i = ((t / interval_s).max(0.0) as usize).min(levels_mm.len() - 1);
+                levels_mm[i]
+            }
+        }
+    }
+
+    /// The signal a trial message describes; bench sweeps span the trial's duration.
+    pub fn from_spec(spec: &TargetSpec, duration_s: f64) -> Self {
+        match spec {
+            TargetSpec::Steps {
+                interval_s,
+                levels_mm,
+            } => Self::Steps {
+                interval_s: *interval_s,
+                levels_mm: levels_mm.clone(),
+            },
+            TargetSpec::SweptSine {
+                amplitude_mm,
+                f0_hz,
+                f1_hz,
+            } => Self::SweptSine(SweptSine {
+                amplitude_mm: *amplitude_mm,
+                f0_hz: *f0_hz,
+                f1_hz: *f1_hz,
+                duration_s,
+            }),
+            TargetSpec::Trapezoid {
+                amplitude_mm,
+                period_s,
+            } => Self::Trapezoid(Trapezoid {
+                amplitude_mm: *amplitude_mm,
+                period_s: *period_s,
+            }),
         }
     }
 }
@@ -195,10 +239,11 @@ mod tests {
             assert!((t.std_mm - p.std_mm).abs() < 1e-9, "std {}", t.std_mm);
         }
         // One level per 2 s.
-        assert_eq!(a.at(0.0), a.levels_mm[0]);
-        assert_eq!(a.at(1.999), a.levels_mm[0]);
-        assert_eq!(a.at(2.0), a.levels_mm[1]);
-        assert_eq!(a.at(500.0), a.levels_mm[69]);
+        let s = a.signal();
+        assert_eq!(s.at(0.0), a.levels_mm[0]);
+        assert_eq!(s.at(1.999), a.levels_mm[0]);
+        assert_eq!(s.at(2.0), a.levels_mm[1]);
+        assert_eq!(s.at(500.0), a.levels_mm[69]);
     }
 
     #[test]

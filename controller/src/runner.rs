@@ -1,0 +1,178 @@
+//! One trial, tick by tick: target → operator (synthetic, external or none) → closed loop →
+//! metrics. The offline simulation and the real-time process both run trials through this,
+//! so a trial in the controller process reproduces `simulate` exactly for the same seeds.
+
+use bdft_protocol::trial::Metrics;
+
+use crate::closed_loop::{ClosedLoop, Drive, TickRecord};
+use crate::operator::SyntheticOperator;
+use crate::signals::Signal;
+
+/// A loop that can be ticked: the simulated rig (`ClosedLoop`) or a real rig's.
+pub trait Loop {
+    fn tick(&mut self, drive: Drive) -> TickRecord;
+    /// Cylinder position shown on the pursuit display now (last measurement).
+    fn displayed_y(&self) -> f64;
+}
+
+impl Loop for ClosedLoop {
+    #[inline]
+    fn tick(&mut self, drive: Drive) -> TickRecord {
+        ClosedLoop::tick(self, drive)
+    }
+    fn displayed_y(&self) -> f64 {
+        self.last_measurement().y
+    }
+}
+
+/// Where the intended hand position comes from.
+#[derive(Debug, Clone)]
+pub enum HandSource {
+    Synthetic(SyntheticOperator),
+    /// Supplied each tick by the caller (a browser, a haptic device).
+    External,
+    /// No operator: the target is the cylinder reference.
+    Reference,
+}
+
+/// One sample of a trial's full-rate record.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Sample {
+    pub t: f64,
+    pub target: f64,
+    pub hand: f64,
+    pub feedthrough: f64,
+    pub r_c: f64,
+    pub valve: f64,
+    pub y: f64,
+    pub cab_accel: f64,
+}
+
+/// Column names of the record, in `Sample` order.
+pub const SAMPLE_COLUMNS: [&str; 8] = [
+    "t_s",
+    "target_mm",
+    "hand_mm",
+    "feedthrough_mm",
+    "cyl_ref_mm",
+    "valve_cmd",
+    "cyl_pos_mm",
+    "cab_accel_mm_s2",
+];
+
+impl Sample {
+    pub fn values(&self) -> [f64; 8] {
+        [
+            self.t,
+            self.target,
+            self.hand,
+            self.feedthrough,
+            self.r_c,
+            self.valve,
+            self.y,
+            self.cab_accel,
+        ]
+    }
+
+    /// What the input device reads: the intended hand position less the feedthrough.
+    pub fn device(&self) -> f64 {
+        self.hand - self.feedthrough
+    }
+}
+
+/// Streaming accumulator of the trial metrics over the full-rate record.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct MetricsAccumulator {
+    ticks: u64,
+    sum_sq_error: f64,
+    sum_sq_accel: f64,
+}
+
+impl MetricsAccumulator {
+    #[inline]
+    pub fn add(&mut self, target: f64, y: f64, cab_accel: f64) {
+        self.ticks += 1;
+        self.sum_sq_error += (target - y) * (target - y);
+        self.sum_sq_accel += cab_accel * cab_accel;
+    }
+
+    pub fn metrics(&self) -> Metrics {
+        let n = self.ticks.max(1) as f64;
+        Metrics {
+            ticks: self.ticks,
+            mse_tracking_mm2: self.sum_sq_error / n,
+            ms_cab_accel: self.sum_sq_accel / n,
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct TrialRunner<L> {
+    signal: Signal,
+    lp: L,
+    hand: HandSource,
+    metrics: MetricsAccumulator,
+    dt: f64,
+    k: u64,
+    total: u64,
+}
+
+impl<L: Loop> TrialRunner<L> {
+    pub fn new(signal: Signal, lp: L, hand: HandSource, dt: f64, duration_s: f64) -> Self {
+        Self {
+            signal,
+            lp,
+            hand,
+            metrics: MetricsAccumulator::default(),
+            dt,
+            k: 0,
+            total: (duration_s / dt).round() as u64,
+        }
+    }
+
+    /// One tick; `external_hand` is used when the hand source is external.
+    #[inline]
+    pub fn tick(&mut self, external_hand: f64) -> Sample {
+        let t = self.k as f64 * self.dt;
+        let target = self.signal.at(t);
+        let drive = match &mut self.hand {
+            HandSource::Synthetic(op) => Drive::Hand(op.step(target, self.lp.displayed_y())),
+            HandSource::External => Drive::Hand(external_hand),
+            HandSource::Reference => Drive::Reference(target),
+        };
+        let r = self.lp.tick(drive);
+        self.metrics.add(target, r.y, r.cab_accel);
+        self.k += 1;
+        Sample {
+            t,
+            target,
+            hand: r.hand,
+            feedthrough: r.feedthrough,
+            r_c: r.r_c,
+            valve: r.valve,
+            y: r.y,
+            cab_accel: r.cab_accel,
+        }
+    }
+
+    pub fn done(&self) -> bool {
+        self.k >= self.total
+    }
+
+    /// Ticks run so far and ticks in the whole trial.
+    pub fn progress(&self) -> (u64, u64) {
+        (self.k, self.total)
+    }
+
+    pub fn metrics(&self) -> Metrics {
+        self.metrics.metrics()
+    }
+
+    pub fn signal(&self) -> &Signal {
+        &self.signal
+    }
+
+    pub fn loop_mut(&mut self) -> &mut L {
+        &mut self.lp
+    }
+}
