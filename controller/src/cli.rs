@@ -4,13 +4,16 @@
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use std::io::Write;
+use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::time::Duration;
 
 use bdft_controller::analysis::{AnalysisReport, analyze};
 use bdft_controller::compensator::CompensatorKind;
 use bdft_controller::param_set::ParamSet;
-use bdft_controller::params::{LoopParams, MAX_KBF, NOMINAL_KBF, Station};
+use bdft_controller::params::{LoopParams, MAX_KBF, NOMINAL_KBF, PlantParams, Station};
+use bdft_controller::runtime;
 use bdft_controller::simulate::{SAMPLE_COLUMNS, SignalKind, SimConfig, simulate};
 
 #[derive(Debug, Parser)]
@@ -78,6 +81,65 @@ enum Command {
     /// Print every parameter with its default value as JSON (edit it and pass it back with
     /// --params).
     Defaults,
+    /// Run the real-time controller: the server connects here and runs trials at 1 kHz on
+    /// the simulated rig (default) or a real rig over UDP.
+    Serve {
+        /// TCP address the server connects to (any address, so the controller can run on a
+        /// dedicated real-time PC).
+        #[arg(long, env = "BDFT_CONTROLLER_LISTEN", default_value = "127.0.0.1:7070")]
+        listen: SocketAddr,
+        /// Rig: sim (the validated model, one per trial) or udp (a real rig at --rig-addr).
+        #[arg(long, default_value = "sim", value_parser = ["sim", "udp"])]
+        rig: String,
+        /// The real rig's UDP address (with --rig udp).
+        #[arg(long, required_if_eq("rig", "udp"))]
+        rig_addr: Option<SocketAddr>,
+        /// A rig silent for this long faults the trial (ms).
+        #[arg(long, default_value_t = 50, value_parser = clap::value_parser!(u64).range(2..=10_000))]
+        rig_timeout_ms: u64,
+        /// UDP port for a haptic-device host sending operator input (off by default).
+        #[arg(long)]
+        input_udp: Option<SocketAddr>,
+        /// Run ticks only when the client asks (`step` messages): deterministic tests.
+        #[arg(long)]
+        lockstep: bool,
+        /// Silence from the server for this long counts as a lost link (ms).
+        #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(50..=600_000))]
+        link_timeout_ms: u64,
+        /// Most trials run at once (one per station).
+        #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..=64))]
+        max_trials: u64,
+        /// SCHED_FIFO priority asked for the loop thread.
+        #[arg(long, default_value_t = 80, value_parser = clap::value_parser!(i32).range(1..=99))]
+        priority: i32,
+        /// CPU to pin the loop thread to [default: the last CPU when there are several].
+        #[arg(long)]
+        cpu: Option<usize>,
+    },
+    /// Play a rig over UDP with the validated model: each command datagram steps the model
+    /// one sample and is answered with the sensors.
+    RigSim {
+        #[arg(long, default_value = "127.0.0.1:7071")]
+        listen: SocketAddr,
+        /// Seed of the accelerometer noise.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Run simulated trials in real time and report the loop's timing.
+    BenchRt {
+        /// Seconds to run.
+        #[arg(long, default_value_t = 140.0, value_parser = parse_duration)]
+        duration: f64,
+        /// Trials at once.
+        #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=64))]
+        trials: u64,
+        #[arg(long)]
+        cpu: Option<usize>,
+        #[arg(long, default_value_t = 80, value_parser = clap::value_parser!(i32).range(1..=99))]
+        priority: i32,
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 fn parse_finite(s: &str) -> Result<f64, String> {
@@ -138,6 +200,12 @@ fn load_params(path: Option<&PathBuf>) -> anyhow::Result<ParamSet> {
 
 pub fn run() -> ExitCode {
     let cli = Cli::parse();
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
     match execute(cli.command) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -151,6 +219,88 @@ fn execute(command: Command) -> anyhow::Result<()> {
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     match command {
+        Command::Serve {
+            listen,
+            rig,
+            rig_addr,
+            rig_timeout_ms,
+            input_udp,
+            lockstep,
+            link_timeout_ms,
+            max_trials,
+            priority,
+            cpu,
+        } => {
+            let cfg = runtime::ServeConfig {
+                listen,
+                rig: if rig == "udp" { rig_addr } else { None },
+                rig_timeout: Duration::from_millis(rig_timeout_ms),
+                input_udp,
+                lockstep,
+                link_timeout: Duration::from_millis(link_timeout_ms),
+                max_trials: max_trials as usize,
+                priority,
+                cpu: cpu.or_else(runtime::default_cpu),
+                dt: LoopParams::default().dt,
+            };
+            runtime::serve(cfg, |addr, input| {
+                // Tools that start us with port 0 read these lines.
+                if let Some(input) = input {
+                    println!("input udp on {input}");
+                }
+                println!("listening on {addr}");
+                let _ = std::io::stdout().flush();
+            })?;
+        }
+        Command::RigSim { listen, seed } => {
+            runtime::rig_udp::run_rig_sim(
+                listen,
+                PlantParams::default(),
+                LoopParams::default().dt,
+                seed,
+                Duration::from_millis(500),
+                |addr| {
+                    println!("rig-sim listening on {addr}");
+                    let _ = std::io::stdout().flush();
+                },
+            )?;
+        }
+        Command::BenchRt {
+            duration,
+            trials,
+            cpu,
+            priority,
+            json,
+        } => {
+            let r = runtime::bench_rt(
+                duration,
+                trials as usize,
+                cpu.or_else(runtime::default_cpu),
+                priority,
+            )?;
+            if json {
+                serde_json::to_writer(&mut out, &r)?;
+                writeln!(out)?;
+            } else {
+                writeln!(
+                    out,
+                    "{} trials for {} s: {} ticks, {} overruns",
+                    r.trials, r.duration_s, r.timing.ticks, r.timing.overruns
+                )?;
+                let (w, c) = (r.timing.wake_latency_us, r.timing.compute_us);
+                writeln!(
+                    out,
+                    "wake latency µs: p50 {:.1}  p99 {:.1}  max {:.1}",
+                    w.p50, w.p99, w.max
+                )?;
+                writeln!(
+                    out,
+                    "compute µs:      p50 {:.2}  p99 {:.2}  max {:.2}",
+                    c.p50, c.p99, c.max
+                )?;
+                writeln!(out, "real-time: {:?}", r.realtime)?;
+            }
+        }
         Command::Defaults => {
             serde_json::to_writer_pretty(&mut out, &ParamSet::default())?;
             writeln!(out)?;

@@ -22,6 +22,7 @@ pub mod param_set;
 pub mod params;
 pub mod rng;
 pub mod runner;
+pub mod runtime;
 pub mod shaper;
 pub mod signals;
 pub mod simulate;

@@ -175,4 +175,8 @@ impl<L: Loop> TrialRunner<L> {
     pub fn loop_mut(&mut self) -> &mut L {
         &mut self.lp
     }
+
+    pub fn loop_ref(&self) -> &L {
+        &self.lp
+    }
 }

@@ -1,3 +1,4 @@
 //! End-to-end tests, one binary: each module drives real processes of the product.
 
 mod controller_cli;
+mod controller_serve;

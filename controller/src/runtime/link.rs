@@ -1,0 +1,651 @@
+//! The I/O side of `bdft-controller serve`: the TCP link to the server (one at a time), the
+//! optional UDP input port of a haptic-device host, and the pump that forwards the loop's
+//! events. Runs on a single-threaded tokio runtime beside the real-time thread.
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use bdft_protocol::PROTOCOL_VERSION;
+use bdft_protocol::controller_to_server::{ControllerToServer, RecordChunk, Status, TrialResult};
+use bdft_protocol::framing::{self, FrameError};
+use bdft_protocol::rig::InputDatagram;
+use bdft_protocol::server_to_controller::{ServerToController, StartTrial};
+use bdft_protocol::trial::{
+    FaultKind, InputSource, Outcome, RECORD_CHANNELS, TimingSummary, TrialId,
+};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream, UdpSocket};
+use tokio::sync::mpsc;
+
+use super::handoff::{InputCell, InputSample};
+use super::rt_loop::{Command, Event, LoopHandle};
+use super::setup::build_slot;
+use super::slot::{EndReason, TrialSlot};
+
+/// Samples per record chunk.
+const CHUNK: usize = 1000;
+/// Largest |operator input| accepted (mm of device travel).
+const MAX_INPUT_MM: f64 = 1000.0;
+
+#[derive(Debug, Clone)]
+pub struct LinkConfig {
+    pub dt: f64,
+    pub lockstep: bool,
+    pub real_rig: bool,
+    pub max_trials: usize,
+    /// Silence from the server for this long counts as a lost link.
+    pub link_timeout: Duration,
+    pub input_udp: bool,
+}
+
+struct Conn {
+    id: u64,
+    tx: mpsc::Sender<Vec<u8>>,
+}
+
+struct TrialEntry {
+    conn: u64,
+    input: Option<Arc<InputCell>>,
+    channel: Option<u32>,
+    abort_reason: Option<String>,
+    uses_rig: bool,
+}
+
+struct Io {
+    cfg: LinkConfig,
+    rt: LoopHandle,
+    conn: Option<Conn>,
+    next_conn: u64,
+    trials: HashMap<TrialId, TrialEntry>,
+    channels: HashMap<u32, Arc<InputCell>>,
+    rejected_messages: u64,
+    rejected_inputs: u64,
+    rejected_datagrams: u64,
+    last_rx: Instant,
+    live_dropped: u64,
+}
+
+type Shared = Arc<Mutex<Io>>;
+
+fn lock(io: &Shared) -> MutexGuard<'_, Io> {
+    io.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+fn frame(msg: &ControllerToServer) -> Vec<u8> {
+    framing::encode(msg)
+}
+
+impl Io {
+    /// Frames for the current connection, if any, with its sender.
+    fn sender(&self) -> Option<(u64, mpsc::Sender<Vec<u8>>)> {
+        self.conn.as_ref().map(|c| (c.id, c.tx.clone()))
+    }
+
+    fn link_lost(&mut self, conn: u64, why: &str) {
+        if self.conn.as_ref().is_some_and(|c| c.id == conn) {
+            tracing::warn!(conn, why, "server link lost: stopping every running trial");
+            self.conn = None;
+            // Forget the lost link's trials now (their results have nowhere to go), so a new
+            // server sees a free controller at once.
+            let lost: Vec<TrialId> = self
+                .trials
+                .iter()
+                .filter(|(_, t)| t.conn == conn)
+                .map(|(id, _)| *id)
+                .collect();
+            for id in lost {
+                if let Some(ch) = self.trials.remove(&id).and_then(|t| t.channel) {
+                    self.channels.remove(&ch);
+                }
+            }
+            if self.rt.send(Command::StopAll(FaultKind::LinkLost)).is_err() {
+                tracing::error!("command queue full while stopping trials after link loss");
+            }
+        }
+    }
+
+    fn status(&self) -> ControllerToServer {
+        let sh = &self.rt.shared;
+        let mut running: Vec<TrialId> = self.trials.keys().copied().collect();
+        running.sort_unstable();
+        ControllerToServer::Status(Box::new(Status {
+            estop_latched: sh.estop.load(Ordering::SeqCst),
+            running_trials: running,
+            tick: sh.tick.load(Ordering::Relaxed),
+            overruns: sh.overruns.load(Ordering::Relaxed),
+            rejected_messages: self.rejected_messages + self.rejected_inputs,
+            rejected_datagrams: self.rejected_datagrams + sh.rig_rejected.load(Ordering::Relaxed),
+            realtime: sh.realtime.get().cloned().unwrap_or_default(),
+            rig: if self.cfg.real_rig { "udp" } else { "sim" }.into(),
+            lockstep: self.cfg.lockstep,
+        }))
+    }
+
+    fn reject(&mut self, reason: String) -> Vec<Vec<u8>> {
+        self.rejected_messages += 1;
+        tracing::info!(reason, "rejected a message from the server");
+        vec![frame(&ControllerToServer::Rejected { reason })]
+    }
+
+    /// Acts on one message from connection `conn`; returns the frames to answer with.
+    fn handle(&mut self, conn: u64, msg: ServerToController) -> Vec<Vec<u8>> {
+        self.last_rx = Instant::now();
+        match msg {
+            ServerToController::Hello { .. } => self.reject("hello was already exchanged".into()),
+            ServerToController::StartTrial(st) => self.start(conn, &st),
+            ServerToController::AbortTrial { trial_id, reason } => {
+                match self.trials.get_mut(&trial_id) {
+                    Some(t) => {
+                        t.abort_reason = Some(reason);
+                        match self.rt.send(Command::Abort(trial_id)) {
+                            Ok(()) => vec![],
+                            Err(_) => {
+                                self.reject("the controller is overloaded; abort not queued".into())
+                            }
+                        }
+                    }
+                    None => self.reject(format!("abort: trial {trial_id} is not running")),
+                }
+            }
+            ServerToController::OperatorInput {
+                trial_id,
+                seq,
+                position_mm,
+            } => {
+                let cell = self.trials.get(&trial_id).and_then(|t| t.input.clone());
+                match cell {
+                    Some(cell) if position_mm.is_finite() && position_mm.abs() <= MAX_INPUT_MM => {
+                        let tick = self.rt.shared.tick.load(Ordering::Acquire);
+                        cell.write(InputSample {
+                            position_mm,
+                            seq,
+                            arrival_tick: tick,
+                        });
+                    }
+                    // Counted, not answered: a page streaming at 250 Hz past a trial's end
+                    // would otherwise flood the link with rejections.
+                    _ => self.rejected_inputs += 1,
+                }
+                vec![]
+            }
+            ServerToController::Heartbeat { .. } => vec![],
+            ServerToController::EStop => {
+                self.rt.shared.estop.store(true, Ordering::SeqCst);
+                let _ = self.rt.send(Command::EStop);
+                tracing::warn!("E-STOP: every valve to zero, trials stopped, latched until reset");
+                vec![frame(&ControllerToServer::Fault {
+                    trial_id: None,
+                    kind: FaultKind::EStop,
+                    message: "e-stop pressed: valves at zero, latched until reset_e_stop".into(),
+                })]
+            }
+            ServerToController::ResetEStop => {
+                match self.rt.send(Command::ResetEStop) {
+                    Ok(()) => self.rt.shared.estop.store(false, Ordering::SeqCst),
+                    Err(_) => {
+                        return self.reject(
+                            "the controller is overloaded; e-stop reset not queued".into(),
+                        );
+                    }
+                }
+                tracing::info!("e-stop reset");
+                vec![self.status_frame()]
+            }
+            ServerToController::Status => vec![self.status_frame()],
+            ServerToController::Step { ticks } => {
+                if !self.cfg.lockstep {
+                    return self.reject(
+                        "step is only accepted in lockstep mode (serve --lockstep)".into(),
+                    );
+                }
+                match self.rt.send(Command::Step(ticks)) {
+                    Ok(()) => vec![],
+                    Err(_) => self.reject("the controller is overloaded; step not queued".into()),
+                }
+            }
+        }
+    }
+
+    fn status_frame(&self) -> Vec<u8> {
+        frame(&self.status())
+    }
+
+    fn start(&mut self, conn: u64, st: &StartTrial) -> Vec<Vec<u8>> {
+        let id = st.trial_id;
+        if self.rt.shared.estop.load(Ordering::SeqCst) {
+            return self.reject(format!(
+                "start trial {id}: e-stop is latched; send reset_e_stop first"
+            ));
+        }
+        if self.trials.contains_key(&id) {
+            return self.reject(format!("start trial {id}: a trial with this id is running"));
+        }
+        if self.trials.len() >= self.cfg.max_trials {
+            return self.reject(format!(
+                "start trial {id}: {} trials are running, the most this controller runs at once",
+                self.cfg.max_trials
+            ));
+        }
+        if self.cfg.real_rig && self.trials.values().any(|t| t.uses_rig) {
+            return self.reject(format!(
+                "start trial {id}: the real rig is in use by another trial"
+            ));
+        }
+        let channel = match st.input {
+            InputSource::Udp { channel } => {
+                if !self.cfg.input_udp {
+                    return self.reject(format!(
+                        "start trial {id}: UDP input needs serve --input-udp ADDR"
+                    ));
+                }
+                if self.channels.contains_key(&channel) {
+                    return self.reject(format!(
+                        "start trial {id}: input channel {channel} is in use"
+                    ));
+                }
+                Some(channel)
+            }
+            _ => None,
+        };
+        let built = match build_slot(st, self.cfg.dt, self.cfg.real_rig) {
+            Ok(b) => b,
+            Err(e) => return self.reject(format!("start trial {id}: {e}")),
+        };
+        let uses_rig = built.slot.uses_rig();
+        if let (Some(ch), Some(cell)) = (channel, &built.input) {
+            self.channels.insert(ch, Arc::clone(cell));
+        }
+        if let Err(Command::Start(_)) = self.rt.send(Command::Start(built.slot)) {
+            if let Some(ch) = channel {
+                self.channels.remove(&ch);
+            }
+            return self.reject(format!("start trial {id}: the controller is overloaded"));
+        }
+        let input = if channel.is_some() { None } else { built.input };
+        self.trials.insert(
+            id,
+            TrialEntry {
+                conn,
+                input,
+                channel,
+                abort_reason: None,
+                uses_rig,
+            },
+        );
+        tracing::info!(trial = id, compensator = %st.compensator.kind(), station = st.station.as_str(), k_bf = st.k_bf, "trial starting");
+        vec![]
+    }
+
+    /// The messages that report an ended trial: its record in chunks, then the result.
+    fn finished(&mut self, slot: Box<TrialSlot>) -> (Option<u64>, Vec<Vec<u8>>) {
+        let entry = self.trials.remove(&slot.trial_id);
+        if let Some(ch) = entry.as_ref().and_then(|e| e.channel) {
+            self.channels.remove(&ch);
+        }
+        let reason = slot.end.unwrap_or(EndReason::Faulted(FaultKind::Internal));
+        let outcome = match reason {
+            EndReason::Complete => Outcome::Complete,
+            EndReason::Aborted => Outcome::Aborted {
+                reason: entry
+                    .as_ref()
+                    .and_then(|e| e.abort_reason.clone())
+                    .unwrap_or_else(|| "aborted".into()),
+            },
+            EndReason::Faulted(fault) => Outcome::Faulted {
+                fault,
+                message: fault_message(fault, &slot, self.cfg.dt),
+            },
+        };
+        tracing::info!(trial = slot.trial_id, ?outcome, "trial ended");
+        let mut frames = Vec::with_capacity(slot.record.len() / CHUNK + 2);
+        if let (EndReason::Faulted(kind), Some(_)) = (reason, entry.as_ref()) {
+            if kind != FaultKind::EStop && kind != FaultKind::LinkLost {
+                frames.push(frame(&ControllerToServer::Fault {
+                    trial_id: Some(slot.trial_id),
+                    kind,
+                    message: fault_message(kind, &slot, self.cfg.dt),
+                }));
+            }
+        }
+        let chunks = slot.record.chunks(CHUNK);
+        let n_chunks = chunks.len() as u32;
+        for (index, rows) in chunks.enumerate() {
+            let channels = (0..RECORD_CHANNELS.len())
+                .map(|c| rows.iter().map(|r| r[c]).collect())
+                .collect();
+            frames.push(frame(&ControllerToServer::RecordChunk(RecordChunk {
+                trial_id: slot.trial_id,
+                index: index as u32,
+                start_tick: (index * CHUNK) as u64,
+                channels,
+            })));
+        }
+        let result = TrialResult {
+            trial_id: slot.trial_id,
+            outcome,
+            metrics: slot.runner.metrics(),
+            timing: TimingSummary {
+                ticks: slot.wake.count(),
+                overruns: slot.overruns,
+                wake_latency_us: slot.wake.percentiles_us(),
+                compute_us: slot.compute.percentiles_us(),
+            },
+            dt: self.cfg.dt,
+            record_chunks: n_chunks,
+        };
+        frames.push(frame(&ControllerToServer::TrialResult(Box::new(result))));
+        (entry.map(|e| e.conn), frames)
+    }
+}
+
+fn fault_message(kind: FaultKind, slot: &TrialSlot, dt: f64) -> String {
+    let at = slot.runner.progress().0 as f64 * dt;
+    match kind {
+        FaultKind::StaleInput => format!(
+            "no operator input for more than {:.0} ms at t = {at:.3} s; valve set to zero",
+            slot.stale_ticks as f64 * dt * 1e3
+        ),
+        FaultKind::RigTimeout => {
+            format!("the rig stopped answering at t = {at:.3} s; valve set to zero")
+        }
+        FaultKind::EStop => "e-stop pressed".into(),
+        FaultKind::LinkLost => "server link lost".into(),
+        FaultKind::Internal => {
+            "the controller could not run this trial (no free slot or shutting down)".into()
+        }
+    }
+}
+
+/// Runs the I/O side until `shutdown` resolves.
+pub async fn run(
+    cfg: LinkConfig,
+    rt: LoopHandle,
+    listener: TcpListener,
+    input_udp: Option<UdpSocket>,
+    shutdown: impl std::future::Future<Output = ()>,
+) -> LoopHandle {
+    let io: Shared = Arc::new(Mutex::new(Io {
+        cfg,
+        rt,
+        conn: None,
+        next_conn: 1,
+        trials: HashMap::new(),
+        channels: HashMap::new(),
+        rejected_messages: 0,
+        rejected_inputs: 0,
+        rejected_datagrams: 0,
+        last_rx: Instant::now(),
+        live_dropped: 0,
+    }));
+    let tasks = [
+        tokio::spawn(accept(Arc::clone(&io), listener)),
+        tokio::spawn(pump(Arc::clone(&io))),
+        tokio::spawn(heartbeat(Arc::clone(&io))),
+    ];
+    let udp = input_udp.map(|s| tokio::spawn(input_port(Arc::clone(&io), s)));
+    shutdown.await;
+    for t in tasks.iter().chain(udp.iter()) {
+        t.abort();
+    }
+    for t in tasks {
+        let _ = t.await;
+    }
+    if let Some(t) = udp {
+        let _ = t.await;
+    }
+    let io = Arc::try_unwrap(io)
+        .map_err(|_| ())
+        .expect("all tasks ended");
+    io.into_inner().unwrap_or_else(|p| p.into_inner()).rt
+}
+
+async fn accept(io: Shared, listener: TcpListener) {
+    loop {
+        let (stream, peer) = match listener.accept().await {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::warn!("accept failed: {e}");
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                continue;
+            }
+        };
+        let _ = stream.set_nodelay(true);
+        tokio::spawn(connection(Arc::clone(&io), stream, peer));
+    }
+}
+
+async fn read_message(
+    r: &mut (impl AsyncReadExt + Unpin),
+) -> Result<Option<Result<ServerToController, FrameError>>, FrameError> {
+    let mut header = [0u8; 4];
+    match r.read_exact(&mut header).await {
+        Ok(_) => {}
+        Err(_) => return Ok(None),
+    }
+    let len = framing::payload_len(header)?;
+    let mut payload = vec![0; len];
+    if r.read_exact(&mut payload).await.is_err() {
+        return Ok(None);
+    }
+    Ok(Some(framing::decode(&payload)))
+}
+
+async fn connection(io: Shared, stream: TcpStream, peer: SocketAddr) {
+    let (mut rd, mut wr) = stream.into_split();
+    // Handshake first: nothing else is accepted before a hello of our version.
+    let hello = tokio::time::timeout(Duration::from_secs(5), read_message(&mut rd)).await;
+    let refuse = |reason: String| framing::encode(&ControllerToServer::Rejected { reason });
+    let client = match hello {
+        Ok(Ok(Some(Ok(ServerToController::Hello {
+            protocol_version,
+            client,
+        }))))
+            if protocol_version == PROTOCOL_VERSION =>
+        {
+            client
+        }
+        Ok(Ok(Some(Ok(ServerToController::Hello {
+            protocol_version, ..
+        })))) => {
+            let _ = wr.write_all(&refuse(format!("protocol version {protocol_version} not supported; this controller speaks {PROTOCOL_VERSION}"))).await;
+            return;
+        }
+        _ => {
+            let _ = wr
+                .write_all(&refuse("the first message must be hello".into()))
+                .await;
+            return;
+        }
+    };
+    let (tx, mut rx) = mpsc::channel::<Vec<u8>>(16_384);
+    let accepted = {
+        let mut g = lock(&io);
+        if g.conn.is_some() {
+            None
+        } else {
+            let id = g.next_conn;
+            g.next_conn += 1;
+            g.conn = Some(Conn { id, tx: tx.clone() });
+            g.last_rx = Instant::now();
+            tracing::info!(%peer, client, conn = id, "server connected");
+            let ack = ControllerToServer::HelloAck {
+                protocol_version: PROTOCOL_VERSION,
+                controller: format!("bdft-controller {}", env!("CARGO_PKG_VERSION")),
+                loop_rate_hz: 1.0 / g.cfg.dt,
+                rig: if g.cfg.real_rig { "udp" } else { "sim" }.into(),
+                lockstep: g.cfg.lockstep,
+            };
+            Some((id, framing::encode(&ack)))
+        }
+    };
+    let Some((conn, ack)) = accepted else {
+        let _ = wr
+            .write_all(&refuse(
+                "another server is connected to this controller".into(),
+            ))
+            .await;
+        return;
+    };
+    let writer_io = Arc::clone(&io);
+    let writer = tokio::spawn(async move {
+        if wr.write_all(&ack).await.is_err() {
+            return;
+        }
+        while let Some(f) = rx.recv().await {
+            if wr.write_all(&f).await.is_err() {
+                lock(&writer_io).link_lost(conn, "write failed");
+                return;
+            }
+        }
+    });
+    drop(tx);
+    loop {
+        match read_message(&mut rd).await {
+            Ok(Some(Ok(msg))) => {
+                let (replies, sender) = {
+                    let mut g = lock(&io);
+                    if g.conn.as_ref().is_none_or(|c| c.id != conn) {
+                        break; // replaced or timed out
+                    }
+                    (g.handle(conn, msg), g.sender())
+                };
+                if let Some((_, tx)) = sender {
+                    for f in replies {
+                        let _ = tx.send(f).await;
+                    }
+                }
+            }
+            Ok(Some(Err(e))) => {
+                let (replies, sender) = {
+                    let mut g = lock(&io);
+                    (g.reject(e.to_string()), g.sender())
+                };
+                if let Some((_, tx)) = sender {
+                    for f in replies {
+                        let _ = tx.send(f).await;
+                    }
+                }
+            }
+            Ok(None) => {
+                lock(&io).link_lost(conn, "connection closed");
+                break;
+            }
+            Err(e) => {
+                // A frame we cannot delimit leaves the stream unusable.
+                lock(&io).link_lost(conn, &format!("bad frame: {e}"));
+                break;
+            }
+        }
+    }
+    writer.abort();
+}
+
+/// Forwards the loop's events every millisecond.
+async fn pump(io: Shared) {
+    let mut every = tokio::time::interval(Duration::from_millis(1));
+    every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    loop {
+        every.tick().await;
+        let mut outgoing: Vec<(u64, Vec<Vec<u8>>)> = Vec::new();
+        let sender = {
+            let mut g = lock(&io);
+            let sender = g.sender();
+            while let Ok(ev) = g.rt.events.pop() {
+                match ev {
+                    Event::Started { trial_id, tick } => {
+                        if let Some(e) = g.trials.get(&trial_id) {
+                            outgoing.push((
+                                e.conn,
+                                vec![frame(&ControllerToServer::TrialStarted { trial_id, tick })],
+                            ));
+                        }
+                    }
+                    Event::Live(s) => {
+                        if let (Some((id, tx)), Some(e)) = (&sender, g.trials.get(&s.trial_id)) {
+                            if e.conn == *id
+                                && tx.try_send(frame(&ControllerToServer::Live(s))).is_err()
+                            {
+                                g.live_dropped += 1;
+                            }
+                        }
+                    }
+                    Event::Finished(slot) => {
+                        let (conn, frames) = g.finished(slot);
+                        if let Some(conn) = conn {
+                            outgoing.push((conn, frames));
+                        }
+                    }
+                    Event::Stepped { tick } => {
+                        if let Some((id, _)) = &sender {
+                            outgoing
+                                .push((*id, vec![frame(&ControllerToServer::Stepped { tick })]));
+                        }
+                    }
+                }
+            }
+            sender
+        };
+        if let Some((id, tx)) = sender {
+            for (conn, frames) in outgoing {
+                if conn == id {
+                    for f in frames {
+                        if tx.send(f).await.is_err() {
+                            break;
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Sends a heartbeat every 50 ms and declares the link lost after the configured silence.
+async fn heartbeat(io: Shared) {
+    let mut every = tokio::time::interval(Duration::from_millis(50));
+    let mut seq = 0u64;
+    loop {
+        every.tick().await;
+        seq += 1;
+        let sender = {
+            let mut g = lock(&io);
+            if let Some((id, _)) = g.sender() {
+                if g.last_rx.elapsed() > g.cfg.link_timeout {
+                    let why = format!("no message for {} ms", g.cfg.link_timeout.as_millis());
+                    g.link_lost(id, &why);
+                }
+            }
+            g.sender()
+        };
+        if let Some((_, tx)) = sender {
+            let _ = tx.try_send(frame(&ControllerToServer::Heartbeat { seq }));
+        }
+    }
+}
+
+/// Operator input from a haptic-device host.
+async fn input_port(io: Shared, socket: UdpSocket) {
+    let mut buf = [0u8; 64];
+    loop {
+        let Ok((n, _)) = socket.recv_from(&mut buf).await else {
+            continue;
+        };
+        let mut g = lock(&io);
+        match InputDatagram::decode(&buf[..n]) {
+            Ok(d) if d.position_mm.abs() <= MAX_INPUT_MM => match g.channels.get(&d.channel) {
+                Some(cell) => {
+                    let tick = g.rt.shared.tick.load(Ordering::Acquire);
+                    cell.write(InputSample {
+                        position_mm: d.position_mm,
+                        seq: u64::from(d.seq),
+                        arrival_tick: tick,
+                    });
+                }
+                None => g.rejected_datagrams += 1,
+            },
+            _ => g.rejected_datagrams += 1,
+        }
+    }
+}

@@ -1,0 +1,203 @@
+//! The real-time controller process (`bdft-controller serve`, `rig-sim`, `bench-rt`).
+//!
+//! Two sides: the loop thread ([`rt_loop`]) ticks every running trial at 1 kHz against
+//! absolute deadlines; the I/O side ([`link`]) speaks the protocol with the server, builds
+//! trials ([`setup`]) and sends their records. They share only lock-free queues, atomics and
+//! the latest-value input cells ([`handoff`]).
+
+pub mod handoff;
+pub mod histogram;
+pub mod link;
+pub mod os;
+pub mod rig_udp;
+pub mod rt_loop;
+pub mod setup;
+pub mod slot;
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use anyhow::Context;
+use bdft_protocol::controller_to_server::RealtimeStatus;
+use bdft_protocol::params::{CompensatorKind, PlantParams, Station};
+use bdft_protocol::server_to_controller::StartTrial;
+use bdft_protocol::trial::{InputSource, TargetSpec, TimingSummary};
+use serde::Serialize;
+
+use crate::compensator::default_spec;
+use crate::operator::OperatorParams;
+use crate::signals::{StepParams, StepTarget};
+use rt_loop::{Command, Event, LoopConfig};
+
+#[derive(Debug, Clone)]
+pub struct ServeConfig {
+    pub listen: SocketAddr,
+    /// A real rig's address (UDP); `None` simulates the rig.
+    pub rig: Option<SocketAddr>,
+    pub rig_timeout: Duration,
+    pub input_udp: Option<SocketAddr>,
+    pub lockstep: bool,
+    pub link_timeout: Duration,
+    pub max_trials: usize,
+    pub priority: i32,
+    pub cpu: Option<usize>,
+    pub dt: f64,
+}
+
+fn loop_config(
+    dt: f64,
+    lockstep: bool,
+    max_trials: usize,
+    priority: i32,
+    cpu: Option<usize>,
+) -> LoopConfig {
+    LoopConfig {
+        period_ns: (dt * 1e9).round() as u64,
+        lockstep,
+        max_trials,
+        priority,
+        cpu,
+        rig: None,
+    }
+}
+
+/// The CPU the loop asks to be pinned to by default: the last one, if there are several.
+pub fn default_cpu() -> Option<usize> {
+    let n = os::cpu_count();
+    (n > 1).then(|| n - 1)
+}
+
+/// Runs `serve` until SIGINT/SIGTERM; `ready` gets the bound TCP address and the input UDP
+/// address, if any (port 0 allowed).
+pub fn serve(
+    cfg: ServeConfig,
+    ready: impl FnOnce(SocketAddr, Option<SocketAddr>),
+) -> anyhow::Result<()> {
+    let mut lc = loop_config(cfg.dt, cfg.lockstep, cfg.max_trials, cfg.priority, cfg.cpu);
+    if let Some(addr) = cfg.rig {
+        let ticks = (cfg.rig_timeout.as_secs_f64() / cfg.dt).round() as u64;
+        lc.rig = Some(
+            rig_udp::UdpRig::connect(addr, ticks, PlantParams::default().v_max)
+                .with_context(|| format!("opening the UDP link to the rig at {addr}"))?,
+        );
+    }
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("starting the I/O runtime")?;
+    let rt = rt_loop::spawn(lc);
+    let link_cfg = link::LinkConfig {
+        dt: cfg.dt,
+        lockstep: cfg.lockstep,
+        real_rig: cfg.rig.is_some(),
+        max_trials: cfg.max_trials,
+        link_timeout: cfg.link_timeout,
+        input_udp: cfg.input_udp.is_some(),
+    };
+    let rt = runtime.block_on(async {
+        let listener = tokio::net::TcpListener::bind(cfg.listen)
+            .await
+            .with_context(|| format!("listening on {}", cfg.listen))?;
+        let input = match cfg.input_udp {
+            Some(a) => Some(
+                tokio::net::UdpSocket::bind(a)
+                    .await
+                    .with_context(|| format!("binding the input port {a}"))?,
+            ),
+            None => None,
+        };
+        ready(
+            listener.local_addr()?,
+            input.as_ref().map(|s| s.local_addr()).transpose()?,
+        );
+        anyhow::Ok(link::run(link_cfg, rt, listener, input, shutdown_signal()).await)
+    })?;
+    let stats = rt.shutdown();
+    tracing::info!(
+        ticks = stats.ticks,
+        overruns = stats.overruns,
+        "controller stopped"
+    );
+    Ok(())
+}
+
+async fn shutdown_signal() {
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        _ = async { match &mut term { Some(t) => { t.recv().await; } None => std::future::pending().await } } => {}
+    }
+}
+
+/// What `bench-rt` prints.
+#[derive(Debug, Serialize)]
+pub struct BenchReport {
+    pub trials: usize,
+    pub duration_s: f64,
+    #[serde(flatten)]
+    pub timing: TimingSummary,
+    pub realtime: RealtimeStatus,
+}
+
+/// Runs `trials` simulated trials (the five study compensators in turn, synthetic
+/// operators, station on) in real time for `duration_s` and reports the loop's timing.
+pub fn bench_rt(
+    duration_s: f64,
+    trials: usize,
+    cpu: Option<usize>,
+    priority: i32,
+) -> anyhow::Result<BenchReport> {
+    let dt = 1e-3;
+    let mut rt = rt_loop::spawn(loop_config(dt, false, trials.max(1), priority, cpu));
+    let plant = PlantParams::default();
+    for i in 0..trials {
+        let kind = CompensatorKind::STUDY[i % CompensatorKind::STUDY.len()];
+        let target = StepTarget::generate(&StepParams::default(), duration_s.max(4.0), i as u64)?;
+        let st = StartTrial {
+            trial_id: i as u64 + 1,
+            compensator: default_spec(kind, &plant),
+            station: Station::On,
+            k_bf: 0.6,
+            target: TargetSpec::Steps {
+                interval_s: target.interval_s,
+                levels_mm: target.levels_mm,
+            },
+            duration_s,
+            input: InputSource::Synthetic {
+                operator: OperatorParams::default(),
+                seed: i as u64,
+            },
+            plant,
+            body: Default::default(),
+            noise_seed: i as u64,
+            live_rate_hz: 100.0,
+            stale_input_ms: 100.0,
+        };
+        let built = setup::build_slot(&st, dt, false).map_err(anyhow::Error::msg)?;
+        rt.send(Command::Start(built.slot))
+            .map_err(|_| anyhow::anyhow!("command queue full"))?;
+    }
+    // Drain events as a server link would, until every trial has come back.
+    let mut finished = 0;
+    while finished < trials {
+        while let Ok(ev) = rt.events.pop() {
+            if let Event::Finished(_) = ev {
+                finished += 1;
+            }
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let realtime = rt.shared.realtime.get().cloned().unwrap_or_default();
+    let stats = rt.shutdown();
+    Ok(BenchReport {
+        trials,
+        duration_s,
+        timing: TimingSummary {
+            ticks: stats.ticks,
+            overruns: stats.overruns,
+            wake_latency_us: stats.wake.percentiles_us(),
+            compute_us: stats.compute.percentiles_us(),
+        },
+        realtime,
+    })
+}

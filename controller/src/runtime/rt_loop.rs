@@ -1,0 +1,375 @@
+//! The 1 kHz loop: one `std::thread` that wakes at absolute deadlines and ticks every
+//! running trial. It talks to the rest of the process only through lock-free queues
+//! (commands in, events out) and a few atomics; inside the tick nothing allocates, locks,
+//! blocks or logs.
+
+use std::sync::Arc;
+use std::sync::OnceLock;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::thread::{JoinHandle, Thread};
+use std::time::Duration;
+
+use bdft_protocol::controller_to_server::{LiveSample, RealtimeStatus};
+use bdft_protocol::trial::{FaultKind, TrialId};
+use rtrb::{Consumer, Producer, RingBuffer};
+
+use super::histogram::Histogram;
+use super::os;
+use super::rig_udp::UdpRig;
+use super::slot::{EndReason, SlotLoop, SlotTick, TrialSlot};
+
+/// State the loop publishes for the I/O side.
+#[derive(Debug, Default)]
+pub struct Shared {
+    /// Ticks run so far (operator input is stamped with it on arrival).
+    pub tick: AtomicU64,
+    pub overruns: AtomicU64,
+    /// E-stop requested or latched. Setting it stops every trial at the next tick even if
+    /// the command queue is congested.
+    pub estop: AtomicBool,
+    pub rig_rejected: AtomicU64,
+    pub realtime: OnceLock<RealtimeStatus>,
+}
+
+#[derive(Debug)]
+pub enum Command {
+    Start(Box<TrialSlot>),
+    Abort(TrialId),
+    EStop,
+    ResetEStop,
+    /// End every running trial with this fault (link lost, shutdown).
+    StopAll(FaultKind),
+    /// Lockstep: run this many more ticks.
+    Step(u32),
+    Shutdown,
+}
+
+#[derive(Debug)]
+pub enum Event {
+    Started {
+        trial_id: TrialId,
+        tick: u64,
+    },
+    Live(LiveSample),
+    /// The trial ended; its slot (record, metrics, timing) comes back to be sent and freed.
+    Finished(Box<TrialSlot>),
+    Stepped {
+        tick: u64,
+    },
+}
+
+#[derive(Debug)]
+pub struct LoopConfig {
+    pub period_ns: u64,
+    pub lockstep: bool,
+    pub max_trials: usize,
+    pub priority: i32,
+    pub cpu: Option<usize>,
+    pub rig: Option<UdpRig>,
+}
+
+/// Whole-run timing of the loop.
+#[derive(Debug, Clone, Default)]
+pub struct LoopStats {
+    pub ticks: u64,
+    pub overruns: u64,
+    pub wake: Histogram,
+    pub compute: Histogram,
+}
+
+/// The I/O side's handle on the loop.
+#[derive(Debug)]
+pub struct LoopHandle {
+    commands: Producer<Command>,
+    pub events: Consumer<Event>,
+    pub shared: Arc<Shared>,
+    thread: Thread,
+    join: Option<JoinHandle<LoopStats>>,
+}
+
+impl LoopHandle {
+    /// Queues a command (and wakes a lockstep loop); gives it back if the queue is full.
+    pub fn send(&mut self, cmd: Command) -> Result<(), Command> {
+        let r = self
+            .commands
+            .push(cmd)
+            .map_err(|rtrb::PushError::Full(c)| c);
+        self.thread.unpark();
+        r
+    }
+
+    /// Stops the loop and returns its timing.
+    pub fn shutdown(mut self) -> LoopStats {
+        let _ = self.send(Command::Shutdown);
+        self.join
+            .take()
+            .map(|j| j.join().unwrap_or_default())
+            .unwrap_or_default()
+    }
+}
+
+/// Room kept in the event queue for control events: live samples are dropped before it fills.
+const EVENT_RESERVE: usize = 1024;
+
+pub fn spawn(cfg: LoopConfig) -> LoopHandle {
+    let (cmd_tx, cmd_rx) = RingBuffer::new(1024);
+    let (ev_tx, ev_rx) = RingBuffer::new(1 << 16);
+    let shared = Arc::new(Shared::default());
+    let rt = RtLoop {
+        slots: (0..cfg.max_trials).map(|_| None).collect(),
+        pending: Vec::with_capacity(4 * cfg.max_trials + 16),
+        commands: cmd_rx,
+        events: ev_tx,
+        shared: Arc::clone(&shared),
+        tick: 0,
+        overruns: 0,
+        budget: 0,
+        latched: false,
+        shutdown: false,
+        stats: LoopStats::default(),
+        cfg,
+    };
+    let join = std::thread::Builder::new()
+        .name("bdft-rt".into())
+        .spawn(move || rt.run())
+        .expect("spawn the real-time thread");
+    LoopHandle {
+        commands: cmd_tx,
+        events: ev_rx,
+        shared,
+        thread: join.thread().clone(),
+        join: Some(join),
+    }
+}
+
+struct RtLoop {
+    cfg: LoopConfig,
+    slots: Vec<Option<Box<TrialSlot>>>,
+    /// Finished slots waiting for room in the event queue (never dropped here: freeing
+    /// memory is the I/O side's job).
+    pending: Vec<Box<TrialSlot>>,
+    commands: Consumer<Command>,
+    events: Producer<Event>,
+    shared: Arc<Shared>,
+    tick: u64,
+    overruns: u64,
+    budget: u64,
+    latched: bool,
+    shutdown: bool,
+    stats: LoopStats,
+}
+
+impl RtLoop {
+    fn run(mut self) -> LoopStats {
+        let status = if self.cfg.lockstep {
+            tracing::info!("lockstep mode: the loop runs only the ticks the client asks for");
+            RealtimeStatus::default()
+        } else {
+            let (status, refused) = os::make_realtime(self.cfg.priority, self.cfg.cpu);
+            for r in &refused {
+                tracing::warn!("real-time loop: {r}");
+            }
+            if refused.is_empty() {
+                tracing::info!(
+                    ?status,
+                    "real-time loop: SCHED_FIFO, memory locked, CPU pinned"
+                );
+            }
+            status
+        };
+        let _ = self.shared.realtime.set(status);
+        let period = self.cfg.period_ns;
+        let mut deadline = os::now_ns() + period;
+        loop {
+            let (wake, latency) = if self.cfg.lockstep {
+                loop {
+                    self.drain_commands();
+                    if self.shutdown || self.budget > 0 {
+                        break;
+                    }
+                    std::thread::park_timeout(Duration::from_millis(10));
+                }
+                (os::now_ns(), 0)
+            } else {
+                os::sleep_until(deadline);
+                let wake = os::now_ns();
+                self.drain_commands();
+                (wake, wake.saturating_sub(deadline))
+            };
+            if self.shutdown {
+                self.stop_all(EndReason::Faulted(FaultKind::Internal));
+                self.flush_pending();
+                return self.stats;
+            }
+            self.tick_all(latency);
+            let end = os::now_ns();
+            let compute = end.saturating_sub(wake);
+            self.stats.ticks += 1;
+            self.stats.wake.record(latency);
+            self.stats.compute.record(compute);
+            for slot in self.slots.iter_mut().flatten() {
+                slot.wake.record(latency);
+                slot.compute.record(compute);
+                slot.overruns = self.overruns - slot.overruns_at_start;
+            }
+            // Trials that ended this tick leave only now, with this tick's timing counted.
+            for i in 0..self.slots.len() {
+                if self.slots[i].as_ref().is_some_and(|s| s.end.is_some()) {
+                    let slot = self.slots[i].take().expect("checked");
+                    self.finish(slot);
+                }
+            }
+            if self.cfg.lockstep {
+                self.budget -= 1;
+                if self.budget == 0 {
+                    let _ = self.events.push(Event::Stepped { tick: self.tick });
+                }
+            } else {
+                deadline += period;
+                if end > deadline {
+                    // Deadlines already missed are skipped, not caught up with a burst.
+                    let missed = (end - deadline) / period + 1;
+                    self.overruns += missed;
+                    self.stats.overruns += missed;
+                    deadline += missed * period;
+                    self.shared.overruns.store(self.overruns, Ordering::Relaxed);
+                }
+            }
+        }
+    }
+
+    fn drain_commands(&mut self) {
+        while let Ok(cmd) = self.commands.pop() {
+            match cmd {
+                Command::Start(mut slot) => {
+                    slot.overruns_at_start = self.overruns;
+                    if self.latched {
+                        slot.end(EndReason::Faulted(FaultKind::EStop));
+                        self.finish(slot);
+                    } else if let Some(free) = self.slots.iter_mut().find(|s| s.is_none()) {
+                        let trial_id = slot.trial_id;
+                        *free = Some(slot);
+                        let _ = self.events.push(Event::Started {
+                            trial_id,
+                            tick: self.tick,
+                        });
+                    } else {
+                        slot.end(EndReason::Faulted(FaultKind::Internal));
+                        self.finish(slot);
+                    }
+                }
+                Command::Abort(id) => {
+                    for i in 0..self.slots.len() {
+                        if self.slots[i].as_ref().is_some_and(|s| s.trial_id == id) {
+                            self.end_slot(i, EndReason::Aborted);
+                        }
+                    }
+                }
+                Command::EStop => {
+                    self.shared.estop.store(true, Ordering::SeqCst);
+                    self.latch_estop();
+                }
+                Command::ResetEStop => {
+                    self.latched = false;
+                    self.shared.estop.store(false, Ordering::SeqCst);
+                }
+                Command::StopAll(kind) => self.stop_all(EndReason::Faulted(kind)),
+                Command::Step(n) => self.budget += u64::from(n),
+                Command::Shutdown => self.shutdown = true,
+            }
+        }
+    }
+
+    fn latch_estop(&mut self) {
+        if !self.latched {
+            self.latched = true;
+            self.stop_all(EndReason::Faulted(FaultKind::EStop));
+        }
+    }
+
+    fn stop_all(&mut self, reason: EndReason) {
+        for i in 0..self.slots.len() {
+            self.end_slot(i, reason);
+        }
+    }
+
+    fn end_slot(&mut self, i: usize, reason: EndReason) {
+        if let Some(mut slot) = self.slots[i].take() {
+            slot.end(reason);
+            self.finish(slot);
+        }
+    }
+
+    fn finish(&mut self, slot: Box<TrialSlot>) {
+        self.flush_pending();
+        if let Err(rtrb::PushError::Full(Event::Finished(slot))) =
+            self.events.push(Event::Finished(slot))
+        {
+            if self.pending.len() < self.pending.capacity() {
+                self.pending.push(slot);
+            } else {
+                // Cannot happen with a 65,536-event queue drained every millisecond; if it
+                // did, losing the record beats blocking the loop.
+                drop(slot);
+            }
+        }
+    }
+
+    fn flush_pending(&mut self) {
+        while let Some(slot) = self.pending.pop() {
+            if let Err(rtrb::PushError::Full(Event::Finished(slot))) =
+                self.events.push(Event::Finished(slot))
+            {
+                self.pending.push(slot);
+                return;
+            }
+        }
+    }
+
+    #[inline]
+    fn tick_all(&mut self, latency_ns: u64) {
+        if self.shared.estop.load(Ordering::Relaxed) {
+            self.latch_estop();
+        }
+        let now = self.tick;
+        if let Some(rig) = &mut self.cfg.rig {
+            rig.poll(now);
+        }
+        let latency_us = latency_ns as f32 / 1e3;
+        let mut rig_command = 0.0;
+        for i in 0..self.slots.len() {
+            let Some(slot) = self.slots[i].as_mut() else {
+                continue;
+            };
+            if let (SlotLoop::Rig(ext), Some(rig)) = (slot.runner.loop_mut(), self.cfg.rig.as_ref())
+            {
+                if rig.timed_out(now, slot.start_tick.unwrap_or(now)) {
+                    slot.end(EndReason::Faulted(FaultKind::RigTimeout));
+                } else {
+                    ext.measurement = rig.measurement();
+                }
+            }
+            if slot.end.is_none() {
+                match slot.tick(now, latency_us) {
+                    SlotTick::Live(s) if self.events.slots() > EVENT_RESERVE => {
+                        let _ = self.events.push(Event::Live(s));
+                    }
+                    _ => {}
+                }
+                if let SlotLoop::Rig(ext) = slot.runner.loop_mut() {
+                    if slot.end.is_none() || slot.end == Some(EndReason::Complete) {
+                        rig_command = ext.command;
+                    }
+                }
+            }
+        }
+        if let Some(rig) = &mut self.cfg.rig {
+            rig.send(if self.latched { 0.0 } else { rig_command });
+            self.shared
+                .rig_rejected
+                .store(rig.rejected, Ordering::Relaxed);
+        }
+        self.tick += 1;
+        self.shared.tick.store(self.tick, Ordering::Release);
+    }
+}

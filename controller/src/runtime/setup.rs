@@ -1,0 +1,72 @@
+//! Turns a `StartTrial` message into a ready slot: validates it, designs the compensator,
+//! builds the rig loop and the operator, and reserves the record. Runs on the I/O side,
+//! where allocating and taking milliseconds is fine.
+
+use std::sync::Arc;
+
+use bdft_protocol::params::LoopParams;
+use bdft_protocol::server_to_controller::StartTrial;
+use bdft_protocol::trial::InputSource;
+
+use super::handoff::InputCell;
+use super::slot::{ExternalLoop, SlotLoop, TrialSlot};
+use crate::closed_loop::{ClosedLoop, LoopSetup};
+use crate::compensator::Compensator;
+use crate::operator::SyntheticOperator;
+use crate::runner::{HandSource, TrialRunner};
+use crate::signals::Signal;
+
+/// A built trial and, for input fed from outside, the cell to write it into.
+#[derive(Debug)]
+pub struct Built {
+    pub slot: Box<TrialSlot>,
+    pub input: Option<Arc<InputCell>>,
+}
+
+/// Builds the slot; the error says what is wrong with the request.
+pub fn build_slot(st: &StartTrial, dt: f64, real_rig: bool) -> Result<Built, String> {
+    st.validate().map_err(|e| e.to_string())?;
+    let setup = LoopSetup {
+        plant: st.plant,
+        body: st.body,
+        loop_params: LoopParams { dt, k_bf: st.k_bf },
+        station: st.station,
+        compensator: st.compensator.clone(),
+    };
+    let lp = if real_rig {
+        let comp = Compensator::build(&st.compensator, &st.plant, dt).map_err(|e| e.to_string())?;
+        SlotLoop::Rig(ExternalLoop::new(comp, st.k_bf, st.plant.v_max))
+    } else {
+        SlotLoop::Sim(ClosedLoop::new(&setup, st.noise_seed).map_err(|e| e.to_string())?)
+    };
+    let (hand, input) = match st.input {
+        InputSource::Server | InputSource::Udp { .. } => {
+            (HandSource::External, Some(Arc::new(InputCell::default())))
+        }
+        InputSource::Synthetic { operator, seed } => (
+            HandSource::Synthetic(
+                SyntheticOperator::new(operator, dt, st.k_bf.max(1e-3), seed)
+                    .map_err(|e| e.to_string())?,
+            ),
+            None,
+        ),
+        InputSource::Reference => (HandSource::Reference, None),
+    };
+    let runner = TrialRunner::new(
+        Signal::from_spec(&st.target, st.duration_s),
+        lp,
+        hand,
+        dt,
+        st.duration_s,
+    );
+    let stale_ticks = (st.stale_input_ms * 1e-3 / dt).round() as u64;
+    let live_every = (1.0 / (st.live_rate_hz * dt)).round().max(1.0) as u64;
+    let slot = Box::new(TrialSlot::new(
+        st.trial_id,
+        runner,
+        input.clone(),
+        stale_ticks,
+        live_every,
+    ));
+    Ok(Built { slot, input })
+}

@@ -1,0 +1,219 @@
+//! A trial as the real-time loop holds it: built (and allocated) on the I/O side, moved into
+//! the loop by pointer, ticked without allocating, and moved back when it ends.
+
+use std::sync::Arc;
+
+use bdft_protocol::controller_to_server::LiveSample;
+use bdft_protocol::trial::{FaultKind, RECORD_CHANNELS, TrialId};
+
+use super::handoff::InputCell;
+use super::histogram::Histogram;
+use crate::closed_loop::{ClosedLoop, Drive, TickRecord};
+use crate::compensator::Compensator;
+use crate::model::{Measurement, saturate};
+use crate::runner::{Loop, Sample, TrialRunner};
+
+/// The loop of a trial on a real rig: the compensator alone. The rig's sensors are copied in
+/// before the tick and the command out after it; the body is real, so no feedthrough is
+/// simulated.
+#[derive(Debug)]
+pub struct ExternalLoop {
+    compensator: Compensator,
+    k_bf: f64,
+    v_max: f64,
+    pub measurement: Measurement,
+    pub command: f64,
+}
+
+impl ExternalLoop {
+    pub fn new(compensator: Compensator, k_bf: f64, v_max: f64) -> Self {
+        Self {
+            compensator,
+            k_bf,
+            v_max,
+            measurement: Measurement::default(),
+            command: 0.0,
+        }
+    }
+}
+
+impl Loop for ExternalLoop {
+    #[inline]
+    fn tick(&mut self, drive: Drive) -> TickRecord {
+        let m = self.measurement;
+        let (hand, r_c) = match drive {
+            Drive::Hand(p) => (p, self.k_bf * p),
+            Drive::Reference(r) => (0.0, r),
+        };
+        self.command = saturate(self.compensator.step(r_c, m), self.v_max);
+        TickRecord {
+            hand,
+            feedthrough: 0.0,
+            r_c,
+            valve: self.command,
+            y: m.y,
+            cab_accel: m.cab_accel,
+        }
+    }
+    fn displayed_y(&self) -> f64 {
+        self.measurement.y
+    }
+}
+
+#[derive(Debug)]
+// The slot is boxed as a whole and one variant is used per process, so the size difference
+// costs nothing; boxing the variant would add a pointer chase to every tick.
+#[allow(clippy::large_enum_variant)]
+pub enum SlotLoop {
+    Sim(ClosedLoop),
+    Rig(ExternalLoop),
+}
+
+impl Loop for SlotLoop {
+    #[inline]
+    fn tick(&mut self, drive: Drive) -> TickRecord {
+        match self {
+            Self::Sim(l) => Loop::tick(l, drive),
+            Self::Rig(l) => l.tick(drive),
+        }
+    }
+    fn displayed_y(&self) -> f64 {
+        match self {
+            Self::Sim(l) => l.displayed_y(),
+            Self::Rig(l) => l.displayed_y(),
+        }
+    }
+}
+
+/// Why a trial ended (strings are added on the I/O side; the loop does not allocate).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EndReason {
+    Complete,
+    Aborted,
+    Faulted(FaultKind),
+}
+
+/// One record row: the channels of `RECORD_CHANNELS`.
+pub type RecordRow = [f32; RECORD_CHANNELS.len()];
+
+#[derive(Debug)]
+pub struct TrialSlot {
+    pub trial_id: TrialId,
+    pub runner: TrialRunner<SlotLoop>,
+    /// Operator input for an external hand source.
+    pub input: Option<Arc<InputCell>>,
+    pub stale_ticks: u64,
+    pub live_every: u64,
+    pub start_tick: Option<u64>,
+    pub last_input_seq: u64,
+    /// Full-rate record, capacity reserved for the whole trial.
+    pub record: Vec<RecordRow>,
+    pub wake: Histogram,
+    pub compute: Histogram,
+    pub overruns_at_start: u64,
+    pub overruns: u64,
+    pub end: Option<EndReason>,
+}
+
+/// An empty record with room for the whole trial, its pages already touched: otherwise the
+/// tick would take a page fault every ~110 samples when memory is not locked.
+fn prefaulted(rows: usize) -> Vec<RecordRow> {
+    let mut v = vec![[0.0; RECORD_CHANNELS.len()]; rows];
+    v.clear();
+    v
+}
+
+/// What one tick of a slot produced.
+#[derive(Debug)]
+pub enum SlotTick {
+    Running,
+    Live(LiveSample),
+    Ended,
+}
+
+impl TrialSlot {
+    pub fn new(
+        trial_id: TrialId,
+        runner: TrialRunner<SlotLoop>,
+        input: Option<Arc<InputCell>>,
+        stale_ticks: u64,
+        live_every: u64,
+    ) -> Self {
+        let (_, total) = runner.progress();
+        Self {
+            trial_id,
+            runner,
+            input,
+            stale_ticks,
+            live_every: live_every.max(1),
+            start_tick: None,
+            last_input_seq: 0,
+            record: prefaulted(total as usize),
+            wake: Histogram::default(),
+            compute: Histogram::default(),
+            overruns_at_start: 0,
+            overruns: 0,
+            end: None,
+        }
+    }
+
+    pub fn uses_rig(&self) -> bool {
+        matches!(self.runner.loop_ref(), SlotLoop::Rig(_))
+    }
+
+    /// Ends the trial now (the caller stops ticking it; the valve gets no further command).
+    pub fn end(&mut self, reason: EndReason) {
+        if self.end.is_none() {
+            self.end = Some(reason);
+        }
+    }
+
+    /// One tick at loop tick `now`; `latency_us` is this tick's wake latency.
+    #[inline]
+    pub fn tick(&mut self, now: u64, latency_us: f32) -> SlotTick {
+        let start = *self.start_tick.get_or_insert(now);
+        let mut hand = 0.0;
+        if let Some(cell) = &self.input {
+            match cell.read() {
+                Some(s) if now.saturating_sub(s.arrival_tick) <= self.stale_ticks => {
+                    hand = s.position_mm;
+                    self.last_input_seq = s.seq;
+                }
+                None if now - start <= self.stale_ticks => {}
+                _ => {
+                    self.end(EndReason::Faulted(FaultKind::StaleInput));
+                    return SlotTick::Ended;
+                }
+            }
+        }
+        let (k, _) = self.runner.progress();
+        let s: Sample = self.runner.tick(hand);
+        self.record.push([
+            s.target as f32,
+            s.hand as f32,
+            s.feedthrough as f32,
+            s.r_c as f32,
+            s.valve as f32,
+            s.y as f32,
+            s.cab_accel as f32,
+            s.device() as f32,
+            latency_us,
+        ]);
+        if self.runner.done() {
+            self.end(EndReason::Complete);
+            return SlotTick::Ended;
+        }
+        if k % self.live_every == 0 {
+            return SlotTick::Live(LiveSample {
+                trial_id: self.trial_id,
+                t: s.t,
+                target_mm: s.target,
+                device_mm: s.device(),
+                cylinder_mm: s.y,
+                cab_accel_mm_s2: s.cab_accel,
+                input_seq: self.last_input_seq,
+            });
+        }
+        SlotTick::Running
+    }
+}

@@ -1,0 +1,631 @@
+//! `bdft-controller serve` as the server uses it: real process, real socket, real protocol.
+
+use bdft_controller::closed_loop::LoopSetup;
+use bdft_controller::compensator::default_spec;
+use bdft_controller::rng::Rng;
+use bdft_controller::simulate::{SignalKind, SimConfig, simulate};
+use bdft_protocol::controller_to_server::ControllerToServer;
+use bdft_protocol::params::{
+    BodyModel, CompensatorKind, LoopParams, OperatorParams, PlantParams, Station, StepParams,
+};
+use bdft_protocol::server_to_controller::{ServerToController, StartTrial};
+use bdft_protocol::trial::{FaultKind, InputSource, Outcome, RECORD_CHANNELS, TargetSpec};
+use bdft_tests::controller_link::{Link, Proc, TrialLog};
+
+/// The StartTrial that reproduces `simulate` with these settings (same target, same noise,
+/// same synthetic operator seeds).
+fn synthetic_trial(
+    trial_id: u64,
+    kind: CompensatorKind,
+    station: Station,
+    k_bf: f64,
+    duration_s: f64,
+    seed: u64,
+) -> StartTrial {
+    let plant = PlantParams::default();
+    let target = bdft_controller::signals::StepTarget::generate(
+        &StepParams::default(),
+        duration_s.max(4.0),
+        seed,
+    )
+    .unwrap();
+    StartTrial {
+        trial_id,
+        compensator: default_spec(kind, &plant),
+        station,
+        k_bf,
+        target: TargetSpec::Steps {
+            interval_s: target.interval_s,
+            levels_mm: target.levels_mm,
+        },
+        duration_s,
+        input: InputSource::Synthetic {
+            operator: OperatorParams::default(),
+            seed,
+        },
+        plant,
+        body: BodyModel::default(),
+        noise_seed: Rng::derive(seed, Rng::ACCEL_NOISE).next_u64(),
+        live_rate_hz: 100.0,
+        stale_input_ms: 100.0,
+    }
+}
+
+fn offline(
+    kind: CompensatorKind,
+    station: Station,
+    k_bf: f64,
+    duration_s: f64,
+    seed: u64,
+) -> bdft_controller::simulate::SimSummary {
+    let plant = PlantParams::default();
+    let cfg = SimConfig {
+        setup: LoopSetup {
+            compensator: default_spec(kind, &plant),
+            plant,
+            body: BodyModel::default(),
+            loop_params: LoopParams {
+                k_bf,
+                ..LoopParams::default()
+            },
+            station,
+        },
+        signal: SignalKind::Steps,
+        duration_s,
+        seed,
+        operator: OperatorParams::default(),
+        steps: StepParams::default(),
+    };
+    simulate(&cfg, |_| {}).unwrap()
+}
+
+fn server_input_trial(trial_id: u64, duration_s: f64) -> StartTrial {
+    StartTrial {
+        input: InputSource::Server,
+        ..synthetic_trial(
+            trial_id,
+            CompensatorKind::Lqr,
+            Station::Off,
+            0.6,
+            duration_s,
+            1,
+        )
+    }
+}
+
+#[test]
+fn lockstep_trials_reproduce_the_offline_simulation_exactly() {
+    let ctl = Proc::controller(&["--lockstep"]);
+    let (mut link, ack) = Link::connect(ctl.addr);
+    assert!(
+        matches!(ack, ControllerToServer::HelloAck { lockstep: true, .. }),
+        "{ack:?}"
+    );
+    // Three stations at once, each with its own plant and compensator.
+    let trials = [
+        (1, CompensatorKind::LqrCabvel, Station::On, 0.78, 11),
+        (2, CompensatorKind::PidShaper, Station::On, 0.6, 12),
+        (3, CompensatorKind::Pid, Station::Off, 0.6, 13),
+    ];
+    let duration = 6.0;
+    for &(id, kind, station, k_bf, seed) in &trials {
+        link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
+            id, kind, station, k_bf, duration, seed,
+        ))));
+    }
+    let mut log = TrialLog::default();
+    for _ in 0..7 {
+        link.step(1000, &mut log);
+    }
+    assert!(log.rejected.is_empty(), "{:?}", log.rejected);
+    assert_eq!(log.started.len(), 3);
+    for &(id, kind, station, k_bf, seed) in &trials {
+        let r = log
+            .results
+            .iter()
+            .find(|r| r.trial_id == id)
+            .expect("result");
+        assert_eq!(r.outcome, Outcome::Complete);
+        let want = offline(kind, station, k_bf, duration, seed);
+        assert_eq!(r.metrics.ticks, want.ticks);
+        // Same code, same seeds: bit-identical metrics.
+        assert_eq!(r.metrics.mse_tracking_mm2, want.mse_tracking_mm2, "{kind}");
+        assert_eq!(r.metrics.ms_cab_accel, want.ms_cab_accel, "{kind}");
+        // The full record arrived: every channel, every tick, and it reproduces the metric.
+        let rec = log.record(id);
+        assert_eq!(rec.len(), RECORD_CHANNELS.len());
+        assert!(rec.iter().all(|c| c.len() as u64 == want.ticks));
+        let (t, y) = (&rec[0], &rec[5]);
+        let mse: f64 = t
+            .iter()
+            .zip(y)
+            .map(|(a, b)| (f64::from(*a) - f64::from(*b)).powi(2))
+            .sum::<f64>()
+            / t.len() as f64;
+        assert!(
+            (mse / want.mse_tracking_mm2 - 1.0).abs() < 1e-4,
+            "{mse} vs {}",
+            want.mse_tracking_mm2
+        );
+        assert!(
+            rec[4].iter().all(|v| v.abs() <= 10.0),
+            "valve commands saturated"
+        );
+        // Live samples at ~100 Hz.
+        let live = log.live.iter().filter(|s| s.trial_id == id).count();
+        assert!((590..=600).contains(&live), "{live} live samples");
+        assert_eq!(r.timing.ticks, want.ticks);
+    }
+}
+
+#[test]
+fn stale_operator_input_stops_the_trial_with_a_fault() {
+    let ctl = Proc::controller(&["--lockstep"]);
+    let (mut link, _) = Link::connect(ctl.addr);
+    link.send(&ServerToController::StartTrial(Box::new(
+        server_input_trial(5, 10.0),
+    )));
+    let mut log = TrialLog::default();
+    // 300 ticks with fresh input every 10 ticks: the trial runs and echoes our sequence.
+    for seq in 1..=30u64 {
+        link.send(&ServerToController::OperatorInput {
+            trial_id: 5,
+            seq,
+            position_mm: 10.0,
+        });
+        link.step(10, &mut log);
+    }
+    assert!(log.results.is_empty(), "ended early: {:?}", log.results);
+    assert!(log.live.iter().any(|s| s.input_seq == 30));
+    // Then silence: the trial must fault once the last input is older than 100 ms.
+    link.step(200, &mut log);
+    let r = log
+        .results
+        .iter()
+        .find(|r| r.trial_id == 5)
+        .expect("faulted");
+    assert!(
+        matches!(
+            r.outcome,
+            Outcome::Faulted {
+                fault: FaultKind::StaleInput,
+                ..
+            }
+        ),
+        "{:?}",
+        r.outcome
+    );
+    // The last input arrived before tick 290; the trial ran until it was 100 ticks old.
+    let ticks = r.metrics.ticks;
+    assert!((385..=392).contains(&ticks), "stopped after {ticks} ticks");
+    assert!(log.faults.iter().any(|f| matches!(
+        f,
+        ControllerToServer::Fault {
+            kind: FaultKind::StaleInput,
+            trial_id: Some(5),
+            ..
+        }
+    )));
+    // No input from the start at all also faults, after the same grace.
+    link.send(&ServerToController::StartTrial(Box::new(
+        server_input_trial(6, 10.0),
+    )));
+    link.step(150, &mut log);
+    let r = log
+        .results
+        .iter()
+        .find(|r| r.trial_id == 6)
+        .expect("faulted");
+    assert!(matches!(
+        r.outcome,
+        Outcome::Faulted {
+            fault: FaultKind::StaleInput,
+            ..
+        }
+    ));
+}
+
+#[test]
+fn estop_stops_everything_and_latches_until_reset() {
+    let ctl = Proc::controller(&["--lockstep"]);
+    let (mut link, _) = Link::connect(ctl.addr);
+    let mut log = TrialLog::default();
+    link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
+        1,
+        CompensatorKind::Lqr,
+        Station::On,
+        0.6,
+        10.0,
+        1,
+    ))));
+    link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
+        2,
+        CompensatorKind::PidNotch,
+        Station::On,
+        0.6,
+        10.0,
+        2,
+    ))));
+    link.step(100, &mut log);
+    link.send(&ServerToController::EStop);
+    link.step(1, &mut log);
+    for id in [1, 2] {
+        let r = log
+            .results
+            .iter()
+            .find(|r| r.trial_id == id)
+            .expect("stopped");
+        assert!(matches!(
+            r.outcome,
+            Outcome::Faulted {
+                fault: FaultKind::EStop,
+                ..
+            }
+        ));
+        assert!(r.metrics.ticks <= 101);
+    }
+    assert!(log.faults.iter().any(|f| matches!(
+        f,
+        ControllerToServer::Fault {
+            kind: FaultKind::EStop,
+            trial_id: None,
+            ..
+        }
+    )));
+    // Latched: a new trial is refused until the reset.
+    link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
+        3,
+        CompensatorKind::Lqr,
+        Station::On,
+        0.6,
+        1.0,
+        3,
+    ))));
+    link.step(1, &mut log);
+    assert!(
+        log.rejected.iter().any(|r| r.contains("e-stop")),
+        "{:?}",
+        log.rejected
+    );
+    link.send(&ServerToController::ResetEStop);
+    match link.recv() {
+        ControllerToServer::Status(s) => assert!(!s.estop_latched),
+        other => panic!("{other:?}"),
+    }
+    link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
+        3,
+        CompensatorKind::Lqr,
+        Station::On,
+        0.6,
+        0.5,
+        3,
+    ))));
+    link.step(600, &mut log);
+    let r = log
+        .results
+        .iter()
+        .find(|r| r.trial_id == 3)
+        .expect("ran after reset");
+    assert_eq!(r.outcome, Outcome::Complete);
+}
+
+#[test]
+fn bad_messages_are_rejected_counted_and_never_reach_the_valve() {
+    let ctl = Proc::controller(&["--lockstep"]);
+    // A client that does not say hello first is turned away.
+    let mut rude = Link::raw(ctl.addr);
+    rude.send(&ServerToController::Status);
+    assert!(matches!(
+        rude.try_recv(),
+        Some(ControllerToServer::Rejected { .. })
+    ));
+    assert!(rude.try_recv().is_none(), "closed after the refusal");
+    // So is a client of another protocol version.
+    let mut old = Link::raw(ctl.addr);
+    old.send(&ServerToController::Hello {
+        protocol_version: 999,
+        client: "old".into(),
+    });
+    match old.try_recv() {
+        Some(ControllerToServer::Rejected { reason }) => {
+            assert!(reason.contains("999"), "{reason}")
+        }
+        other => panic!("{other:?}"),
+    }
+
+    let (mut link, _) = Link::connect(ctl.addr);
+    let mut log = TrialLog::default();
+    // Malformed JSON in a valid frame: rejected, the link stays usable.
+    let junk = br#"{"type":"launch_missiles"}"#;
+    let mut frame = (junk.len() as u32).to_be_bytes().to_vec();
+    frame.extend_from_slice(junk);
+    link.send_bytes(&frame);
+    assert!(matches!(link.recv(), ControllerToServer::Rejected { .. }));
+    // Out-of-range parameters: the reason names the field.
+    let mut bad = server_input_trial(9, 1.0);
+    bad.k_bf = 50.0;
+    link.send(&ServerToController::StartTrial(Box::new(bad.clone())));
+    match link.recv() {
+        ControllerToServer::Rejected { reason } => assert!(
+            reason.contains("k_bf") && reason.contains("[0, 20]"),
+            "{reason}"
+        ),
+        other => panic!("{other:?}"),
+    }
+    // Infinity is not JSON either (it goes out as null) and is refused.
+    bad.k_bf = f64::INFINITY;
+    link.send(&ServerToController::StartTrial(Box::new(bad)));
+    assert!(matches!(link.recv(), ControllerToServer::Rejected { .. }));
+    let mut bad = server_input_trial(9, 1.0);
+    bad.target = TargetSpec::Steps {
+        interval_s: 2.0,
+        levels_mm: vec![5.0, f64::NAN],
+    };
+    // NaN is not JSON: serde_json writes null, which must not deserialize into a level.
+    link.send(&ServerToController::StartTrial(Box::new(bad)));
+    assert!(matches!(link.recv(), ControllerToServer::Rejected { .. }));
+
+    // A running trial fed wild input: non-finite and huge positions are dropped and counted;
+    // the last good position keeps driving, and every valve command stays saturated.
+    link.send(&ServerToController::StartTrial(Box::new(
+        server_input_trial(10, 0.2),
+    )));
+    for (seq, p) in [(1, 5.0), (2, f64::NAN), (3, 1e9), (4, -1e300)] {
+        link.send(&ServerToController::OperatorInput {
+            trial_id: 10,
+            seq,
+            position_mm: p,
+        });
+    }
+    link.send(&ServerToController::OperatorInput {
+        trial_id: 999,
+        seq: 1,
+        position_mm: 1.0,
+    });
+    link.step(50, &mut log);
+    for seq in 5..20 {
+        link.send(&ServerToController::OperatorInput {
+            trial_id: 10,
+            seq,
+            position_mm: 5.0,
+        });
+        link.step(10, &mut log);
+    }
+    let r = log
+        .results
+        .iter()
+        .find(|r| r.trial_id == 10)
+        .expect("result");
+    assert_eq!(r.outcome, Outcome::Complete);
+    let rec = log.record(10);
+    assert!(
+        rec[1].iter().all(|h| *h == 0.0 || *h == 5.0),
+        "only the good position was used"
+    );
+    assert!(rec[4].iter().all(|v| v.is_finite() && v.abs() <= 10.0));
+    // Step is refused outside lockstep? Here we are in lockstep, so check the status counts.
+    link.send(&ServerToController::Status);
+    let status = loop {
+        match link.recv() {
+            ControllerToServer::Status(s) => break s,
+            other => log.add(other),
+        }
+    };
+    assert!(status.rejected_messages >= 6, "{status:?}");
+    assert!(status.running_trials.is_empty());
+}
+
+#[test]
+fn a_lost_server_link_stops_trials_and_the_controller_accepts_a_new_one() {
+    let ctl = Proc::controller(&["--link-timeout-ms", "300"]);
+    let (mut link, _) = Link::connect(ctl.addr);
+    let mut log = TrialLog::default();
+    link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
+        1,
+        CompensatorKind::Lqr,
+        Station::On,
+        0.6,
+        60.0,
+        1,
+    ))));
+    loop {
+        if let ControllerToServer::TrialStarted { trial_id: 1, .. } = link.recv() {
+            break;
+        }
+    }
+    // While one server is connected, another is turned away.
+    let mut second = Link::raw(ctl.addr);
+    second.send(&ServerToController::Hello {
+        protocol_version: bdft_protocol::PROTOCOL_VERSION,
+        client: "second".into(),
+    });
+    match second.try_recv() {
+        Some(ControllerToServer::Rejected { reason }) => {
+            assert!(reason.contains("another server"), "{reason}")
+        }
+        other => panic!("{other:?}"),
+    }
+    drop(link);
+    // A new connection after the loss finds no trial running and can run a new one.
+    let (mut link, _) = loop {
+        let (mut l, ack) = Link::connect(ctl.addr);
+        if matches!(ack, ControllerToServer::HelloAck { .. }) {
+            break (l, ack);
+        }
+        // The controller may not have noticed the close yet; it refused us as "another".
+        assert!(l.try_recv().is_none());
+    };
+    let status = loop {
+        link.send(&ServerToController::Status);
+        match link.recv() {
+            ControllerToServer::Status(s) if s.running_trials.is_empty() => break s,
+            ControllerToServer::Status(_) => continue,
+            other => log.add(other),
+        }
+    };
+    assert!(!status.estop_latched);
+    link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
+        2,
+        CompensatorKind::PidNotch,
+        Station::On,
+        0.6,
+        0.3,
+        2,
+    ))));
+    let r = link.until_result(2, &mut log);
+    assert_eq!(r.outcome, Outcome::Complete);
+    assert!(
+        r.timing.wake_latency_us.max > 0.0,
+        "real-time mode measures wake latency"
+    );
+    // Silence longer than the link timeout also counts as a lost link.
+    link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
+        3,
+        CompensatorKind::Lqr,
+        Station::On,
+        0.6,
+        60.0,
+        3,
+    ))));
+    loop {
+        if let ControllerToServer::TrialStarted { trial_id: 3, .. } = link.recv() {
+            break;
+        }
+    }
+    // Keep reading without sending: the controller must drop us within the timeout.
+    let closed = loop {
+        match link.try_recv() {
+            None => break true,
+            Some(_) => continue,
+        }
+    };
+    assert!(closed);
+    let (mut link, _) = Link::connect(ctl.addr);
+    link.send(&ServerToController::Status);
+    let running = loop {
+        match link.recv() {
+            ControllerToServer::Status(s) => break s.running_trials,
+            _ => continue,
+        }
+    };
+    assert!(running.is_empty(), "{running:?}");
+}
+
+#[test]
+fn a_trial_runs_on_a_rig_over_udp_and_a_silent_rig_is_a_fault() {
+    let mut rig = Proc::rig_sim();
+    let rig_addr = rig.addr.to_string();
+    let ctl = Proc::controller(&["--rig", "udp", "--rig-addr", &rig_addr]);
+    let (mut link, ack) = Link::connect(ctl.addr);
+    assert!(
+        matches!(&ack, ControllerToServer::HelloAck { rig, .. } if rig == "udp"),
+        "{ack:?}"
+    );
+    let mut log = TrialLog::default();
+    // A 3 s bench trapezoid straight into the cylinder reference.
+    let bench = StartTrial {
+        target: TargetSpec::Trapezoid {
+            amplitude_mm: 25.0,
+            period_s: 6.0,
+        },
+        input: InputSource::Reference,
+        ..synthetic_trial(1, CompensatorKind::PidNotch, Station::Off, 0.6, 3.0, 1)
+    };
+    link.send(&ServerToController::StartTrial(Box::new(bench.clone())));
+    let r = link.until_result(1, &mut log);
+    assert_eq!(r.outcome, Outcome::Complete, "{:?}", log.faults);
+    // The rig's model tracked the trapezoid: an error of a few mm, as offline.
+    assert!(
+        r.metrics.mse_tracking_mm2 < 20.0,
+        "{}",
+        r.metrics.mse_tracking_mm2
+    );
+    let rec = log.record(1);
+    let y_max = rec[5].iter().fold(0f32, |m, v| m.max(v.abs()));
+    assert!(y_max > 15.0, "the rig's cylinder moved ({y_max} mm)");
+    // A second rig trial while one runs is refused (one machine).
+    link.send(&ServerToController::StartTrial(Box::new(StartTrial {
+        trial_id: 2,
+        duration_s: 30.0,
+        ..bench.clone()
+    })));
+    link.send(&ServerToController::StartTrial(Box::new(StartTrial {
+        trial_id: 3,
+        duration_s: 30.0,
+        ..bench
+    })));
+    loop {
+        match link.recv() {
+            ControllerToServer::Rejected { reason } => {
+                assert!(reason.contains("rig is in use"), "{reason}");
+                break;
+            }
+            other => log.add(other),
+        }
+    }
+    // The rig dies mid-trial: the trial faults instead of hanging.
+    rig.kill();
+    let r = link.until_result(2, &mut log);
+    assert!(
+        matches!(
+            r.outcome,
+            Outcome::Faulted {
+                fault: FaultKind::RigTimeout,
+                ..
+            }
+        ),
+        "{:?}",
+        r.outcome
+    );
+}
+
+#[test]
+fn operator_input_arrives_over_udp_from_a_haptic_host() {
+    let ctl = Proc::controller(&["--input-udp", "127.0.0.1:0"]);
+    let input = ctl.input_udp.expect("input port announced");
+    let (mut link, _) = Link::connect(ctl.addr);
+    let mut log = TrialLog::default();
+    let st = StartTrial {
+        input: InputSource::Udp { channel: 4 },
+        ..server_input_trial(1, 1.0)
+    };
+    link.send(&ST::StartTrial(Box::new(st)));
+    loop {
+        if let ControllerToServer::TrialStarted { trial_id: 1, .. } = link.recv() {
+            break;
+        }
+    }
+    let host = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    // A haptic host streams at 1 kHz; a malformed datagram and a wrong channel in between.
+    host.send_to(b"garbage", input).unwrap();
+    let writer = std::thread::spawn(move || {
+        for seq in 1..=1500u32 {
+            let d = bdft_protocol::rig::InputDatagram {
+                channel: 4,
+                seq,
+                position_mm: 8.0,
+            };
+            let _ = host.send_to(&d.encode(), input);
+            let other = bdft_protocol::rig::InputDatagram {
+                channel: 5,
+                seq,
+                position_mm: 99.0,
+            };
+            if seq % 100 == 0 {
+                let _ = host.send_to(&other.encode(), input);
+            }
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+    });
+    let r = link.until_result(1, &mut log);
+    writer.join().unwrap();
+    assert_eq!(r.outcome, Outcome::Complete, "{:?}", log.faults);
+    let rec = log.record(1);
+    assert!(
+        rec[1].iter().skip(100).all(|h| *h == 8.0),
+        "the host's position drove the trial"
+    );
+    assert!(log.live.iter().any(|s| s.input_seq > 100));
+}
+
+type ST = ServerToController;

@@ -1,0 +1,229 @@
+//! A test client for `bdft-controller serve`: spawns the real process and talks the real
+//! protocol over a real socket, as the server will.
+
+use std::io::{BufRead, BufReader, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use bdft_protocol::PROTOCOL_VERSION;
+use bdft_protocol::controller_to_server::{
+    ControllerToServer, LiveSample, RecordChunk, TrialResult,
+};
+use bdft_protocol::framing::{decode, encode, read_frame};
+use bdft_protocol::server_to_controller::ServerToController;
+
+use crate::binary;
+
+/// A running product process, killed when dropped.
+#[derive(Debug)]
+pub struct Proc {
+    pub child: Child,
+    /// Addresses the process printed ("listening on …", "input udp on …").
+    pub addr: SocketAddr,
+    pub input_udp: Option<SocketAddr>,
+}
+
+impl Proc {
+    /// Starts `binary` with `args` and waits for the line announcing its address
+    /// (`prefix ADDR` on stdout).
+    pub fn spawn(bin: &str, args: &[&str], prefix: &str) -> Self {
+        let child = Command::new(binary(bin))
+            .args(args)
+            .env(
+                "RUST_LOG",
+                std::env::var("RUST_LOG").unwrap_or_else(|_| "warn".into()),
+            )
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("spawn");
+        // Owned by a Proc from here on, so a failed start still kills the process.
+        let mut proc = Self {
+            child,
+            addr: SocketAddr::from(([0, 0, 0, 0], 0)),
+            input_udp: None,
+        };
+        let mut lines = BufReader::new(proc.child.stdout.take().expect("stdout")).lines();
+        loop {
+            let line = lines
+                .next()
+                .expect("the process printed its address")
+                .expect("utf-8 line");
+            if let Some(a) = line.strip_prefix("input udp on ") {
+                proc.input_udp = Some(a.parse().expect("address"));
+            }
+            if let Some(a) = line.strip_prefix(prefix) {
+                proc.addr = a.trim().parse().expect("address");
+                // Keep draining stdout so the process never blocks on a full pipe.
+                std::thread::spawn(move || for _ in lines {});
+                return proc;
+            }
+        }
+    }
+
+    pub fn controller(extra: &[&str]) -> Self {
+        let mut args = vec!["serve", "--listen", "127.0.0.1:0"];
+        args.extend_from_slice(extra);
+        Self::spawn("bdft-controller", &args, "listening on ")
+    }
+
+    pub fn rig_sim() -> Self {
+        Self::spawn(
+            "bdft-controller",
+            &["rig-sim", "--listen", "127.0.0.1:0"],
+            "rig-sim listening on ",
+        )
+    }
+
+    pub fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+/// How long a test waits for any one message before failing (generous for debug builds on
+/// a loaded 2-core machine; a healthy exchange takes milliseconds).
+pub const PATIENCE: Duration = Duration::from_secs(60);
+
+/// The server end of a controller link.
+#[derive(Debug)]
+pub struct Link {
+    stream: TcpStream,
+}
+
+impl Link {
+    /// Connects and exchanges hellos; returns the link and the controller's `HelloAck`.
+    pub fn connect(addr: SocketAddr) -> (Self, ControllerToServer) {
+        let mut link = Self::raw(addr);
+        link.send(&ServerToController::Hello {
+            protocol_version: PROTOCOL_VERSION,
+            client: "bdft-tests".into(),
+        });
+        let ack = link.recv();
+        (link, ack)
+    }
+
+    /// Connects without a hello.
+    pub fn raw(addr: SocketAddr) -> Self {
+        let stream = TcpStream::connect(addr).expect("connect to the controller");
+        stream.set_read_timeout(Some(PATIENCE)).unwrap();
+        stream.set_nodelay(true).unwrap();
+        Self { stream }
+    }
+
+    pub fn send(&mut self, msg: &ServerToController) {
+        self.stream.write_all(&encode(msg)).expect("send");
+    }
+
+    pub fn send_bytes(&mut self, bytes: &[u8]) {
+        self.stream.write_all(bytes).expect("send");
+    }
+
+    /// Next message other than a heartbeat; panics on timeout or a closed link.
+    pub fn recv(&mut self) -> ControllerToServer {
+        loop {
+            let payload = read_frame(&mut self.stream)
+                .expect("read")
+                .expect("the controller closed the link");
+            let msg: ControllerToServer = decode(&payload).expect("a valid message");
+            if !matches!(msg, ControllerToServer::Heartbeat { .. }) {
+                return msg;
+            }
+        }
+    }
+
+    /// `None` if the controller closed the link.
+    pub fn try_recv(&mut self) -> Option<ControllerToServer> {
+        loop {
+            let payload = read_frame(&mut self.stream).ok()??;
+            let msg: ControllerToServer = decode(&payload).expect("a valid message");
+            if !matches!(msg, ControllerToServer::Heartbeat { .. }) {
+                return Some(msg);
+            }
+        }
+    }
+
+    /// Lockstep: runs `ticks` ticks, collecting what arrives until `Stepped`.
+    pub fn step(&mut self, ticks: u32, into: &mut TrialLog) {
+        self.send(&ServerToController::Step { ticks });
+        loop {
+            match self.recv() {
+                ControllerToServer::Stepped { .. } => return,
+                other => into.add(other),
+            }
+        }
+    }
+
+    /// Receives until the result of `trial_id` arrives, sending heartbeats meanwhile.
+    pub fn until_result(&mut self, trial_id: u64, into: &mut TrialLog) -> TrialResult {
+        let start = Instant::now();
+        loop {
+            assert!(start.elapsed() < PATIENCE, "no result for trial {trial_id}");
+            self.send(&ServerToController::Heartbeat { seq: 0 });
+            let msg = self.recv();
+            if let ControllerToServer::TrialResult(r) = &msg
+                && r.trial_id == trial_id
+            {
+                return (**r).clone();
+            }
+            into.add(msg);
+        }
+    }
+}
+
+/// Everything received about trials, by kind.
+#[derive(Debug, Default)]
+pub struct TrialLog {
+    pub started: Vec<u64>,
+    pub live: Vec<LiveSample>,
+    pub chunks: Vec<RecordChunk>,
+    pub results: Vec<TrialResult>,
+    pub faults: Vec<ControllerToServer>,
+    pub rejected: Vec<String>,
+    pub other: Vec<ControllerToServer>,
+}
+
+impl TrialLog {
+    pub fn add(&mut self, msg: ControllerToServer) {
+        match msg {
+            ControllerToServer::TrialStarted { trial_id, .. } => self.started.push(trial_id),
+            ControllerToServer::Live(s) => self.live.push(s),
+            ControllerToServer::RecordChunk(c) => self.chunks.push(c),
+            ControllerToServer::TrialResult(r) => self.results.push(*r),
+            ControllerToServer::Rejected { reason } => self.rejected.push(reason),
+            f @ ControllerToServer::Fault { .. } => self.faults.push(f),
+            other => self.other.push(other),
+        }
+    }
+
+    /// The full record of a trial, channel by channel, checking the chunks are in order
+    /// and contiguous.
+    pub fn record(&self, trial_id: u64) -> Vec<Vec<f32>> {
+        let mut channels: Vec<Vec<f32>> = Vec::new();
+        let mut next_tick = 0;
+        for (i, c) in self
+            .chunks
+            .iter()
+            .filter(|c| c.trial_id == trial_id)
+            .enumerate()
+        {
+            assert_eq!(c.index as usize, i, "chunks in order");
+            assert_eq!(c.start_tick, next_tick, "chunks contiguous");
+            if channels.is_empty() {
+                channels = vec![Vec::new(); c.channels.len()];
+            }
+            for (all, part) in channels.iter_mut().zip(&c.channels) {
+                all.extend_from_slice(part);
+            }
+            next_tick += c.channels[0].len() as u64;
+        }
+        channels
+    }
+}
