@@ -112,30 +112,14 @@ impl LoopHandle {
 const EVENT_RESERVE: usize = 1024;
 
 pub fn spawn(cfg: LoopConfig) -> LoopHandle {
-    let (cmd_tx, cmd_rx) = RingBuffer::new(1024);
-    let (ev_tx, ev_rx) = RingBuffer::new(1 << 16);
-    let shared = Arc::new(Shared::default());
-    let rt = RtLoop {
-        slots: (0..cfg.max_trials).map(|_| None).collect(),
-        pending: Vec::with_capacity(4 * cfg.max_trials + 16),
-        commands: cmd_rx,
-        events: ev_tx,
-        shared: Arc::clone(&shared),
-        tick: 0,
-        overruns: 0,
-        budget: 0,
-        latched: false,
-        shutdown: false,
-        stats: LoopStats::default(),
-        cfg,
-    };
+    let (rt, commands, events, shared) = RtLoop::new(cfg);
     let join = std::thread::Builder::new()
         .name("bdft-rt".into())
         .spawn(move || rt.run())
         .expect("spawn the real-time thread");
     LoopHandle {
-        commands: cmd_tx,
-        events: ev_rx,
+        commands,
+        events,
         shared,
         thread: join.thread().clone(),
         join: Some(join),
@@ -160,6 +144,27 @@ struct RtLoop {
 }
 
 impl RtLoop {
+    fn new(cfg: LoopConfig) -> (Self, Producer<Command>, Consumer<Event>, Arc<Shared>) {
+        let (cmd_tx, cmd_rx) = RingBuffer::new(1024);
+        let (ev_tx, ev_rx) = RingBuffer::new(1 << 16);
+        let shared = Arc::new(Shared::default());
+        let rt = Self {
+            slots: (0..cfg.max_trials).map(|_| None).collect(),
+            pending: Vec::with_capacity(4 * cfg.max_trials + 16),
+            commands: cmd_rx,
+            events: ev_tx,
+            shared: Arc::clone(&shared),
+            tick: 0,
+            overruns: 0,
+            budget: 0,
+            latched: false,
+            shutdown: false,
+            stats: LoopStats::default(),
+            cfg,
+        };
+        (rt, cmd_tx, ev_rx, shared)
+    }
+
     fn run(mut self) -> LoopStats {
         let status = if self.cfg.lockstep {
             tracing::info!("lockstep mode: the loop runs only the ticks the client asks for");
@@ -201,24 +206,7 @@ impl RtLoop {
                 self.flush_pending();
                 return self.stats;
             }
-            self.tick_all(latency);
-            let end = os::now_ns();
-            let compute = end.saturating_sub(wake);
-            self.stats.ticks += 1;
-            self.stats.wake.record(latency);
-            self.stats.compute.record(compute);
-            for slot in self.slots.iter_mut().flatten() {
-                slot.wake.record(latency);
-                slot.compute.record(compute);
-                slot.overruns = self.overruns - slot.overruns_at_start;
-            }
-            // Trials that ended this tick leave only now, with this tick's timing counted.
-            for i in 0..self.slots.len() {
-                if self.slots[i].as_ref().is_some_and(|s| s.end.is_some()) {
-                    let slot = self.slots[i].take().expect("checked");
-                    self.finish(slot);
-                }
-            }
+            let end = self.one_tick(wake, latency);
             if self.cfg.lockstep {
                 self.budget -= 1;
                 if self.budget == 0 {
@@ -236,6 +224,31 @@ impl RtLoop {
                 }
             }
         }
+    }
+
+    /// Ticks every trial, records the timing, and hands back trials that ended. Returns
+    /// the time the work finished.
+    #[inline]
+    fn one_tick(&mut self, wake: u64, latency: u64) -> u64 {
+        self.tick_all(latency);
+        let end = os::now_ns();
+        let compute = end.saturating_sub(wake);
+        self.stats.ticks += 1;
+        self.stats.wake.record(latency);
+        self.stats.compute.record(compute);
+        for slot in self.slots.iter_mut().flatten() {
+            slot.wake.record(latency);
+            slot.compute.record(compute);
+            slot.overruns = self.overruns - slot.overruns_at_start;
+        }
+        // Trials that ended this tick leave only now, with this tick's timing counted.
+        for i in 0..self.slots.len() {
+            if self.slots[i].as_ref().is_some_and(|s| s.end.is_some()) {
+                let slot = self.slots[i].take().expect("checked");
+                self.finish(slot);
+            }
+        }
+        end
     }
 
     fn drain_commands(&mut self) {
@@ -371,5 +384,93 @@ impl RtLoop {
         }
         self.tick += 1;
         self.shared.tick.store(self.tick, Ordering::Release);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::alloc_check::allocations_during;
+    use crate::compensator::default_spec;
+    use crate::runtime::handoff::InputSample;
+    use crate::runtime::setup::build_slot;
+    use bdft_protocol::params::{CompensatorKind, OperatorParams, PlantParams, Station};
+    use bdft_protocol::server_to_controller::StartTrial;
+    use bdft_protocol::trial::{InputSource, TargetSpec};
+
+    fn start(id: u64, kind: CompensatorKind, input: InputSource) -> StartTrial {
+        let plant = PlantParams::default();
+        StartTrial {
+            trial_id: id,
+            compensator: default_spec(kind, &plant),
+            station: Station::On,
+            k_bf: 0.6,
+            target: TargetSpec::Steps {
+                interval_s: 0.5,
+                levels_mm: vec![10.0, -20.0, 5.0, 0.0],
+            },
+            duration_s: 1.5,
+            input,
+            plant,
+            body: Default::default(),
+            noise_seed: id,
+            live_rate_hz: 100.0,
+            stale_input_ms: 100.0,
+        }
+    }
+
+    #[test]
+    fn the_loop_tick_never_allocates() {
+        let cfg = LoopConfig {
+            period_ns: 1_000_000,
+            lockstep: true,
+            max_trials: 8,
+            priority: 1,
+            cpu: None,
+            rig: None,
+        };
+        let (mut rt, mut commands, mut events, _shared) = RtLoop::new(cfg);
+        let mut cells = Vec::new();
+        for (i, kind) in CompensatorKind::ALL.into_iter().enumerate() {
+            let input = if i % 2 == 0 {
+                InputSource::Server
+            } else {
+                InputSource::Synthetic {
+                    operator: OperatorParams::default(),
+                    seed: i as u64,
+                }
+            };
+            let built = build_slot(&start(i as u64, kind, input), 1e-3, false).unwrap();
+            cells.extend(built.input);
+            commands.push(Command::Start(built.slot)).unwrap();
+        }
+        commands.push(Command::Abort(4)).unwrap();
+        let mut finished = 0;
+        // Everything the loop does from installing trials to handing them back, with input
+        // arriving every tick: no allocation.
+        let n = allocations_during(|| {
+            for k in 0..2000u64 {
+                for cell in &cells {
+                    cell.write(InputSample {
+                        position_mm: 5.0,
+                        seq: k,
+                        arrival_tick: rt.tick,
+                    });
+                }
+                rt.drain_commands();
+                rt.one_tick(k * 1_000_000, 1_000);
+            }
+        });
+        while let Ok(ev) = events.pop() {
+            if let Event::Finished(slot) = ev {
+                finished += 1;
+                assert!(slot.end.is_some());
+            }
+        }
+        assert_eq!(n, 0, "the loop allocated {n} times");
+        assert_eq!(
+            finished, 6,
+            "every trial ended (one aborted, five complete)"
+        );
     }
 }
