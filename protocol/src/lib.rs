@@ -12,6 +12,7 @@ pub mod framing;
 pub mod params;
 pub mod rig;
 pub mod server_to_controller;
+pub mod study;
 pub mod trial;
 
 /// Version of the server ↔ controller protocol; both ends must agree in the hello.

@@ -13,9 +13,7 @@ use bdft_protocol::controller_to_server::{ControllerToServer, RecordChunk, Statu
 use bdft_protocol::framing::{self, FrameError};
 use bdft_protocol::rig::InputDatagram;
 use bdft_protocol::server_to_controller::{ServerToController, StartTrial};
-use bdft_protocol::trial::{
-    FaultKind, InputSource, Outcome, RECORD_CHANNELS, TimingSummary, TrialId,
-};
+use bdft_protocol::trial::{FaultKind, InputSource, Outcome, TimingSummary, TrialId};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream, UdpSocket};
 use tokio::sync::mpsc;
@@ -23,7 +21,7 @@ use tokio::sync::mpsc;
 use super::handoff::{InputCell, InputSample};
 use super::rt_loop::{Command, Event, LoopHandle};
 use super::setup::build_slot;
-use super::slot::{EndReason, TrialSlot};
+use super::slot::TrialSlot;
 
 /// Samples per record chunk.
 const CHUNK: usize = 1000;
@@ -285,42 +283,29 @@ impl Io {
         if let Some(ch) = entry.as_ref().and_then(|e| e.channel) {
             self.channels.remove(&ch);
         }
-        let reason = slot.end.unwrap_or(EndReason::Faulted(FaultKind::Internal));
-        let outcome = match reason {
-            EndReason::Complete => Outcome::Complete,
-            EndReason::Aborted => Outcome::Aborted {
-                reason: entry
-                    .as_ref()
-                    .and_then(|e| e.abort_reason.clone())
-                    .unwrap_or_else(|| "aborted".into()),
-            },
-            EndReason::Faulted(fault) => Outcome::Faulted {
-                fault,
-                message: fault_message(fault, &slot, self.cfg.dt),
-            },
-        };
+        let outcome = slot.outcome(
+            self.cfg.dt,
+            entry.as_ref().and_then(|e| e.abort_reason.clone()),
+        );
         tracing::info!(trial = slot.trial_id, ?outcome, "trial ended");
         let mut frames = Vec::with_capacity(slot.record.len() / CHUNK + 2);
-        if let (EndReason::Faulted(kind), Some(_)) = (reason, entry.as_ref()) {
-            if kind != FaultKind::EStop && kind != FaultKind::LinkLost {
+        if let (Outcome::Faulted { fault, message }, Some(_)) = (&outcome, entry.as_ref()) {
+            if *fault != FaultKind::EStop && *fault != FaultKind::LinkLost {
                 frames.push(frame(&ControllerToServer::Fault {
                     trial_id: Some(slot.trial_id),
-                    kind,
-                    message: fault_message(kind, &slot, self.cfg.dt),
+                    kind: *fault,
+                    message: message.clone(),
                 }));
             }
         }
-        let chunks = slot.record.chunks(CHUNK);
-        let n_chunks = chunks.len() as u32;
-        for (index, rows) in chunks.enumerate() {
-            let channels = (0..RECORD_CHANNELS.len())
-                .map(|c| rows.iter().map(|r| r[c]).collect())
-                .collect();
+        let n_chunks = slot.record.len().div_ceil(CHUNK);
+        for index in 0..n_chunks {
+            let from = index * CHUNK;
             frames.push(frame(&ControllerToServer::RecordChunk(RecordChunk {
                 trial_id: slot.trial_id,
                 index: index as u32,
-                start_tick: (index * CHUNK) as u64,
-                channels,
+                start_tick: from as u64,
+                channels: slot.record_channels(from, (from + CHUNK).min(slot.record.len())),
             })));
         }
         let result = TrialResult {
@@ -334,28 +319,10 @@ impl Io {
                 compute_us: slot.compute.percentiles_us(),
             },
             dt: self.cfg.dt,
-            record_chunks: n_chunks,
+            record_chunks: n_chunks as u32,
         };
         frames.push(frame(&ControllerToServer::TrialResult(Box::new(result))));
         (entry.map(|e| e.conn), frames)
-    }
-}
-
-fn fault_message(kind: FaultKind, slot: &TrialSlot, dt: f64) -> String {
-    let at = slot.runner.progress().0 as f64 * dt;
-    match kind {
-        FaultKind::StaleInput => format!(
-            "no operator input for more than {:.0} ms at t = {at:.3} s; valve set to zero",
-            slot.stale_ticks as f64 * dt * 1e3
-        ),
-        FaultKind::RigTimeout => {
-            format!("the rig stopped answering at t = {at:.3} s; valve set to zero")
-        }
-        FaultKind::EStop => "e-stop pressed".into(),
-        FaultKind::LinkLost => "server link lost".into(),
-        FaultKind::Internal => {
-            "the controller could not run this trial (no free slot or shutting down)".into()
-        }
     }
 }
 

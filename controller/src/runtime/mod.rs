@@ -8,6 +8,7 @@
 pub mod handoff;
 pub mod histogram;
 pub mod link;
+pub mod local;
 pub mod os;
 pub mod rig_udp;
 pub mod rt_loop;

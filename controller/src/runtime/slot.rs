@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use bdft_protocol::controller_to_server::LiveSample;
-use bdft_protocol::trial::{FaultKind, RECORD_CHANNELS, TrialId};
+use bdft_protocol::trial::{FaultKind, Outcome, RECORD_CHANNELS, TrialId};
 
 use super::handoff::InputCell;
 use super::histogram::Histogram;
@@ -215,5 +215,47 @@ impl TrialSlot {
             });
         }
         SlotTick::Running
+    }
+}
+
+impl TrialSlot {
+    /// How the trial ended, with the words a person reads; `abort_reason` is the server's.
+    pub fn outcome(&self, dt: f64, abort_reason: Option<String>) -> Outcome {
+        match self.end.unwrap_or(EndReason::Faulted(FaultKind::Internal)) {
+            EndReason::Complete => Outcome::Complete,
+            EndReason::Aborted => Outcome::Aborted {
+                reason: abort_reason.unwrap_or_else(|| "aborted".into()),
+            },
+            EndReason::Faulted(fault) => Outcome::Faulted {
+                fault,
+                message: self.fault_message(fault, dt),
+            },
+        }
+    }
+
+    pub fn fault_message(&self, kind: FaultKind, dt: f64) -> String {
+        let at = self.runner.progress().0 as f64 * dt;
+        match kind {
+            FaultKind::StaleInput => format!(
+                "no operator input for more than {:.0} ms at t = {at:.3} s; valve set to zero",
+                self.stale_ticks as f64 * dt * 1e3
+            ),
+            FaultKind::RigTimeout => {
+                format!("the rig stopped answering at t = {at:.3} s; valve set to zero")
+            }
+            FaultKind::EStop => "e-stop pressed".into(),
+            FaultKind::LinkLost => "server link lost".into(),
+            FaultKind::Internal => {
+                "the controller could not run this trial (no free slot or shutting down)".into()
+            }
+        }
+    }
+
+    /// The record channel by channel (`RECORD_CHANNELS` order), rows `from..to`.
+    pub fn record_channels(&self, from: usize, to: usize) -> Vec<Vec<f32>> {
+        let rows = &self.record[from..to];
+        (0..RECORD_CHANNELS.len())
+            .map(|c| rows.iter().map(|r| r[c]).collect())
+            .collect()
     }
 }

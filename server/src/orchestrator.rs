@@ -1,0 +1,62 @@
+//! From a scheduled trial to the controller's `StartTrial` and back to the database: the one
+//! path that live tests and pilot runs share.
+
+use bdft_controller::rng::Rng;
+use bdft_protocol::params::{CompensatorSpec, OperatorParams, Station};
+use bdft_protocol::server_to_controller::StartTrial;
+use bdft_protocol::trial::{InputSource, TargetSpec};
+
+use crate::store::{StoreError, Study, Trial};
+
+/// Who moves the input device in a trial.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Operator {
+    /// A person at a station (browser input through the server).
+    Person,
+    /// The synthetic operator (pilot runs, automated tests).
+    Synthetic,
+}
+
+/// The controller message that runs `trial` of `study`.
+pub fn start_message(
+    study: &Study,
+    trial: &Trial,
+    operator: Operator,
+) -> Result<StartTrial, StoreError> {
+    let bad = |what: &str, e: serde_json::Error| {
+        StoreError::Invalid(format!("stored {what} of trial {}: {e}", trial.id))
+    };
+    let compensator: CompensatorSpec =
+        serde_json::from_str(&trial.compensator_json).map_err(|e| bad("compensator", e))?;
+    let levels_mm: Vec<f64> =
+        serde_json::from_str(&trial.target_levels_json).map_err(|e| bad("target", e))?;
+    let station: Station = trial
+        .station
+        .parse()
+        .map_err(|e: bdft_protocol::params::ParamError| StoreError::Invalid(e.to_string()))?;
+    let seed = trial.target_seed as u64;
+    let input = match operator {
+        Operator::Person => InputSource::Server,
+        Operator::Synthetic => InputSource::Synthetic {
+            operator: OperatorParams::default(),
+            seed: Rng::derive(seed, Rng::OPERATOR).next_u64(),
+        },
+    };
+    Ok(StartTrial {
+        trial_id: trial.id as u64,
+        compensator,
+        station,
+        k_bf: trial.k_bf,
+        target: TargetSpec::Steps {
+            interval_s: study.params.step_interval_s,
+            levels_mm,
+        },
+        duration_s: trial.duration_s,
+        input,
+        plant: study.params.plant,
+        body: study.params.body,
+        noise_seed: Rng::derive(seed, Rng::ACCEL_NOISE).next_u64(),
+        live_rate_hz: 100.0,
+        stale_input_ms: 100.0,
+    })
+}

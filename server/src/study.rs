@@ -1,0 +1,280 @@
+//! The protocol engine's pure part: default study parameters, the protocol hash, each
+//! subject's schedule and each test's target. Everything here is a function of the study's
+//! parameters and seeds, so a schedule can be regenerated on demand and checked.
+
+use bdft_controller::compensator::default_spec;
+use bdft_controller::rng::Rng;
+use bdft_controller::signals::StepTarget;
+use bdft_protocol::params::{CompensatorKind, ParamError, PlantParams, Station, StepParams};
+use bdft_protocol::study::{ConsentForm, RigKind, StudyParams, SurveyParams};
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+/// K_BF of the human-subject study: about 30 % above the rig's nominal 0.6, so that the
+/// feedthrough is clearly felt.
+pub const STUDY_KBF: f64 = 0.78;
+
+/// The published study's protocol with the identified rig.
+pub fn default_params() -> StudyParams {
+    let plant = PlantParams::default();
+    StudyParams {
+        controllers: CompensatorKind::STUDY
+            .iter()
+            .map(|&k| default_spec(k, &plant))
+            .collect(),
+        practice_controller: CompensatorKind::Pid,
+        stations: vec![Station::On, Station::Off],
+        trial_s: 140.0,
+        practice_s: 120.0,
+        step_interval_s: 2.0,
+        target_range_mm: 40.0,
+        target_std_mm: 20.0,
+        k_bf: STUDY_KBF,
+        survey: SurveyParams::default(),
+        consent: ConsentForm::default(),
+        rig: RigKind::Simulated,
+        plant,
+        body: Default::default(),
+        display_shake_gain: 1.0,
+    }
+}
+
+/// SHA-256 (hex) of the parameters' canonical JSON (keys sorted, no whitespace): the same
+/// protocol always hashes the same, whatever order a client sent the fields in.
+pub fn protocol_hash(params: &StudyParams) -> String {
+    // serde_json's Value keeps object keys in sorted order (no preserve_order feature).
+    let canonical = serde_json::to_value(params)
+        .expect("params serialize")
+        .to_string();
+    let digest = Sha256::digest(canonical.as_bytes());
+    digest.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// One entry of a subject's schedule.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ScheduledTest {
+    /// 0 = practice, then 1.. in order.
+    pub slot: u32,
+    pub practice: bool,
+    pub station: Station,
+    /// 0 for the practice, 1 for the starting station, 2 for the other.
+    pub block: u32,
+    /// Position within the block, from 1 (0 for the practice).
+    pub position: u32,
+    pub controller: CompensatorKind,
+    /// What the subject sees ("Controller 3", "Practice").
+    pub blinded_label: String,
+    pub duration_s: f64,
+    pub target_seed: u64,
+}
+
+/// Starting station by enrolment order: on, off, on, … to balance learning effects.
+pub fn starting_station(enrol_index: u32) -> Station {
+    if enrol_index % 2 == 0 {
+        Station::On
+    } else {
+        Station::Off
+    }
+}
+
+fn other(s: Station) -> Station {
+    match s {
+        Station::On => Station::Off,
+        Station::Off => Station::On,
+    }
+}
+
+const SCHEDULE_STREAM: u64 = 0x5343_4845_4455_4c45;
+
+fn shuffle<T>(items: &mut [T], rng: &mut Rng) {
+    for i in (1..items.len()).rev() {
+        let j = ((rng.next_f64() * (i + 1) as f64) as usize).min(i);
+        items.swap(i, j);
+    }
+}
+
+/// The schedule of the subject enrolled `enrol_index`-th (from 0): practice off the machine,
+/// then every controller once at the starting station in random order, then every controller
+/// once at the other station in a different random order. Blinded labels are a random
+/// numbering of the controllers, fixed for the subject across both stations.
+pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<ScheduledTest> {
+    let mut rng = Rng::derive(
+        Rng::derive(study_seed, SCHEDULE_STREAM).next_u64(),
+        u64::from(enrol_index),
+    );
+    let kinds: Vec<CompensatorKind> = params.controllers.iter().map(|c| c.kind()).collect();
+    let mut labels: Vec<usize> = (1..=kinds.len()).collect();
+    shuffle(&mut labels, &mut rng);
+    let mut first = kinds.clone();
+    shuffle(&mut first, &mut rng);
+    let mut second = kinds.clone();
+    loop {
+        shuffle(&mut second, &mut rng);
+        if second != first || kinds.len() < 2 {
+            break;
+        }
+    }
+    let label_of = |k: CompensatorKind| {
+        let i = kinds
+            .iter()
+            .position(|&x| x == k)
+            .expect("controller of the study");
+        format!("Controller {}", labels[i])
+    };
+    let mut out = Vec::with_capacity(2 * kinds.len() + 1);
+    if params.practice_s > 0.0 {
+        out.push(ScheduledTest {
+            slot: 0,
+            practice: true,
+            station: Station::Off,
+            block: 0,
+            position: 0,
+            controller: params.practice_controller,
+            blinded_label: "Practice".into(),
+            duration_s: params.practice_s,
+            target_seed: rng.next_u64() >> 11,
+        });
+    }
+    let start = starting_station(enrol_index);
+    for (block, (station, order)) in [(start, &first), (other(start), &second)]
+        .into_iter()
+        .enumerate()
+    {
+        for (i, &k) in order.iter().enumerate() {
+            out.push(ScheduledTest {
+                slot: (block * kinds.len() + i + 1) as u32,
+                practice: false,
+                station,
+                block: block as u32 + 1,
+                position: i as u32 + 1,
+                controller: k,
+                blinded_label: label_of(k),
+                duration_s: params.trial_s,
+                target_seed: rng.next_u64() >> 11,
+            });
+        }
+    }
+    out
+}
+
+/// The target of one test: steps every `step_interval_s`, within ±range, zero mean and the
+/// study's standard deviation (exact up to rounding, so well inside ±1 mm and ±5 %).
+pub fn target(params: &StudyParams, test: &ScheduledTest) -> Result<StepTarget, ParamError> {
+    let steps = StepParams {
+        interval_s: params.step_interval_s,
+        range_mm: params.target_range_mm,
+        std_mm: params.target_std_mm,
+    };
+    StepTarget::generate(
+        &steps,
+        test.duration_s.max(2.0 * params.step_interval_s),
+        test.target_seed,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_params_are_valid_and_hash_stably() {
+        let p = default_params();
+        p.validate().unwrap();
+        let h = protocol_hash(&p);
+        assert_eq!(h.len(), 64);
+        assert_eq!(h, protocol_hash(&p.clone()));
+        let mut q = p.clone();
+        q.k_bf = 0.6;
+        assert_ne!(protocol_hash(&q), h);
+        // Field order of the submitted JSON does not matter.
+        let text = serde_json::to_string(&p).unwrap();
+        let reordered: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let back: StudyParams = serde_json::from_value(reordered).unwrap();
+        assert_eq!(protocol_hash(&back), h);
+    }
+
+    #[test]
+    fn every_schedule_follows_the_protocol() {
+        let p = default_params();
+        for idx in 0..40 {
+            let s = schedule(&p, 99, idx);
+            assert_eq!(s, schedule(&p, 99, idx), "reproducible");
+            assert_eq!(s.len(), 11);
+            assert!(s[0].practice && s[0].station == Station::Off);
+            let start = if idx % 2 == 0 {
+                Station::On
+            } else {
+                Station::Off
+            };
+            let block = |b| s.iter().filter(move |t| t.block == b).collect::<Vec<_>>();
+            let (b1, b2) = (block(1), block(2));
+            assert!(b1.iter().all(|t| t.station == start));
+            assert!(b2.iter().all(|t| t.station != start));
+            for b in [&b1, &b2] {
+                let mut ks: Vec<_> = b.iter().map(|t| t.controller).collect();
+                ks.sort();
+                assert_eq!(
+                    ks,
+                    CompensatorKind::STUDY.to_vec(),
+                    "each controller exactly once per station"
+                );
+                assert_eq!(
+                    b.iter().map(|t| t.position).collect::<Vec<_>>(),
+                    vec![1, 2, 3, 4, 5]
+                );
+            }
+            let o1: Vec<_> = b1.iter().map(|t| t.controller).collect();
+            let o2: Vec<_> = b2.iter().map(|t| t.controller).collect();
+            assert_ne!(o1, o2, "the second order differs from the first");
+            // Blinded labels: one per controller, the same at both stations, never a name.
+            for t in &b1 {
+                let twin = b2.iter().find(|u| u.controller == t.controller).unwrap();
+                assert_eq!(t.blinded_label, twin.blinded_label);
+                assert!(t.blinded_label.starts_with("Controller "));
+            }
+            let mut labels: Vec<_> = b1.iter().map(|t| t.blinded_label.clone()).collect();
+            labels.sort();
+            labels.dedup();
+            assert_eq!(labels.len(), 5);
+        }
+        assert_ne!(
+            schedule(&p, 99, 0),
+            schedule(&p, 100, 0),
+            "the study seed matters"
+        );
+    }
+
+    #[test]
+    fn orders_are_balanced_across_many_subjects() {
+        // Random order: each controller should come first about 1/5 of the time.
+        let p = default_params();
+        let mut first = std::collections::HashMap::new();
+        let n = 2000;
+        for idx in 0..n {
+            let s = schedule(&p, 7, idx);
+            *first.entry(s[1].controller).or_insert(0) += 1;
+        }
+        for k in CompensatorKind::STUDY {
+            let share = f64::from(first[&k]) / f64::from(n);
+            // Binomial standard error at n = 2000: 0.009.
+            assert!((share - 0.2).abs() < 0.04, "{k}: {share}");
+        }
+    }
+
+    #[test]
+    fn targets_meet_the_statistics_for_every_test() {
+        let p = default_params();
+        for idx in 0..10 {
+            for t in schedule(&p, 3, idx) {
+                let tg = target(&p, &t).unwrap();
+                assert!(tg.mean_mm.abs() <= 1.0);
+                assert!((tg.std_mm / p.target_std_mm - 1.0).abs() <= 0.05);
+                assert!(tg.levels_mm.iter().all(|l| l.abs() <= p.target_range_mm));
+                assert_eq!(
+                    tg.levels_mm.len() as f64,
+                    (t.duration_s / p.step_interval_s).ceil()
+                );
+            }
+        }
+    }
+}
