@@ -40,8 +40,11 @@ pub enum ControllerToServer {
     Stepped {
         tick: u64,
     },
-    /// A message was not acted upon (malformed, out of range, not allowed now).
+    /// A message was not acted upon (malformed, out of range, not allowed now); `trial_id`
+    /// names the trial when the message was about one.
     Rejected {
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        trial_id: Option<TrialId>,
         reason: String,
     },
 }

@@ -21,6 +21,30 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Run the experiment server: the API and pages on --listen, a supervised controller.
+    Serve {
+        /// SQLite database file (created if missing, migrations applied at start).
+        #[arg(long, env = "BDFT_DB", default_value = "bdft-lab.db")]
+        db: PathBuf,
+        /// Address the server listens on.
+        #[arg(long, env = "BDFT_LISTEN", default_value = "127.0.0.1:8080")]
+        listen: std::net::SocketAddr,
+        /// Connect to a controller already running there (e.g. a real-time PC) instead of
+        /// starting one.
+        #[arg(long, env = "BDFT_CONTROLLER")]
+        controller: Option<std::net::SocketAddr>,
+        /// The bdft-controller binary to start [default: next to this binary].
+        #[arg(long, env = "BDFT_CONTROLLER_BIN")]
+        controller_bin: Option<PathBuf>,
+        /// Extra argument for the started controller (repeatable), e.g. --controller-arg=--rig
+        /// --controller-arg=udp.
+        #[arg(long = "controller-arg", allow_hyphen_values = true)]
+        controller_args: Vec<String>,
+        /// Create the account "admin" with this password if there is no experimenter yet
+        /// (otherwise a one-time set-up link is printed).
+        #[arg(long, env = "BDFT_ADMIN_PASSWORD", hide_env_values = true)]
+        admin_password: Option<String>,
+    },
     /// Run the whole protocol for N synthetic subjects, faster than real time, into the
     /// database (subjects flagged synthetic, surveys left empty).
     Pilot {
@@ -94,6 +118,42 @@ async fn newest_study(pool: &sqlx::SqlitePool, study: Option<i64>) -> anyhow::Re
 
 async fn execute(command: Command) -> anyhow::Result<()> {
     match command {
+        Command::Serve { db, listen, controller, controller_bin, controller_args, admin_password } => {
+            let pool = crate::db::open(&db).await?;
+            let interrupted = crate::store::interrupt_running(&pool, "server restart").await?;
+            if !interrupted.is_empty() {
+                tracing::warn!(trials = ?interrupted, "trials that were running when the server stopped are marked incomplete");
+            }
+            let listener = tokio::net::TcpListener::bind(listen).await.with_context(|| format!("listening on {listen}"))?;
+            let addr = listener.local_addr()?;
+            if crate::auth::experimenter_count(&pool).await.map_err(|e| anyhow::anyhow!("{e}"))? == 0 {
+                match admin_password {
+                    Some(pw) => {
+                        crate::auth::create_experimenter(&pool, "admin", &pw).await.map_err(|e| anyhow::anyhow!("--admin-password: {e}"))?;
+                        println!("Created the experimenter account \"admin\".");
+                    }
+                    None => {
+                        let token = crate::auth::new_setup_token(&pool).await.map_err(|e| anyhow::anyhow!("{e}"))?;
+                        println!("First start: create the experimenter account at http://{addr}/setup?token={token}");
+                    }
+                }
+            }
+            let source = match controller {
+                Some(a) => crate::controller_link::ControllerSource::Connect(a),
+                None => {
+                    let bin = controller_bin.unwrap_or_else(|| {
+                        std::env::current_exe().ok().and_then(|p| p.parent().map(|d| d.join("bdft-controller"))).unwrap_or_else(|| "bdft-controller".into())
+                    });
+                    crate::controller_link::ControllerSource::Spawn { bin, args: controller_args }
+                }
+            };
+            let link = crate::controller_link::ControllerLink::start(pool.clone(), source);
+            let state = crate::state::AppState::new(pool, link);
+            println!("bdft-lab server on http://{addr}");
+            use std::io::Write;
+            let _ = std::io::stdout().flush();
+            crate::run(state, listener, shutdown_signal()).await?;
+        }
         Command::Pilot {
             db,
             study,
@@ -131,4 +191,13 @@ async fn execute(command: Command) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+async fn shutdown_signal() {
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        _ = async { match &mut term { Some(t) => { t.recv().await; } None => std::future::pending().await } } => {}
+    }
+    tracing::info!("shutting down");
 }

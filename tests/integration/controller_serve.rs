@@ -327,7 +327,7 @@ fn bad_messages_are_rejected_counted_and_never_reach_the_valve() {
         client: "old".into(),
     });
     match old.try_recv() {
-        Some(ControllerToServer::Rejected { reason }) => {
+        Some(ControllerToServer::Rejected { reason, .. }) => {
             assert!(reason.contains("999"), "{reason}")
         }
         other => panic!("{other:?}"),
@@ -346,7 +346,7 @@ fn bad_messages_are_rejected_counted_and_never_reach_the_valve() {
     bad.k_bf = 50.0;
     link.send(&ServerToController::StartTrial(Box::new(bad.clone())));
     match link.recv() {
-        ControllerToServer::Rejected { reason } => assert!(
+        ControllerToServer::Rejected { reason, .. } => assert!(
             reason.contains("k_bf") && reason.contains("[0, 20]"),
             "{reason}"
         ),
@@ -440,7 +440,7 @@ fn a_lost_server_link_stops_trials_and_the_controller_accepts_a_new_one() {
         client: "second".into(),
     });
     match second.try_recv() {
-        Some(ControllerToServer::Rejected { reason }) => {
+        Some(ControllerToServer::Rejected { reason, .. }) => {
             assert!(reason.contains("another server"), "{reason}")
         }
         other => panic!("{other:?}"),
@@ -556,7 +556,7 @@ fn a_trial_runs_on_a_rig_over_udp_and_a_silent_rig_is_a_fault() {
     })));
     loop {
         match link.recv() {
-            ControllerToServer::Rejected { reason } => {
+            ControllerToServer::Rejected { reason, .. } => {
                 assert!(reason.contains("rig is in use"), "{reason}");
                 break;
             }

@@ -197,7 +197,7 @@ impl TrialLog {
             ControllerToServer::Live(s) => self.live.push(s),
             ControllerToServer::RecordChunk(c) => self.chunks.push(c),
             ControllerToServer::TrialResult(r) => self.results.push(*r),
-            ControllerToServer::Rejected { reason } => self.rejected.push(reason),
+            ControllerToServer::Rejected { reason, .. } => self.rejected.push(reason),
             f @ ControllerToServer::Fault { .. } => self.faults.push(f),
             other => self.other.push(other),
         }

@@ -123,9 +123,13 @@ impl Io {
     }
 
     fn reject(&mut self, reason: String) -> Vec<Vec<u8>> {
+        self.reject_trial(None, reason)
+    }
+
+    fn reject_trial(&mut self, trial_id: Option<TrialId>, reason: String) -> Vec<Vec<u8>> {
         self.rejected_messages += 1;
         tracing::info!(reason, "rejected a message from the server");
-        vec![frame(&ControllerToServer::Rejected { reason })]
+        vec![frame(&ControllerToServer::Rejected { trial_id, reason })]
     }
 
     /// Acts on one message from connection `conn`; returns the frames to answer with.
@@ -219,7 +223,7 @@ impl Io {
             ));
         }
         if self.trials.contains_key(&id) {
-            return self.reject(format!("start trial {id}: a trial with this id is running"));
+            return self.reject_trial(Some(id), format!("start trial {id}: a trial with this id is running"));
         }
         if self.trials.len() >= self.cfg.max_trials {
             return self.reject(format!(
@@ -250,7 +254,7 @@ impl Io {
         };
         let built = match build_slot(st, self.cfg.dt, self.cfg.real_rig) {
             Ok(b) => b,
-            Err(e) => return self.reject(format!("start trial {id}: {e}")),
+            Err(e) => return self.reject_trial(Some(id), format!("start trial {id}: {e}")),
         };
         let uses_rig = built.slot.uses_rig();
         if let (Some(ch), Some(cell)) = (channel, &built.input) {
@@ -260,7 +264,7 @@ impl Io {
             if let Some(ch) = channel {
                 self.channels.remove(&ch);
             }
-            return self.reject(format!("start trial {id}: the controller is overloaded"));
+            return self.reject_trial(Some(id), format!("start trial {id}: the controller is overloaded"));
         }
         let input = if channel.is_some() { None } else { built.input };
         self.trials.insert(
@@ -404,7 +408,7 @@ async fn connection(io: Shared, stream: TcpStream, peer: SocketAddr) {
     let (mut rd, mut wr) = stream.into_split();
     // Handshake first: nothing else is accepted before a hello of our version.
     let hello = tokio::time::timeout(Duration::from_secs(5), read_message(&mut rd)).await;
-    let refuse = |reason: String| framing::encode(&ControllerToServer::Rejected { reason });
+    let refuse = |reason: String| framing::encode(&ControllerToServer::Rejected { trial_id: None, reason });
     let client = match hello {
         Ok(Ok(Some(Ok(ServerToController::Hello {
             protocol_version,

@@ -1,0 +1,285 @@
+//! The server's side of the controller link: spawns and supervises `bdft-controller serve`
+//! (or connects to a given address), keeps the connection, forwards messages, gathers record
+//! chunks and commits each trial's result in one transaction. When the controller dies or the
+//! link drops, running trials are marked incomplete at once and the controller is restarted.
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use bdft_protocol::PROTOCOL_VERSION;
+use bdft_protocol::controller_to_server::{ControllerToServer, LiveSample};
+use bdft_protocol::framing;
+use bdft_protocol::server_to_controller::{ServerToController, StartTrial};
+use bdft_protocol::trial::{RECORD_CHANNELS, TrialId};
+use sqlx::SqlitePool;
+use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
+use tokio::net::TcpStream;
+use tokio::sync::{broadcast, mpsc, oneshot, watch};
+
+use crate::store::{self, Record};
+
+/// Where the controller comes from.
+#[derive(Debug, Clone)]
+pub enum ControllerSource {
+    /// Start `bdft-controller serve` as a child process (restarted if it dies).
+    Spawn { bin: PathBuf, args: Vec<String> },
+    /// Connect to a controller that runs elsewhere (e.g. a real-time PC).
+    Connect(SocketAddr),
+}
+
+/// What the rest of the server hears from the controller.
+#[derive(Debug, Clone)]
+pub enum ControllerEvent {
+    Live(LiveSample),
+    /// A trial's result is committed (or it was interrupted): its row changed.
+    TrialChanged { trial_id: i64 },
+    /// The link went up or down.
+    Link { connected: bool },
+}
+
+#[derive(Clone, Debug)]
+pub struct ControllerLink {
+    inner: Arc<Inner>,
+}
+
+#[derive(Debug)]
+struct Inner {
+    tx: Mutex<Option<mpsc::Sender<Vec<u8>>>>,
+    events: broadcast::Sender<ControllerEvent>,
+    connected: watch::Sender<bool>,
+    pending: Mutex<HashMap<TrialId, oneshot::Sender<Result<(), String>>>>,
+}
+
+/// Samples per trial kept while its record arrives, channel by channel.
+type Partial = HashMap<TrialId, Vec<Vec<f32>>>;
+
+impl ControllerLink {
+    /// Starts the supervisor; the link comes up in the background.
+    pub fn start(pool: SqlitePool, source: ControllerSource) -> Self {
+        let (events, _) = broadcast::channel(16_384);
+        let (connected, _) = watch::channel(false);
+        let link = Self { inner: Arc::new(Inner { tx: Mutex::new(None), events, connected, pending: Mutex::new(HashMap::new()) }) };
+        tokio::spawn(supervise(link.clone(), pool, source));
+        link
+    }
+
+    pub fn subscribe(&self) -> broadcast::Receiver<ControllerEvent> {
+        self.inner.events.subscribe()
+    }
+
+    pub fn is_connected(&self) -> bool {
+        *self.inner.connected.borrow()
+    }
+
+    /// Waits until the link is up (or the timeout passes).
+    pub async fn wait_connected(&self, timeout: Duration) -> bool {
+        let mut rx = self.inner.connected.subscribe();
+        tokio::time::timeout(timeout, rx.wait_for(|c| *c)).await.is_ok()
+    }
+
+    /// Sends a message; fails if the controller is not connected.
+    pub fn send(&self, msg: &ServerToController) -> Result<(), String> {
+        let tx = self.inner.tx.lock().unwrap_or_else(|p| p.into_inner()).clone();
+        let tx = tx.ok_or_else(|| "the controller is not connected".to_string())?;
+        tx.try_send(framing::encode(msg)).map_err(|_| "the controller link is congested".to_string())
+    }
+
+    /// Starts a trial and waits for the controller to confirm it (or say why not).
+    pub async fn start_trial(&self, st: &StartTrial) -> Result<(), String> {
+        let (done, wait) = oneshot::channel();
+        self.inner.pending.lock().unwrap_or_else(|p| p.into_inner()).insert(st.trial_id, done);
+        if let Err(e) = self.send(&ServerToController::StartTrial(Box::new(st.clone()))) {
+            self.inner.pending.lock().unwrap_or_else(|p| p.into_inner()).remove(&st.trial_id);
+            return Err(e);
+        }
+        match tokio::time::timeout(Duration::from_secs(10), wait).await {
+            Ok(Ok(r)) => r,
+            _ => {
+                self.inner.pending.lock().unwrap_or_else(|p| p.into_inner()).remove(&st.trial_id);
+                Err("the controller did not confirm the start".into())
+            }
+        }
+    }
+
+    fn resolve(&self, trial_id: TrialId, r: Result<(), String>) {
+        if let Some(done) = self.inner.pending.lock().unwrap_or_else(|p| p.into_inner()).remove(&trial_id) {
+            let _ = done.send(r);
+        }
+    }
+
+    fn emit(&self, ev: ControllerEvent) {
+        let _ = self.inner.events.send(ev);
+    }
+}
+
+async fn supervise(link: ControllerLink, pool: SqlitePool, source: ControllerSource) {
+    let mut backoff = Duration::from_millis(100);
+    loop {
+        let (addr, mut child) = match &source {
+            ControllerSource::Connect(a) => (*a, None),
+            ControllerSource::Spawn { bin, args } => match spawn(bin, args).await {
+                Ok((a, c)) => (a, Some(c)),
+                Err(e) => {
+                    tracing::error!("could not start the controller ({}): {e:#}", bin.display());
+                    tokio::time::sleep(backoff).await;
+                    backoff = (backoff * 2).min(Duration::from_secs(5));
+                    continue;
+                }
+            },
+        };
+        let why = match TcpStream::connect(addr).await {
+            Ok(stream) => {
+                backoff = Duration::from_millis(100);
+                let run = connection(&link, &pool, stream);
+                match &mut child {
+                    Some(c) => tokio::select! {
+                        why = run => why,
+                        status = c.wait() => format!("the controller process exited ({})", status.map(|s| s.to_string()).unwrap_or_else(|e| e.to_string())),
+                    },
+                    None => run.await,
+                }
+            }
+            Err(e) => format!("cannot connect to the controller at {addr}: {e}"),
+        };
+        *link.inner.tx.lock().unwrap_or_else(|p| p.into_inner()) = None;
+        if link.is_connected() {
+            link.inner.connected.send_replace(false);
+            link.emit(ControllerEvent::Link { connected: false });
+        }
+        tracing::error!("controller link down: {why}");
+        let pending: Vec<_> = link.inner.pending.lock().unwrap_or_else(|p| p.into_inner()).drain().collect();
+        for (_, done) in pending {
+            let _ = done.send(Err(why.clone()));
+        }
+        match store::interrupt_running(&pool, &format!("controller lost: {why}")).await {
+            Ok(ids) => {
+                for id in ids {
+                    tracing::warn!(trial = id, "trial marked incomplete: controller lost");
+                    link.emit(ControllerEvent::TrialChanged { trial_id: id });
+                }
+            }
+            Err(e) => tracing::error!("marking running trials incomplete: {e}"),
+        }
+        if let Some(mut c) = child {
+            let _ = c.kill().await;
+        }
+        tokio::time::sleep(backoff).await;
+        backoff = (backoff * 2).min(Duration::from_secs(5));
+    }
+}
+
+/// Starts `bdft-controller serve` on a free loopback port and reads the port it announces.
+async fn spawn(bin: &PathBuf, args: &[String]) -> anyhow::Result<(SocketAddr, tokio::process::Child)> {
+    let mut child = tokio::process::Command::new(bin)
+        .arg("serve")
+        .args(["--listen", "127.0.0.1:0"])
+        .args(args)
+        .stdout(std::process::Stdio::piped())
+        .kill_on_drop(true)
+        .spawn()?;
+    let out = child.stdout.take().ok_or_else(|| anyhow::anyhow!("no stdout"))?;
+    let mut lines = BufReader::new(out).lines();
+    let addr = tokio::time::timeout(Duration::from_secs(20), async {
+        while let Some(line) = lines.next_line().await? {
+            if let Some(a) = line.strip_prefix("listening on ") {
+                return anyhow::Ok(a.trim().parse::<SocketAddr>()?);
+            }
+        }
+        anyhow::bail!("the controller exited before announcing its address")
+    })
+    .await??;
+    tokio::spawn(async move { while let Ok(Some(_)) = lines.next_line().await {} });
+    tracing::info!(%addr, pid = child.id(), "controller started");
+    Ok((addr, child))
+}
+
+async fn read_frame(r: &mut (impl AsyncReadExt + Unpin)) -> Result<ControllerToServer, String> {
+    let mut header = [0u8; 4];
+    r.read_exact(&mut header).await.map_err(|e| format!("link closed ({e})"))?;
+    let len = framing::payload_len(header).map_err(|e| e.to_string())?;
+    let mut payload = vec![0; len];
+    r.read_exact(&mut payload).await.map_err(|e| format!("link closed ({e})"))?;
+    framing::decode(&payload).map_err(|e| e.to_string())
+}
+
+/// Runs one connection until it fails; returns why.
+async fn connection(link: &ControllerLink, pool: &SqlitePool, stream: TcpStream) -> String {
+    let _ = stream.set_nodelay(true);
+    let (mut rd, mut wr) = stream.into_split();
+    let hello = framing::encode(&ServerToController::Hello { protocol_version: PROTOCOL_VERSION, client: format!("bdft-server {}", env!("CARGO_PKG_VERSION")) });
+    if let Err(e) = wr.write_all(&hello).await {
+        return format!("hello failed: {e}");
+    }
+    match read_frame(&mut rd).await {
+        Ok(ControllerToServer::HelloAck { controller, rig, lockstep, .. }) => tracing::info!(controller, rig, lockstep, "controller connected"),
+        Ok(other) => return format!("unexpected answer to hello: {other:?}"),
+        Err(e) => return e,
+    }
+    let (tx, mut rx) = mpsc::channel::<Vec<u8>>(16_384);
+    *link.inner.tx.lock().unwrap_or_else(|p| p.into_inner()) = Some(tx.clone());
+    link.inner.connected.send_replace(true);
+    link.emit(ControllerEvent::Link { connected: true });
+    let writer = async {
+        let mut beat = tokio::time::interval(Duration::from_millis(200));
+        let mut seq = 0;
+        loop {
+            tokio::select! {
+                f = rx.recv() => match f {
+                    Some(f) => if let Err(e) = wr.write_all(&f).await { return format!("write failed: {e}") },
+                    None => return "writer closed".to_string(),
+                },
+                _ = beat.tick() => {
+                    seq += 1;
+                    if let Err(e) = wr.write_all(&framing::encode(&ServerToController::Heartbeat { seq })).await {
+                        return format!("write failed: {e}");
+                    }
+                }
+            }
+        }
+    };
+    let reader = async {
+        let mut partial: Partial = HashMap::new();
+        loop {
+            let msg = match read_frame(&mut rd).await {
+                Ok(m) => m,
+                Err(e) => return e,
+            };
+            handle(link, pool, &mut partial, msg).await;
+        }
+    };
+    drop(tx);
+    tokio::select! {
+        why = writer => why,
+        why = reader => why,
+    }
+}
+
+async fn handle(link: &ControllerLink, pool: &SqlitePool, partial: &mut Partial, msg: ControllerToServer) {
+    match msg {
+        ControllerToServer::Live(s) => link.emit(ControllerEvent::Live(s)),
+        ControllerToServer::TrialStarted { trial_id, .. } => link.resolve(trial_id, Ok(())),
+        ControllerToServer::Rejected { trial_id: Some(id), reason } => link.resolve(id, Err(reason)),
+        ControllerToServer::Rejected { trial_id: None, reason } => tracing::warn!(reason, "the controller rejected a message"),
+        ControllerToServer::RecordChunk(c) => {
+            let chans = partial.entry(c.trial_id).or_insert_with(|| vec![Vec::new(); RECORD_CHANNELS.len()]);
+            for (all, part) in chans.iter_mut().zip(c.channels) {
+                all.extend(part);
+            }
+        }
+        ControllerToServer::TrialResult(r) => {
+            let channels = partial.remove(&r.trial_id).unwrap_or_default();
+            let record = Record { dt: r.dt, channels };
+            match store::commit_result(pool, &r, &record).await {
+                Ok(true) => tracing::info!(trial = r.trial_id, outcome = ?r.outcome, "trial result stored"),
+                Ok(false) => tracing::warn!(trial = r.trial_id, "result for a trial that is no longer running; dropped"),
+                Err(e) => tracing::error!(trial = r.trial_id, "storing the result failed: {e}"),
+            }
+            link.emit(ControllerEvent::TrialChanged { trial_id: r.trial_id as i64 });
+        }
+        ControllerToServer::Fault { trial_id, kind, message } => tracing::warn!(?trial_id, ?kind, message, "controller fault"),
+        ControllerToServer::Heartbeat { .. } | ControllerToServer::HelloAck { .. } | ControllerToServer::Status(_) | ControllerToServer::Stepped { .. } => {}
+    }
+}

@@ -1,0 +1,31 @@
+//! The one shared state of the HTTP server.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use sqlx::SqlitePool;
+
+use crate::controller_link::ControllerLink;
+
+#[derive(Clone, Debug)]
+pub struct AppState {
+    pub pool: SqlitePool,
+    pub controller: ControllerLink,
+    pub inner: Arc<Shared>,
+}
+
+#[derive(Debug, Default)]
+pub struct Shared {
+    /// Failed logins per (username, client address), for rate limiting.
+    pub login_failures: Mutex<HashMap<String, Vec<Instant>>>,
+    /// Stations that showed a pairing code and wait for the experimenter: code → (token,
+    /// created).
+    pub pending_stations: Mutex<HashMap<String, (String, Instant)>>,
+}
+
+impl AppState {
+    pub fn new(pool: SqlitePool, controller: ControllerLink) -> Self {
+        Self { pool, controller, inner: Arc::new(Shared::default()) }
+    }
+}
