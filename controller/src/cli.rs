@@ -83,39 +83,7 @@ enum Command {
     Defaults,
     /// Run the real-time controller: the server connects here and runs trials at 1 kHz on
     /// the simulated rig (default) or a real rig over UDP.
-    Serve {
-        /// TCP address the server connects to (any address, so the controller can run on a
-        /// dedicated real-time PC).
-        #[arg(long, env = "BDFT_CONTROLLER_LISTEN", default_value = "127.0.0.1:7070")]
-        listen: SocketAddr,
-        /// Rig: sim (the validated model, one per trial) or udp (a real rig at --rig-addr).
-        #[arg(long, default_value = "sim", value_parser = ["sim", "udp"])]
-        rig: String,
-        /// The real rig's UDP address (with --rig udp).
-        #[arg(long, required_if_eq("rig", "udp"))]
-        rig_addr: Option<SocketAddr>,
-        /// A rig silent for this long faults the trial (ms).
-        #[arg(long, default_value_t = 50, value_parser = clap::value_parser!(u64).range(2..=10_000))]
-        rig_timeout_ms: u64,
-        /// UDP port for a haptic-device host sending operator input (off by default).
-        #[arg(long)]
-        input_udp: Option<SocketAddr>,
-        /// Run ticks only when the client asks (`step` messages): deterministic tests.
-        #[arg(long)]
-        lockstep: bool,
-        /// Silence from the server for this long counts as a lost link (ms).
-        #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(50..=600_000))]
-        link_timeout_ms: u64,
-        /// Most trials run at once (one per station).
-        #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..=64))]
-        max_trials: u64,
-        /// SCHED_FIFO priority asked for the loop thread.
-        #[arg(long, default_value_t = 80, value_parser = clap::value_parser!(i32).range(1..=99))]
-        priority: i32,
-        /// CPU to pin the loop thread to [default: the last CPU when there are several].
-        #[arg(long)]
-        cpu: Option<usize>,
-    },
+    Serve(runtime::ServeArgs),
     /// Play a rig over UDP with the validated model: each command datagram steps the model
     /// one sample and is answered with the sensors.
     RigSim {
@@ -219,39 +187,7 @@ fn execute(command: Command) -> anyhow::Result<()> {
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     match command {
-        Command::Serve {
-            listen,
-            rig,
-            rig_addr,
-            rig_timeout_ms,
-            input_udp,
-            lockstep,
-            link_timeout_ms,
-            max_trials,
-            priority,
-            cpu,
-        } => {
-            let cfg = runtime::ServeConfig {
-                listen,
-                rig: if rig == "udp" { rig_addr } else { None },
-                rig_timeout: Duration::from_millis(rig_timeout_ms),
-                input_udp,
-                lockstep,
-                link_timeout: Duration::from_millis(link_timeout_ms),
-                max_trials: max_trials as usize,
-                priority,
-                cpu: cpu.or_else(runtime::default_cpu),
-                dt: LoopParams::default().dt,
-            };
-            runtime::serve(cfg, |addr, input| {
-                // Tools that start us with port 0 read these lines.
-                if let Some(input) = input {
-                    println!("input udp on {input}");
-                }
-                println!("listening on {addr}");
-                let _ = std::io::stdout().flush();
-            })?;
-        }
+        Command::Serve(args) => runtime::serve_announcing(&args)?,
         Command::RigSim { listen, seed } => {
             runtime::rig_udp::run_rig_sim(
                 listen,

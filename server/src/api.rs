@@ -28,7 +28,10 @@ pub fn router() -> Router<AppState> {
         .route("/api/studies", get(list_studies).post(create_study))
         .route("/api/studies/{id}", get(get_study).put(update_study))
         .route("/api/studies/{id}/subjects", get(list_subjects).post(enrol))
-        .route("/api/studies/{id}/stations", get(list_stations).post(pair_station))
+        .route(
+            "/api/studies/{id}/stations",
+            get(list_stations).post(pair_station),
+        )
         .route("/api/studies/{id}/summary", get(summary))
         .route("/api/studies/{id}/export/{kind}", get(export))
         .route("/api/subjects/{id}", get(get_subject))
@@ -45,7 +48,13 @@ pub fn router() -> Router<AppState> {
         .route("/api/audit", get(audit_log))
 }
 
-async fn audit(state: &AppState, who: &Experimenter, action: &str, target: String, detail: Value) -> Result<(), AppError> {
+async fn audit(
+    state: &AppState,
+    who: &Experimenter,
+    action: &str,
+    target: String,
+    detail: Value,
+) -> Result<(), AppError> {
     Ok(store::audit(&state.pool, &who.username, action, Some(target), detail).await?)
 }
 
@@ -68,45 +77,87 @@ fn check_name(name: &str) -> Result<(), AppError> {
     Ok(())
 }
 
-async fn list_studies(State(s): State<AppState>, _who: Experimenter) -> ApiResult<Vec<store::Study>> {
+async fn list_studies(
+    State(s): State<AppState>,
+    _who: Experimenter,
+) -> ApiResult<Vec<store::Study>> {
     Ok(AppJson(store::studies(&s.pool).await?))
 }
 
-async fn create_study(State(s): State<AppState>, who: Experimenter, AppJson(b): AppJson<StudyBody>) -> ApiResult<store::Study> {
+async fn create_study(
+    State(s): State<AppState>,
+    who: Experimenter,
+    AppJson(b): AppJson<StudyBody>,
+) -> ApiResult<store::Study> {
     check_name(&b.name)?;
     let params = b.params.unwrap_or_else(default_params);
     if let Some(seed) = b.seed {
         if seed >= 1 << 53 {
-            return Err(AppError::BadRequest("seed: a whole number below 2^53".into()));
+            return Err(AppError::BadRequest(
+                "seed: a whole number below 2^53".into(),
+            ));
         }
     }
     let seed = b.seed.unwrap_or_else(crate::db::random_seed);
     let id = store::create_study(&s.pool, &b.name, &params, seed).await?;
-    audit(&s, &who, "study.create", format!("study:{id}"), json!({ "name": b.name, "seed": seed })).await?;
+    audit(
+        &s,
+        &who,
+        "study.create",
+        format!("study:{id}"),
+        json!({ "name": b.name, "seed": seed }),
+    )
+    .await?;
     Ok(AppJson(store::study(&s.pool, id).await?))
 }
 
-async fn get_study(State(s): State<AppState>, _who: Experimenter, Path(id): Path<i64>) -> ApiResult<store::Study> {
+async fn get_study(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<store::Study> {
     Ok(AppJson(store::study(&s.pool, id).await?))
 }
 
-async fn update_study(State(s): State<AppState>, who: Experimenter, Path(id): Path<i64>, AppJson(b): AppJson<StudyBody>) -> ApiResult<store::Study> {
+async fn update_study(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(id): Path<i64>,
+    AppJson(b): AppJson<StudyBody>,
+) -> ApiResult<store::Study> {
     check_name(&b.name)?;
-    let params = b.params.ok_or_else(|| AppError::BadRequest("params: required".into()))?;
+    let params = b
+        .params
+        .ok_or_else(|| AppError::BadRequest("params: required".into()))?;
     if b.seed.is_some() {
-        return Err(AppError::BadRequest("seed: fixed when the study is created".into()));
+        return Err(AppError::BadRequest(
+            "seed: fixed when the study is created".into(),
+        ));
     }
     store::update_study(&s.pool, id, &b.name, &params).await?;
-    audit(&s, &who, "study.update", format!("study:{id}"), json!({ "name": b.name, "params": params })).await?;
+    audit(
+        &s,
+        &who,
+        "study.update",
+        format!("study:{id}"),
+        json!({ "name": b.name, "params": params }),
+    )
+    .await?;
     Ok(AppJson(store::study(&s.pool, id).await?))
 }
 
-async fn list_subjects(State(s): State<AppState>, _who: Experimenter, Path(id): Path<i64>) -> ApiResult<Vec<Value>> {
+async fn list_subjects(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<Vec<Value>> {
     store::study(&s.pool, id).await?;
     let mut out = Vec::new();
     for subj in store::subjects(&s.pool, id).await? {
         let trials = store::trials_of(&s.pool, subj.id).await?;
-        let done = latest_attempts(&trials).filter(|t| !t.practice && t.status == "complete").count();
+        let done = latest_attempts(&trials)
+            .filter(|t| !t.practice && t.status == "complete")
+            .count();
         let tests = latest_attempts(&trials).filter(|t| !t.practice).count();
         out.push(json!({ "subject": subj, "tests_complete": done, "tests": tests }));
     }
@@ -115,17 +166,55 @@ async fn list_subjects(State(s): State<AppState>, _who: Experimenter, Path(id): 
 
 /// The latest attempt of each slot.
 pub fn latest_attempts(trials: &[Trial]) -> impl Iterator<Item = &Trial> {
-    trials.iter().filter(move |t| !trials.iter().any(|u| u.slot == t.slot && u.attempt > t.attempt))
+    trials.iter().filter(move |t| {
+        !trials
+            .iter()
+            .any(|u| u.slot == t.slot && u.attempt > t.attempt)
+    })
 }
 
-async fn enrol(State(s): State<AppState>, who: Experimenter, Path(id): Path<i64>) -> ApiResult<Value> {
-    let (subject, token) = store::enrol(&s.pool, id, false).await?;
-    audit(&s, &who, "subject.enrol", format!("subject:{}", subject.id), json!({ "code": subject.code })).await?;
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct EnrolBody {
+    /// A simulated subject: the synthetic operator drives its tests (dry runs); flagged in
+    /// every export.
+    #[serde(default)]
+    synthetic: bool,
+}
+
+async fn enrol(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(id): Path<i64>,
+    body: axum::body::Bytes,
+) -> ApiResult<Value> {
+    // The body is optional: an empty POST enrols a person.
+    let b: EnrolBody = if body.iter().all(u8::is_ascii_whitespace) {
+        EnrolBody::default()
+    } else {
+        serde_json::from_slice(&body)
+            .map_err(|e| AppError::BadRequest(format!("enrolment body: {e}")))?
+    };
+    let (subject, token) = store::enrol(&s.pool, id, b.synthetic).await?;
+    audit(
+        &s,
+        &who,
+        "subject.enrol",
+        format!("subject:{}", subject.id),
+        json!({ "code": subject.code }),
+    )
+    .await?;
     let study = store::study(&s.pool, id).await?;
-    Ok(AppJson(json!({ "subject": subject, "subject_token": token, "protocol_hash": study.protocol_hash })))
+    Ok(AppJson(
+        json!({ "subject": subject, "subject_token": token, "protocol_hash": study.protocol_hash }),
+    ))
 }
 
-async fn get_subject(State(s): State<AppState>, _who: Experimenter, Path(id): Path<i64>) -> ApiResult<Value> {
+async fn get_subject(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<Value> {
     let subject = store::subject(&s.pool, id).await?;
     let trials = store::trials_of(&s.pool, id).await?;
     let surveys: Vec<(i64, i64, i64, i64, i64, String)> = sqlx::query_as(
@@ -134,8 +223,12 @@ async fn get_subject(State(s): State<AppState>, _who: Experimenter, Path(id): Pa
     .bind(id)
     .fetch_all(&s.pool)
     .await?;
-    let notes: Vec<(i64, Option<i64>, String, String, i64)> =
-        sqlx::query_as("SELECT id, trial_id, text, author, created_at FROM notes WHERE subject_id = ? ORDER BY id").bind(id).fetch_all(&s.pool).await?;
+    let notes: Vec<(i64, Option<i64>, String, String, i64)> = sqlx::query_as(
+        "SELECT id, trial_id, text, author, created_at FROM notes WHERE subject_id = ? ORDER BY id",
+    )
+    .bind(id)
+    .fetch_all(&s.pool)
+    .await?;
     Ok(AppJson(json!({
         "subject": subject,
         "trials": trials.iter().map(|t| {
@@ -159,7 +252,12 @@ fn check_reason(r: &str) -> Result<(), AppError> {
     Ok(())
 }
 
-async fn withdraw(State(s): State<AppState>, who: Experimenter, Path(id): Path<i64>, AppJson(b): AppJson<ReasonBody>) -> ApiResult<Value> {
+async fn withdraw(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(id): Path<i64>,
+    AppJson(b): AppJson<ReasonBody>,
+) -> ApiResult<Value> {
     check_reason(&b.reason)?;
     store::subject(&s.pool, id).await?;
     let done = sqlx::query("UPDATE subjects SET withdrawn_at = ?, withdraw_reason = ? WHERE id = ? AND withdrawn_at IS NULL")
@@ -169,9 +267,18 @@ async fn withdraw(State(s): State<AppState>, who: Experimenter, Path(id): Path<i
         .execute(&s.pool)
         .await?;
     if done.rows_affected() == 0 {
-        return Err(AppError::Conflict("the subject has already withdrawn".into()));
+        return Err(AppError::Conflict(
+            "the subject has already withdrawn".into(),
+        ));
     }
-    audit(&s, &who, "subject.withdraw", format!("subject:{id}"), json!({ "reason": b.reason })).await?;
+    audit(
+        &s,
+        &who,
+        "subject.withdraw",
+        format!("subject:{id}"),
+        json!({ "reason": b.reason }),
+    )
+    .await?;
     Ok(AppJson(json!({ "ok": true })))
 }
 
@@ -183,7 +290,12 @@ struct PairBody {
     role: String,
 }
 
-async fn pair_station(State(s): State<AppState>, who: Experimenter, Path(study_id): Path<i64>, AppJson(b): AppJson<PairBody>) -> ApiResult<Value> {
+async fn pair_station(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(study_id): Path<i64>,
+    AppJson(b): AppJson<PairBody>,
+) -> ApiResult<Value> {
     store::study(&s.pool, study_id).await?;
     check_name(&b.name)?;
     if !["on", "off", "both"].contains(&b.role.as_str()) {
@@ -191,11 +303,19 @@ async fn pair_station(State(s): State<AppState>, who: Experimenter, Path(study_i
     }
     let code = b.pairing_code.trim().to_uppercase();
     let token = {
-        let mut pending = s.inner.pending_stations.lock().unwrap_or_else(|p| p.into_inner());
+        let mut pending = s
+            .inner
+            .pending_stations
+            .lock()
+            .unwrap_or_else(|p| p.into_inner());
         pending.retain(|_, (_, at)| at.elapsed() < std::time::Duration::from_secs(3600));
         pending.remove(&code).map(|(t, _)| t)
     };
-    let token = token.ok_or_else(|| AppError::BadRequest(format!("pairing code {code:?} is not shown by any station (codes expire after an hour)")))?;
+    let token = token.ok_or_else(|| {
+        AppError::BadRequest(format!(
+            "pairing code {code:?} is not shown by any station (codes expire after an hour)"
+        ))
+    })?;
     let id = sqlx::query("INSERT INTO stations (study_id, name, role, token_hash, pairing_code, paired_at, created_at) VALUES (?, ?, ?, ?, ?, ?, ?)")
         .bind(study_id)
         .bind(&b.name)
@@ -207,11 +327,22 @@ async fn pair_station(State(s): State<AppState>, who: Experimenter, Path(study_i
         .execute(&s.pool)
         .await?
         .last_insert_rowid();
-    audit(&s, &who, "station.pair", format!("station:{id}"), json!({ "name": b.name, "role": b.role })).await?;
+    audit(
+        &s,
+        &who,
+        "station.pair",
+        format!("station:{id}"),
+        json!({ "name": b.name, "role": b.role }),
+    )
+    .await?;
     Ok(AppJson(json!({ "id": id, "name": b.name, "role": b.role })))
 }
 
-async fn list_stations(State(s): State<AppState>, _who: Experimenter, Path(study_id): Path<i64>) -> ApiResult<Vec<crate::auth::StationAuth>> {
+async fn list_stations(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(study_id): Path<i64>,
+) -> ApiResult<Vec<crate::auth::StationAuth>> {
     Ok(AppJson(sqlx::query_as("SELECT id, study_id, name, role, subject_id FROM stations WHERE study_id = ? ORDER BY id").bind(study_id).fetch_all(&s.pool).await?))
 }
 
@@ -221,17 +352,38 @@ struct AssignBody {
     subject_id: Option<i64>,
 }
 
-async fn assign_station(State(s): State<AppState>, who: Experimenter, Path(id): Path<i64>, AppJson(b): AppJson<AssignBody>) -> ApiResult<Value> {
-    let station: Option<(i64,)> = sqlx::query_as("SELECT study_id FROM stations WHERE id = ?").bind(id).fetch_optional(&s.pool).await?;
+async fn assign_station(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(id): Path<i64>,
+    AppJson(b): AppJson<AssignBody>,
+) -> ApiResult<Value> {
+    let station: Option<(i64,)> = sqlx::query_as("SELECT study_id FROM stations WHERE id = ?")
+        .bind(id)
+        .fetch_optional(&s.pool)
+        .await?;
     let (study_id,) = station.ok_or(AppError::NotFound("station"))?;
     if let Some(subject_id) = b.subject_id {
         let subj = store::subject(&s.pool, subject_id).await?;
         if subj.study_id != study_id {
-            return Err(AppError::BadRequest("the subject belongs to another study".into()));
+            return Err(AppError::BadRequest(
+                "the subject belongs to another study".into(),
+            ));
         }
     }
-    sqlx::query("UPDATE stations SET subject_id = ? WHERE id = ?").bind(b.subject_id).bind(id).execute(&s.pool).await?;
-    audit(&s, &who, "station.assign", format!("station:{id}"), json!({ "subject_id": b.subject_id })).await?;
+    sqlx::query("UPDATE stations SET subject_id = ? WHERE id = ?")
+        .bind(b.subject_id)
+        .bind(id)
+        .execute(&s.pool)
+        .await?;
+    audit(
+        &s,
+        &who,
+        "station.assign",
+        format!("station:{id}"),
+        json!({ "subject_id": b.subject_id }),
+    )
+    .await?;
     Ok(AppJson(json!({ "ok": true })))
 }
 
@@ -239,55 +391,120 @@ async fn assign_station(State(s): State<AppState>, who: Experimenter, Path(id): 
 pub async fn start(s: &AppState, trial: &Trial) -> Result<(), AppError> {
     let subject = store::subject(&s.pool, trial.subject_id).await?;
     if subject.withdrawn_at.is_some() {
-        return Err(AppError::Conflict(format!("{} has withdrawn", subject.code)));
+        return Err(AppError::Conflict(format!(
+            "{} has withdrawn",
+            subject.code
+        )));
     }
     if subject.consent_decision.as_deref() != Some("agreed") {
-        return Err(AppError::Conflict(format!("{} has not consented; nothing runs without consent", subject.code)));
+        return Err(AppError::Conflict(format!(
+            "{} has not consented; nothing runs without consent",
+            subject.code
+        )));
     }
     let next = store::next_trial(&s.pool, subject.id).await?;
     if next.as_ref().map(|t| t.id) != Some(trial.id) {
-        return Err(AppError::Conflict(format!("trial {} is not {}'s next test", trial.id, subject.code)));
+        return Err(AppError::Conflict(format!(
+            "trial {} is not {}'s next test",
+            trial.id, subject.code
+        )));
     }
     if let Some(pending) = crate::station::pending_survey(&s.pool, subject.id).await? {
-        return Err(AppError::Conflict(format!("the survey of trial {} is still to be answered", pending.id)));
+        return Err(AppError::Conflict(format!(
+            "the survey of trial {} is still to be answered",
+            pending.id
+        )));
     }
     if !s.controller.is_connected() {
-        return Err(AppError::Unavailable("the controller is not connected".into()));
+        return Err(AppError::Unavailable(
+            "the controller is not connected".into(),
+        ));
     }
     let study = store::study(&s.pool, subject.study_id).await?;
-    let operator = if subject.synthetic { Operator::Synthetic } else { Operator::Person };
+    let operator = if subject.synthetic {
+        Operator::Synthetic
+    } else {
+        Operator::Person
+    };
     let msg = start_message(&study, trial, operator)?;
     store::mark_running(&s.pool, trial.id).await?;
     if let Err(reason) = s.controller.start_trial(&msg).await {
         store::unmark_running(&s.pool, trial.id).await?;
-        return Err(AppError::Unavailable(format!("the controller did not start the trial: {reason}")));
+        return Err(AppError::Unavailable(format!(
+            "the controller did not start the trial: {reason}"
+        )));
     }
+    // The station's socket starts forwarding operator input at once.
+    s.controller
+        .emit(crate::controller_link::ControllerEvent::TrialChanged { trial_id: trial.id });
     Ok(())
 }
 
-async fn start_trial(State(s): State<AppState>, who: Experimenter, Path(id): Path<i64>) -> ApiResult<Trial> {
+async fn start_trial(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<Trial> {
     let trial = store::trial(&s.pool, id).await?;
     start(&s, &trial).await?;
-    audit(&s, &who, "trial.start", format!("trial:{id}"), json!({ "controller": trial.controller, "station": trial.station })).await?;
+    audit(
+        &s,
+        &who,
+        "trial.start",
+        format!("trial:{id}"),
+        json!({ "controller": trial.controller, "station": trial.station }),
+    )
+    .await?;
     Ok(AppJson(store::trial(&s.pool, id).await?))
 }
 
-async fn abort_trial(State(s): State<AppState>, who: Experimenter, Path(id): Path<i64>, AppJson(b): AppJson<ReasonBody>) -> ApiResult<Value> {
+async fn abort_trial(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(id): Path<i64>,
+    AppJson(b): AppJson<ReasonBody>,
+) -> ApiResult<Value> {
     check_reason(&b.reason)?;
     let trial = store::trial(&s.pool, id).await?;
     if trial.status != "running" {
-        return Err(AppError::Conflict(format!("trial {id} is {}, not running", trial.status)));
+        return Err(AppError::Conflict(format!(
+            "trial {id} is {}, not running",
+            trial.status
+        )));
     }
-    s.controller.send(&ServerToController::AbortTrial { trial_id: id as u64, reason: b.reason.clone() }).map_err(AppError::Unavailable)?;
-    audit(&s, &who, "trial.abort", format!("trial:{id}"), json!({ "reason": b.reason })).await?;
+    s.controller
+        .send(&ServerToController::AbortTrial {
+            trial_id: id as u64,
+            reason: b.reason.clone(),
+        })
+        .map_err(AppError::Unavailable)?;
+    audit(
+        &s,
+        &who,
+        "trial.abort",
+        format!("trial:{id}"),
+        json!({ "reason": b.reason }),
+    )
+    .await?;
     Ok(AppJson(json!({ "ok": true })))
 }
 
-async fn redo_trial(State(s): State<AppState>, who: Experimenter, Path(id): Path<i64>) -> ApiResult<Trial> {
+async fn redo_trial(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<Trial> {
     let t = store::trial(&s.pool, id).await?;
-    let (latest,): (i64,) = sqlx::query_as("SELECT MAX(attempt) FROM trials WHERE subject_id = ? AND slot = ?").bind(t.subject_id).bind(t.slot).fetch_one(&s.pool).await?;
+    let (latest,): (i64,) =
+        sqlx::query_as("SELECT MAX(attempt) FROM trials WHERE subject_id = ? AND slot = ?")
+            .bind(t.subject_id)
+            .bind(t.slot)
+            .fetch_one(&s.pool)
+            .await?;
     if latest != t.attempt || !["complete", "aborted", "incomplete"].contains(&t.status.as_str()) {
-        return Err(AppError::Conflict("only the latest attempt of a finished test can be redone".into()));
+        return Err(AppError::Conflict(
+            "only the latest attempt of a finished test can be redone".into(),
+        ));
     }
     let new_id = sqlx::query(
         "INSERT INTO trials (subject_id, slot, attempt, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, protocol_hash) \
@@ -297,11 +514,23 @@ async fn redo_trial(State(s): State<AppState>, who: Experimenter, Path(id): Path
     .execute(&s.pool)
     .await?
     .last_insert_rowid();
-    audit(&s, &who, "trial.redo", format!("trial:{id}"), json!({ "new_trial": new_id })).await?;
+    audit(
+        &s,
+        &who,
+        "trial.redo",
+        format!("trial:{id}"),
+        json!({ "new_trial": new_id }),
+    )
+    .await?;
     Ok(AppJson(store::trial(&s.pool, new_id).await?))
 }
 
-async fn mark_incomplete(State(s): State<AppState>, who: Experimenter, Path(id): Path<i64>, AppJson(b): AppJson<ReasonBody>) -> ApiResult<Trial> {
+async fn mark_incomplete(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(id): Path<i64>,
+    AppJson(b): AppJson<ReasonBody>,
+) -> ApiResult<Trial> {
     check_reason(&b.reason)?;
     let done = sqlx::query("UPDATE trials SET status = 'incomplete', status_reason = ? WHERE id = ? AND status IN ('complete', 'scheduled')")
         .bind(&b.reason)
@@ -310,9 +539,18 @@ async fn mark_incomplete(State(s): State<AppState>, who: Experimenter, Path(id):
         .await?;
     if done.rows_affected() == 0 {
         store::trial(&s.pool, id).await?;
-        return Err(AppError::Conflict("only a scheduled or complete test can be marked incomplete".into()));
+        return Err(AppError::Conflict(
+            "only a scheduled or complete test can be marked incomplete".into(),
+        ));
     }
-    audit(&s, &who, "trial.mark_incomplete", format!("trial:{id}"), json!({ "reason": b.reason })).await?;
+    audit(
+        &s,
+        &who,
+        "trial.mark_incomplete",
+        format!("trial:{id}"),
+        json!({ "reason": b.reason }),
+    )
+    .await?;
     Ok(AppJson(store::trial(&s.pool, id).await?))
 }
 
@@ -322,51 +560,85 @@ struct NoteBody {
     text: String,
 }
 
-async fn add_note(State(s): State<AppState>, who: Experimenter, Path(id): Path<i64>, AppJson(b): AppJson<NoteBody>) -> ApiResult<Value> {
+async fn add_note(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(id): Path<i64>,
+    AppJson(b): AppJson<NoteBody>,
+) -> ApiResult<Value> {
     if b.text.trim().is_empty() || b.text.chars().count() > 2000 {
         return Err(AppError::BadRequest("text: 1 to 2000 characters".into()));
     }
     let t = store::trial(&s.pool, id).await?;
-    let note = sqlx::query("INSERT INTO notes (subject_id, trial_id, text, author, created_at) VALUES (?, ?, ?, ?, ?)")
-        .bind(t.subject_id)
-        .bind(id)
-        .bind(&b.text)
-        .bind(&who.username)
-        .bind(crate::db::now_ms())
-        .execute(&s.pool)
-        .await?
-        .last_insert_rowid();
-    audit(&s, &who, "trial.note", format!("trial:{id}"), json!({ "note": note })).await?;
+    let note = sqlx::query(
+        "INSERT INTO notes (subject_id, trial_id, text, author, created_at) VALUES (?, ?, ?, ?, ?)",
+    )
+    .bind(t.subject_id)
+    .bind(id)
+    .bind(&b.text)
+    .bind(&who.username)
+    .bind(crate::db::now_ms())
+    .execute(&s.pool)
+    .await?
+    .last_insert_rowid();
+    audit(
+        &s,
+        &who,
+        "trial.note",
+        format!("trial:{id}"),
+        json!({ "note": note }),
+    )
+    .await?;
     Ok(AppJson(json!({ "id": note })))
 }
 
 async fn estop(State(s): State<AppState>, who: Experimenter) -> ApiResult<Value> {
     // Log first: the stop itself must not wait for anything that could fail.
     let sent = s.controller.send(&ServerToController::EStop);
-    audit(&s, &who, "estop", "controller".into(), json!({ "delivered": sent.is_ok() })).await?;
+    audit(
+        &s,
+        &who,
+        "estop",
+        "controller".into(),
+        json!({ "delivered": sent.is_ok() }),
+    )
+    .await?;
     sent.map_err(AppError::Unavailable)?;
     Ok(AppJson(json!({ "ok": true })))
 }
 
 async fn estop_reset(State(s): State<AppState>, who: Experimenter) -> ApiResult<Value> {
-    s.controller.send(&ServerToController::ResetEStop).map_err(AppError::Unavailable)?;
+    s.controller
+        .send(&ServerToController::ResetEStop)
+        .map_err(AppError::Unavailable)?;
     audit(&s, &who, "estop.reset", "controller".into(), json!({})).await?;
     Ok(AppJson(json!({ "ok": true })))
 }
 
 async fn controller_status(State(s): State<AppState>, _who: Experimenter) -> AppJson<Value> {
-    AppJson(json!({ "connected": s.controller.is_connected() }))
+    AppJson(json!({ "connected": s.controller.is_connected(), "pid": s.controller.pid() }))
 }
+
+/// id, at, actor, action, target, detail_json
+type AuditRow = (i64, i64, String, String, Option<String>, Option<String>);
 
 #[derive(Debug, Deserialize)]
 struct AuditQuery {
     limit: Option<i64>,
 }
 
-async fn audit_log(State(s): State<AppState>, _who: Experimenter, Query(q): Query<AuditQuery>) -> ApiResult<Vec<Value>> {
+async fn audit_log(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Query(q): Query<AuditQuery>,
+) -> ApiResult<Vec<Value>> {
     let limit = q.limit.unwrap_or(200).clamp(1, 10_000);
-    let rows: Vec<(i64, i64, String, String, Option<String>, Option<String>)> =
-        sqlx::query_as("SELECT id, at, actor, action, target, detail_json FROM audit_log ORDER BY id DESC LIMIT ?").bind(limit).fetch_all(&s.pool).await?;
+    let rows: Vec<AuditRow> = sqlx::query_as(
+        "SELECT id, at, actor, action, target, detail_json FROM audit_log ORDER BY id DESC LIMIT ?",
+    )
+    .bind(limit)
+    .fetch_all(&s.pool)
+    .await?;
     Ok(AppJson(
         rows.into_iter()
             .map(|r| json!({ "id": r.0, "at": crate::db::rfc3339(r.1), "actor": r.2, "action": r.3, "target": r.4, "detail": r.5.and_then(|d| serde_json::from_str::<Value>(&d).ok()) }))
@@ -374,17 +646,36 @@ async fn audit_log(State(s): State<AppState>, _who: Experimenter, Query(q): Quer
     ))
 }
 
-async fn summary(State(s): State<AppState>, _who: Experimenter, Path(id): Path<i64>) -> ApiResult<Vec<crate::export::Stats>> {
+async fn summary(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<Vec<crate::export::Stats>> {
     store::study(&s.pool, id).await?;
-    Ok(AppJson(crate::export::summary_stats(&s.pool, id).await.map_err(|e| AppError::Internal(e.into()))?))
+    Ok(AppJson(
+        crate::export::summary_stats(&s.pool, id)
+            .await
+            .map_err(|e| AppError::Internal(e.into()))?,
+    ))
 }
 
 /// Streams a CSV export: the response starts at once and is written as rows are read.
-async fn export(State(s): State<AppState>, who: Experimenter, Path((id, kind)): Path<(i64, String)>) -> Result<Response, AppError> {
+async fn export(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path((id, kind)): Path<(i64, String)>,
+) -> Result<Response, AppError> {
     let kind_name = kind.trim_end_matches(".csv").to_string();
     let kind: ExportKind = kind_name.parse().map_err(AppError::BadRequest)?;
     let study = store::study(&s.pool, id).await?;
-    audit(&s, &who, "export", format!("study:{id}"), json!({ "kind": kind_name })).await?;
+    audit(
+        &s,
+        &who,
+        "export",
+        format!("study:{id}"),
+        json!({ "kind": kind_name }),
+    )
+    .await?;
     let (w, r) = tokio::io::duplex(1 << 16);
     let pool = s.pool.clone();
     tokio::spawn(async move {
@@ -393,9 +684,23 @@ async fn export(State(s): State<AppState>, who: Experimenter, Path((id, kind)): 
         }
     });
     let body = Body::from_stream(tokio_util::io::ReaderStream::new(r));
-    let filename = format!("bdft-study{}-{kind_name}-{}.csv", study.id, &study.protocol_hash.unwrap_or_default().get(..8).unwrap_or("unlocked"));
+    let filename = format!(
+        "bdft-study{}-{kind_name}-{}.csv",
+        study.id,
+        &study
+            .protocol_hash
+            .unwrap_or_default()
+            .get(..8)
+            .unwrap_or("unlocked")
+    );
     Ok((
-        [(header::CONTENT_TYPE, "text/csv; charset=utf-8".to_string()), (header::CONTENT_DISPOSITION, format!("attachment; filename=\"{filename}\""))],
+        [
+            (header::CONTENT_TYPE, "text/csv; charset=utf-8".to_string()),
+            (
+                header::CONTENT_DISPOSITION,
+                format!("attachment; filename=\"{filename}\""),
+            ),
+        ],
         body,
     )
         .into_response())

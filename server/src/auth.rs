@@ -6,8 +6,8 @@
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
-use argon2::password_hash::{PasswordHash, PasswordHasher, PasswordVerifier, SaltString};
 use argon2::Argon2;
+use argon2::password_hash::{PasswordHash, PasswordHasher, PasswordVerifier, SaltString};
 use axum::extract::{ConnectInfo, FromRequestParts, State};
 use axum::http::request::Parts;
 use axum::http::{HeaderMap, HeaderValue, Method, header};
@@ -35,10 +35,15 @@ pub struct Experimenter {
 }
 
 fn cookie(headers: &HeaderMap, name: &str) -> Option<String> {
-    headers.get_all(header::COOKIE).iter().filter_map(|v| v.to_str().ok()).flat_map(|v| v.split(';')).find_map(|kv| {
-        let (k, v) = kv.trim().split_once('=')?;
-        (k == name).then(|| v.to_string())
-    })
+    headers
+        .get_all(header::COOKIE)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(';'))
+        .find_map(|kv| {
+            let (k, v) = kv.trim().split_once('=')?;
+            (k == name).then(|| v.to_string())
+        })
 }
 
 fn bearer(parts: &Parts) -> Option<String> {
@@ -48,7 +53,11 @@ fn bearer(parts: &Parts) -> Option<String> {
 
 /// Constant-time comparison of two secrets.
 fn same(a: &str, b: &str) -> bool {
-    a.len() == b.len() && a.bytes().zip(b.bytes()).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+    a.len() == b.len()
+        && a.bytes()
+            .zip(b.bytes())
+            .fold(0u8, |acc, (x, y)| acc | (x ^ y))
+            == 0
 }
 
 impl FromRequestParts<AppState> for Experimenter {
@@ -64,9 +73,15 @@ impl FromRequestParts<AppState> for Experimenter {
         .await?;
         let (id, username, csrf) = row.ok_or(AppError::Unauthorized)?;
         if !matches!(parts.method, Method::GET | Method::HEAD | Method::OPTIONS) {
-            let sent = parts.headers.get(CSRF_HEADER).and_then(|v| v.to_str().ok()).unwrap_or("");
+            let sent = parts
+                .headers
+                .get(CSRF_HEADER)
+                .and_then(|v| v.to_str().ok())
+                .unwrap_or("");
             if !same(sent, &csrf) {
-                return Err(AppError::Forbidden("missing or wrong CSRF token (header X-CSRF-Token)".into()));
+                return Err(AppError::Forbidden(
+                    "missing or wrong CSRF token (header X-CSRF-Token)".into(),
+                ));
             }
         }
         Ok(Self { id, username, csrf })
@@ -83,15 +98,25 @@ pub struct StationAuth {
     pub subject_id: Option<i64>,
 }
 
-pub async fn station_by_token(pool: &SqlitePool, token: &str) -> Result<Option<StationAuth>, AppError> {
-    Ok(sqlx::query_as("SELECT id, study_id, name, role, subject_id FROM stations WHERE token_hash = ?").bind(token_hash(token)).fetch_optional(pool).await?)
+pub async fn station_by_token(
+    pool: &SqlitePool,
+    token: &str,
+) -> Result<Option<StationAuth>, AppError> {
+    Ok(sqlx::query_as(
+        "SELECT id, study_id, name, role, subject_id FROM stations WHERE token_hash = ?",
+    )
+    .bind(token_hash(token))
+    .fetch_optional(pool)
+    .await?)
 }
 
 impl FromRequestParts<AppState> for StationAuth {
     type Rejection = AppError;
     async fn from_request_parts(parts: &mut Parts, state: &AppState) -> Result<Self, AppError> {
         let token = bearer(parts).ok_or(AppError::Unauthorized)?;
-        station_by_token(&state.pool, &token).await?.ok_or(AppError::Unauthorized)
+        station_by_token(&state.pool, &token)
+            .await?
+            .ok_or(AppError::Unauthorized)
     }
 }
 
@@ -119,51 +144,88 @@ pub fn hash_password(password: &str) -> anyhow::Result<String> {
     let mut salt = [0u8; 16];
     getrandom::fill(&mut salt).map_err(|e| anyhow::anyhow!("random salt: {e}"))?;
     let salt = SaltString::encode_b64(&salt).map_err(|e| anyhow::anyhow!("{e}"))?;
-    Ok(Argon2::default().hash_password(password.as_bytes(), &salt).map_err(|e| anyhow::anyhow!("{e}"))?.to_string())
+    Ok(Argon2::default()
+        .hash_password(password.as_bytes(), &salt)
+        .map_err(|e| anyhow::anyhow!("{e}"))?
+        .to_string())
 }
 
 /// A real hash of a random password, so that unknown usernames cost the same verification.
 fn dummy_hash() -> String {
     static DUMMY: std::sync::OnceLock<String> = std::sync::OnceLock::new();
-    DUMMY.get_or_init(|| hash_password(&random_token()).unwrap_or_default()).clone()
+    DUMMY
+        .get_or_init(|| hash_password(&random_token()).unwrap_or_default())
+        .clone()
 }
 
 fn verify_password(password: &str, phc: &str) -> bool {
-    PasswordHash::new(phc).is_ok_and(|h| Argon2::default().verify_password(password.as_bytes(), &h).is_ok())
+    PasswordHash::new(phc).is_ok_and(|h| {
+        Argon2::default()
+            .verify_password(password.as_bytes(), &h)
+            .is_ok()
+    })
 }
 
 fn check_new_credentials(username: &str, password: &str) -> Result<(), AppError> {
-    let ok_name = (3..=40).contains(&username.len()) && username.chars().all(|c| c.is_ascii_alphanumeric() || "._-".contains(c));
+    let ok_name = (3..=40).contains(&username.len())
+        && username
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "._-".contains(c));
     if !ok_name {
-        return Err(AppError::BadRequest("username: 3 to 40 letters, digits, '.', '_' or '-'".into()));
+        return Err(AppError::BadRequest(
+            "username: 3 to 40 letters, digits, '.', '_' or '-'".into(),
+        ));
     }
     if password.chars().count() < MIN_PASSWORD || password.len() > 200 {
-        return Err(AppError::BadRequest(format!("password: at least {MIN_PASSWORD} characters (at most 200 bytes)")));
+        return Err(AppError::BadRequest(format!(
+            "password: at least {MIN_PASSWORD} characters (at most 200 bytes)"
+        )));
     }
     Ok(())
 }
 
-pub async fn create_experimenter(pool: &SqlitePool, username: &str, password: &str) -> Result<i64, AppError> {
+pub async fn create_experimenter(
+    pool: &SqlitePool,
+    username: &str,
+    password: &str,
+) -> Result<i64, AppError> {
     check_new_credentials(username, password)?;
     let pw = password.to_string();
-    let hash = tokio::task::spawn_blocking(move || hash_password(&pw)).await.map_err(anyhow::Error::from)??;
-    let r = sqlx::query("INSERT INTO experimenters (username, password_hash, created_at) VALUES (?, ?, ?)").bind(username).bind(hash).bind(now_ms()).execute(pool).await;
+    let hash = tokio::task::spawn_blocking(move || hash_password(&pw))
+        .await
+        .map_err(anyhow::Error::from)??;
+    let r = sqlx::query(
+        "INSERT INTO experimenters (username, password_hash, created_at) VALUES (?, ?, ?)",
+    )
+    .bind(username)
+    .bind(hash)
+    .bind(now_ms())
+    .execute(pool)
+    .await;
     match r {
         Ok(r) => Ok(r.last_insert_rowid()),
-        Err(sqlx::Error::Database(e)) if e.is_unique_violation() => Err(AppError::Conflict(format!("the username {username} is taken"))),
+        Err(sqlx::Error::Database(e)) if e.is_unique_violation() => Err(AppError::Conflict(
+            format!("the username {username} is taken"),
+        )),
         Err(e) => Err(e.into()),
     }
 }
 
 pub async fn experimenter_count(pool: &SqlitePool) -> Result<i64, AppError> {
-    let (n,): (i64,) = sqlx::query_as("SELECT COUNT(*) FROM experimenters").fetch_one(pool).await?;
+    let (n,): (i64,) = sqlx::query_as("SELECT COUNT(*) FROM experimenters")
+        .fetch_one(pool)
+        .await?;
     Ok(n)
 }
 
 /// A one-time set-up token (printed at first start); only its hash is stored.
 pub async fn new_setup_token(pool: &SqlitePool) -> Result<String, AppError> {
     let token = random_token();
-    sqlx::query("INSERT INTO setup_tokens (token_hash, created_at) VALUES (?, ?)").bind(token_hash(&token)).bind(now_ms()).execute(pool).await?;
+    sqlx::query("INSERT INTO setup_tokens (token_hash, created_at) VALUES (?, ?)")
+        .bind(token_hash(&token))
+        .bind(now_ms())
+        .execute(pool)
+        .await?;
     Ok(token)
 }
 
@@ -183,10 +245,17 @@ pub struct SetupRequest {
 }
 
 fn session_cookie(token: &str, max_age_s: i64) -> HeaderValue {
-    HeaderValue::from_str(&format!("{SESSION_COOKIE}={token}; HttpOnly; SameSite=Strict; Path=/; Max-Age={max_age_s}")).expect("ascii cookie")
+    HeaderValue::from_str(&format!(
+        "{SESSION_COOKIE}={token}; HttpOnly; SameSite=Strict; Path=/; Max-Age={max_age_s}"
+    ))
+    .expect("ascii cookie")
 }
 
-async fn new_session(pool: &SqlitePool, experimenter_id: i64, username: &str) -> Result<Response, AppError> {
+async fn new_session(
+    pool: &SqlitePool,
+    experimenter_id: i64,
+    username: &str,
+) -> Result<Response, AppError> {
     let (token, csrf) = (random_token(), random_token());
     let now = now_ms();
     sqlx::query("INSERT INTO sessions (token_hash, experimenter_id, csrf, created_at, expires_at) VALUES (?, ?, ?, ?, ?)")
@@ -198,65 +267,147 @@ async fn new_session(pool: &SqlitePool, experimenter_id: i64, username: &str) ->
         .execute(pool)
         .await?;
     let body = AppJson(serde_json::json!({ "username": username, "csrf": csrf }));
-    Ok(([(header::SET_COOKIE, session_cookie(&token, SESSION_HOURS * 3600))], body).into_response())
+    Ok((
+        [(
+            header::SET_COOKIE,
+            session_cookie(&token, SESSION_HOURS * 3600),
+        )],
+        body,
+    )
+        .into_response())
 }
 
 /// POST /api/login
-pub async fn login(State(state): State<AppState>, ConnectInfo(peer): ConnectInfo<SocketAddr>, AppJson(c): AppJson<Credentials>) -> Result<Response, AppError> {
+pub async fn login(
+    State(state): State<AppState>,
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    AppJson(c): AppJson<Credentials>,
+) -> Result<Response, AppError> {
     let key = format!("{}|{}", c.username, peer.ip());
     {
-        let mut failures = state.inner.login_failures.lock().unwrap_or_else(|p| p.into_inner());
+        let mut failures = state
+            .inner
+            .login_failures
+            .lock()
+            .unwrap_or_else(|p| p.into_inner());
         let recent = failures.entry(key.clone()).or_default();
         recent.retain(|t| t.elapsed() < Duration::from_secs(60));
         if recent.len() >= LOGIN_ATTEMPTS {
             return Err(AppError::TooManyRequests);
         }
     }
-    let row: Option<(i64, String)> = sqlx::query_as("SELECT id, password_hash FROM experimenters WHERE username = ?").bind(&c.username).fetch_optional(&state.pool).await?;
+    let row: Option<(i64, String)> =
+        sqlx::query_as("SELECT id, password_hash FROM experimenters WHERE username = ?")
+            .bind(&c.username)
+            .fetch_optional(&state.pool)
+            .await?;
     let pw = c.password.clone();
     // Verify against a dummy hash for unknown users too, so timing does not reveal names.
     let phc = row.as_ref().map(|r| r.1.clone());
-    let ok = tokio::task::spawn_blocking(move || verify_password(&pw, &phc.unwrap_or_else(dummy_hash))).await.map_err(anyhow::Error::from)?;
+    let ok =
+        tokio::task::spawn_blocking(move || verify_password(&pw, &phc.unwrap_or_else(dummy_hash)))
+            .await
+            .map_err(anyhow::Error::from)?;
     match (row, ok) {
         (Some((id, _)), true) => {
-            state.inner.login_failures.lock().unwrap_or_else(|p| p.into_inner()).remove(&key);
-            crate::store::audit(&state.pool, &c.username, "login", None, serde_json::json!({ "from": peer.ip().to_string() })).await?;
+            state
+                .inner
+                .login_failures
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .remove(&key);
+            crate::store::audit(
+                &state.pool,
+                &c.username,
+                "login",
+                None,
+                serde_json::json!({ "from": peer.ip().to_string() }),
+            )
+            .await?;
             new_session(&state.pool, id, &c.username).await
         }
         _ => {
-            state.inner.login_failures.lock().unwrap_or_else(|p| p.into_inner()).entry(key).or_default().push(Instant::now());
+            state
+                .inner
+                .login_failures
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .entry(key)
+                .or_default()
+                .push(Instant::now());
             Err(AppError::Forbidden("wrong username or password".into()))
         }
     }
 }
 
 /// POST /api/logout
-pub async fn logout(State(state): State<AppState>, who: Experimenter, headers: HeaderMap) -> Result<Response, AppError> {
+pub async fn logout(
+    State(state): State<AppState>,
+    who: Experimenter,
+    headers: HeaderMap,
+) -> Result<Response, AppError> {
     if let Some(token) = cookie(&headers, SESSION_COOKIE) {
-        sqlx::query("DELETE FROM sessions WHERE token_hash = ?").bind(token_hash(&token)).execute(&state.pool).await?;
+        sqlx::query("DELETE FROM sessions WHERE token_hash = ?")
+            .bind(token_hash(&token))
+            .execute(&state.pool)
+            .await?;
     }
-    crate::store::audit(&state.pool, &who.username, "logout", None, serde_json::json!({})).await?;
-    Ok(([(header::SET_COOKIE, session_cookie("", 0))], AppJson(serde_json::json!({ "ok": true }))).into_response())
+    crate::store::audit(
+        &state.pool,
+        &who.username,
+        "logout",
+        None,
+        serde_json::json!({}),
+    )
+    .await?;
+    Ok((
+        [(header::SET_COOKIE, session_cookie("", 0))],
+        AppJson(serde_json::json!({ "ok": true })),
+    )
+        .into_response())
 }
 
 /// POST /api/setup: creates the first experimenter with the one-time token.
-pub async fn setup(State(state): State<AppState>, AppJson(req): AppJson<SetupRequest>) -> Result<Response, AppError> {
+pub async fn setup(
+    State(state): State<AppState>,
+    AppJson(req): AppJson<SetupRequest>,
+) -> Result<Response, AppError> {
     if experimenter_count(&state.pool).await? > 0 {
-        return Err(AppError::Conflict("set-up is done: an experimenter account exists".into()));
+        return Err(AppError::Conflict(
+            "set-up is done: an experimenter account exists".into(),
+        ));
     }
     check_new_credentials(&req.username, &req.password)?;
-    let used = sqlx::query("UPDATE setup_tokens SET used_at = ? WHERE token_hash = ? AND used_at IS NULL").bind(now_ms()).bind(token_hash(&req.token)).execute(&state.pool).await?;
+    let used =
+        sqlx::query("UPDATE setup_tokens SET used_at = ? WHERE token_hash = ? AND used_at IS NULL")
+            .bind(now_ms())
+            .bind(token_hash(&req.token))
+            .execute(&state.pool)
+            .await?;
     if used.rows_affected() == 0 {
-        return Err(AppError::Forbidden("the set-up link is not valid (already used, or mistyped)".into()));
+        return Err(AppError::Forbidden(
+            "the set-up link is not valid (already used, or mistyped)".into(),
+        ));
     }
     let id = create_experimenter(&state.pool, &req.username, &req.password).await?;
-    crate::store::audit(&state.pool, &req.username, "setup.first_account", None, serde_json::json!({})).await?;
+    crate::store::audit(
+        &state.pool,
+        &req.username,
+        "setup.first_account",
+        None,
+        serde_json::json!({}),
+    )
+    .await?;
     new_session(&state.pool, id, &req.username).await
 }
 
 /// GET /api/setup: whether the first account still has to be made.
-pub async fn setup_status(State(state): State<AppState>) -> Result<AppJson<serde_json::Value>, AppError> {
-    Ok(AppJson(serde_json::json!({ "needs_setup": experimenter_count(&state.pool).await? == 0 })))
+pub async fn setup_status(
+    State(state): State<AppState>,
+) -> Result<AppJson<serde_json::Value>, AppError> {
+    Ok(AppJson(
+        serde_json::json!({ "needs_setup": experimenter_count(&state.pool).await? == 0 }),
+    ))
 }
 
 /// GET /api/me

@@ -15,12 +15,16 @@ use crate::export::ExportKind;
     about = "bdft-lab experiment server: runs the study protocol, stores and exports its data"
 )]
 struct Cli {
+    /// What to do [default: serve, with its defaults].
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
 }
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// The real-time controller (as `bdft-controller serve`); what `serve` starts.
+    #[command(hide = true)]
+    Controller(bdft_controller::runtime::ServeArgs),
     /// Run the experiment server: the API and pages on --listen, a supervised controller.
     Serve {
         /// SQLite database file (created if missing, migrations applied at start).
@@ -33,7 +37,8 @@ enum Command {
         /// starting one.
         #[arg(long, env = "BDFT_CONTROLLER")]
         controller: Option<std::net::SocketAddr>,
-        /// The bdft-controller binary to start [default: next to this binary].
+        /// A bdft-controller binary to start [default: this executable runs the controller in
+        /// a child process of its own].
         #[arg(long, env = "BDFT_CONTROLLER_BIN")]
         controller_bin: Option<PathBuf>,
         /// Extra argument for the started controller (repeatable), e.g. --controller-arg=--rig
@@ -80,12 +85,29 @@ enum Command {
 
 pub fn run() -> ExitCode {
     let cli = Cli::parse();
+    let command = cli.command.unwrap_or_else(|| {
+        // `bdft-server` alone serves with every default (and the environment's settings).
+        match Cli::parse_from(["bdft-server", "serve"]).command {
+            Some(c) => c,
+            None => unreachable!("serve parses"),
+        }
+    });
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
         )
         .with_writer(std::io::stderr)
         .init();
+    if let Command::Controller(args) = &command {
+        // The controller builds its own runtime beside its real-time thread.
+        return match bdft_controller::runtime::serve_announcing(args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::from(2)
+            }
+        };
+    }
     let rt = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -96,7 +118,7 @@ pub fn run() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    match rt.block_on(execute(cli.command)) {
+    match rt.block_on(execute(command)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
@@ -118,33 +140,59 @@ async fn newest_study(pool: &sqlx::SqlitePool, study: Option<i64>) -> anyhow::Re
 
 async fn execute(command: Command) -> anyhow::Result<()> {
     match command {
-        Command::Serve { db, listen, controller, controller_bin, controller_args, admin_password } => {
+        Command::Serve {
+            db,
+            listen,
+            controller,
+            controller_bin,
+            controller_args,
+            admin_password,
+        } => {
             let pool = crate::db::open(&db).await?;
             let interrupted = crate::store::interrupt_running(&pool, "server restart").await?;
             if !interrupted.is_empty() {
                 tracing::warn!(trials = ?interrupted, "trials that were running when the server stopped are marked incomplete");
             }
-            let listener = tokio::net::TcpListener::bind(listen).await.with_context(|| format!("listening on {listen}"))?;
+            let listener = tokio::net::TcpListener::bind(listen)
+                .await
+                .with_context(|| format!("listening on {listen}"))?;
             let addr = listener.local_addr()?;
-            if crate::auth::experimenter_count(&pool).await.map_err(|e| anyhow::anyhow!("{e}"))? == 0 {
+            if crate::auth::experimenter_count(&pool)
+                .await
+                .map_err(|e| anyhow::anyhow!("{e}"))?
+                == 0
+            {
                 match admin_password {
                     Some(pw) => {
-                        crate::auth::create_experimenter(&pool, "admin", &pw).await.map_err(|e| anyhow::anyhow!("--admin-password: {e}"))?;
+                        crate::auth::create_experimenter(&pool, "admin", &pw)
+                            .await
+                            .map_err(|e| anyhow::anyhow!("--admin-password: {e}"))?;
                         println!("Created the experimenter account \"admin\".");
                     }
                     None => {
-                        let token = crate::auth::new_setup_token(&pool).await.map_err(|e| anyhow::anyhow!("{e}"))?;
-                        println!("First start: create the experimenter account at http://{addr}/setup?token={token}");
+                        let token = crate::auth::new_setup_token(&pool)
+                            .await
+                            .map_err(|e| anyhow::anyhow!("{e}"))?;
+                        println!(
+                            "First start: create the experimenter account at http://{addr}/setup?token={token}"
+                        );
                     }
                 }
             }
             let source = match controller {
                 Some(a) => crate::controller_link::ControllerSource::Connect(a),
                 None => {
-                    let bin = controller_bin.unwrap_or_else(|| {
-                        std::env::current_exe().ok().and_then(|p| p.parent().map(|d| d.join("bdft-controller"))).unwrap_or_else(|| "bdft-controller".into())
-                    });
-                    crate::controller_link::ControllerSource::Spawn { bin, args: controller_args }
+                    let (bin, sub) = match controller_bin {
+                        Some(bin) => (bin, "serve"),
+                        None => (
+                            std::env::current_exe().context("locating this executable")?,
+                            "controller",
+                        ),
+                    };
+                    let args = std::iter::once(sub.to_string())
+                        .chain(controller_args)
+                        .collect();
+                    crate::controller_link::ControllerSource::Spawn { bin, args }
                 }
             };
             let link = crate::controller_link::ControllerLink::start(pool.clone(), source);
@@ -154,6 +202,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             let _ = std::io::stdout().flush();
             crate::run(state, listener, shutdown_signal()).await?;
         }
+        Command::Controller(_) => unreachable!("handled before the runtime starts"),
         Command::Pilot {
             db,
             study,

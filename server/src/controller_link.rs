@@ -24,7 +24,9 @@ use crate::store::{self, Record};
 /// Where the controller comes from.
 #[derive(Debug, Clone)]
 pub enum ControllerSource {
-    /// Start `bdft-controller serve` as a child process (restarted if it dies).
+    /// Start a controller as a child process (restarted if it dies): `bin args… --listen
+    /// 127.0.0.1:0 --exit-with-stdin`, where `args` name the subcommand (`serve` for
+    /// bdft-controller, `controller` for this server's own executable).
     Spawn { bin: PathBuf, args: Vec<String> },
     /// Connect to a controller that runs elsewhere (e.g. a real-time PC).
     Connect(SocketAddr),
@@ -35,9 +37,13 @@ pub enum ControllerSource {
 pub enum ControllerEvent {
     Live(LiveSample),
     /// A trial's result is committed (or it was interrupted): its row changed.
-    TrialChanged { trial_id: i64 },
+    TrialChanged {
+        trial_id: i64,
+    },
     /// The link went up or down.
-    Link { connected: bool },
+    Link {
+        connected: bool,
+    },
 }
 
 #[derive(Clone, Debug)]
@@ -51,6 +57,8 @@ struct Inner {
     events: broadcast::Sender<ControllerEvent>,
     connected: watch::Sender<bool>,
     pending: Mutex<HashMap<TrialId, oneshot::Sender<Result<(), String>>>>,
+    /// Process id of the controller this server started, if any.
+    pid: Mutex<Option<u32>>,
 }
 
 /// Samples per trial kept while its record arrives, channel by channel.
@@ -61,9 +69,21 @@ impl ControllerLink {
     pub fn start(pool: SqlitePool, source: ControllerSource) -> Self {
         let (events, _) = broadcast::channel(16_384);
         let (connected, _) = watch::channel(false);
-        let link = Self { inner: Arc::new(Inner { tx: Mutex::new(None), events, connected, pending: Mutex::new(HashMap::new()) }) };
+        let link = Self {
+            inner: Arc::new(Inner {
+                tx: Mutex::new(None),
+                events,
+                connected,
+                pending: Mutex::new(HashMap::new()),
+                pid: Mutex::new(None),
+            }),
+        };
         tokio::spawn(supervise(link.clone(), pool, source));
         link
+    }
+
+    pub fn pid(&self) -> Option<u32> {
+        *self.inner.pid.lock().unwrap_or_else(|p| p.into_inner())
     }
 
     pub fn subscribe(&self) -> broadcast::Receiver<ControllerEvent> {
@@ -77,40 +97,67 @@ impl ControllerLink {
     /// Waits until the link is up (or the timeout passes).
     pub async fn wait_connected(&self, timeout: Duration) -> bool {
         let mut rx = self.inner.connected.subscribe();
-        tokio::time::timeout(timeout, rx.wait_for(|c| *c)).await.is_ok()
+        tokio::time::timeout(timeout, rx.wait_for(|c| *c))
+            .await
+            .is_ok()
     }
 
     /// Sends a message; fails if the controller is not connected.
     pub fn send(&self, msg: &ServerToController) -> Result<(), String> {
-        let tx = self.inner.tx.lock().unwrap_or_else(|p| p.into_inner()).clone();
+        let tx = self
+            .inner
+            .tx
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone();
         let tx = tx.ok_or_else(|| "the controller is not connected".to_string())?;
-        tx.try_send(framing::encode(msg)).map_err(|_| "the controller link is congested".to_string())
+        tx.try_send(framing::encode(msg))
+            .map_err(|_| "the controller link is congested".to_string())
     }
 
     /// Starts a trial and waits for the controller to confirm it (or say why not).
     pub async fn start_trial(&self, st: &StartTrial) -> Result<(), String> {
         let (done, wait) = oneshot::channel();
-        self.inner.pending.lock().unwrap_or_else(|p| p.into_inner()).insert(st.trial_id, done);
+        self.inner
+            .pending
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .insert(st.trial_id, done);
         if let Err(e) = self.send(&ServerToController::StartTrial(Box::new(st.clone()))) {
-            self.inner.pending.lock().unwrap_or_else(|p| p.into_inner()).remove(&st.trial_id);
+            self.inner
+                .pending
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .remove(&st.trial_id);
             return Err(e);
         }
         match tokio::time::timeout(Duration::from_secs(10), wait).await {
             Ok(Ok(r)) => r,
             _ => {
-                self.inner.pending.lock().unwrap_or_else(|p| p.into_inner()).remove(&st.trial_id);
+                self.inner
+                    .pending
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .remove(&st.trial_id);
                 Err("the controller did not confirm the start".into())
             }
         }
     }
 
     fn resolve(&self, trial_id: TrialId, r: Result<(), String>) {
-        if let Some(done) = self.inner.pending.lock().unwrap_or_else(|p| p.into_inner()).remove(&trial_id) {
+        if let Some(done) = self
+            .inner
+            .pending
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .remove(&trial_id)
+        {
             let _ = done.send(r);
         }
     }
 
-    fn emit(&self, ev: ControllerEvent) {
+    /// Tells every listener (station and dashboard sockets) about an event.
+    pub fn emit(&self, ev: ControllerEvent) {
         let _ = self.inner.events.send(ev);
     }
 }
@@ -121,7 +168,10 @@ async fn supervise(link: ControllerLink, pool: SqlitePool, source: ControllerSou
         let (addr, mut child) = match &source {
             ControllerSource::Connect(a) => (*a, None),
             ControllerSource::Spawn { bin, args } => match spawn(bin, args).await {
-                Ok((a, c)) => (a, Some(c)),
+                Ok((a, c)) => {
+                    *link.inner.pid.lock().unwrap_or_else(|p| p.into_inner()) = c.child.id();
+                    (a, Some(c))
+                }
                 Err(e) => {
                     tracing::error!("could not start the controller ({}): {e:#}", bin.display());
                     tokio::time::sleep(backoff).await;
@@ -137,7 +187,7 @@ async fn supervise(link: ControllerLink, pool: SqlitePool, source: ControllerSou
                 match &mut child {
                     Some(c) => tokio::select! {
                         why = run => why,
-                        status = c.wait() => format!("the controller process exited ({})", status.map(|s| s.to_string()).unwrap_or_else(|e| e.to_string())),
+                        status = c.child.wait() => format!("the controller process exited ({})", status.map(|s| s.to_string()).unwrap_or_else(|e| e.to_string())),
                     },
                     None => run.await,
                 }
@@ -150,7 +200,13 @@ async fn supervise(link: ControllerLink, pool: SqlitePool, source: ControllerSou
             link.emit(ControllerEvent::Link { connected: false });
         }
         tracing::error!("controller link down: {why}");
-        let pending: Vec<_> = link.inner.pending.lock().unwrap_or_else(|p| p.into_inner()).drain().collect();
+        let pending: Vec<_> = link
+            .inner
+            .pending
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .drain()
+            .collect();
         for (_, done) in pending {
             let _ = done.send(Err(why.clone()));
         }
@@ -164,23 +220,29 @@ async fn supervise(link: ControllerLink, pool: SqlitePool, source: ControllerSou
             Err(e) => tracing::error!("marking running trials incomplete: {e}"),
         }
         if let Some(mut c) = child {
-            let _ = c.kill().await;
+            let _ = c.child.kill().await;
         }
         tokio::time::sleep(backoff).await;
         backoff = (backoff * 2).min(Duration::from_secs(5));
     }
 }
 
-/// Starts `bdft-controller serve` on a free loopback port and reads the port it announces.
-async fn spawn(bin: &PathBuf, args: &[String]) -> anyhow::Result<(SocketAddr, tokio::process::Child)> {
+/// Starts the controller on a free loopback port and reads the port it announces.
+async fn spawn(bin: &PathBuf, args: &[String]) -> anyhow::Result<(SocketAddr, Supervised)> {
     let mut child = tokio::process::Command::new(bin)
-        .arg("serve")
-        .args(["--listen", "127.0.0.1:0"])
         .args(args)
+        .args(["--listen", "127.0.0.1:0"])
+        // The controller exits when this pipe closes: if the server dies (even by SIGKILL),
+        // no orphan keeps a machine's valve.
+        .arg("--exit-with-stdin")
+        .stdin(std::process::Stdio::piped())
         .stdout(std::process::Stdio::piped())
         .kill_on_drop(true)
         .spawn()?;
-    let out = child.stdout.take().ok_or_else(|| anyhow::anyhow!("no stdout"))?;
+    let out = child
+        .stdout
+        .take()
+        .ok_or_else(|| anyhow::anyhow!("no stdout"))?;
     let mut lines = BufReader::new(out).lines();
     let addr = tokio::time::timeout(Duration::from_secs(20), async {
         while let Some(line) = lines.next_line().await? {
@@ -193,15 +255,33 @@ async fn spawn(bin: &PathBuf, args: &[String]) -> anyhow::Result<(SocketAddr, to
     .await??;
     tokio::spawn(async move { while let Ok(Some(_)) = lines.next_line().await {} });
     tracing::info!(%addr, pid = child.id(), "controller started");
-    Ok((addr, child))
+    let stdin = child.stdin.take();
+    Ok((
+        addr,
+        Supervised {
+            child,
+            _stdin: stdin,
+        },
+    ))
+}
+
+/// A controller this server started. Holding its stdin open keeps it alive; when this
+/// process dies, the pipe closes and the controller stops (`--exit-with-stdin`).
+struct Supervised {
+    child: tokio::process::Child,
+    _stdin: Option<tokio::process::ChildStdin>,
 }
 
 async fn read_frame(r: &mut (impl AsyncReadExt + Unpin)) -> Result<ControllerToServer, String> {
     let mut header = [0u8; 4];
-    r.read_exact(&mut header).await.map_err(|e| format!("link closed ({e})"))?;
+    r.read_exact(&mut header)
+        .await
+        .map_err(|e| format!("link closed ({e})"))?;
     let len = framing::payload_len(header).map_err(|e| e.to_string())?;
     let mut payload = vec![0; len];
-    r.read_exact(&mut payload).await.map_err(|e| format!("link closed ({e})"))?;
+    r.read_exact(&mut payload)
+        .await
+        .map_err(|e| format!("link closed ({e})"))?;
     framing::decode(&payload).map_err(|e| e.to_string())
 }
 
@@ -209,12 +289,20 @@ async fn read_frame(r: &mut (impl AsyncReadExt + Unpin)) -> Result<ControllerToS
 async fn connection(link: &ControllerLink, pool: &SqlitePool, stream: TcpStream) -> String {
     let _ = stream.set_nodelay(true);
     let (mut rd, mut wr) = stream.into_split();
-    let hello = framing::encode(&ServerToController::Hello { protocol_version: PROTOCOL_VERSION, client: format!("bdft-server {}", env!("CARGO_PKG_VERSION")) });
+    let hello = framing::encode(&ServerToController::Hello {
+        protocol_version: PROTOCOL_VERSION,
+        client: format!("bdft-server {}", env!("CARGO_PKG_VERSION")),
+    });
     if let Err(e) = wr.write_all(&hello).await {
         return format!("hello failed: {e}");
     }
     match read_frame(&mut rd).await {
-        Ok(ControllerToServer::HelloAck { controller, rig, lockstep, .. }) => tracing::info!(controller, rig, lockstep, "controller connected"),
+        Ok(ControllerToServer::HelloAck {
+            controller,
+            rig,
+            lockstep,
+            ..
+        }) => tracing::info!(controller, rig, lockstep, "controller connected"),
         Ok(other) => return format!("unexpected answer to hello: {other:?}"),
         Err(e) => return e,
     }
@@ -257,14 +345,27 @@ async fn connection(link: &ControllerLink, pool: &SqlitePool, stream: TcpStream)
     }
 }
 
-async fn handle(link: &ControllerLink, pool: &SqlitePool, partial: &mut Partial, msg: ControllerToServer) {
+async fn handle(
+    link: &ControllerLink,
+    pool: &SqlitePool,
+    partial: &mut Partial,
+    msg: ControllerToServer,
+) {
     match msg {
         ControllerToServer::Live(s) => link.emit(ControllerEvent::Live(s)),
         ControllerToServer::TrialStarted { trial_id, .. } => link.resolve(trial_id, Ok(())),
-        ControllerToServer::Rejected { trial_id: Some(id), reason } => link.resolve(id, Err(reason)),
-        ControllerToServer::Rejected { trial_id: None, reason } => tracing::warn!(reason, "the controller rejected a message"),
+        ControllerToServer::Rejected {
+            trial_id: Some(id),
+            reason,
+        } => link.resolve(id, Err(reason)),
+        ControllerToServer::Rejected {
+            trial_id: None,
+            reason,
+        } => tracing::warn!(reason, "the controller rejected a message"),
         ControllerToServer::RecordChunk(c) => {
-            let chans = partial.entry(c.trial_id).or_insert_with(|| vec![Vec::new(); RECORD_CHANNELS.len()]);
+            let chans = partial
+                .entry(c.trial_id)
+                .or_insert_with(|| vec![Vec::new(); RECORD_CHANNELS.len()]);
             for (all, part) in chans.iter_mut().zip(c.channels) {
                 all.extend(part);
             }
@@ -273,13 +374,27 @@ async fn handle(link: &ControllerLink, pool: &SqlitePool, partial: &mut Partial,
             let channels = partial.remove(&r.trial_id).unwrap_or_default();
             let record = Record { dt: r.dt, channels };
             match store::commit_result(pool, &r, &record).await {
-                Ok(true) => tracing::info!(trial = r.trial_id, outcome = ?r.outcome, "trial result stored"),
-                Ok(false) => tracing::warn!(trial = r.trial_id, "result for a trial that is no longer running; dropped"),
+                Ok(true) => {
+                    tracing::info!(trial = r.trial_id, outcome = ?r.outcome, "trial result stored")
+                }
+                Ok(false) => tracing::warn!(
+                    trial = r.trial_id,
+                    "result for a trial that is no longer running; dropped"
+                ),
                 Err(e) => tracing::error!(trial = r.trial_id, "storing the result failed: {e}"),
             }
-            link.emit(ControllerEvent::TrialChanged { trial_id: r.trial_id as i64 });
+            link.emit(ControllerEvent::TrialChanged {
+                trial_id: r.trial_id as i64,
+            });
         }
-        ControllerToServer::Fault { trial_id, kind, message } => tracing::warn!(?trial_id, ?kind, message, "controller fault"),
-        ControllerToServer::Heartbeat { .. } | ControllerToServer::HelloAck { .. } | ControllerToServer::Status(_) | ControllerToServer::Stepped { .. } => {}
+        ControllerToServer::Fault {
+            trial_id,
+            kind,
+            message,
+        } => tracing::warn!(?trial_id, ?kind, message, "controller fault"),
+        ControllerToServer::Heartbeat { .. }
+        | ControllerToServer::HelloAck { .. }
+        | ControllerToServer::Status(_)
+        | ControllerToServer::Stepped { .. } => {}
     }
 }

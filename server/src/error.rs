@@ -28,6 +28,8 @@ pub enum AppError {
     Conflict(String),
     #[error("too many attempts; wait a minute and try again")]
     TooManyRequests,
+    #[error("the request body is too large")]
+    TooLarge,
     #[error("{0}")]
     Unavailable(String),
     #[error("internal error")]
@@ -60,6 +62,7 @@ impl IntoResponse for AppError {
             Self::NotFound(_) => StatusCode::NOT_FOUND,
             Self::Conflict(_) => StatusCode::CONFLICT,
             Self::TooManyRequests => StatusCode::TOO_MANY_REQUESTS,
+            Self::TooLarge => StatusCode::PAYLOAD_TOO_LARGE,
             Self::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
             Self::Internal(e) => {
                 tracing::error!("internal error: {e:#}");
@@ -82,6 +85,9 @@ pub struct AppJson<T>(pub T);
 
 impl From<JsonRejection> for AppError {
     fn from(r: JsonRejection) -> Self {
+        if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
+            return Self::TooLarge;
+        }
         Self::BadRequest(r.body_text())
     }
 }

@@ -37,7 +37,10 @@ const MAX_BODY: usize = 256 * 1024;
 pub fn app(state: AppState) -> Router {
     Router::new()
         .route("/api/health", get(health))
-        .route("/api/openapi.json", get(|| async { axum::Json(openapi::document()) }))
+        .route(
+            "/api/openapi.json",
+            get(|| async { axum::Json(openapi::document()) }),
+        )
         .route("/api/setup", get(auth::setup_status).post(auth::setup))
         .route("/api/login", post(auth::login))
         .route("/api/subject", get(subject_self))
@@ -57,10 +60,21 @@ async fn subject_self(State(s): State<AppState>, who: SubjectAuth) -> ApiResult<
     let subject = store::subject(&s.pool, who.id).await?;
     let trials = store::trials_of(&s.pool, who.id).await?;
     let tests: Vec<_> = api::latest_attempts(&trials).map(|t| json!({ "label": t.blinded_label, "station": t.station, "status": t.status, "practice": t.practice })).collect();
-    Ok(AppJson(json!({ "code": subject.code, "consent": subject.consent_decision, "withdrawn": subject.withdrawn_at.is_some(), "tests": tests })))
+    Ok(AppJson(
+        json!({ "code": subject.code, "consent": subject.consent_decision, "withdrawn": subject.withdrawn_at.is_some(), "tests": tests }),
+    ))
 }
 
 /// Serves `app` on `listener` until `shutdown` resolves.
-pub async fn run(state: AppState, listener: tokio::net::TcpListener, shutdown: impl std::future::Future<Output = ()> + Send + 'static) -> std::io::Result<()> {
-    axum::serve(listener, app(state).into_make_service_with_connect_info::<SocketAddr>()).with_graceful_shutdown(shutdown).await
+pub async fn run(
+    state: AppState,
+    listener: tokio::net::TcpListener,
+    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
+) -> std::io::Result<()> {
+    axum::serve(
+        listener,
+        app(state).into_make_service_with_connect_info::<SocketAddr>(),
+    )
+    .with_graceful_shutdown(shutdown)
+    .await
 }

@@ -26,6 +26,10 @@ pub struct Shared {
 
 impl AppState {
     pub fn new(pool: SqlitePool, controller: ControllerLink) -> Self {
-        Self { pool, controller, inner: Arc::new(Shared::default()) }
+        Self {
+            pool,
+            controller,
+            inner: Arc::new(Shared::default()),
+        }
     }
 }

@@ -41,8 +41,15 @@ async fn register(State(s): State<AppState>) -> AppJson<Value> {
     let mut bytes = [0u8; 6];
     getrandom::fill(&mut bytes).expect("the OS random source works");
     // 32 symbols divide 256, so every symbol is equally likely.
-    let code: String = bytes.iter().map(|b| CODE_ALPHABET[usize::from(*b) % CODE_ALPHABET.len()] as char).collect();
-    s.inner.pending_stations.lock().unwrap_or_else(|p| p.into_inner()).insert(code.clone(), (token.clone(), Instant::now()));
+    let code: String = bytes
+        .iter()
+        .map(|b| CODE_ALPHABET[usize::from(*b) % CODE_ALPHABET.len()] as char)
+        .collect();
+    s.inner
+        .pending_stations
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .insert(code.clone(), (token.clone(), Instant::now()));
     AppJson(json!({ "token": token, "pairing_code": code }))
 }
 
@@ -76,23 +83,41 @@ pub async fn station_state(s: &AppState, station: &StationAuth) -> Result<Value,
     let study = store::study(&s.pool, subject.study_id).await?;
     let code = subject.code.clone();
     if subject.withdrawn_at.is_some() {
-        return Ok(with(json!({ "phase": "done", "subject": code, "reason": "withdrawn" })));
+        return Ok(with(
+            json!({ "phase": "done", "subject": code, "reason": "withdrawn" }),
+        ));
     }
     match subject.consent_decision.as_deref() {
-        None => return Ok(with(json!({ "phase": "consent", "subject": code, "consent": study.params.consent }))),
-        Some("declined") => return Ok(with(json!({ "phase": "done", "subject": code, "reason": "declined" }))),
+        None => {
+            return Ok(with(
+                json!({ "phase": "consent", "subject": code, "consent": study.params.consent }),
+            ));
+        }
+        Some("declined") => {
+            return Ok(with(
+                json!({ "phase": "done", "subject": code, "reason": "declined" }),
+            ));
+        }
         _ => {}
     }
     if let Some(t) = pending_survey(&s.pool, subject_id).await? {
-        return Ok(with(json!({ "phase": "survey", "subject": code, "trial_id": t.id, "label": t.blinded_label, "survey": study.params.survey })));
+        return Ok(with(
+            json!({ "phase": "survey", "subject": code, "trial_id": t.id, "label": t.blinded_label, "survey": study.params.survey }),
+        ));
     }
     let trials = store::trials_of(&s.pool, subject_id).await?;
-    let total = crate::api::latest_attempts(&trials).filter(|t| !t.practice).count();
+    let total = crate::api::latest_attempts(&trials)
+        .filter(|t| !t.practice)
+        .count();
     let Some(t) = store::next_trial(&s.pool, subject_id).await? else {
-        return Ok(with(json!({ "phase": "done", "subject": code, "reason": "finished" })));
+        return Ok(with(
+            json!({ "phase": "done", "subject": code, "reason": "finished" }),
+        ));
     };
     if !serves(station, &t.station) {
-        return Ok(with(json!({ "phase": "move", "subject": code, "to": t.station })));
+        return Ok(with(
+            json!({ "phase": "move", "subject": code, "to": t.station }),
+        ));
     }
     let test = json!({
         "trial_id": t.id,
@@ -107,8 +132,14 @@ pub async fn station_state(s: &AppState, station: &StationAuth) -> Result<Value,
         "k_bf": t.k_bf,
         "started_at": t.started_at,
     });
-    let phase = if t.status == "running" { "running" } else { "ready" };
-    Ok(with(json!({ "phase": phase, "subject": code, "test": test })))
+    let phase = if t.status == "running" {
+        "running"
+    } else {
+        "ready"
+    };
+    Ok(with(
+        json!({ "phase": phase, "subject": code, "test": test }),
+    ))
 }
 
 async fn state(State(s): State<AppState>, station: StationAuth) -> ApiResult<Value> {
@@ -116,7 +147,9 @@ async fn state(State(s): State<AppState>, station: StationAuth) -> ApiResult<Val
 }
 
 fn subject_of(station: &StationAuth) -> Result<i64, AppError> {
-    station.subject_id.ok_or_else(|| AppError::Conflict("no subject is assigned to this station".into()))
+    station
+        .subject_id
+        .ok_or_else(|| AppError::Conflict("no subject is assigned to this station".into()))
 }
 
 #[derive(Debug, Deserialize)]
@@ -125,7 +158,11 @@ struct ConsentBody {
     decision: String,
 }
 
-async fn consent(State(s): State<AppState>, station: StationAuth, AppJson(b): AppJson<ConsentBody>) -> ApiResult<Value> {
+async fn consent(
+    State(s): State<AppState>,
+    station: StationAuth,
+    AppJson(b): AppJson<ConsentBody>,
+) -> ApiResult<Value> {
     let subject_id = subject_of(&station)?;
     if !["agreed", "declined"].contains(&b.decision.as_str()) {
         return Err(AppError::BadRequest("decision: agreed or declined".into()));
@@ -140,7 +177,9 @@ async fn consent(State(s): State<AppState>, station: StationAuth, AppJson(b): Ap
         .execute(&s.pool)
         .await?;
     if done.rows_affected() == 0 {
-        return Err(AppError::Conflict("consent has already been recorded".into()));
+        return Err(AppError::Conflict(
+            "consent has already been recorded".into(),
+        ));
     }
     store::audit(&s.pool, &format!("subject:{}", subject.code), "consent", Some(format!("subject:{subject_id}")), json!({ "decision": b.decision, "version": study.params.consent.version, "station": station.name })).await?;
     Ok(AppJson(station_state(&s, &station).await?))
@@ -154,18 +193,29 @@ struct SurveyBody {
     answer: SurveyAnswer,
 }
 
-async fn survey(State(s): State<AppState>, station: StationAuth, AppJson(b): AppJson<SurveyBody>) -> ApiResult<Value> {
+async fn survey(
+    State(s): State<AppState>,
+    station: StationAuth,
+    AppJson(b): AppJson<SurveyBody>,
+) -> ApiResult<Value> {
     let subject_id = subject_of(&station)?;
     let trial = store::trial(&s.pool, b.trial_id).await?;
     if trial.subject_id != subject_id {
-        return Err(AppError::Forbidden("this test belongs to another subject".into()));
+        return Err(AppError::Forbidden(
+            "this test belongs to another subject".into(),
+        ));
     }
     if trial.practice || trial.status != "complete" {
-        return Err(AppError::Conflict("only a completed test has a survey".into()));
+        return Err(AppError::Conflict(
+            "only a completed test has a survey".into(),
+        ));
     }
     let subject = store::subject(&s.pool, subject_id).await?;
     let study = store::study(&s.pool, subject.study_id).await?;
-    let r = b.answer.validate(study.params.survey.scale_points).map_err(AppError::Fields)?;
+    let r = b
+        .answer
+        .validate(study.params.survey.scale_points)
+        .map_err(AppError::Fields)?;
     let done = sqlx::query("INSERT OR IGNORE INTO surveys (trial_id, accuracy, speed, smoothness, controllability, comment, submitted_at) VALUES (?, ?, ?, ?, ?, ?, ?)")
         .bind(b.trial_id)
         .bind(i64::from(r[0]))
@@ -177,7 +227,9 @@ async fn survey(State(s): State<AppState>, station: StationAuth, AppJson(b): App
         .execute(&s.pool)
         .await?;
     if done.rows_affected() == 0 {
-        return Err(AppError::Conflict("this test's survey has already been answered".into()));
+        return Err(AppError::Conflict(
+            "this test's survey has already been answered".into(),
+        ));
     }
     Ok(AppJson(station_state(&s, &station).await?))
 }
@@ -199,22 +251,40 @@ struct Percentiles {
     max: f64,
 }
 
-async fn timing(State(s): State<AppState>, station: StationAuth, AppJson(b): AppJson<TimingBody>) -> ApiResult<Value> {
+async fn timing(
+    State(s): State<AppState>,
+    station: StationAuth,
+    AppJson(b): AppJson<TimingBody>,
+) -> ApiResult<Value> {
     let subject_id = subject_of(&station)?;
     let trial = store::trial(&s.pool, b.trial_id).await?;
     if trial.subject_id != subject_id {
-        return Err(AppError::Forbidden("this test belongs to another subject".into()));
+        return Err(AppError::Forbidden(
+            "this test belongs to another subject".into(),
+        ));
     }
-    for (name, v) in [("rtt_ms.p50", b.rtt_ms.p50), ("rtt_ms.p95", b.rtt_ms.p95), ("rtt_ms.max", b.rtt_ms.max)] {
+    for (name, v) in [
+        ("rtt_ms.p50", b.rtt_ms.p50),
+        ("rtt_ms.p95", b.rtt_ms.p95),
+        ("rtt_ms.max", b.rtt_ms.max),
+    ] {
         if !v.is_finite() || !(0.0..=600_000.0).contains(&v) {
-            return Err(AppError::BadRequest(format!("{name}: a finite number of milliseconds from 0 to 600000")));
+            return Err(AppError::BadRequest(format!(
+                "{name}: a finite number of milliseconds from 0 to 600000"
+            )));
         }
     }
     if b.long_frames > b.frames {
-        return Err(AppError::BadRequest("long_frames cannot exceed frames".into()));
+        return Err(AppError::BadRequest(
+            "long_frames cannot exceed frames".into(),
+        ));
     }
     let body = json!({ "frames": b.frames, "long_frames": b.long_frames, "rtt_ms": b.rtt_ms });
-    sqlx::query("UPDATE trials SET client_timing_json = ? WHERE id = ?").bind(body.to_string()).bind(b.trial_id).execute(&s.pool).await?;
+    sqlx::query("UPDATE trials SET client_timing_json = ? WHERE id = ?")
+        .bind(body.to_string())
+        .bind(b.trial_id)
+        .execute(&s.pool)
+        .await?;
     Ok(AppJson(json!({ "ok": true })))
 }
 
@@ -227,12 +297,22 @@ struct TokenQuery {
 #[derive(Debug, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 enum StationMessage {
-    Input { trial_id: i64, seq: u64, position_mm: f64 },
+    Input {
+        trial_id: i64,
+        seq: u64,
+        position_mm: f64,
+    },
 }
 
 /// The station's socket: token in the query (browsers cannot set headers on WebSockets).
-async fn station_ws(State(s): State<AppState>, Query(q): Query<TokenQuery>, ws: WebSocketUpgrade) -> Result<Response, AppError> {
-    let station = station_by_token(&s.pool, &q.token).await?.ok_or(AppError::Unauthorized)?;
+async fn station_ws(
+    State(s): State<AppState>,
+    Query(q): Query<TokenQuery>,
+    ws: WebSocketUpgrade,
+) -> Result<Response, AppError> {
+    let station = station_by_token(&s.pool, &q.token)
+        .await?
+        .ok_or(AppError::Unauthorized)?;
     Ok(ws.on_upgrade(move |socket| station_socket(s, station.id, socket)))
 }
 
@@ -240,7 +320,13 @@ async fn station_socket(s: AppState, station_id: i64, mut socket: WebSocket) {
     let mut events = s.controller.subscribe();
     // The trial this station may feed: its subject's running test at this station.
     let current = |s: AppState| async move {
-        let st: Option<StationAuth> = sqlx::query_as("SELECT id, study_id, name, role, subject_id FROM stations WHERE id = ?").bind(station_id).fetch_optional(&s.pool).await.ok()?;
+        let st: Option<StationAuth> = sqlx::query_as(
+            "SELECT id, study_id, name, role, subject_id FROM stations WHERE id = ?",
+        )
+        .bind(station_id)
+        .fetch_optional(&s.pool)
+        .await
+        .ok()?;
         let st = st?;
         let t = store::next_trial(&s.pool, st.subject_id?).await.ok()??;
         (t.status == "running" && serves(&st, &t.station)).then_some(t.id)
@@ -285,7 +371,12 @@ async fn station_socket(s: AppState, station_id: i64, mut socket: WebSocket) {
 
 /// The dashboard's live feed: every live sample and every trial change. Same-origin only
 /// (a cookie-authenticated WebSocket is otherwise open to cross-site hijacking).
-async fn live_ws(State(s): State<AppState>, _who: Experimenter, headers: HeaderMap, ws: WebSocketUpgrade) -> Result<Response, AppError> {
+async fn live_ws(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    headers: HeaderMap,
+    ws: WebSocketUpgrade,
+) -> Result<Response, AppError> {
     if let (Some(origin), Some(host)) = (headers.get("origin"), headers.get("host")) {
         let origin = origin.to_str().unwrap_or("");
         let host = host.to_str().unwrap_or("");
@@ -298,12 +389,20 @@ async fn live_ws(State(s): State<AppState>, _who: Experimenter, headers: HeaderM
         loop {
             let text = match events.recv().await {
                 Ok(ControllerEvent::Live(sample)) => json!({ "type": "live", "sample": sample }),
-                Ok(ControllerEvent::TrialChanged { trial_id }) => json!({ "type": "trial", "trial_id": trial_id }),
-                Ok(ControllerEvent::Link { connected }) => json!({ "type": "controller", "connected": connected }),
+                Ok(ControllerEvent::TrialChanged { trial_id }) => {
+                    json!({ "type": "trial", "trial_id": trial_id })
+                }
+                Ok(ControllerEvent::Link { connected }) => {
+                    json!({ "type": "controller", "connected": connected })
+                }
                 Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
                 Err(_) => return,
             };
-            if socket.send(Message::Text(text.to_string().into())).await.is_err() {
+            if socket
+                .send(Message::Text(text.to_string().into()))
+                .await
+                .is_err()
+            {
                 return;
             }
         }

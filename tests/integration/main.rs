@@ -2,3 +2,4 @@
 
 mod controller_cli;
 mod controller_serve;
+mod server_api;

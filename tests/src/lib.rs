@@ -58,3 +58,5 @@ impl Drop for TempDir {
 }
 
 pub mod controller_link;
+
+pub mod server;

@@ -223,7 +223,10 @@ impl Io {
             ));
         }
         if self.trials.contains_key(&id) {
-            return self.reject_trial(Some(id), format!("start trial {id}: a trial with this id is running"));
+            return self.reject_trial(
+                Some(id),
+                format!("start trial {id}: a trial with this id is running"),
+            );
         }
         if self.trials.len() >= self.cfg.max_trials {
             return self.reject(format!(
@@ -264,7 +267,10 @@ impl Io {
             if let Some(ch) = channel {
                 self.channels.remove(&ch);
             }
-            return self.reject_trial(Some(id), format!("start trial {id}: the controller is overloaded"));
+            return self.reject_trial(
+                Some(id),
+                format!("start trial {id}: the controller is overloaded"),
+            );
         }
         let input = if channel.is_some() { None } else { built.input };
         self.trials.insert(
@@ -337,7 +343,7 @@ pub async fn run(
     listener: TcpListener,
     input_udp: Option<UdpSocket>,
     shutdown: impl std::future::Future<Output = ()>,
-) -> LoopHandle {
+) {
     let io: Shared = Arc::new(Mutex::new(Io {
         cfg,
         rt,
@@ -367,10 +373,12 @@ pub async fn run(
     if let Some(t) = udp {
         let _ = t.await;
     }
-    let io = Arc::try_unwrap(io)
-        .map_err(|_| ())
-        .expect("all tasks ended");
-    io.into_inner().unwrap_or_else(|p| p.into_inner()).rt
+    // Connection tasks may still hold the state; stop the loop through it (every trial ends,
+    // valves to zero) rather than waiting for them.
+    let mut g = lock(&io);
+    if g.rt.send(Command::Shutdown).is_err() {
+        tracing::error!("could not queue the loop's shutdown");
+    }
 }
 
 async fn accept(io: Shared, listener: TcpListener) {
@@ -408,7 +416,12 @@ async fn connection(io: Shared, stream: TcpStream, peer: SocketAddr) {
     let (mut rd, mut wr) = stream.into_split();
     // Handshake first: nothing else is accepted before a hello of our version.
     let hello = tokio::time::timeout(Duration::from_secs(5), read_message(&mut rd)).await;
-    let refuse = |reason: String| framing::encode(&ControllerToServer::Rejected { trial_id: None, reason });
+    let refuse = |reason: String| {
+        framing::encode(&ControllerToServer::Rejected {
+            trial_id: None,
+            reason,
+        })
+    };
     let client = match hello {
         Ok(Ok(Some(Ok(ServerToController::Hello {
             protocol_version,

@@ -43,6 +43,8 @@ pub struct ServeConfig {
     pub priority: i32,
     pub cpu: Option<usize>,
     pub dt: f64,
+    /// Stop when standard input reaches end of file.
+    pub exit_with_stdin: bool,
 }
 
 fn loop_config(
@@ -60,6 +62,82 @@ fn loop_config(
         cpu,
         rig: None,
     }
+}
+
+/// The command-line options of `serve`, shared by `bdft-controller serve` and the controller
+/// the experiment server starts.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ServeArgs {
+    /// TCP address the server connects to (any address, so the controller can run on a
+    /// dedicated real-time PC).
+    #[arg(long, env = "BDFT_CONTROLLER_LISTEN", default_value = "127.0.0.1:7070")]
+    pub listen: SocketAddr,
+    /// Rig: sim (the validated model, one per trial) or udp (a real rig at --rig-addr).
+    #[arg(long, default_value = "sim", value_parser = ["sim", "udp"])]
+    pub rig: String,
+    /// The real rig's UDP address (with --rig udp).
+    #[arg(long, required_if_eq("rig", "udp"))]
+    pub rig_addr: Option<SocketAddr>,
+    /// A rig silent for this long faults the trial (ms).
+    #[arg(long, default_value_t = 50, value_parser = clap::value_parser!(u64).range(2..=10_000))]
+    pub rig_timeout_ms: u64,
+    /// UDP port for a haptic-device host sending operator input (off by default).
+    #[arg(long)]
+    pub input_udp: Option<SocketAddr>,
+    /// Run ticks only when the client asks (`step` messages): deterministic tests.
+    #[arg(long)]
+    pub lockstep: bool,
+    /// Silence from the server for this long counts as a lost link (ms).
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(50..=600_000))]
+    pub link_timeout_ms: u64,
+    /// Most trials run at once (one per station).
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..=64))]
+    pub max_trials: u64,
+    /// SCHED_FIFO priority asked for the loop thread.
+    #[arg(long, default_value_t = 80, value_parser = clap::value_parser!(i32).range(1..=99))]
+    pub priority: i32,
+    /// CPU to pin the loop thread to [default: the last CPU when there are several].
+    #[arg(long)]
+    pub cpu: Option<usize>,
+    /// Shut down when standard input closes (a supervising process that dies takes
+    /// its controller with it).
+    #[arg(long)]
+    pub exit_with_stdin: bool,
+}
+
+impl ServeArgs {
+    pub fn config(&self) -> ServeConfig {
+        ServeConfig {
+            listen: self.listen,
+            rig: if self.rig == "udp" {
+                self.rig_addr
+            } else {
+                None
+            },
+            rig_timeout: Duration::from_millis(self.rig_timeout_ms),
+            input_udp: self.input_udp,
+            lockstep: self.lockstep,
+            link_timeout: Duration::from_millis(self.link_timeout_ms),
+            max_trials: self.max_trials as usize,
+            priority: self.priority,
+            cpu: self.cpu.or_else(default_cpu),
+            dt: bdft_protocol::params::LoopParams::default().dt,
+            exit_with_stdin: self.exit_with_stdin,
+        }
+    }
+}
+
+/// `serve` as a command: announces its addresses on stdout (tools that start it with port 0
+/// read these lines), then runs until stopped.
+pub fn serve_announcing(args: &ServeArgs) -> anyhow::Result<()> {
+    use std::io::Write;
+    serve(args.config(), |addr, input| {
+        if let Some(input) = input {
+            println!("input udp on {input}");
+        }
+        println!("listening on {addr}");
+        let _ = std::io::stdout().flush();
+    })
 }
 
 /// The CPU the loop asks to be pinned to by default: the last one, if there are several.
@@ -95,7 +173,7 @@ pub fn serve(
         link_timeout: cfg.link_timeout,
         input_udp: cfg.input_udp.is_some(),
     };
-    let rt = runtime.block_on(async {
+    runtime.block_on(async {
         let listener = tokio::net::TcpListener::bind(cfg.listen)
             .await
             .with_context(|| format!("listening on {}", cfg.listen))?;
@@ -111,14 +189,26 @@ pub fn serve(
             listener.local_addr()?,
             input.as_ref().map(|s| s.local_addr()).transpose()?,
         );
-        anyhow::Ok(link::run(link_cfg, rt, listener, input, shutdown_signal()).await)
+        let stdin_closed = async move {
+            if cfg.exit_with_stdin {
+                let mut sink = Vec::new();
+                let _ =
+                    tokio::io::AsyncReadExt::read_to_end(&mut tokio::io::stdin(), &mut sink).await;
+                tracing::warn!("standard input closed: the supervising process is gone; stopping");
+            } else {
+                std::future::pending::<()>().await;
+            }
+        };
+        let stop = async move {
+            tokio::select! {
+                _ = shutdown_signal() => {}
+                _ = stdin_closed => {}
+            }
+        };
+        link::run(link_cfg, rt, listener, input, stop).await;
+        anyhow::Ok(())
     })?;
-    let stats = rt.shutdown();
-    tracing::info!(
-        ticks = stats.ticks,
-        overruns = stats.overruns,
-        "controller stopped"
-    );
+    tracing::info!("controller stopped");
     Ok(())
 }
 

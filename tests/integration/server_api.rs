@@ -1,0 +1,636 @@
+//! The experiment server end to end: real server process, real controller process, real
+//! SQLite file, real sockets.
+
+use std::time::{Duration, Instant};
+
+use bdft_tests::controller_link::Proc;
+use bdft_tests::server::{Api, Server, eventually, pair_station, run_trial, short_study};
+use bdft_tests::{TempDir, binary};
+use serde_json::{Value, json};
+
+fn csv(text: &str) -> (Vec<String>, Vec<Vec<String>>) {
+    let mut lines = text.lines();
+    let header: Vec<String> = lines
+        .next()
+        .expect("header")
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    let rows = lines
+        .map(|l| l.split(',').map(str::to_string).collect())
+        .collect();
+    (header, rows)
+}
+
+fn col(header: &[String], name: &str) -> usize {
+    header
+        .iter()
+        .position(|h| h == name)
+        .unwrap_or_else(|| panic!("no column {name}"))
+}
+
+/// Enrols a subject, pairs a station serving both sides, assigns and consents.
+fn ready_subject(api: &Api, study: i64, synthetic: bool) -> (i64, Api) {
+    let enrolled = api.ok(
+        &format!("/api/studies/{study}/subjects"),
+        json!({ "synthetic": synthetic }),
+    );
+    let subject = enrolled["subject"]["id"].as_i64().unwrap();
+    let (station, token) = pair_station(api, study, "both");
+    api.ok(
+        &format!("/api/stations/{station}/assign"),
+        json!({ "subject_id": subject }),
+    );
+    let st = Api::with_bearer(&api.base, &token);
+    let (_, state) = st.get("/api/station/state");
+    assert_eq!(state["phase"], "consent", "{state}");
+    assert!(
+        state["consent"]["text"]
+            .as_str()
+            .unwrap()
+            .contains("vibration")
+    );
+    (subject, st)
+}
+
+#[test]
+fn a_subject_goes_through_the_whole_protocol_via_the_api() {
+    let server = Server::start("protocol");
+    let api = server.experimenter();
+    let study = short_study(&api, 1.0, 0.5);
+    let (subject, station) = ready_subject(&api, study, true);
+    // Nothing runs without consent.
+    let (_, s) = api.get(&format!("/api/subjects/{subject}"));
+    let first = s["trials"][0]["trial"]["id"].as_i64().unwrap();
+    let (code, body) = api.post(&format!("/api/trials/{first}/start"), json!({}));
+    assert_eq!(code, 409, "{body}");
+    assert!(body["error"].as_str().unwrap().contains("consent"));
+    station.ok("/api/station/consent", json!({ "decision": "agreed" }));
+    // The protocol is locked now and its hash is on every trial.
+    let (_, st) = api.get(&format!("/api/studies/{study}"));
+    let hash = st["protocol_hash"].as_str().unwrap().to_string();
+    let (code, _) = api.call(
+        "PUT",
+        &format!("/api/studies/{study}"),
+        Some(json!({ "name": "changed", "params": st["params"] })),
+    );
+    assert_eq!(code, 409);
+
+    let mut surveys = 0;
+    let mut tests = 0;
+    let mut first_survey = true;
+    loop {
+        let (_, state) = station.get("/api/station/state");
+        match state["phase"].as_str().unwrap() {
+            "ready" => {
+                let t = state["test"]["trial_id"].as_i64().unwrap();
+                assert!(
+                    state["test"]["label"]
+                        .as_str()
+                        .unwrap()
+                        .starts_with("Controller ")
+                        || state["test"]["practice"] == true
+                );
+                let row = run_trial(&api, subject, t);
+                assert_eq!(row["status"], "complete", "{row}");
+                assert_eq!(row["protocol_hash"], hash.as_str());
+                tests += 1;
+            }
+            "survey" => {
+                let t = state["trial_id"].as_i64().unwrap();
+                assert_eq!(state["survey"]["scale_points"], 7);
+                if first_survey {
+                    first_survey = false;
+                    // A bad submission: 422, every bad field named, nothing stored.
+                    let (code, body) = station.post("/api/station/survey", json!({ "trial_id": t, "accuracy": 9, "speed": 3, "smoothness": null, "controllability": 0, "comment": "x".repeat(2001) }));
+                    assert_eq!(code, 422, "{body}");
+                    let fields: Vec<&str> = body["fields"]
+                        .as_array()
+                        .unwrap()
+                        .iter()
+                        .map(|f| f["field"].as_str().unwrap())
+                        .collect();
+                    assert_eq!(
+                        fields,
+                        ["accuracy", "smoothness", "controllability", "comment"]
+                    );
+                    let (_, again) = station.get("/api/station/state");
+                    assert_eq!(again["phase"], "survey", "nothing was stored");
+                    // The next test cannot start while the survey is pending.
+                    let (_, s) = api.get(&format!("/api/subjects/{subject}"));
+                    let next = s["trials"]
+                        .as_array()
+                        .unwrap()
+                        .iter()
+                        .map(|t| &t["trial"])
+                        .find(|t| t["status"] == "scheduled")
+                        .unwrap()["id"]
+                        .as_i64()
+                        .unwrap();
+                    let (code, _) = api.post(&format!("/api/trials/{next}/start"), json!({}));
+                    assert_eq!(code, 409);
+                }
+                station.ok("/api/station/survey", json!({ "trial_id": t, "accuracy": 5, "speed": 4, "smoothness": 3, "controllability": 6, "comment": "=cmd|' /C calc'!A0" }));
+                surveys += 1;
+            }
+            "done" => break,
+            other => panic!("unexpected phase {other}: {state}"),
+        }
+    }
+    assert_eq!((tests, surveys), (11, 10));
+
+    // The trials export: 11 rows, practice flagged, ratings and the neutralized comment.
+    let (code, text) = api.get_text(&format!("/api/studies/{study}/export/trials"));
+    assert_eq!(code, 200);
+    let (h, rows) = csv(&text);
+    assert_eq!(rows.len(), 11);
+    for r in &rows {
+        assert_eq!(r[col(&h, "status")], "complete");
+        assert_eq!(r[col(&h, "protocol_hash")], hash);
+        let practice = r[col(&h, "practice")] == "1";
+        assert_eq!(r[col(&h, "rating_accuracy")].is_empty(), practice);
+        if !practice {
+            assert_eq!(r[col(&h, "rating_controllability")], "6");
+            assert!(
+                r[col(&h, "comment")].starts_with("'="),
+                "formula neutralized: {}",
+                r[col(&h, "comment")]
+            );
+        }
+    }
+    // Samples: the 1 kHz record of every test (0.5 s practice + 10 × 1 s).
+    let (_, text) = api.get_text(&format!("/api/studies/{study}/export/samples"));
+    let (h, rows) = csv(&text);
+    assert_eq!(rows.len(), 500 + 10 * 1000);
+    assert!(
+        rows.iter()
+            .all(|r| r[col(&h, "valve_cmd")].parse::<f64>().unwrap().abs() <= 10.0)
+    );
+    // Summary: n = 1 per controller × station for this one subject.
+    let (_, summary) = api.get(&format!("/api/studies/{study}/summary"));
+    let stats = summary.as_array().unwrap();
+    assert_eq!(
+        stats
+            .iter()
+            .filter(|s| s["variable"] == "mse_tracking_mm2")
+            .count(),
+        10
+    );
+    assert!(stats.iter().all(|s| s["n"] == 1));
+    // Every experimenter action is in the audit log.
+    let (_, audit) = api.get("/api/audit?limit=1000");
+    let actions: Vec<&str> = audit
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a["action"].as_str().unwrap())
+        .collect();
+    for a in [
+        "login",
+        "study.create",
+        "subject.enrol",
+        "station.pair",
+        "station.assign",
+        "consent",
+        "trial.start",
+        "export",
+    ] {
+        assert!(actions.contains(&a), "{a} missing from {actions:?}");
+    }
+}
+
+#[test]
+fn tokens_never_open_experimenter_routes_and_bad_input_gets_4xx() {
+    let server = Server::start("auth");
+    let api = server.experimenter();
+    let study = short_study(&api, 1.0, 0.5);
+    let enrolled = api.ok(&format!("/api/studies/{study}/subjects"), json!({}));
+    let subject_token = enrolled["subject_token"].as_str().unwrap().to_string();
+    let (_, station_token) = pair_station(&api, study, "on");
+    let subject = Api::with_bearer(&server.base, &subject_token);
+    let station = Api::with_bearer(&server.base, &station_token);
+    let anon = Api::anonymous(&server.base);
+    for (method, path, _, auth) in bdft_server::openapi::ROUTES {
+        if *auth != "experimenter" || path.contains("live") {
+            continue;
+        }
+        let path = path.replace("{id}", "1").replace("{kind}", "trials");
+        for (who, client) in [
+            ("subject", &subject),
+            ("station", &station),
+            ("anonymous", &anon),
+        ] {
+            let (code, body) = client.call(
+                &method.to_uppercase(),
+                &path,
+                if *method == "get" {
+                    None
+                } else {
+                    Some(json!({}))
+                },
+            );
+            assert_eq!(code, 401, "{who} token on {method} {path}: {body}");
+        }
+    }
+    // Tokens work where they belong, and only there.
+    assert_eq!(subject.get("/api/subject").0, 200);
+    assert_eq!(station.get("/api/subject").0, 401);
+    assert_eq!(subject.get("/api/station/state").0, 401);
+    // State changes need the CSRF token.
+    let mut no_csrf = server.experimenter();
+    no_csrf.csrf = None;
+    let (code, _) = no_csrf.post("/api/studies", json!({ "name": "x" }));
+    assert_eq!(code, 403);
+    // Bad input: clear 4xx JSON errors, never a 500.
+    let (code, body) = api.post(
+        "/api/studies",
+        json!({ "name": "x", "params": { "k_bf": "high" } }),
+    );
+    assert_eq!(code, 422, "{body}");
+    assert!(body["error"].is_string());
+    let (_, mut params) = api.get("/api/defaults");
+    params["target_std_mm"] = json!(400.0);
+    let (code, body) = api.post("/api/studies", json!({ "name": "x", "params": params }));
+    assert_eq!(code, 422);
+    assert!(
+        body["error"].as_str().unwrap().contains("target_std_mm"),
+        "{body}"
+    );
+    let big = "y".repeat(400_000);
+    let (code, _) = api.post("/api/studies", json!({ "name": big }));
+    assert_eq!(code, 413);
+    assert_eq!(api.get("/api/studies/999").0, 404);
+    assert_eq!(api.post("/api/trials/999999/start", json!({})).0, 404);
+    assert_eq!(api.get("/api/no/such/route").0, 404);
+    // The set-up link cannot be used once an account exists.
+    let (code, _) = anon.post(
+        "/api/setup",
+        json!({ "token": "x", "username": "mallory", "password": "0123456789ab" }),
+    );
+    assert_eq!(code, 409);
+    // Login is rate-limited.
+    let mut last = 0;
+    for _ in 0..7 {
+        last = anon
+            .post(
+                "/api/login",
+                json!({ "username": "admin", "password": "wrong" }),
+            )
+            .0;
+    }
+    assert_eq!(last, 429);
+    // The OpenAPI document lists the routes.
+    let (code, doc) = anon.get("/api/openapi.json");
+    assert_eq!(code, 200);
+    assert!(doc["paths"]["/api/trials/{id}/start"]["post"].is_object());
+}
+
+#[test]
+fn a_server_killed_mid_trial_restarts_with_the_trial_incomplete_and_the_rest_intact() {
+    let mut server = Server::start("crash");
+    let api = server.experimenter();
+    let study = short_study(&api, 60.0, 0.5);
+    let (subject, station) = ready_subject(&api, study, true);
+    station.ok("/api/station/consent", json!({ "decision": "agreed" }));
+    let (_, s) = api.get(&format!("/api/subjects/{subject}"));
+    let trials: Vec<i64> = s["trials"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["trial"]["id"].as_i64().unwrap())
+        .collect();
+    let practice = run_trial(&api, subject, trials[0]);
+    assert_eq!(practice["status"], "complete");
+    let (code, _) = api.post(&format!("/api/trials/{}/start", trials[1]), json!({}));
+    assert_eq!(code, 200);
+    server.crash_and_restart();
+    let api = server.experimenter();
+    let (_, s) = api.get(&format!("/api/subjects/{subject}"));
+    let rows: Vec<&Value> = s["trials"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| &t["trial"])
+        .collect();
+    assert_eq!(rows[0]["status"], "complete");
+    assert_eq!(
+        rows[0]["mse_tracking_mm2"], practice["mse_tracking_mm2"],
+        "completed data intact"
+    );
+    assert_eq!(rows[1]["status"], "incomplete");
+    assert_eq!(rows[1]["status_reason"], "server restart");
+    // The subject resumes at the next scheduled test.
+    let (_, state) = Api::with_bearer(&server.base, station.bearer.as_deref().unwrap())
+        .get("/api/station/state");
+    assert_eq!(state["test"]["trial_id"], trials[2], "{state}");
+    // The old controller went away with the old server (its stdin closed), and the new
+    // one is connected.
+    eventually(Duration::from_secs(20), || {
+        (api.get("/api/controller").1["connected"] == true).then_some(())
+    });
+}
+
+#[test]
+fn controller_death_is_detected_within_100_ms_and_the_controller_restarts() {
+    let server = Server::start("controller-death");
+    let api = server.experimenter();
+    let study = short_study(&api, 60.0, 60.0);
+    let (subject, station) = ready_subject(&api, study, true);
+    station.ok("/api/station/consent", json!({ "decision": "agreed" }));
+    let (_, s) = api.get(&format!("/api/subjects/{subject}"));
+    let first = s["trials"][0]["trial"]["id"].as_i64().unwrap();
+    let pid = eventually(Duration::from_secs(20), || {
+        api.get("/api/controller").1["pid"].as_u64()
+    });
+    assert_eq!(
+        api.post(&format!("/api/trials/{first}/start"), json!({})).0,
+        200
+    );
+    let killed_at = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_millis() as i64;
+    let status = std::process::Command::new("kill")
+        .args(["-9", &pid.to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let row = eventually(Duration::from_secs(10), || {
+        let (_, s) = api.get(&format!("/api/subjects/{subject}"));
+        let t = s["trials"][0]["trial"].clone();
+        (t["status"] != "running").then_some(t)
+    });
+    assert_eq!(row["status"], "incomplete");
+    assert!(
+        row["status_reason"]
+            .as_str()
+            .unwrap()
+            .contains("controller"),
+        "{row}"
+    );
+    let detected = row["finished_at"].as_i64().unwrap() - killed_at;
+    assert!(detected <= 100, "detected {detected} ms after the kill");
+    // A new controller process comes up and takes trials again.
+    let new_pid = eventually(Duration::from_secs(20), || {
+        let (_, c) = api.get("/api/controller");
+        (c["connected"] == true && c["pid"].as_u64() != Some(pid))
+            .then(|| c["pid"].as_u64().unwrap())
+    });
+    assert_ne!(new_pid, pid);
+    api.ok(&format!("/api/trials/{first}/redo"), json!({}));
+    let (_, s) = api.get(&format!("/api/subjects/{subject}"));
+    let redo = s["trials"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| &t["trial"])
+        .find(|t| t["slot"] == 0 && t["attempt"] == 2)
+        .unwrap()["id"]
+        .as_i64()
+        .unwrap();
+    assert_eq!(
+        api.post(&format!("/api/trials/{redo}/start"), json!({})).0,
+        200
+    );
+    api.ok(
+        &format!("/api/trials/{redo}/abort"),
+        json!({ "reason": "test over" }),
+    );
+    let row = eventually(Duration::from_secs(10), || {
+        let (_, s) = api.get(&format!("/api/subjects/{subject}"));
+        let t = s["trials"]
+            .as_array()?
+            .iter()
+            .map(|t| &t["trial"])
+            .find(|t| t["id"] == redo)?
+            .clone();
+        (t["status"] != "running").then_some(t)
+    });
+    assert_eq!(row["status"], "aborted");
+    assert_eq!(row["status_reason"], "test over");
+}
+
+#[test]
+fn a_person_drives_a_test_through_the_station_socket() {
+    let server = Server::start("person");
+    let api = server.experimenter();
+    let study = short_study(&api, 1.5, 0.0);
+    let (subject, station) = ready_subject(&api, study, false);
+    station.ok("/api/station/consent", json!({ "decision": "agreed" }));
+    let (_, state) = station.get("/api/station/state");
+    let trial = state["test"]["trial_id"].as_i64().unwrap();
+    let token = station.bearer.clone().unwrap();
+    let ws_url = format!(
+        "{}/api/station/ws?token={token}",
+        server.base.replace("http://", "ws://")
+    );
+    let (mut ws, _) = tungstenite::connect(ws_url).expect("station socket");
+    match ws.get_mut() {
+        tungstenite::stream::MaybeTlsStream::Plain(s) => {
+            s.set_read_timeout(Some(Duration::from_millis(5))).unwrap()
+        }
+        _ => unreachable!(),
+    }
+    assert_eq!(
+        api.post(&format!("/api/trials/{trial}/start"), json!({})).0,
+        200
+    );
+    // Stream input at about 200 Hz as a page does, collecting live samples meanwhile.
+    let start = Instant::now();
+    let mut seq = 0u64;
+    let mut live = Vec::new();
+    while start.elapsed() < Duration::from_secs(6) {
+        seq += 1;
+        let msg = json!({ "type": "input", "trial_id": trial, "seq": seq, "position_mm": 12.5 })
+            .to_string();
+        if ws.send(tungstenite::Message::Text(msg.into())).is_err() {
+            break;
+        }
+        // Input for another trial is dropped by the server.
+        let _ = ws.send(tungstenite::Message::Text(
+            json!({ "type": "input", "trial_id": trial + 1, "seq": seq, "position_mm": -500.0 })
+                .to_string()
+                .into(),
+        ));
+        while let Ok(tungstenite::Message::Text(t)) = ws.read() {
+            let v: Value = serde_json::from_str(&t).unwrap();
+            if v["type"] == "live" {
+                live.push(v["sample"].clone());
+            }
+        }
+        let (_, s) = api.get(&format!("/api/subjects/{subject}"));
+        if s["trials"][0]["trial"]["status"] != "running" && live.len() > 10 {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let (_, s) = api.get(&format!("/api/subjects/{subject}"));
+    assert_eq!(
+        s["trials"][0]["trial"]["status"], "complete",
+        "{}",
+        s["trials"][0]
+    );
+    assert!(live.len() > 50, "live samples at ~100 Hz: {}", live.len());
+    assert!(
+        live.iter().any(|l| l["input_seq"].as_u64().unwrap() > 0),
+        "input round trip visible"
+    );
+    // The record shows our hand position and never the other trial's.
+    let (_, text) = api.get_text(&format!("/api/studies/{study}/export/samples"));
+    let (h, rows) = csv(&text);
+    let hand = col(&h, "hand_mm");
+    assert!(
+        rows.iter().all(|r| r[hand] == "0" || r[hand] == "12.5"),
+        "only our input drove the test"
+    );
+    assert!(rows.iter().filter(|r| r[hand] == "12.5").count() > 1000);
+}
+
+#[test]
+fn a_pilot_of_two_subjects_checked_row_by_row() {
+    let dir = TempDir::new("pilot");
+    let db = dir.path().join("pilot.db");
+    let db = db.to_str().unwrap();
+    let out = std::process::Command::new(binary("bdft-server"))
+        .args(["pilot", "--db", db, "--subjects", "2", "--seed", "7"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let report: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["trials"], 22);
+    assert_eq!(report["complete"], 22);
+    let csv_path = dir.path().join("trials.csv");
+    let out = std::process::Command::new(binary("bdft-server"))
+        .args([
+            "export",
+            "--db",
+            db,
+            "--kind",
+            "trials",
+            "--out",
+            csv_path.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let (h, rows) = csv(&std::fs::read_to_string(&csv_path).unwrap());
+    for c in [
+        "subject_code",
+        "subject_index",
+        "synthetic",
+        "starting_station",
+        "station",
+        "block",
+        "position",
+        "controller",
+        "blinded_label",
+        "practice",
+        "status",
+        "seed",
+        "target_mean_mm",
+        "target_std_mm",
+        "mse_tracking_mm2",
+        "ms_cab_accel",
+        "rating_accuracy",
+        "rating_speed",
+        "rating_smoothness",
+        "rating_controllability",
+        "comment",
+        "protocol_hash",
+        "started_at",
+        "finished_at",
+    ] {
+        col(&h, c);
+    }
+    assert_eq!(rows.len(), 22);
+    let params = bdft_server::study::default_params();
+    let hash = bdft_server::study::protocol_hash(&params);
+    let get = |r: &Vec<String>, c: &str| r[col(&h, c)].clone();
+    for (i, code) in ["S01", "S02"].iter().enumerate() {
+        let mine: Vec<&Vec<String>> = rows
+            .iter()
+            .filter(|r| get(r, "subject_code") == *code)
+            .collect();
+        assert_eq!(mine.len(), 11);
+        let start = if i == 0 { "on" } else { "off" };
+        // The schedule is the one the protocol engine regenerates from the study seed.
+        let schedule = bdft_server::study::schedule(&params, 7, i as u32);
+        for (r, t) in mine.iter().zip(&schedule) {
+            assert_eq!(get(r, "subject_index"), (i + 1).to_string());
+            assert_eq!(get(r, "synthetic"), "1");
+            assert_eq!(get(r, "starting_station"), start);
+            assert_eq!(get(r, "station"), t.station.as_str());
+            assert_eq!(get(r, "controller"), t.controller.name());
+            assert_eq!(get(r, "blinded_label"), t.blinded_label);
+            assert_eq!(get(r, "block"), t.block.to_string());
+            assert_eq!(get(r, "position"), t.position.to_string());
+            assert_eq!(get(r, "practice"), if t.practice { "1" } else { "0" });
+            assert_eq!(get(r, "seed"), t.target_seed.to_string());
+            assert_eq!(get(r, "status"), "complete");
+            assert_eq!(get(r, "protocol_hash"), hash);
+            let mean: f64 = get(r, "target_mean_mm").parse().unwrap();
+            let std: f64 = get(r, "target_std_mm").parse().unwrap();
+            assert!(mean.abs() <= 1.0 && (std / 20.0 - 1.0).abs() <= 0.05);
+            let mse: f64 = get(r, "mse_tracking_mm2").parse().unwrap();
+            assert!(mse > 0.0 && mse < 2000.0, "{mse}");
+            assert!(
+                get(r, "rating_accuracy").is_empty() && get(r, "comment").is_empty(),
+                "pilot surveys stay empty"
+            );
+            assert!(get(r, "started_at") <= get(r, "finished_at"));
+        }
+        assert_eq!(
+            mine[1..6]
+                .iter()
+                .filter(|r| get(r, "station") == start)
+                .count(),
+            5
+        );
+    }
+    // The summary has one line per controller × station × variable with n = 2.
+    let sum_path = dir.path().join("summary.csv");
+    let out = std::process::Command::new(binary("bdft-server"))
+        .args([
+            "export",
+            "--db",
+            db,
+            "--kind",
+            "summary",
+            "--out",
+            sum_path.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let (sh, srows) = csv(&std::fs::read_to_string(&sum_path).unwrap());
+    let metric_rows: Vec<_> = srows
+        .iter()
+        .filter(|r| r[col(&sh, "variable")] == "mse_tracking_mm2")
+        .collect();
+    assert_eq!(metric_rows.len(), 10);
+    assert!(metric_rows.iter().all(|r| r[col(&sh, "n")] == "2"));
+    // A bad export kind is refused with the valid ones named.
+    let out = std::process::Command::new(binary("bdft-server"))
+        .args([
+            "export",
+            "--db",
+            db,
+            "--kind",
+            "everything",
+            "--out",
+            "/dev/null",
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("trials, samples, summary"));
+    let _ = Proc::controller; // the pilot needs no controller process
+}

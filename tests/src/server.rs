@@ -1,0 +1,206 @@
+//! A test client for `bdft-server`: starts the real server (which starts the real
+//! controller) on a fresh database and random port, and calls its API as a browser would.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use serde_json::{Value, json};
+
+use crate::TempDir;
+use crate::controller_link::Proc;
+
+pub const ADMIN_PASSWORD: &str = "test-password-42";
+
+/// A running server with its own database in a temporary directory.
+#[derive(Debug)]
+pub struct Server {
+    pub proc: Proc,
+    pub base: String,
+    pub db: PathBuf,
+    pub dir: TempDir,
+}
+
+impl Server {
+    pub fn start(tag: &str) -> Self {
+        let dir = TempDir::new(tag);
+        let db = dir.path().join("bdft-lab.db");
+        let proc = Self::spawn(&db);
+        Self {
+            base: format!("http://{}", proc.addr),
+            proc,
+            db,
+            dir,
+        }
+    }
+
+    fn spawn(db: &Path) -> Proc {
+        Proc::spawn(
+            "bdft-server",
+            &[
+                "serve",
+                "--db",
+                db.to_str().unwrap(),
+                "--listen",
+                "127.0.0.1:0",
+                "--admin-password",
+                ADMIN_PASSWORD,
+            ],
+            "bdft-lab server on http://",
+        )
+    }
+
+    /// Kills the server (SIGKILL: no clean shutdown) and starts it again on the same
+    /// database.
+    pub fn crash_and_restart(&mut self) {
+        self.proc.kill();
+        self.proc = Self::spawn(&self.db);
+        self.base = format!("http://{}", self.proc.addr);
+    }
+
+    /// A client logged in as the admin experimenter.
+    pub fn experimenter(&self) -> Api {
+        let mut api = Api::anonymous(&self.base);
+        let (code, body) = api.post(
+            "/api/login",
+            json!({ "username": "admin", "password": ADMIN_PASSWORD }),
+        );
+        assert_eq!(code, 200, "{body}");
+        api.csrf = body["csrf"].as_str().map(str::to_string);
+        api
+    }
+}
+
+/// An HTTP client with a cookie jar, optional CSRF token and optional bearer token.
+#[derive(Debug)]
+pub struct Api {
+    agent: ureq::Agent,
+    pub base: String,
+    pub csrf: Option<String>,
+    pub bearer: Option<String>,
+}
+
+impl Api {
+    pub fn anonymous(base: &str) -> Self {
+        Self {
+            agent: ureq::AgentBuilder::new()
+                .timeout(Duration::from_secs(60))
+                .build(),
+            base: base.to_string(),
+            csrf: None,
+            bearer: None,
+        }
+    }
+
+    pub fn with_bearer(base: &str, token: &str) -> Self {
+        Self {
+            bearer: Some(token.to_string()),
+            ..Self::anonymous(base)
+        }
+    }
+
+    pub fn call(&self, method: &str, path: &str, body: Option<Value>) -> (u16, Value) {
+        let mut req = self.agent.request(method, &format!("{}{path}", self.base));
+        if let Some(c) = &self.csrf {
+            req = req.set("x-csrf-token", c);
+        }
+        if let Some(b) = &self.bearer {
+            req = req.set("authorization", &format!("Bearer {b}"));
+        }
+        let res = match body {
+            Some(b) => req.send_json(b),
+            None => req.call(),
+        };
+        let resp = match res {
+            Ok(r) => r,
+            Err(ureq::Error::Status(_, r)) => r,
+            Err(e) => panic!("{method} {path}: {e}"),
+        };
+        let code = resp.status();
+        let text = resp.into_string().unwrap_or_default();
+        (
+            code,
+            serde_json::from_str(&text).unwrap_or(Value::String(text)),
+        )
+    }
+
+    /// Raw body of a GET (CSV downloads).
+    pub fn get_text(&self, path: &str) -> (u16, String) {
+        let req = self.agent.get(&format!("{}{path}", self.base));
+        match req.call() {
+            Ok(r) => (r.status(), r.into_string().unwrap()),
+            Err(ureq::Error::Status(c, r)) => (c, r.into_string().unwrap_or_default()),
+            Err(e) => panic!("GET {path}: {e}"),
+        }
+    }
+
+    pub fn get(&self, path: &str) -> (u16, Value) {
+        self.call("GET", path, None)
+    }
+
+    pub fn post(&self, path: &str, body: Value) -> (u16, Value) {
+        self.call("POST", path, Some(body))
+    }
+
+    /// POST expecting 200; returns the body.
+    pub fn ok(&self, path: &str, body: Value) -> Value {
+        let (code, b) = self.post(path, body);
+        assert_eq!(code, 200, "POST {path}: {b}");
+        b
+    }
+}
+
+/// Polls `f` until it returns `Some`, failing after `limit`.
+pub fn eventually<T>(limit: Duration, mut f: impl FnMut() -> Option<T>) -> T {
+    let start = Instant::now();
+    loop {
+        if let Some(v) = f() {
+            return v;
+        }
+        assert!(
+            start.elapsed() < limit,
+            "condition not reached within {limit:?}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Study parameters with short tests, for end-to-end runs.
+pub fn short_study(api: &Api, trial_s: f64, practice_s: f64) -> i64 {
+    let (_, mut params) = api.get("/api/defaults");
+    params["trial_s"] = json!(trial_s);
+    params["practice_s"] = json!(practice_s);
+    params["step_interval_s"] = json!(0.5);
+    let body = api.ok(
+        "/api/studies",
+        json!({ "name": "end-to-end", "params": params, "seed": 42 }),
+    );
+    body["id"].as_i64().unwrap()
+}
+
+/// Pairs a new station with `role` to `study`; returns (station id, station token).
+pub fn pair_station(api: &Api, study: i64, role: &str) -> (i64, String) {
+    let reg = Api::anonymous(&api.base).ok("/api/station/register", json!({}));
+    let token = reg["token"].as_str().unwrap().to_string();
+    let code = reg["pairing_code"].as_str().unwrap();
+    let st = api.ok(
+        &format!("/api/studies/{study}/stations"),
+        json!({ "pairing_code": code, "name": format!("station-{role}"), "role": role }),
+    );
+    (st["id"].as_i64().unwrap(), token)
+}
+
+/// Runs `trial` (started by the experimenter) to its end; returns its final row.
+pub fn run_trial(api: &Api, subject: i64, trial: i64) -> Value {
+    let (code, body) = api.post(&format!("/api/trials/{trial}/start"), json!({}));
+    assert_eq!(code, 200, "start {trial}: {body}");
+    eventually(Duration::from_secs(60), || {
+        let (_, s) = api.get(&format!("/api/subjects/{subject}"));
+        let t = s["trials"]
+            .as_array()?
+            .iter()
+            .map(|t| &t["trial"])
+            .find(|t| t["id"] == trial)?
+            .clone();
+        (t["status"] != "running").then_some(t)
+    })
+}
