@@ -376,7 +376,7 @@ pub async fn commit_result(
     let (status, reason) = status_of(&result.outcome);
     let mut tx = pool.begin().await?;
     let done = sqlx::query(
-        "UPDATE trials SET status = ?, status_reason = ?, finished_at = ?, mse_tracking_mm2 = ?, ms_cab_accel = ?, timing_json = ? WHERE id = ? AND status = 'running'",
+        "UPDATE trials SET status = ?, status_reason = ?, finished_at = MAX(?, COALESCE(started_at, 0)), mse_tracking_mm2 = ?, ms_cab_accel = ?, timing_json = ? WHERE id = ? AND status = 'running'",
     )
     .bind(status)
     .bind(reason)
@@ -418,7 +418,7 @@ async fn insert_record(
 
 /// Marks every running trial incomplete (after a server restart or a controller death).
 pub async fn interrupt_running(pool: &SqlitePool, reason: &str) -> Result<Vec<i64>> {
-    let ids: Vec<(i64,)> = sqlx::query_as("UPDATE trials SET status = 'incomplete', status_reason = ?, finished_at = ? WHERE status = 'running' RETURNING id")
+    let ids: Vec<(i64,)> = sqlx::query_as("UPDATE trials SET status = 'incomplete', status_reason = ?, finished_at = MAX(?, COALESCE(started_at, 0)) WHERE status = 'running' RETURNING id")
         .bind(reason)
         .bind(now_ms())
         .fetch_all(pool)
