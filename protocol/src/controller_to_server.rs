@@ -61,6 +61,9 @@ pub struct LiveSample {
     pub cab_accel_mm_s2: f64,
     /// `seq` of the newest operator input used (0 if none): round-trip timing.
     pub input_seq: u64,
+    /// CLOCK_MONOTONIC time of the tick that produced it (µs; comparable only on the
+    /// controller's host): delivery-latency measurements.
+    pub stamp_us: u64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -62,8 +62,9 @@ fn hello_and_small_messages() {
             cylinder_mm: 9.5,
             cab_accel_mm_s2: -120.0,
             input_seq: 41,
+            stamp_us: 123_456,
         }),
-        r#"{"type":"live","trial_id":7,"t":0.5,"target_mm":10.0,"device_mm":16.0,"cylinder_mm":9.5,"cab_accel_mm_s2":-120.0,"input_seq":41}"#,
+        r#"{"type":"live","trial_id":7,"t":0.5,"target_mm":10.0,"device_mm":16.0,"cylinder_mm":9.5,"cab_accel_mm_s2":-120.0,"input_seq":41,"stamp_us":123456}"#,
     );
 }
 

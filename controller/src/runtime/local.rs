@@ -17,7 +17,7 @@ pub fn run(start: &StartTrial, dt: f64) -> Result<(TrialResult, Vec<Vec<f32>>), 
     }
     let mut slot = build_slot(start, dt, false)?.slot;
     let mut tick = 0;
-    while !matches!(slot.tick(tick, 0.0), SlotTick::Ended) {
+    while !matches!(slot.tick(tick, 0, 0.0), SlotTick::Ended) {
         tick += 1;
     }
     let result = TrialResult {

@@ -230,7 +230,7 @@ impl RtLoop {
     /// the time the work finished.
     #[inline]
     fn one_tick(&mut self, wake: u64, latency: u64) -> u64 {
-        self.tick_all(latency);
+        self.tick_all(wake, latency);
         let end = os::now_ns();
         let compute = end.saturating_sub(wake);
         self.stats.ticks += 1;
@@ -340,7 +340,7 @@ impl RtLoop {
     }
 
     #[inline]
-    fn tick_all(&mut self, latency_ns: u64) {
+    fn tick_all(&mut self, wake_ns: u64, latency_ns: u64) {
         if self.shared.estop.load(Ordering::Relaxed) {
             self.latch_estop();
         }
@@ -363,7 +363,7 @@ impl RtLoop {
                 }
             }
             if slot.end.is_none() {
-                match slot.tick(now, latency_us) {
+                match slot.tick(now, wake_ns, latency_us) {
                     SlotTick::Live(s) if self.events.slots() > EVENT_RESERVE => {
                         let _ = self.events.push(Event::Live(s));
                     }

@@ -168,9 +168,10 @@ impl TrialSlot {
         }
     }
 
-    /// One tick at loop tick `now`; `latency_us` is this tick's wake latency.
+    /// One tick at loop tick `now`, woken at `wake_ns` (CLOCK_MONOTONIC); `latency_us` is
+    /// this tick's wake latency.
     #[inline]
-    pub fn tick(&mut self, now: u64, latency_us: f32) -> SlotTick {
+    pub fn tick(&mut self, now: u64, wake_ns: u64, latency_us: f32) -> SlotTick {
         let start = *self.start_tick.get_or_insert(now);
         let mut hand = 0.0;
         if let Some(cell) = &self.input {
@@ -212,6 +213,7 @@ impl TrialSlot {
                 cylinder_mm: s.y,
                 cab_accel_mm_s2: s.cab_accel,
                 input_seq: self.last_input_seq,
+                stamp_us: wake_ns / 1000,
             });
         }
         SlotTick::Running
