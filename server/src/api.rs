@@ -421,6 +421,19 @@ pub async fn start(s: &AppState, trial: &Trial) -> Result<(), AppError> {
         ));
     }
     let study = store::study(&s.pool, subject.study_id).await?;
+    // A study run on the real machine must never go to a simulating controller, nor the
+    // reverse: the data would silently mean something else.
+    let want = match study.params.rig {
+        bdft_protocol::study::RigKind::Simulated => "sim",
+        bdft_protocol::study::RigKind::Real => "udp",
+    };
+    if s.controller.rig().as_deref() != Some(want) {
+        return Err(AppError::Conflict(format!(
+            "the study runs on the {} rig but the controller's rig is {}",
+            if want == "sim" { "simulated" } else { "real" },
+            s.controller.rig().unwrap_or_else(|| "unknown".into())
+        )));
+    }
     let operator = if subject.synthetic {
         Operator::Synthetic
     } else {
@@ -616,7 +629,9 @@ async fn estop_reset(State(s): State<AppState>, who: Experimenter) -> ApiResult<
 }
 
 async fn controller_status(State(s): State<AppState>, _who: Experimenter) -> AppJson<Value> {
-    AppJson(json!({ "connected": s.controller.is_connected(), "pid": s.controller.pid() }))
+    AppJson(
+        json!({ "connected": s.controller.is_connected(), "pid": s.controller.pid(), "rig": s.controller.rig() }),
+    )
 }
 
 /// id, at, actor, action, target, detail_json

@@ -59,6 +59,8 @@ struct Inner {
     pending: Mutex<HashMap<TrialId, oneshot::Sender<Result<(), String>>>>,
     /// Process id of the controller this server started, if any.
     pid: Mutex<Option<u32>>,
+    /// The connected controller's rig: "sim" or "udp".
+    rig: Mutex<Option<String>>,
 }
 
 /// Samples per trial kept while its record arrives, channel by channel.
@@ -76,10 +78,20 @@ impl ControllerLink {
                 connected,
                 pending: Mutex::new(HashMap::new()),
                 pid: Mutex::new(None),
+                rig: Mutex::new(None),
             }),
         };
         tokio::spawn(supervise(link.clone(), pool, source));
         link
+    }
+
+    /// The rig of the connected controller ("sim" or "udp").
+    pub fn rig(&self) -> Option<String> {
+        self.inner
+            .rig
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
     }
 
     pub fn pid(&self) -> Option<u32> {
@@ -302,7 +314,10 @@ async fn connection(link: &ControllerLink, pool: &SqlitePool, stream: TcpStream)
             rig,
             lockstep,
             ..
-        }) => tracing::info!(controller, rig, lockstep, "controller connected"),
+        }) => {
+            tracing::info!(controller, rig, lockstep, "controller connected");
+            *link.inner.rig.lock().unwrap_or_else(|p| p.into_inner()) = Some(rig);
+        }
         Ok(other) => return format!("unexpected answer to hello: {other:?}"),
         Err(e) => return e,
     }

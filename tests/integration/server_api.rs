@@ -279,6 +279,34 @@ fn tokens_never_open_experimenter_routes_and_bad_input_gets_4xx() {
             .0;
     }
     assert_eq!(last, 429);
+    // A study declared for the real machine is refused by a simulating controller.
+    let (_, mut params) = api.get("/api/defaults");
+    params["rig"] = json!("real");
+    let real = api.ok(
+        "/api/studies",
+        json!({ "name": "real machine", "params": params }),
+    )["id"]
+        .as_i64()
+        .unwrap();
+    let enrolled = api.ok(&format!("/api/studies/{real}/subjects"), json!({}));
+    let (st_id, st_token) = pair_station(&api, real, "both");
+    api.ok(
+        &format!("/api/stations/{st_id}/assign"),
+        json!({ "subject_id": enrolled["subject"]["id"] }),
+    );
+    Api::with_bearer(&server.base, &st_token)
+        .ok("/api/station/consent", json!({ "decision": "agreed" }));
+    let (_, s) = api.get(&format!("/api/subjects/{}", enrolled["subject"]["id"]));
+    let t = s["trials"][0]["trial"]["id"].as_i64().unwrap();
+    eventually(Duration::from_secs(20), || {
+        (api.get("/api/controller").1["connected"] == true).then_some(())
+    });
+    let (code, body) = api.post(&format!("/api/trials/{t}/start"), json!({}));
+    assert_eq!(code, 409, "{body}");
+    assert!(
+        body["error"].as_str().unwrap().contains("real rig"),
+        "{body}"
+    );
     // The OpenAPI document lists the routes.
     let (code, doc) = anon.get("/api/openapi.json");
     assert_eq!(code, 200);
