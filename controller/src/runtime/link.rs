@@ -218,9 +218,10 @@ impl Io {
     fn start(&mut self, conn: u64, st: &StartTrial) -> Vec<Vec<u8>> {
         let id = st.trial_id;
         if self.rt.shared.estop.load(Ordering::SeqCst) {
-            return self.reject(format!(
-                "start trial {id}: e-stop is latched; send reset_e_stop first"
-            ));
+            return self.reject_trial(
+                Some(id),
+                format!("start trial {id}: e-stop is latched; send reset_e_stop first"),
+            );
         }
         if self.trials.contains_key(&id) {
             return self.reject_trial(
@@ -229,27 +230,30 @@ impl Io {
             );
         }
         if self.trials.len() >= self.cfg.max_trials {
-            return self.reject(format!(
+            return self.reject_trial(Some(id), format!(
                 "start trial {id}: {} trials are running, the most this controller runs at once",
                 self.cfg.max_trials
             ));
         }
         if self.cfg.real_rig && self.trials.values().any(|t| t.uses_rig) {
-            return self.reject(format!(
-                "start trial {id}: the real rig is in use by another trial"
-            ));
+            return self.reject_trial(
+                Some(id),
+                format!("start trial {id}: the real rig is in use by another trial"),
+            );
         }
         let channel = match st.input {
             InputSource::Udp { channel } => {
                 if !self.cfg.input_udp {
-                    return self.reject(format!(
-                        "start trial {id}: UDP input needs serve --input-udp ADDR"
-                    ));
+                    return self.reject_trial(
+                        Some(id),
+                        format!("start trial {id}: UDP input needs serve --input-udp ADDR"),
+                    );
                 }
                 if self.channels.contains_key(&channel) {
-                    return self.reject(format!(
-                        "start trial {id}: input channel {channel} is in use"
-                    ));
+                    return self.reject_trial(
+                        Some(id),
+                        format!("start trial {id}: input channel {channel} is in use"),
+                    );
                 }
                 Some(channel)
             }
