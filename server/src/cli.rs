@@ -243,10 +243,6 @@ async fn execute(command: Command) -> anyhow::Result<()> {
 }
 
 async fn shutdown_signal() {
-    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
-    tokio::select! {
-        _ = tokio::signal::ctrl_c() => {}
-        _ = async { match &mut term { Some(t) => { t.recv().await; } None => std::future::pending().await } } => {}
-    }
+    bdft_controller::runtime::shutdown_signal().await;
     tracing::info!("shutting down");
 }

@@ -146,6 +146,22 @@ async fn state(State(s): State<AppState>, station: StationAuth) -> ApiResult<Val
     Ok(AppJson(station_state(&s, &station).await?))
 }
 
+/// A test of the station's subject (a station never touches another subject's data).
+async fn own_trial(
+    s: &AppState,
+    station: &StationAuth,
+    trial_id: i64,
+) -> Result<(i64, Trial), AppError> {
+    let subject_id = subject_of(station)?;
+    let trial = store::trial(&s.pool, trial_id).await?;
+    if trial.subject_id != subject_id {
+        return Err(AppError::Forbidden(
+            "this test belongs to another subject".into(),
+        ));
+    }
+    Ok((subject_id, trial))
+}
+
 fn subject_of(station: &StationAuth) -> Result<i64, AppError> {
     station
         .subject_id
@@ -198,13 +214,7 @@ async fn survey(
     station: StationAuth,
     AppJson(b): AppJson<SurveyBody>,
 ) -> ApiResult<Value> {
-    let subject_id = subject_of(&station)?;
-    let trial = store::trial(&s.pool, b.trial_id).await?;
-    if trial.subject_id != subject_id {
-        return Err(AppError::Forbidden(
-            "this test belongs to another subject".into(),
-        ));
-    }
+    let (subject_id, trial) = own_trial(&s, &station, b.trial_id).await?;
     if trial.practice || trial.status != "complete" {
         return Err(AppError::Conflict(
             "only a completed test has a survey".into(),
@@ -256,13 +266,7 @@ async fn timing(
     station: StationAuth,
     AppJson(b): AppJson<TimingBody>,
 ) -> ApiResult<Value> {
-    let subject_id = subject_of(&station)?;
-    let trial = store::trial(&s.pool, b.trial_id).await?;
-    if trial.subject_id != subject_id {
-        return Err(AppError::Forbidden(
-            "this test belongs to another subject".into(),
-        ));
-    }
+    own_trial(&s, &station, b.trial_id).await?;
     for (name, v) in [
         ("rtt_ms.p50", b.rtt_ms.p50),
         ("rtt_ms.p95", b.rtt_ms.p95),
