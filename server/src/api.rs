@@ -37,6 +37,7 @@ pub fn router() -> Router<AppState> {
         .route("/api/subjects/{id}", get(get_subject))
         .route("/api/subjects/{id}/withdraw", post(withdraw))
         .route("/api/stations/{id}/assign", post(assign_station))
+        .route("/api/stations/{id}/state", get(station_state))
         .route("/api/trials/{id}/start", post(start_trial))
         .route("/api/trials/{id}/abort", post(abort_trial))
         .route("/api/trials/{id}/redo", post(redo_trial))
@@ -344,6 +345,23 @@ async fn list_stations(
     Path(study_id): Path<i64>,
 ) -> ApiResult<Vec<crate::auth::StationAuth>> {
     Ok(AppJson(sqlx::query_as("SELECT id, study_id, name, role, subject_id FROM stations WHERE study_id = ? ORDER BY id").bind(study_id).fetch_all(&s.pool).await?))
+}
+
+/// What a station shows now, for the experimenter's live monitor (with the real controller
+/// name of the test at hand).
+async fn station_state(State(s): State<AppState>, _who: Experimenter, Path(id): Path<i64>) -> ApiResult<Value> {
+    let station: crate::auth::StationAuth = sqlx::query_as("SELECT id, study_id, name, role, subject_id FROM stations WHERE id = ?")
+        .bind(id)
+        .fetch_optional(&s.pool)
+        .await?
+        .ok_or(AppError::NotFound("station"))?;
+    let mut state = crate::station::station_state(&s, &station).await?;
+    if let Some(t) = state["test"]["trial_id"].as_i64() {
+        state["test"]["controller"] = json!(store::trial(&s.pool, t).await?.controller);
+    }
+    state["station"]["id"] = json!(station.id);
+    state["station"]["subject_id"] = json!(station.subject_id);
+    Ok(AppJson(state))
 }
 
 #[derive(Debug, Deserialize)]

@@ -49,6 +49,10 @@ enum Command {
         /// (otherwise a one-time set-up link is printed).
         #[arg(long, env = "BDFT_ADMIN_PASSWORD", hide_env_values = true)]
         admin_password: Option<String>,
+        /// Serve the pages from this directory instead of the copy built into the binary
+        /// (for developing them).
+        #[arg(long)]
+        web_dir: Option<PathBuf>,
     },
     /// Run the whole protocol for N synthetic subjects, faster than real time, into the
     /// database (subjects flagged synthetic, surveys left empty).
@@ -140,14 +144,7 @@ async fn newest_study(pool: &sqlx::SqlitePool, study: Option<i64>) -> anyhow::Re
 
 async fn execute(command: Command) -> anyhow::Result<()> {
     match command {
-        Command::Serve {
-            db,
-            listen,
-            controller,
-            controller_bin,
-            controller_args,
-            admin_password,
-        } => {
+        Command::Serve { db, listen, controller, controller_bin, controller_args, admin_password, web_dir } => {
             let pool = crate::db::open(&db).await?;
             let interrupted = crate::store::interrupt_running(&pool, "server restart").await?;
             if !interrupted.is_empty() {
@@ -196,7 +193,8 @@ async fn execute(command: Command) -> anyhow::Result<()> {
                 }
             };
             let link = crate::controller_link::ControllerLink::start(pool.clone(), source);
-            let state = crate::state::AppState::new(pool, link);
+            let mut state = crate::state::AppState::new(pool, link);
+            state.web_dir = web_dir;
             println!("bdft-lab server on http://{addr}");
             use std::io::Write;
             let _ = std::io::stdout().flush();

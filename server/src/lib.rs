@@ -19,6 +19,7 @@ pub mod state;
 pub mod station;
 pub mod store;
 pub mod study;
+pub mod web;
 
 use std::net::SocketAddr;
 
@@ -46,7 +47,8 @@ pub fn app(state: AppState) -> Router {
         .route("/api/subject", get(subject_self))
         .merge(api::router())
         .merge(station::router())
-        .fallback(|| async { error::AppError::NotFound("page") })
+        .route("/", get(web::index))
+        .route("/{*path}", get(web::page))
         .layer(DefaultBodyLimit::max(MAX_BODY))
         .with_state(state)
 }

@@ -132,6 +132,18 @@ pub const ROUTES: &[(&str, &str, &str, &str)] = &[
         "experimenter",
     ),
     (
+        "get",
+        "/api/stations/{id}/state",
+        "what a station shows now, with the real controller name",
+        "experimenter",
+    ),
+    (
+        "get",
+        "/api/studies/{id}/plots/{file}",
+        "box plot of a variable per controller × station: {variable}.svg or {variable}.png",
+        "experimenter",
+    ),
+    (
         "post",
         "/api/trials/{id}/start",
         "start a scheduled test on the controller",

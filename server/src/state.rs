@@ -13,6 +13,8 @@ pub struct AppState {
     pub pool: SqlitePool,
     pub controller: ControllerLink,
     pub inner: Arc<Shared>,
+    /// Serve the pages from this directory instead of the embedded copy (development).
+    pub web_dir: Option<std::path::PathBuf>,
 }
 
 #[derive(Debug, Default)]
@@ -30,6 +32,7 @@ impl AppState {
             pool,
             controller,
             inner: Arc::new(Shared::default()),
+            web_dir: None,
         }
     }
 }
