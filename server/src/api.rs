@@ -33,6 +33,7 @@ pub fn router() -> Router<AppState> {
             get(list_stations).post(pair_station),
         )
         .route("/api/studies/{id}/summary", get(summary))
+        .route("/api/studies/{id}/plots/{file}", get(plot))
         .route("/api/studies/{id}/export/{kind}", get(export))
         .route("/api/subjects/{id}", get(get_subject))
         .route("/api/subjects/{id}/withdraw", post(withdraw))
@@ -349,12 +350,17 @@ async fn list_stations(
 
 /// What a station shows now, for the experimenter's live monitor (with the real controller
 /// name of the test at hand).
-async fn station_state(State(s): State<AppState>, _who: Experimenter, Path(id): Path<i64>) -> ApiResult<Value> {
-    let station: crate::auth::StationAuth = sqlx::query_as("SELECT id, study_id, name, role, subject_id FROM stations WHERE id = ?")
-        .bind(id)
-        .fetch_optional(&s.pool)
-        .await?
-        .ok_or(AppError::NotFound("station"))?;
+async fn station_state(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<Value> {
+    let station: crate::auth::StationAuth =
+        sqlx::query_as("SELECT id, study_id, name, role, subject_id FROM stations WHERE id = ?")
+            .bind(id)
+            .fetch_optional(&s.pool)
+            .await?
+            .ok_or(AppError::NotFound("station"))?;
     let mut state = crate::station::station_state(&s, &station).await?;
     if let Some(t) = state["test"]["trial_id"].as_i64() {
         state["test"]["controller"] = json!(store::trial(&s.pool, t).await?.controller);
@@ -733,6 +739,97 @@ async fn export(
                 header::CONTENT_DISPOSITION,
                 format!("attachment; filename=\"{filename}\""),
             ),
+        ],
+        body,
+    )
+        .into_response())
+}
+
+/// GET /api/studies/{id}/plots/{variable}.svg|png
+async fn plot(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path((id, file)): Path<(i64, String)>,
+) -> Result<Response, AppError> {
+    use crate::export::SUMMARY_VARIABLES;
+    let (variable, ext) = file
+        .rsplit_once('.')
+        .ok_or_else(|| AppError::BadRequest("plot: name.svg or name.png".into()))?;
+    let index = SUMMARY_VARIABLES
+        .iter()
+        .position(|v| *v == variable)
+        .ok_or_else(|| {
+            AppError::BadRequest(format!(
+                "plot: unknown variable {variable:?}; valid: {}",
+                SUMMARY_VARIABLES.join(", ")
+            ))
+        })?;
+    if ext != "svg" && ext != "png" {
+        return Err(AppError::BadRequest("plot: .svg or .png".into()));
+    }
+    let study = store::study(&s.pool, id).await?;
+    let groups: Vec<crate::plots::Group> = crate::export::group_values(&s.pool, id)
+        .await
+        .map_err(|e| AppError::Internal(e.into()))?
+        .into_iter()
+        .map(|((c, st), vals)| (c, st, vals.iter().filter_map(|v| v[index]).collect()))
+        .collect();
+    let controllers: Vec<String> = study
+        .params
+        .controllers
+        .iter()
+        .map(|c| c.kind().name().to_string())
+        .collect();
+    let scale = f64::from(study.params.survey.scale_points);
+    let (title, unit, range) = match variable {
+        "mse_tracking_mm2" => ("Tracking error (mean square)", "MSE (mm²)", None),
+        "ms_cab_accel" => (
+            "Cab acceleration (mean square)",
+            "mean-square acceleration ((mm/s²)²)",
+            None,
+        ),
+        "rating_accuracy" => (
+            "Rating: accuracy",
+            "rating (higher is better)",
+            Some((0.5, scale + 0.5)),
+        ),
+        "rating_speed" => (
+            "Rating: speed of response",
+            "rating (higher is better)",
+            Some((0.5, scale + 0.5)),
+        ),
+        "rating_smoothness" => (
+            "Rating: smoothness",
+            "rating (higher is better)",
+            Some((0.5, scale + 0.5)),
+        ),
+        _ => (
+            "Rating: overall controllability",
+            "rating (higher is better)",
+            Some((0.5, scale + 0.5)),
+        ),
+    };
+    let svg = crate::plots::box_plot_svg(
+        &format!("{title} — study {}", study.name),
+        unit,
+        &controllers,
+        &groups,
+        range,
+    );
+    let (body, mime) = if ext == "svg" {
+        (svg.into_bytes(), "image/svg+xml")
+    } else {
+        (
+            tokio::task::spawn_blocking(move || crate::plots::png(&svg))
+                .await
+                .map_err(anyhow::Error::from)??,
+            "image/png",
+        )
+    };
+    Ok((
+        [
+            (header::CONTENT_TYPE, mime),
+            (header::CACHE_CONTROL, "no-cache"),
         ],
         body,
     )

@@ -144,7 +144,15 @@ async fn newest_study(pool: &sqlx::SqlitePool, study: Option<i64>) -> anyhow::Re
 
 async fn execute(command: Command) -> anyhow::Result<()> {
     match command {
-        Command::Serve { db, listen, controller, controller_bin, controller_args, admin_password, web_dir } => {
+        Command::Serve {
+            db,
+            listen,
+            controller,
+            controller_bin,
+            controller_args,
+            admin_password,
+            web_dir,
+        } => {
             let pool = crate::db::open(&db).await?;
             let interrupted = crate::store::interrupt_running(&pool, "server restart").await?;
             if !interrupted.is_empty() {

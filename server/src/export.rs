@@ -299,15 +299,16 @@ pub const SUMMARY_VARIABLES: [&str; 6] = [
     "rating_controllability",
 ];
 
-/// Per controller × station statistics over the completed (non-practice) tests of subjects
-/// who have not withdrawn: the numbers behind the box plots and the table of averages.
-pub async fn summary_stats(pool: &SqlitePool, study_id: i64) -> Result<Vec<Stats>, ExportError> {
+/// Values of the summary variables (in `SUMMARY_VARIABLES` order) of every completed,
+/// non-practice test of subjects who have not withdrawn, by (controller, station).
+pub type GroupValues = std::collections::BTreeMap<(String, String), Vec<[Option<f64>; 6]>>;
+
+pub async fn group_values(pool: &SqlitePool, study_id: i64) -> Result<GroupValues, ExportError> {
     let rows: Vec<TrialExportRow> = sqlx::query_as(TRIALS_SQL)
         .bind(study_id)
         .fetch_all(pool)
         .await?;
-    let mut groups: std::collections::BTreeMap<(String, String), Vec<[Option<f64>; 6]>> =
-        Default::default();
+    let mut groups = GroupValues::new();
     for r in rows
         .into_iter()
         .filter(|r| !r.practice && r.status == "complete")
@@ -322,8 +323,14 @@ pub async fn summary_stats(pool: &SqlitePool, study_id: i64) -> Result<Vec<Stats
             f(r.controllability),
         ]);
     }
+    Ok(groups)
+}
+
+/// Per controller × station statistics: the numbers behind the box plots and the table of
+/// averages.
+pub async fn summary_stats(pool: &SqlitePool, study_id: i64) -> Result<Vec<Stats>, ExportError> {
     let mut out = Vec::new();
-    for ((controller, station), values) in groups {
+    for ((controller, station), values) in group_values(pool, study_id).await? {
         for (i, variable) in SUMMARY_VARIABLES.iter().enumerate() {
             let mut xs: Vec<f64> = values.iter().filter_map(|v| v[i]).collect();
             if xs.is_empty() {

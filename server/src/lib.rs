@@ -15,6 +15,7 @@ pub mod export;
 pub mod openapi;
 pub mod orchestrator;
 pub mod pilot;
+pub mod plots;
 pub mod state;
 pub mod station;
 pub mod store;

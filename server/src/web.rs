@@ -44,10 +44,16 @@ pub async fn serve(s: &AppState, name: &str) -> Response {
         Some(body) => {
             let mut r = (StatusCode::OK, body).into_response();
             let h = r.headers_mut();
-            h.insert(header::CONTENT_TYPE, HeaderValue::from_static(content_type(name)));
+            h.insert(
+                header::CONTENT_TYPE,
+                HeaderValue::from_static(content_type(name)),
+            );
             // Pages change with the server version; never serve a stale one mid-study.
             h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
-            h.insert("x-content-type-options", HeaderValue::from_static("nosniff"));
+            h.insert(
+                "x-content-type-options",
+                HeaderValue::from_static("nosniff"),
+            );
             h.insert("x-frame-options", HeaderValue::from_static("DENY"));
             h.insert(
                 header::CONTENT_SECURITY_POLICY,
