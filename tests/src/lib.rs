@@ -60,3 +60,4 @@ impl Drop for TempDir {
 pub mod controller_link;
 
 pub mod server;
+pub mod webdriver;
