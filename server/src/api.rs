@@ -44,6 +44,8 @@ pub fn router() -> Router<AppState> {
         .route("/api/trials/{id}/redo", post(redo_trial))
         .route("/api/trials/{id}/incomplete", post(mark_incomplete))
         .route("/api/trials/{id}/note", post(add_note))
+        .route("/api/studies/{id}/pilot", post(start_pilot))
+        .route("/api/pilot", get(pilot_status))
         .route("/api/estop", post(estop))
         .route("/api/estop/reset", post(estop_reset))
         .route("/api/controller", get(controller_status))
@@ -834,4 +836,85 @@ async fn plot(
         body,
     )
         .into_response())
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PilotBody {
+    subjects: u32,
+}
+
+/// POST /api/studies/{id}/pilot: dry-runs the protocol with synthetic subjects in the
+/// background (progress at GET /api/pilot).
+async fn start_pilot(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(id): Path<i64>,
+    AppJson(b): AppJson<PilotBody>,
+) -> ApiResult<Value> {
+    if !(1..=50).contains(&b.subjects) {
+        return Err(AppError::BadRequest("subjects: 1 to 50".into()));
+    }
+    store::study(&s.pool, id).await?;
+    let progress = std::sync::Arc::new(crate::pilot::Progress::default());
+    {
+        let mut slot = s.inner.pilot.lock().unwrap_or_else(|p| p.into_inner());
+        if slot.as_ref().is_some_and(|r| r.outcome.is_none()) {
+            return Err(AppError::Conflict(
+                "a pilot run is already in progress".into(),
+            ));
+        }
+        *slot = Some(crate::state::PilotRun {
+            study_id: id,
+            progress: progress.clone(),
+            outcome: None,
+        });
+    }
+    audit(
+        &s,
+        &who,
+        "pilot.start",
+        format!("study:{id}"),
+        json!({ "subjects": b.subjects }),
+    )
+    .await?;
+    let state = s.clone();
+    tokio::spawn(async move {
+        let r = crate::pilot::run_with_progress(&state.pool, Some(id), b.subjects, None, progress)
+            .await;
+        let outcome = r
+            .map(|rep| serde_json::to_value(rep).unwrap_or_default())
+            .map_err(|e| format!("{e:#}"));
+        if let Some(run) = state
+            .inner
+            .pilot
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .as_mut()
+        {
+            run.outcome = Some(outcome);
+        }
+    });
+    Ok(AppJson(json!({ "started": true })))
+}
+
+async fn pilot_status(State(s): State<AppState>, _who: Experimenter) -> AppJson<Value> {
+    use std::sync::atomic::Ordering;
+    let run = s
+        .inner
+        .pilot
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .clone();
+    AppJson(match run {
+        None => json!({ "running": false }),
+        Some(r) => json!({
+            "study_id": r.study_id,
+            "running": r.outcome.is_none(),
+            "done": r.progress.done.load(Ordering::Relaxed),
+            "total": r.progress.total.load(Ordering::Relaxed),
+            "report": r.outcome.as_ref().and_then(|o| o.as_ref().ok()),
+            "error": r.outcome.as_ref().and_then(|o| o.as_ref().err()),
+        }),
+    })
 }

@@ -175,6 +175,18 @@ pub const ROUTES: &[(&str, &str, &str, &str)] = &[
     ),
     (
         "post",
+        "/api/studies/{id}/pilot",
+        "dry-run the protocol with synthetic subjects in the background {subjects}",
+        "experimenter",
+    ),
+    (
+        "get",
+        "/api/pilot",
+        "progress of the pilot run",
+        "experimenter",
+    ),
+    (
+        "post",
         "/api/estop",
         "emergency stop: every valve to zero, latched",
         "experimenter",

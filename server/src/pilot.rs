@@ -24,11 +24,36 @@ const DT: f64 = 1e-3;
 
 /// Runs the pilot into `study_id` (default: the newest study, or a new default study if
 /// there is none). `seed` seeds a newly created study.
+/// How far a running pilot is (trials run so far, of how many).
+#[derive(Debug, Default)]
+pub struct Progress {
+    pub done: std::sync::atomic::AtomicUsize,
+    pub total: std::sync::atomic::AtomicUsize,
+}
+
 pub async fn run(
     pool: &SqlitePool,
     study_id: Option<i64>,
     subjects: u32,
     seed: Option<u64>,
+) -> anyhow::Result<PilotReport> {
+    run_with_progress(
+        pool,
+        study_id,
+        subjects,
+        seed,
+        Arc::new(Progress::default()),
+    )
+    .await
+}
+
+/// `run`, counting finished trials in `progress` (the dashboard's progress bar).
+pub async fn run_with_progress(
+    pool: &SqlitePool,
+    study_id: Option<i64>,
+    subjects: u32,
+    seed: Option<u64>,
+    progress: Arc<Progress>,
 ) -> anyhow::Result<PilotReport> {
     let study_id = match study_id {
         Some(id) => {
@@ -77,6 +102,11 @@ pub async fn run(
         report.subjects.push(subject.code.clone());
         work.push(subject.id);
     }
+    let per_subject = crate::study::schedule(&study.params, study.seed, 0).len();
+    progress.total.store(
+        per_subject * work.len(),
+        std::sync::atomic::Ordering::Relaxed,
+    );
     // One worker per core; each takes a subject and runs its tests in schedule order.
     let queue = Arc::new(tokio::sync::Mutex::new(work));
     let workers = std::thread::available_parallelism()
@@ -84,7 +114,12 @@ pub async fn run(
         .max(1);
     let mut tasks = tokio::task::JoinSet::new();
     for _ in 0..workers {
-        let (pool, study, queue) = (pool.clone(), Arc::clone(&study), Arc::clone(&queue));
+        let (pool, study, queue, progress) = (
+            pool.clone(),
+            Arc::clone(&study),
+            Arc::clone(&queue),
+            Arc::clone(&progress),
+        );
         tasks.spawn(async move {
             let mut done = (0, 0);
             loop {
@@ -101,6 +136,9 @@ pub async fn run(
                     .map_err(anyhow::Error::msg)?;
                     store::commit_result(&pool, &result, &Record { dt: DT, channels }).await?;
                     done.0 += 1;
+                    progress
+                        .done
+                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                     if result.outcome == bdft_protocol::trial::Outcome::Complete {
                         done.1 += 1;
                     }

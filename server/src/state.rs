@@ -24,6 +24,16 @@ pub struct Shared {
     /// Stations that showed a pairing code and wait for the experimenter: code → (token,
     /// created).
     pub pending_stations: Mutex<HashMap<String, (String, Instant)>>,
+    /// The pilot run started from the dashboard, if any: (study, progress, outcome).
+    pub pilot: Mutex<Option<PilotRun>>,
+}
+
+#[derive(Debug, Clone)]
+pub struct PilotRun {
+    pub study_id: i64,
+    pub progress: Arc<crate::pilot::Progress>,
+    /// None while running; then Ok(summary) or Err(message).
+    pub outcome: Option<Result<serde_json::Value, String>>,
 }
 
 impl AppState {
