@@ -101,6 +101,13 @@ pub async fn station_state(s: &AppState, station: &StationAuth) -> Result<Value,
         _ => {}
     }
     if let Some(t) = pending_survey(&s.pool, subject_id).await? {
+        // The survey is answered where the test was run; another station sends the
+        // subject there.
+        if !serves(station, &t.station) {
+            return Ok(with(
+                json!({ "phase": "move", "subject": code, "to": t.station }),
+            ));
+        }
         return Ok(with(
             json!({ "phase": "survey", "subject": code, "trial_id": t.id, "label": t.blinded_label, "survey": study.params.survey }),
         ));
@@ -320,7 +327,19 @@ async fn station_ws(
     Ok(ws.on_upgrade(move |socket| station_socket(s, station.id, socket)))
 }
 
-async fn station_socket(s: AppState, station_id: i64, mut socket: WebSocket) {
+async fn station_socket(s: AppState, station_id: i64, socket: WebSocket) {
+    use futures_util::{SinkExt, StreamExt};
+    let (mut sink, mut stream) = socket.split();
+    // Sending runs in its own task behind a small queue: a slow browser must never delay
+    // the operator input read below (stale input stops the machine after 100 ms).
+    let (out, mut outgoing) = tokio::sync::mpsc::channel::<String>(256);
+    let writer = tokio::spawn(async move {
+        while let Some(text) = outgoing.recv().await {
+            if sink.send(Message::Text(text.into())).await.is_err() {
+                return;
+            }
+        }
+    });
     let mut events = s.controller.subscribe();
     // The trial this station may feed: its subject's running test at this station.
     let current = |s: AppState| async move {
@@ -335,11 +354,12 @@ async fn station_socket(s: AppState, station_id: i64, mut socket: WebSocket) {
         let t = store::next_trial(&s.pool, st.subject_id?).await.ok()??;
         (t.status == "running" && serves(&st, &t.station)).then_some(t.id)
     };
+    let changed = json!({ "type": "changed" }).to_string();
     let mut running = current(s.clone()).await;
     loop {
         tokio::select! {
-            msg = socket.recv() => {
-                let Some(Ok(msg)) = msg else { return };
+            msg = stream.next() => {
+                let Some(Ok(msg)) = msg else { break };
                 let Message::Text(text) = msg else { continue };
                 match serde_json::from_str::<StationMessage>(&text) {
                     Ok(StationMessage::Input { trial_id, seq, position_mm }) if Some(trial_id) == running && position_mm.is_finite() && position_mm.abs() <= 1000.0 => {
@@ -351,26 +371,27 @@ async fn station_socket(s: AppState, station_id: i64, mut socket: WebSocket) {
             }
             ev = events.recv() => match ev {
                 Ok(ControllerEvent::Live(sample)) if Some(sample.trial_id as i64) == running => {
-                    let text = json!({ "type": "live", "sample": sample }).to_string();
-                    if socket.send(Message::Text(text.into())).await.is_err() { return; }
+                    // A live sample that cannot be queued is dropped, never waited for.
+                    let _ = out.try_send(json!({ "type": "live", "sample": sample }).to_string());
                 }
                 Ok(ControllerEvent::TrialChanged { .. } | ControllerEvent::Link { .. }) | Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {
                     running = current(s.clone()).await;
-                    if socket.send(Message::Text(json!({ "type": "changed" }).to_string().into())).await.is_err() { return; }
+                    if out.send(changed.clone()).await.is_err() { break; }
                 }
                 Ok(ControllerEvent::Live(_)) => {}
-                Err(_) => return,
+                Err(_) => break,
             },
             // A trial started by the experimenter: look again every half second.
             _ = tokio::time::sleep(std::time::Duration::from_millis(500)), if running.is_none() => {
                 let now = current(s.clone()).await;
                 if now != running {
                     running = now;
-                    if socket.send(Message::Text(json!({ "type": "changed" }).to_string().into())).await.is_err() { return; }
+                    if out.send(changed.clone()).await.is_err() { break; }
                 }
             }
         }
     }
+    writer.abort();
 }
 
 /// The dashboard's live feed: every live sample and every trial change. Same-origin only
