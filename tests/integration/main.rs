@@ -1,5 +1,6 @@
 //! End-to-end tests, one binary: each module drives real processes of the product.
 
+mod browser;
 mod controller_cli;
 mod controller_serve;
 mod server_api;

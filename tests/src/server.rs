@@ -123,6 +123,16 @@ impl Api {
         )
     }
 
+    /// The session cookie as a `Cookie:` header value (for raw-socket requests).
+    pub fn cookie_header(&self) -> String {
+        self.agent
+            .cookie_store()
+            .iter_any()
+            .map(|c| format!("{}={}", c.name(), c.value()))
+            .collect::<Vec<_>>()
+            .join("; ")
+    }
+
     /// Raw body of a GET (CSV downloads).
     pub fn get_text(&self, path: &str) -> (u16, String) {
         let req = self.agent.get(&format!("{}{path}", self.base));

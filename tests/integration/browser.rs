@@ -1,0 +1,221 @@
+//! The pages in a real browser (Debian's headless Chromium via chromedriver): a short study
+//! from the experimenter's login to the CSV download, with a subject at two stations.
+//! Screenshots of each page go to artifacts/screenshots/.
+
+use std::time::{Duration, Instant};
+
+use bdft_tests::TempDir;
+use bdft_tests::server::{ADMIN_PASSWORD, Server, eventually};
+use bdft_tests::webdriver::{Driver, Session, artifacts_dir};
+use serde_json::{Value, json};
+
+fn shot(s: &Session, name: &str) {
+    s.screenshot(&artifacts_dir().join(format!("{name}.png")));
+}
+
+/// Sets a <select>'s value and fires `change`, as a person choosing an option does.
+fn choose(s: &Session, css: &str, value: &str) {
+    s.find(css);
+    s.exec(
+        "const e = document.querySelector(arguments[0]); e.value = arguments[1]; e.dispatchEvent(new Event('change', { bubbles: true }));",
+        json!([css, value]),
+    );
+}
+
+fn wait_enabled(s: &Session, css: &str) {
+    s.wait_until(
+        "const b = document.querySelector(arguments[0]); return b && !b.disabled;",
+        json!([css]),
+    );
+}
+
+/// Scripted pointer movement over the tracking display for about `seconds`.
+fn track(s: &Session, seconds: f64) {
+    let steps = (seconds / 0.05) as usize;
+    let points: Vec<(i64, i64)> = (0..steps)
+        .map(|i| (0, (200.0 * (i as f64 * 0.15).sin()) as i64))
+        .collect();
+    s.pointer_path("#track", &points, 50);
+}
+
+#[test]
+fn a_short_study_runs_end_to_end_in_a_real_browser() {
+    let server = Server::start("browser");
+    let base = server.base.clone();
+    let api = server.experimenter();
+    let downloads = TempDir::new("downloads");
+    let driver = Driver::start();
+
+    // The experimenter logs in and creates a short study.
+    let dash = driver.session(downloads.path());
+    dash.goto(&format!("{base}/"));
+    dash.find("#login-username");
+    shot(&dash, "01-dashboard-login");
+    dash.type_into("#login-username", "admin");
+    dash.type_into("#login-password", ADMIN_PASSWORD);
+    dash.click("#login-submit");
+    dash.find("#estop");
+    dash.type_into("#study-name", "Browser study");
+    dash.type_into("#p-trial_s", "2");
+    dash.type_into("#p-practice_s", "1");
+    dash.type_into("#p-step_interval_s", "0.5");
+    dash.click("#study-create");
+    let study = eventually(Duration::from_secs(20), || {
+        api.get("/api/studies").1.as_array()?.first()?["id"].as_i64()
+    });
+    let (_, st) = api.get(&format!("/api/studies/{study}"));
+    assert_eq!(st["params"]["trial_s"], 2.0, "the form's values were used");
+    shot(&dash, "02-dashboard-study");
+
+    // Enrols a subject.
+    dash.click("#enrol");
+    dash.find("tr[data-subject-id]");
+    let subject = api.get(&format!("/api/studies/{study}/subjects")).1[0]["subject"]["id"]
+        .as_i64()
+        .unwrap();
+
+    // Two stations show pairing codes; the experimenter pairs them (desk and machine).
+    let desk = driver.session(downloads.path());
+    let machine = driver.session(downloads.path());
+    let mut station_ids = Vec::new();
+    for (page, name, role) in [(&desk, "Desk", "off"), (&machine, "Machine", "on")] {
+        page.goto(&format!("{base}/station"));
+        let code = page.text("#pairing-code");
+        assert!(code.trim().len() >= 6, "pairing code shown: {code:?}");
+        dash.type_into("#pair-code", code.trim());
+        dash.type_into("#pair-name", name);
+        choose(&dash, "#pair-role", role);
+        dash.click("#pair-submit");
+        let id = eventually(Duration::from_secs(20), || {
+            api.get(&format!("/api/studies/{study}/stations"))
+                .1
+                .as_array()?
+                .iter()
+                .find(|s| s["name"] == name)?["id"]
+                .as_i64()
+        });
+        station_ids.push(id);
+    }
+    shot(&desk, "03-station-pairing");
+    for id in &station_ids {
+        choose(
+            &dash,
+            &format!("select[data-assign-station='{id}']"),
+            &subject.to_string(),
+        );
+    }
+    let (desk_id, machine_id) = (station_ids[0], station_ids[1]);
+
+    // The subject consents at the desk and practises there.
+    desk.wait_phase("consent");
+    shot(&desk, "04-station-consent");
+    desk.click("#consent-agree");
+    desk.wait_phase("ready");
+    shot(&desk, "05-station-ready");
+    let start_desk = format!("button[data-action='start'][data-station-id='{desk_id}']");
+    wait_enabled(&dash, &start_desk);
+    dash.click(&start_desk);
+    desk.wait_phase("running");
+    shot(&desk, "06-station-practice");
+    // The first test is on the machine: the desk says where to go.
+    desk.wait_phase("move");
+    assert!(
+        desk.text("#move-to").to_lowercase().contains("machine"),
+        "{}",
+        desk.text("#move-to")
+    );
+    shot(&desk, "07-station-move");
+
+    // A test on the machine with scripted pointer movement.
+    machine.wait_phase("ready");
+    assert!(
+        machine.text("#ready-label").starts_with("Controller "),
+        "blinded label"
+    );
+    let start_machine = format!("button[data-action='start'][data-station-id='{machine_id}']");
+    wait_enabled(&dash, &start_machine);
+    dash.click(&start_machine);
+    machine.wait_phase("running");
+    shot(&dash, "08-dashboard-live-monitor");
+    let began = Instant::now();
+    track(&machine, 1.0);
+    shot(&machine, "09-station-test");
+    assert!(began.elapsed() < Duration::from_secs(60));
+
+    // The survey: a missing rating is refused next to its field, then fixed.
+    machine.wait_phase("survey");
+    shot(&machine, "10-station-survey");
+    for (item, v) in [("speed", 4), ("smoothness", 3), ("controllability", 6)] {
+        machine.click(&format!("input[name='{item}'][value='{v}']"));
+    }
+    machine.type_into("#comment", "felt a bit sluggish");
+    machine.click("#survey-submit");
+    let err = machine.wait_until(
+        "const e = document.querySelector('.field-error[data-field=\"accuracy\"]'); return e && e.textContent.trim();",
+        json!([]),
+    );
+    assert!(
+        err.as_str().unwrap().len() > 3,
+        "an error next to the field: {err}"
+    );
+    shot(&machine, "11-station-survey-error");
+    machine.click("input[name='accuracy'][value='5']");
+    machine.click("#survey-submit");
+    machine.wait_phase("ready");
+
+    // The dashboard shows the completed tests and a box plot.
+    dash.click(&format!("tr[data-subject-id='{subject}']"));
+    dash.wait_until("const s = document.querySelector('#schedule'); return s && s.innerText.includes('complete');", json!([]));
+    dash.wait_until(
+        "const i = document.querySelector('img[src*=\"mse_tracking_mm2.svg\"]'); return i && i.complete && i.naturalWidth > 0;",
+        json!([]),
+    );
+    shot(&dash, "12-dashboard-results");
+
+    // The trials CSV downloads with the right rows.
+    dash.click("a#download-trials");
+    let csv = eventually(Duration::from_secs(30), || {
+        let entry = std::fs::read_dir(downloads.path())
+            .ok()?
+            .filter_map(Result::ok)
+            .find(|e| e.path().extension().is_some_and(|x| x == "csv"))?;
+        std::fs::read_to_string(entry.path())
+            .ok()
+            .filter(|t| t.lines().count() > 1)
+    });
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |n: &str| header.iter().position(|h| *h == n).unwrap();
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 11, "practice + 10 tests");
+    let done: Vec<&Vec<&str>> = rows
+        .iter()
+        .filter(|r| r[col("status")] == "complete")
+        .collect();
+    assert_eq!(done.len(), 2);
+    assert_eq!(done[0][col("practice")], "1");
+    assert_eq!(done[1][col("station")], "on");
+    assert_eq!(done[1][col("rating_accuracy")], "5");
+    assert_eq!(done[1][col("rating_controllability")], "6");
+    assert_eq!(done[1][col("comment")], "felt a bit sluggish");
+
+    // A subject's page that tries the dashboard's data is refused.
+    machine.goto(&format!("{base}/api/studies"));
+    assert!(
+        machine.body_text().contains("log in"),
+        "{}",
+        machine.body_text()
+    );
+    machine.goto(&format!("{base}/"));
+    machine.find("#login-username");
+    assert!(!machine.body_text().contains("Browser study"));
+    shot(&machine, "13-subject-refused");
+    let (_, audit) = api.get("/api/audit?limit=500");
+    let actions: Vec<Value> = audit
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a["action"].clone())
+        .collect();
+    assert!(actions.contains(&json!("trial.start")));
+}

@@ -1,0 +1,223 @@
+// Results of the selected study: box plots rendered by the server, the table of averages per
+// controller × station, key comparisons, and the CSV exports.
+
+import { S, CONTROLLER_NAME, controllerName, debounce, el, errText, get, num, on, setStatus } from './dashboard-core.js';
+import * as downloads from './dashboard-download.js';
+
+const $ = (id) => document.getElementById(id);
+
+export const VARIABLES = [
+  ['mse_tracking_mm2', 'Tracking error: mean square (mm²)', 'Tracking MSE (mm²)'],
+  ['ms_cab_accel', 'Cab acceleration: mean square ((mm/s²)²)', 'Cab accel MS ((mm/s²)²)'],
+  ['rating_accuracy', 'Rating: accuracy', 'Accuracy'],
+  ['rating_speed', 'Rating: speed of response', 'Speed'],
+  ['rating_smoothness', 'Rating: smoothness', 'Smoothness'],
+  ['rating_controllability', 'Rating: overall controllability', 'Controllability'],
+];
+
+const STATIONS = ['on', 'off'];
+const TWINS = [
+  ['pid-notch', 'pid'],
+  ['pid-shaper', 'pid'],
+  ['lqr-cabvel', 'lqr'],
+  ['lqr-cabacc', 'lqr'],
+];
+
+let lastSummary = '';
+let stamp = Date.now();
+
+export function init() {
+  downloads.init();
+  $('results-refresh').addEventListener('click', () => refresh(true));
+  const later = debounce(() => refresh(false), 3000);
+  on('trial', later);
+  on('subjects', later);
+  on('study', () => {
+    lastSummary = '';
+    stamp = Date.now();
+    setLinks();
+    $('averages').replaceChildren();
+    $('comparisons').replaceChildren();
+    $('plots').replaceChildren();
+    refresh(true);
+  });
+  on('study-updated', () => refresh(false));
+}
+
+function setLinks() {
+  const id = S.studyId;
+  for (const kind of ['trials', 'samples', 'summary']) {
+    const a = $(`download-${kind}`);
+    if (id) {
+      a.href = `/api/studies/${id}/export/${kind}`;
+      a.setAttribute('download', `bdft-study${id}-${kind}.csv`);
+      a.removeAttribute('aria-disabled');
+    } else {
+      a.href = '#';
+      a.setAttribute('aria-disabled', 'true');
+    }
+    a.dataset.progressDownload = '';
+    a.dataset.label = `${kind}.csv`;
+  }
+}
+
+/** Reloads the summary; the plots are reloaded when the numbers changed (or `force`). */
+export async function refresh(force) {
+  const id = S.studyId;
+  setLinks();
+  if (!id) {
+    $('averages').replaceChildren(el('tbody', {}, el('tr', {}, el('td', { class: 'muted' }, 'Select or create a study first.'))));
+    return;
+  }
+  const r = await get(`/api/studies/${id}/summary`);
+  if (id !== S.studyId) return;
+  if (!r.ok) {
+    $('averages').replaceChildren(el('tbody', {}, el('tr', {}, el('td', { class: 'status err' }, `Could not load the summary: ${errText(r)}`))));
+    return;
+  }
+  const json = JSON.stringify(r.data);
+  const changed = json !== lastSummary;
+  lastSummary = json;
+  if (changed || force) {
+    renderAverages(r.data);
+    renderComparisons(r.data);
+    stamp = Date.now();
+    renderPlots();
+  }
+}
+
+function controllerOrder(stats) {
+  const fromStudy = S.study && Array.isArray(S.study.params.controllers) ? S.study.params.controllers.map((c) => c.kind) : [];
+  const seen = [...new Set(stats.map((s) => s.controller))];
+  return [...fromStudy, ...seen.filter((c) => !fromStudy.includes(c))];
+}
+
+function renderAverages(stats) {
+  const t = $('averages');
+  const find = (c, s, v) => stats.find((x) => x.controller === c && x.station === s && x.variable === v);
+  const head = el(
+    'thead',
+    {},
+    el(
+      'tr',
+      {},
+      el('th', { rowspan: 2 }, 'Controller'),
+      el('th', { rowspan: 2 }, 'Station'),
+      el('th', { colspan: 2, class: 'group' }, 'Metrics (lower is better)'),
+      el('th', { colspan: 4, class: 'group' }, `Ratings 1–${(S.study && S.study.params.survey.scale_points) || '?'} (higher is better)`),
+    ),
+    el('tr', {}, ...VARIABLES.map(([v, label, short]) => el('th', { title: `${label} — ${v}` }, short))),
+  );
+  const body = el('tbody');
+  if (!stats.length) {
+    body.append(el('tr', {}, el('td', { colspan: 2 + VARIABLES.length, class: 'muted' }, 'No completed test yet.')));
+  }
+  for (const c of stats.length ? controllerOrder(stats) : []) {
+    for (const s of STATIONS) {
+      const cells = VARIABLES.map(([v]) => {
+        const x = find(c, s, v);
+        if (!x) return el('td', { class: 'muted' }, '—');
+        return el(
+          'td',
+          {
+            'data-variable': v,
+            title: `n ${x.n} · mean ${x.mean} · median ${x.median} · q1 ${x.q1} · q3 ${x.q3} · min ${x.min} · max ${x.max}`,
+          },
+          num(x.mean),
+          el('span', { class: 'n' }, ` n=${x.n}`),
+        );
+      });
+      body.append(
+        el(
+          'tr',
+          { 'data-controller': c, 'data-station': s, class: `station-${s}` },
+          el('th', { scope: 'row', class: 'nowrap', title: c }, CONTROLLER_NAME[c] || c),
+          el('td', { class: 'nowrap' }, s === 'on' ? 'on machine' : 'off (desk)'),
+          ...cells,
+        ),
+      );
+    }
+  }
+  t.replaceChildren(el('caption', {}, 'Mean and number of completed tests (hover a cell for median, quartiles, range)'), head, body);
+}
+
+function renderComparisons(stats) {
+  const mean = (c, v) => {
+    const x = stats.find((s) => s.controller === c && s.station === 'on' && s.variable === v);
+    return x ? x : null;
+  };
+  const rows = [];
+  for (const [comp, twin] of TWINS) {
+    for (const v of ['mse_tracking_mm2', 'ms_cab_accel']) {
+      const a = mean(comp, v);
+      const b = mean(twin, v);
+      if (!a || !b) continue;
+      const change = b.mean !== 0 ? ((a.mean - b.mean) / b.mean) * 100 : NaN;
+      rows.push(
+        el(
+          'tr',
+          {},
+          el('td', {}, `${controllerName(comp)} vs ${controllerName(twin)}`),
+          el('td', {}, v === 'mse_tracking_mm2' ? 'tracking MSE (mm²)' : 'cab accel MS ((mm/s²)²)'),
+          el('td', { class: 'num' }, `${num(a.mean)} (n=${a.n})`),
+          el('td', { class: 'num' }, `${num(b.mean)} (n=${b.n})`),
+          el('td', { class: `num ${change < 0 ? 'better' : change > 0 ? 'worse' : ''}` }, Number.isFinite(change) ? `${change > 0 ? '+' : ''}${change.toFixed(1)} %` : '—'),
+        ),
+      );
+    }
+  }
+  $('comparisons').replaceChildren(
+    rows.length
+      ? el(
+          'table',
+          { class: 'grid numeric' },
+          el('thead', {}, el('tr', {}, ...['Comparison (on the machine)', 'Metric', 'Compensated', 'Uncompensated twin', 'Change'].map((h) => el('th', {}, h)))),
+          el('tbody', {}, ...rows),
+        )
+      : el('p', { class: 'muted' }, 'Needs completed tests on the machine of a compensated controller and its twin.'),
+  );
+}
+
+function renderPlots() {
+  const id = S.studyId;
+  const box = $('plots');
+  box.replaceChildren(
+    ...VARIABLES.map(([v, label]) => {
+      const base = `/api/studies/${id}/plots/${v}`;
+      const status = el('p', { class: 'plot-missing', hidden: true });
+      const img = el('img', { src: `${base}.svg?v=${stamp}`, alt: `Box plot: ${label}, per controller and station`, 'data-variable': v });
+      img.addEventListener('error', async () => {
+        img.hidden = true;
+        status.hidden = false;
+        setStatus(status, 'info', 'No plot yet…');
+        const r = await get(`${base}.svg`);
+        setStatus(
+          status,
+          r.status === 404 ? 'info' : 'err',
+          r.status === 404
+            ? `No plot (HTTP 404: ${(r.data && r.data.error) || 'not found'}). It appears once tests are complete and the server draws plots.`
+            : `The plot could not be loaded: ${errText(r)}`,
+        );
+      });
+      img.addEventListener('load', () => {
+        img.hidden = false;
+        status.hidden = true;
+      });
+      return el(
+        'figure',
+        { class: 'plot', 'data-variable': v },
+        el('figcaption', {}, label),
+        img,
+        status,
+        el(
+          'div',
+          { class: 'plot-links' },
+          'Download: ',
+          el('a', { href: `${base}.svg`, download: `study${id}-${v}.svg`, 'data-progress-download': '', 'data-label': `${v}.svg` }, 'SVG'),
+          ' · ',
+          el('a', { href: `${base}.png`, download: `study${id}-${v}.png`, 'data-progress-download': '', 'data-label': `${v}.png` }, 'PNG'),
+        ),
+      );
+    }),
+  );
+}

@@ -1,0 +1,402 @@
+// Studies: the selector in the top bar, and the parameter form (create, edit until locked,
+// read-only with its protocol hash once locked).
+
+import { S, act, el, emit, get, send, setStatus, when, controllerName } from './dashboard-core.js';
+
+const $ = (id) => document.getElementById(id);
+
+/** Form fields and where they live in StudyParams. `int` fields must be whole numbers. */
+const FIELDS = [
+  { id: 'p-trial_s', path: ['trial_s'] },
+  { id: 'p-practice_s', path: ['practice_s'] },
+  { id: 'p-step_interval_s', path: ['step_interval_s'] },
+  { id: 'p-target_range_mm', path: ['target_range_mm'] },
+  { id: 'p-target_std_mm', path: ['target_std_mm'] },
+  { id: 'p-k_bf', path: ['k_bf'] },
+  { id: 'p-survey_scale_points', path: ['survey', 'scale_points'], int: true },
+  { id: 'p-display_shake_gain', path: ['display_shake_gain'] },
+  { id: 'p-rig', path: ['rig'], text: true },
+];
+
+/** What the form holds: 'draft' (a study not yet created) or 'study' (the selected one). */
+let mode = 'draft';
+let defaults = null;
+
+const STORE_KEY = 'bdft.dashboard.study';
+
+export function init() {
+  $('study-select').addEventListener('change', () => {
+    const id = Number($('study-select').value);
+    if (id) select(id);
+  });
+  $('studies').addEventListener('click', (e) => {
+    const b = e.target.closest('button[data-select-study]');
+    if (b) select(Number(b.dataset.selectStudy));
+  });
+  $('study-create').addEventListener('click', create);
+  $('study-save').addEventListener('click', save);
+  $('study-new').addEventListener('click', newFromDefaults);
+  $('study-copy').addEventListener('click', copyToDraft);
+  $('study-form').addEventListener('submit', (e) => e.preventDefault());
+  $('p-json').addEventListener('input', () => setStatus($('p-json-error'), 'err', ''));
+}
+
+async function loadDefaults() {
+  if (defaults) return defaults;
+  const r = await get('/api/defaults');
+  if (!r.ok) {
+    setStatus($('study-status'), 'err', `Could not load the default parameters: ${r.data && r.data.error}`);
+    return null;
+  }
+  defaults = r.data;
+  return defaults;
+}
+
+/** Reloads the list of studies and keeps (or makes) a selection. */
+export async function loadStudies(selectId) {
+  const r = await get('/api/studies');
+  if (!r.ok) {
+    setStatus($('study-status'), 'err', `Could not list the studies: ${r.data && r.data.error}`);
+    return;
+  }
+  S.studies = r.data;
+  fillSelect();
+  let id = selectId ?? S.studyId ?? Number(localStorage.getItem(STORE_KEY));
+  if (!S.studies.some((s) => s.id === id)) id = S.studies.length ? S.studies[S.studies.length - 1].id : null;
+  $('no-study').hidden = S.studies.length > 0;
+  if (id) await select(id);
+  else {
+    S.studyId = null;
+    S.study = null;
+    await newFromDefaults();
+    emit('study', null);
+  }
+}
+
+function fillSelect() {
+  fillTable();
+  const sel = $('study-select');
+  if (!S.studies.length) {
+    sel.replaceChildren(el('option', { value: '' }, 'no study yet'));
+    sel.disabled = true;
+    return;
+  }
+  sel.disabled = false;
+  sel.replaceChildren(
+    ...S.studies.map((s) =>
+      el('option', { value: s.id }, `#${s.id} ${s.name}${s.locked_at ? ' — locked' : ' — not locked'}`),
+    ),
+  );
+  if (S.studyId) sel.value = String(S.studyId);
+}
+
+/** Every study, the selected one marked; a row's button selects it. */
+function fillTable() {
+  const tbody = $('studies').tBodies[0];
+  if (!S.studies.length) {
+    tbody.replaceChildren(el('tr', {}, el('td', { colspan: 6, class: 'muted' }, 'No study yet: fill in the form below and press “Create new study”.')));
+    return;
+  }
+  tbody.replaceChildren(
+    ...S.studies.map((st) =>
+      el(
+        'tr',
+        { 'data-study-id': st.id, class: st.id === S.studyId ? 'selected' : '' },
+        el('td', { class: 'num' }, st.id),
+        el('td', {}, st.name),
+        el('td', { class: 'nowrap' }, when(st.created_at)),
+        el(
+          'td',
+          {},
+          st.locked_at
+            ? [`locked ${when(st.locked_at)} · `, el('code', { title: st.protocol_hash }, `${(st.protocol_hash || '').slice(0, 12)}…`)]
+            : el('span', { class: 'muted' }, 'not locked (editable)'),
+        ),
+        el('td', { class: 'num' }, String(st.seed)),
+        el(
+          'td',
+          {},
+          st.id === S.studyId
+            ? el('span', { class: 'tag next' }, 'selected')
+            : el('button', { type: 'button', class: 'small', 'data-select-study': st.id }, 'Select'),
+        ),
+      ),
+    ),
+  );
+}
+
+/** Selects a study for every view. */
+export async function select(id) {
+  const r = await get(`/api/studies/${id}`);
+  if (!r.ok) {
+    setStatus($('study-status'), 'err', `Could not load study #${id}: ${r.data && r.data.error}`);
+    return;
+  }
+  adopt(r.data);
+}
+
+/** Makes `st` (a study as the API returns it) the selected study. */
+function adopt(st) {
+  const changed = S.studyId !== st.id;
+  S.studyId = st.id;
+  S.study = st;
+  const i = S.studies.findIndex((s) => s.id === st.id);
+  if (i >= 0) S.studies[i] = st;
+  else S.studies.push(st);
+  fillSelect();
+  $('study-select').value = String(st.id);
+  $('no-study').hidden = true;
+  localStorage.setItem(STORE_KEY, String(st.id));
+  showStudy(st);
+  if (changed) emit('study', st);
+}
+
+/** Re-reads the selected study (after enrolment locked it, for one). */
+export async function reloadSelected() {
+  if (!S.studyId) return;
+  const r = await get(`/api/studies/${S.studyId}`);
+  if (!r.ok) return;
+  const wasLocked = !!(S.study && S.study.locked_at);
+  S.study = r.data;
+  const i = S.studies.findIndex((s) => s.id === r.data.id);
+  if (i >= 0) S.studies[i] = r.data;
+  fillSelect();
+  if (mode === 'study' && wasLocked !== !!r.data.locked_at) showStudy(r.data);
+}
+
+// ---- the form -----------------------------------------------------------------------------
+
+function getPath(obj, path) {
+  return path.reduce((o, k) => (o == null ? undefined : o[k]), obj);
+}
+
+function setPath(obj, path, v) {
+  let o = obj;
+  for (const k of path.slice(0, -1)) {
+    if (typeof o[k] !== 'object' || o[k] === null) o[k] = {};
+    o = o[k];
+  }
+  o[path[path.length - 1]] = v;
+}
+
+function deletePath(obj, path) {
+  let o = obj;
+  for (const k of path.slice(0, -1)) {
+    if (typeof o[k] !== 'object' || o[k] === null) return;
+    o = o[k];
+  }
+  delete o[path[path.length - 1]];
+}
+
+/** Fills the form: the named fields, and the rest of the parameters as JSON. */
+function fillForm(params) {
+  for (const f of FIELDS) {
+    const v = getPath(params, f.path);
+    $(f.id).value = v === undefined || v === null ? '' : String(v);
+    $(f.id).classList.remove('invalid');
+  }
+  const rest = structuredClone(params);
+  for (const f of FIELDS) deletePath(rest, f.path);
+  $('p-json').value = JSON.stringify(rest, null, 2);
+  setStatus($('p-json-error'), 'err', '');
+  const ctl = Array.isArray(params.controllers) ? params.controllers.map((c) => controllerName(c.kind)) : [];
+  $('p-controllers').textContent =
+    `Controllers compared (${ctl.length}): ${ctl.join(', ')} · practice: ${controllerName(params.practice_controller)} ` +
+    `· stations: ${(params.stations || []).join(', ')} · consent form v${params.consent && params.consent.version} — edit these in Advanced.`;
+}
+
+function setReadOnly(ro) {
+  for (const f of FIELDS) {
+    const n = $(f.id);
+    if (n.tagName === 'SELECT') n.disabled = ro;
+    else n.readOnly = ro;
+  }
+  $('p-json').readOnly = ro;
+  $('p-seed').readOnly = ro;
+  $('study-form').classList.toggle('locked', ro);
+}
+
+function showHash(hash) {
+  $('protocol-hash').textContent = hash || '';
+  $('protocol-hash').hidden = !hash;
+  $('protocol-hash-none').hidden = !!hash;
+}
+
+function showStudy(st) {
+  mode = 'study';
+  fillForm(st.params);
+  const locked = !!st.locked_at;
+  setReadOnly(locked);
+  $('p-seed').value = String(st.seed);
+  $('p-seed').readOnly = true;
+  showHash(st.protocol_hash);
+  const m = $('study-mode');
+  m.className = `mode ${locked ? 'locked' : 'editing'}`;
+  if (locked) {
+    m.textContent =
+      `Study #${st.id} “${st.name}” is LOCKED since ${when(st.locked_at)} (a subject was enrolled): its parameters are read-only. ` +
+      'To vary them, type a name and create a new study from these parameters, or copy them into a new draft.';
+    $('study-name').value = '';
+    $('study-name').placeholder = 'name of a new study with these parameters';
+  } else {
+    m.textContent =
+      `Editing study #${st.id} “${st.name}” (seed ${st.seed}), created ${when(st.created_at)}. ` +
+      'Editable until the first subject is enrolled. “Create new study” makes a new study from the form instead.';
+    $('study-name').value = st.name;
+    $('study-name').placeholder = '';
+  }
+  $('study-save').disabled = locked;
+  $('study-save').textContent = `Save changes to study #${st.id}`;
+  $('study-copy').disabled = false;
+}
+
+async function showDraft(params, name, why) {
+  mode = 'draft';
+  fillForm(params);
+  setReadOnly(false);
+  $('p-seed').value = '';
+  showHash(null);
+  $('study-name').value = name;
+  $('study-name').placeholder = 'name of the new study';
+  const m = $('study-mode');
+  m.className = 'mode draft';
+  m.textContent = `New study (draft, not created yet): ${why}. Nothing is saved until you press “Create new study”.`;
+  $('study-save').disabled = true;
+  $('study-save').textContent = 'Save changes';
+  $('study-copy').disabled = true;
+}
+
+async function newFromDefaults() {
+  const d = await loadDefaults();
+  if (!d) return;
+  await showDraft(d, '', 'parameters of the published protocol');
+  setStatus($('study-status'), 'info', 'The form holds the default parameters.');
+}
+
+function copyToDraft() {
+  if (!S.study) return;
+  showDraft(S.study.params, `${S.study.name} (copy)`, `copied from study #${S.study.id}`);
+  setStatus($('study-status'), 'info', `The form holds a copy of study #${S.study.id}'s parameters.`);
+}
+
+/** The parameters in the form: the JSON, then the fields over it. Null (and errors shown) if invalid. */
+function readParams() {
+  let params;
+  try {
+    params = JSON.parse($('p-json').value || '{}');
+  } catch (e) {
+    $('p-advanced').open = true;
+    setStatus($('p-json-error'), 'err', `The advanced JSON is not valid JSON: ${e.message}`);
+    return null;
+  }
+  if (typeof params !== 'object' || params === null || Array.isArray(params)) {
+    $('p-advanced').open = true;
+    setStatus($('p-json-error'), 'err', 'The advanced JSON must be an object {…}.');
+    return null;
+  }
+  const overridden = [];
+  const bad = [];
+  for (const f of FIELDS) {
+    const n = $(f.id);
+    n.classList.remove('invalid');
+    if (getPath(params, f.path) !== undefined) overridden.push(f.path.join('.'));
+    if (f.text) {
+      setPath(params, f.path, n.value);
+      continue;
+    }
+    const v = Number(n.value);
+    if (n.value.trim() === '' || !Number.isFinite(v) || (f.int && !Number.isInteger(v))) {
+      n.classList.add('invalid');
+      bad.push(`${f.path.join('.')}: ${f.int ? 'a whole number' : 'a number'} is required`);
+      continue;
+    }
+    setPath(params, f.path, v);
+  }
+  if (bad.length) {
+    setStatus($('study-status'), 'err', bad.join('; '));
+    return null;
+  }
+  lastOverridden = overridden;
+  setStatus($('p-json-error'), 'info', overridden.length ? ignoredText() : '');
+  return params;
+}
+
+/** Keys of the advanced JSON that the form's fields replaced in the last read. */
+let lastOverridden = [];
+
+function ignoredText() {
+  return lastOverridden.length ? `ignored in the JSON, the form's fields win: ${lastOverridden.join(', ')}` : '';
+}
+
+/** Marks the field an error message names (e.g. "trial_s: …"). */
+function markField(message) {
+  for (const f of FIELDS) {
+    const key = f.path.join('.');
+    if (message.includes(key) || message.includes(f.path[f.path.length - 1])) {
+      $(f.id).classList.add('invalid');
+    }
+  }
+}
+
+async function create() {
+  const name = $('study-name').value.trim();
+  if (!name) {
+    $('study-name').classList.add('invalid');
+    setStatus($('study-status'), 'err', 'Type a name for the new study.');
+    $('study-name').focus();
+    return;
+  }
+  $('study-name').classList.remove('invalid');
+  const params = readParams();
+  if (!params) return;
+  const body = { name, params };
+  const seedText = mode === 'draft' ? $('p-seed').value.trim() : '';
+  if (seedText) {
+    const seed = Number(seedText);
+    if (!Number.isSafeInteger(seed) || seed < 0) {
+      setStatus($('study-status'), 'err', 'seed: a whole number from 0 to 2^53 − 1, or empty for a random seed');
+      return;
+    }
+    body.seed = seed;
+  }
+  const btn = $('study-create');
+  btn.disabled = true;
+  const r = await act('Create study', $('study-status'), () => send('POST', '/api/studies', body), (d) =>
+    `study #${d.id} “${d.name}” created (seed ${d.seed}) and selected${lastOverridden.length ? ` (${ignoredText()})` : ''}`,
+  );
+  btn.disabled = false;
+  // The answer is the new study: select it at once (every view follows).
+  if (r.ok) adopt(r.data);
+  else markField(r.data && r.data.error ? r.data.error : '');
+}
+
+async function save() {
+  if (mode !== 'study' || !S.study) return;
+  const name = $('study-name').value.trim();
+  if (!name) {
+    $('study-name').classList.add('invalid');
+    setStatus($('study-status'), 'err', 'The study needs a name.');
+    return;
+  }
+  const params = readParams();
+  if (!params) return;
+  const id = S.study.id;
+  const btn = $('study-save');
+  btn.disabled = true;
+  const r = await act(`Save study #${id}`, $('study-status'), () => send('PUT', `/api/studies/${id}`, { name, params }), () =>
+    `saved${lastOverridden.length ? ` (${ignoredText()})` : ''}`,
+  );
+  btn.disabled = false;
+  if (r.ok) {
+    S.study = r.data;
+    const i = S.studies.findIndex((s) => s.id === id);
+    if (i >= 0) S.studies[i] = r.data;
+    fillSelect();
+    showStudy(r.data);
+    emit('study-updated', r.data);
+  } else {
+    markField(r.data && r.data.error ? r.data.error : '');
+    if (r.status === 409) reloadSelected().then(() => S.study && showStudy(S.study));
+  }
+}
+
