@@ -38,15 +38,22 @@ pub fn now_ms() -> i64 {
         .map_or(0, |d| d.as_millis() as i64)
 }
 
-/// RFC 3339 UTC text of a time column (for exports and the API).
+/// RFC 3339 UTC text of a time column, always with milliseconds (so the text sorts as the
+/// time does): `2026-11-22T07:03:24.650Z`.
 pub fn rfc3339(ms: i64) -> String {
-    time::OffsetDateTime::from_unix_timestamp_nanos(i128::from(ms) * 1_000_000)
-        .ok()
-        .and_then(|t| {
-            t.format(&time::format_description::well_known::Rfc3339)
-                .ok()
-        })
-        .unwrap_or_default()
+    match time::OffsetDateTime::from_unix_timestamp_nanos(i128::from(ms) * 1_000_000) {
+        Ok(t) => format!(
+            "{:04}-{:02}-{:02}T{:02}:{:02}:{:02}.{:03}Z",
+            t.year(),
+            u8::from(t.month()),
+            t.day(),
+            t.hour(),
+            t.minute(),
+            t.second(),
+            t.millisecond()
+        ),
+        Err(_) => String::new(),
+    }
 }
 
 /// 32 random bytes as hex: session, station and subject tokens, pairing secrets.
@@ -71,4 +78,18 @@ pub fn token_hash(token: &str) -> String {
         .iter()
         .map(|b| format!("{b:02x}"))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn times_have_fixed_width_and_sort_as_text() {
+        assert_eq!(super::rfc3339(0), "1970-01-01T00:00:00.000Z");
+        // Unix time 10⁹ s is 2001-09-09T01:46:40Z.
+        assert_eq!(
+            super::rfc3339(1_000_000_000_700),
+            "2001-09-09T01:46:40.700Z"
+        );
+        assert!(super::rfc3339(1_000_000_000_700) < super::rfc3339(1_000_000_000_746));
+    }
 }

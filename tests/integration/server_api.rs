@@ -634,7 +634,12 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
                 get(r, "rating_accuracy").is_empty() && get(r, "comment").is_empty(),
                 "pilot surveys stay empty"
             );
-            assert!(get(r, "started_at") <= get(r, "finished_at"));
+            assert!(
+                get(r, "started_at") <= get(r, "finished_at"),
+                "{} > {}",
+                get(r, "started_at"),
+                get(r, "finished_at")
+            );
         }
         assert_eq!(
             mine[1..6]
