@@ -105,6 +105,7 @@ function connect() {
     if (m.type === 'live' && m.sample) addSample(m.sample);
     else if (m.type === 'trial') onTrialChanged(m.trial_id);
     else if (m.type === 'controller') emit('live-controller', !!m.connected);
+    else if (m.type === 'estop') emit('live-estop', !!m.latched);
   };
   ws.onclose = () => {
     socket = null;

@@ -131,6 +131,14 @@ async function refreshEstopHistory() {
   box.classList.toggle('alarm', !resetAfter);
 }
 
+/** The controller's e-stop latch, as the server last heard it. */
+function showLatch(latched) {
+  const box = $('estop-latch');
+  if (!box) return;
+  box.textContent = latched ? 'E-STOP LATCHED: valves held at zero until reset.' : 'E-stop not latched.';
+  box.classList.toggle('alarm', latched);
+}
+
 function showController() {
   const c = S.controller;
   const pill = $('controller-state');
@@ -154,6 +162,7 @@ async function refreshController() {
     const was = S.controller.connected;
     S.controller = { connected: !!r.data.connected, pid: r.data.pid, rig: r.data.rig };
     showController();
+    showLatch(!!r.data.estop_latched);
     if (was !== S.controller.connected) emit('controller', S.controller);
   } else if (r.status !== 401) {
     S.controller = { connected: null, pid: null, rig: null };
@@ -195,6 +204,10 @@ on('controller', (c) => {
     S.controller.connected = c.connected;
     showController();
   }
+});
+on('live-estop', (latched) => {
+  showLatch(latched);
+  refreshEstopHistory();
 });
 on('live-controller', (connected) => {
   S.controller.connected = connected;

@@ -435,7 +435,14 @@ pub async fn start(s: &AppState, trial: &Trial) -> Result<(), AppError> {
             trial.id, subject.code
         )));
     }
-    if let Some(pending) = crate::station::pending_survey(&s.pool, subject.id).await? {
+    // A synthetic subject's surveys may be answered (to try the pages) but never hold up a
+    // dry run; a person's must be answered before the next test.
+    let pending = if subject.synthetic {
+        None
+    } else {
+        crate::station::pending_survey(&s.pool, subject.id).await?
+    };
+    if let Some(pending) = pending {
         return Err(AppError::Conflict(format!(
             "the survey of trial {} is still to be answered",
             pending.id
@@ -650,13 +657,15 @@ async fn estop_reset(State(s): State<AppState>, who: Experimenter) -> ApiResult<
     s.controller
         .send(&ServerToController::ResetEStop)
         .map_err(AppError::Unavailable)?;
+    // The controller's status confirms the cleared latch.
+    let _ = s.controller.send(&ServerToController::Status);
     audit(&s, &who, "estop.reset", "controller".into(), json!({})).await?;
     Ok(AppJson(json!({ "ok": true })))
 }
 
 async fn controller_status(State(s): State<AppState>, _who: Experimenter) -> AppJson<Value> {
     AppJson(
-        json!({ "connected": s.controller.is_connected(), "pid": s.controller.pid(), "rig": s.controller.rig() }),
+        json!({ "connected": s.controller.is_connected(), "pid": s.controller.pid(), "rig": s.controller.rig(), "estop_latched": s.controller.estop_latched() }),
     )
 }
 

@@ -44,6 +44,10 @@ pub enum ControllerEvent {
     Link {
         connected: bool,
     },
+    /// The e-stop latch was set or cleared.
+    EStop {
+        latched: bool,
+    },
 }
 
 #[derive(Clone, Debug)]
@@ -61,6 +65,8 @@ struct Inner {
     pid: Mutex<Option<u32>>,
     /// The connected controller's rig: "sim" or "udp".
     rig: Mutex<Option<String>>,
+    /// Whether the controller's e-stop is latched (as it last told us).
+    estop: std::sync::atomic::AtomicBool,
 }
 
 /// Samples per trial kept while its record arrives, channel by channel.
@@ -79,10 +85,26 @@ impl ControllerLink {
                 pending: Mutex::new(HashMap::new()),
                 pid: Mutex::new(None),
                 rig: Mutex::new(None),
+                estop: std::sync::atomic::AtomicBool::new(false),
             }),
         };
         tokio::spawn(supervise(link.clone(), pool, source));
         link
+    }
+
+    pub fn estop_latched(&self) -> bool {
+        self.inner.estop.load(std::sync::atomic::Ordering::SeqCst)
+    }
+
+    fn set_estop(&self, latched: bool) {
+        if self
+            .inner
+            .estop
+            .swap(latched, std::sync::atomic::Ordering::SeqCst)
+            != latched
+        {
+            self.emit(ControllerEvent::EStop { latched });
+        }
     }
 
     /// The rig of the connected controller ("sim" or "udp").
@@ -317,6 +339,10 @@ async fn connection(link: &ControllerLink, pool: &SqlitePool, stream: TcpStream)
         }) => {
             tracing::info!(controller, rig, lockstep, "controller connected");
             *link.inner.rig.lock().unwrap_or_else(|p| p.into_inner()) = Some(rig);
+            // Learn the latch state of this controller (a fresh one has none).
+            let _ = wr
+                .write_all(&framing::encode(&ServerToController::Status))
+                .await;
         }
         Ok(other) => return format!("unexpected answer to hello: {other:?}"),
         Err(e) => return e,
@@ -406,10 +432,15 @@ async fn handle(
             trial_id,
             kind,
             message,
-        } => tracing::warn!(?trial_id, ?kind, message, "controller fault"),
+        } => {
+            if trial_id.is_none() && kind == bdft_protocol::trial::FaultKind::EStop {
+                link.set_estop(true);
+            }
+            tracing::warn!(?trial_id, ?kind, message, "controller fault")
+        }
+        ControllerToServer::Status(st) => link.set_estop(st.estop_latched),
         ControllerToServer::Heartbeat { .. }
         | ControllerToServer::HelloAck { .. }
-        | ControllerToServer::Status(_)
         | ControllerToServer::Stepped { .. } => {}
     }
 }

@@ -374,7 +374,7 @@ async fn station_socket(s: AppState, station_id: i64, socket: WebSocket) {
                     // A live sample that cannot be queued is dropped, never waited for.
                     let _ = out.try_send(json!({ "type": "live", "sample": sample }).to_string());
                 }
-                Ok(ControllerEvent::TrialChanged { .. } | ControllerEvent::Link { .. }) | Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {
+                Ok(ControllerEvent::TrialChanged { .. } | ControllerEvent::Link { .. } | ControllerEvent::EStop { .. }) | Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {
                     running = current(s.clone()).await;
                     if out.send(changed.clone()).await.is_err() { break; }
                 }
@@ -419,6 +419,9 @@ async fn live_ws(
                 }
                 Ok(ControllerEvent::Link { connected }) => {
                     json!({ "type": "controller", "connected": connected })
+                }
+                Ok(ControllerEvent::EStop { latched }) => {
+                    json!({ "type": "estop", "latched": latched })
                 }
                 Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
                 Err(_) => return,

@@ -116,19 +116,6 @@ fn a_subject_goes_through_the_whole_protocol_via_the_api() {
                     );
                     let (_, again) = station.get("/api/station/state");
                     assert_eq!(again["phase"], "survey", "nothing was stored");
-                    // The next test cannot start while the survey is pending.
-                    let (_, s) = api.get(&format!("/api/subjects/{subject}"));
-                    let next = s["trials"]
-                        .as_array()
-                        .unwrap()
-                        .iter()
-                        .map(|t| &t["trial"])
-                        .find(|t| t["status"] == "scheduled")
-                        .unwrap()["id"]
-                        .as_i64()
-                        .unwrap();
-                    let (code, _) = api.post(&format!("/api/trials/{next}/start"), json!({}));
-                    assert_eq!(code, 409);
                 }
                 station.ok("/api/station/survey", json!({ "trial_id": t, "accuracy": 5, "speed": 4, "smoothness": 3, "controllability": 6, "comment": "=cmd|' /C calc'!A0" }));
                 surveys += 1;
@@ -177,6 +164,15 @@ fn a_subject_goes_through_the_whole_protocol_via_the_api() {
         10
     );
     assert!(stats.iter().all(|s| s["n"] == 1));
+    // The e-stop latches on the controller, the dashboard sees it, and it clears on reset.
+    api.ok("/api/estop", json!({}));
+    eventually(Duration::from_secs(10), || {
+        (api.get("/api/controller").1["estop_latched"] == true).then_some(())
+    });
+    api.ok("/api/estop/reset", json!({}));
+    eventually(Duration::from_secs(10), || {
+        (api.get("/api/controller").1["estop_latched"] == false).then_some(())
+    });
     // Every experimenter action is in the audit log.
     let (_, audit) = api.get("/api/audit?limit=1000");
     let actions: Vec<&str> = audit
@@ -524,6 +520,12 @@ fn a_person_drives_a_test_through_the_station_socket() {
         live.iter().any(|l| l["input_seq"].as_u64().unwrap() > 0),
         "input round trip visible"
     );
+    // A person's next test cannot start while this test's survey is unanswered.
+    let (_, s) = api.get(&format!("/api/subjects/{subject}"));
+    let next = s["trials"][1]["trial"]["id"].as_i64().unwrap();
+    let (code, body) = api.post(&format!("/api/trials/{next}/start"), json!({}));
+    assert_eq!(code, 409, "{body}");
+    assert!(body["error"].as_str().unwrap().contains("survey"), "{body}");
     // The record shows our hand position and never the other trial's.
     let (_, text) = api.get_text(&format!("/api/studies/{study}/export/samples"));
     let (h, rows) = csv(&text);
