@@ -373,7 +373,7 @@ function renderSchedule(d) {
           el('br'),
           el(
             'button',
-            { type: 'button', class: 'small', 'data-action': 'redo', 'data-trial-id': t.id, disabled: !canRedo, title: 'Schedule a new attempt of this finished test (a typed text is added as a note)' },
+            { type: 'button', class: 'small', 'data-action': 'redo', 'data-trial-id': t.id, disabled: !canRedo, title: 'Schedule a new attempt of this finished test (a typed text is its reason, kept in the audit log)' },
             'Redo',
           ),
           el(
@@ -408,11 +408,7 @@ async function onScheduleClick(e) {
   const out = el('span');
   let r;
   if (action === 'redo') {
-    r = await act(`Redo trial ${id}`, out, () => post(`/api/trials/${id}/redo`), (d) => `new attempt ${d.attempt} scheduled as trial ${d.id}`);
-    if (r.ok && text) {
-      const n = await post(`/api/trials/${id}/note`, { text: `Redo: ${text}` });
-      out.textContent += n.ok ? '; the text was added as a note' : `; adding the note failed: ${n.data && n.data.error}`;
-    }
+    r = await act(`Redo trial ${id}`, out, () => post(`/api/trials/${id}/redo`, { reason: text || '' }), (d) => `new attempt ${d.attempt} scheduled as trial ${d.id}${text ? ' (reason in the audit log)' : ''}`);
   } else if (action === 'incomplete') {
     r = await act(`Mark trial ${id} incomplete`, out, () => post(`/api/trials/${id}/incomplete`, { reason: text }), () => 'marked incomplete');
   } else if (action === 'note') {

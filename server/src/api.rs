@@ -535,11 +535,31 @@ async fn abort_trial(
     Ok(AppJson(json!({ "ok": true })))
 }
 
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RedoBody {
+    #[serde(default)]
+    reason: String,
+}
+
 async fn redo_trial(
     State(s): State<AppState>,
     who: Experimenter,
     Path(id): Path<i64>,
+    body: axum::body::Bytes,
 ) -> ApiResult<Trial> {
+    // The reason is optional (an empty POST redoes without one) but goes to the audit log.
+    let b: RedoBody = if body.iter().all(u8::is_ascii_whitespace) {
+        RedoBody::default()
+    } else {
+        serde_json::from_slice(&body)
+            .map_err(|e| AppError::BadRequest(format!("redo body: {e}")))?
+    };
+    if b.reason.chars().count() > 500 {
+        return Err(AppError::BadRequest(
+            "reason: at most 500 characters".into(),
+        ));
+    }
     let t = store::trial(&s.pool, id).await?;
     let (latest,): (i64,) =
         sqlx::query_as("SELECT MAX(attempt) FROM trials WHERE subject_id = ? AND slot = ?")
@@ -565,7 +585,7 @@ async fn redo_trial(
         &who,
         "trial.redo",
         format!("trial:{id}"),
-        json!({ "new_trial": new_id }),
+        json!({ "new_trial": new_id, "reason": b.reason }),
     )
     .await?;
     Ok(AppJson(store::trial(&s.pool, new_id).await?))

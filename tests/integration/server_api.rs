@@ -422,7 +422,10 @@ fn controller_death_is_detected_within_100_ms_and_the_controller_restarts() {
             .then(|| c["pid"].as_u64().unwrap())
     });
     assert_ne!(new_pid, pid);
-    api.ok(&format!("/api/trials/{first}/redo"), json!({}));
+    api.ok(
+        &format!("/api/trials/{first}/redo"),
+        json!({ "reason": "controller died" }),
+    );
     let (_, s) = api.get(&format!("/api/subjects/{subject}"));
     let redo = s["trials"]
         .as_array()
