@@ -426,6 +426,14 @@ fn controller_death_is_detected_within_100_ms_and_the_controller_restarts() {
         &format!("/api/trials/{first}/redo"),
         json!({ "reason": "controller died" }),
     );
+    let (_, audit) = api.get("/api/audit?limit=20");
+    let redone = audit
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|a| a["action"] == "trial.redo")
+        .expect("redo audited");
+    assert_eq!(redone["detail"]["reason"], "controller died");
     let (_, s) = api.get(&format!("/api/subjects/{subject}"));
     let redo = s["trials"]
         .as_array()
