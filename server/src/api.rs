@@ -193,12 +193,7 @@ async fn enrol(
     body: axum::body::Bytes,
 ) -> ApiResult<Value> {
     // The body is optional: an empty POST enrols a person.
-    let b: EnrolBody = if body.iter().all(u8::is_ascii_whitespace) {
-        EnrolBody::default()
-    } else {
-        serde_json::from_slice(&body)
-            .map_err(|e| AppError::BadRequest(format!("enrolment body: {e}")))?
-    };
+    let b: EnrolBody = crate::error::optional_json(&body, "enrolment")?;
     let (subject, token) = store::enrol(&s.pool, id, b.synthetic).await?;
     audit(
         &s,
@@ -549,12 +544,7 @@ async fn redo_trial(
     body: axum::body::Bytes,
 ) -> ApiResult<Trial> {
     // The reason is optional (an empty POST redoes without one) but goes to the audit log.
-    let b: RedoBody = if body.iter().all(u8::is_ascii_whitespace) {
-        RedoBody::default()
-    } else {
-        serde_json::from_slice(&body)
-            .map_err(|e| AppError::BadRequest(format!("redo body: {e}")))?
-    };
+    let b: RedoBody = crate::error::optional_json(&body, "redo")?;
     if b.reason.chars().count() > 500 {
         return Err(AppError::BadRequest(
             "reason: at most 500 characters".into(),

@@ -99,3 +99,14 @@ impl<T: serde::Serialize> IntoResponse for AppJson<T> {
 }
 
 pub type ApiResult<T> = Result<AppJson<T>, AppError>;
+
+/// A request body that may be left empty (then the type's default) or be JSON of `T`.
+pub fn optional_json<T: serde::de::DeserializeOwned + Default>(
+    body: &[u8],
+    what: &str,
+) -> Result<T, AppError> {
+    if body.iter().all(u8::is_ascii_whitespace) {
+        return Ok(T::default());
+    }
+    serde_json::from_slice(body).map_err(|e| AppError::BadRequest(format!("{what} body: {e}")))
+}

@@ -420,19 +420,14 @@ fn a_lost_server_link_stops_trials_and_the_controller_accepts_a_new_one() {
     let ctl = Proc::controller(&["--link-timeout-ms", "300"]);
     let (mut link, _) = Link::connect(ctl.addr);
     let mut log = TrialLog::default();
-    link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
+    link.start_and_wait(synthetic_trial(
         1,
         CompensatorKind::Lqr,
         Station::On,
         0.6,
         60.0,
         1,
-    ))));
-    loop {
-        if let ControllerToServer::TrialStarted { trial_id: 1, .. } = link.recv() {
-            break;
-        }
-    }
+    ));
     // While one server is connected, another is turned away.
     let mut second = Link::raw(ctl.addr);
     second.send(&ServerToController::Hello {
@@ -479,19 +474,14 @@ fn a_lost_server_link_stops_trials_and_the_controller_accepts_a_new_one() {
         "real-time mode measures wake latency"
     );
     // Silence longer than the link timeout also counts as a lost link.
-    link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
+    link.start_and_wait(synthetic_trial(
         3,
         CompensatorKind::Lqr,
         Station::On,
         0.6,
         60.0,
         3,
-    ))));
-    loop {
-        if let ControllerToServer::TrialStarted { trial_id: 3, .. } = link.recv() {
-            break;
-        }
-    }
+    ));
     // Keep reading without sending: the controller must drop us within the timeout.
     let closed = loop {
         match link.try_recv() {
@@ -589,12 +579,7 @@ fn operator_input_arrives_over_udp_from_a_haptic_host() {
         input: InputSource::Udp { channel: 4 },
         ..server_input_trial(1, 1.0)
     };
-    link.send(&ST::StartTrial(Box::new(st)));
-    loop {
-        if let ControllerToServer::TrialStarted { trial_id: 1, .. } = link.recv() {
-            break;
-        }
-    }
+    link.start_and_wait(st);
     let host = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     // A haptic host streams at 1 kHz; a malformed datagram and a wrong channel in between.
     host.send_to(b"garbage", input).unwrap();
@@ -627,5 +612,3 @@ fn operator_input_arrives_over_udp_from_a_haptic_host() {
     );
     assert!(log.live.iter().any(|s| s.input_seq > 100));
 }
-
-type ST = ServerToController;

@@ -150,6 +150,19 @@ impl Link {
         }
     }
 
+    /// Starts a trial and reads until the controller confirms it.
+    pub fn start_and_wait(&mut self, st: bdft_protocol::server_to_controller::StartTrial) {
+        let id = st.trial_id;
+        self.send(&ServerToController::StartTrial(Box::new(st)));
+        loop {
+            if let ControllerToServer::TrialStarted { trial_id, .. } = self.recv()
+                && trial_id == id
+            {
+                return;
+            }
+        }
+    }
+
     /// Lockstep: runs `ticks` ticks, collecting what arrives until `Stepped`.
     pub fn step(&mut self, ticks: u32, into: &mut TrialLog) {
         self.send(&ServerToController::Step { ticks });
