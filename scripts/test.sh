@@ -13,6 +13,10 @@ if ! command -v chromium >/dev/null 2>&1 || ! command -v chromedriver >/dev/null
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium chromium-driver >/dev/null
 fi
 
+# Style and lints first: they are part of the test (and the cheapest to fail).
+cargo fmt --all -- --check
+cargo clippy --workspace --all-targets --locked -- -D warnings
+
 # The end-to-end tests (tests/) run the product's binaries as real processes; cargo test
 # does not rebuild another package's binaries, so build them first.
 cargo build --workspace --bins --locked

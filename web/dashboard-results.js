@@ -1,5 +1,5 @@
 // Results of the selected study: box plots rendered by the server, the table of averages per
-// controller × station, key comparisons, and the CSV exports.
+// compensator × seat, key comparisons, and the CSV exports.
 
 import { S, CONTROLLER_NAME, controllerName, debounce, el, errText, get, num, on, setStatus } from './dashboard-core.js';
 import * as downloads from './dashboard-download.js';
@@ -102,7 +102,7 @@ function renderAverages(stats) {
       'tr',
       {},
       el('th', { rowspan: 2 }, 'Controller'),
-      el('th', { rowspan: 2 }, 'Station'),
+      el('th', { rowspan: 2 }, 'Seat'),
       el('th', { colspan: 2, class: 'group' }, 'Metrics (lower is better)'),
       el('th', { colspan: 4, class: 'group' }, `Ratings 1–${(S.study && S.study.params.survey.scale_points) || '?'} (higher is better)`),
     ),
@@ -174,7 +174,7 @@ function renderComparisons(stats) {
           el('thead', {}, el('tr', {}, ...['Comparison (on the machine)', 'Metric', 'Compensated', 'Uncompensated twin', 'Change'].map((h) => el('th', {}, h)))),
           el('tbody', {}, ...rows),
         )
-      : el('p', { class: 'muted' }, 'Needs completed tests on the machine of a compensated controller and its twin.'),
+      : el('p', { class: 'muted' }, 'Needs completed tests on the machine of a compensator and its uncompensated twin.'),
   );
 }
 
@@ -185,7 +185,7 @@ function renderPlots() {
     ...VARIABLES.map(([v, label]) => {
       const base = `/api/studies/${id}/plots/${v}`;
       const status = el('p', { class: 'plot-missing', hidden: true });
-      const img = el('img', { src: `${base}.svg?v=${stamp}`, alt: `Box plot: ${label}, per controller and station`, 'data-variable': v });
+      const img = el('img', { src: `${base}.svg?v=${stamp}`, alt: `Box plot: ${label}, per compensator and seat`, 'data-variable': v });
       img.addEventListener('error', async () => {
         img.hidden = true;
         status.hidden = false;

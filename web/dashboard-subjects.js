@@ -241,7 +241,7 @@ const FINISHED = ['complete', 'aborted', 'incomplete'];
 
 const HEADERS = [
   ['Slot', 'Slot in the schedule (0 = practice), attempt and trial id'],
-  ['Station · block · pos.', 'Station, block (1 = starting station) and position in the block'],
+  ['Seat · block · pos.', 'Seat (on or off the machine), block (1 = starting seat) and position in the block'],
   ['Controller (real) · label (blinded)', 'The real controller, and the label the subject sees'],
   ['Status · reason', ''],
   ['MSE mm²', 'Mean-squared tracking error (mm²)', 'num'],

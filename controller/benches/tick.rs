@@ -14,7 +14,7 @@ use std::time::Instant;
 use bdft_controller::closed_loop::{ClosedLoop, Drive, LoopSetup};
 use bdft_controller::compensator::{CompensatorKind, default_spec};
 use bdft_controller::operator::OperatorParams;
-use bdft_controller::params::{BodyModel, LoopParams, PlantParams, Station};
+use bdft_controller::params::{BodyModel, LoopParams, PlantParams, Seat};
 use bdft_controller::signals::StepParams;
 use bdft_controller::simulate::{SignalKind, SimConfig, simulate};
 
@@ -35,7 +35,7 @@ fn setup(kind: CompensatorKind, noise: bool) -> LoopSetup {
         plant,
         body: BodyModel::default(),
         loop_params: LoopParams::default(),
-        station: Station::On,
+        station: Seat::On,
     }
 }
 

@@ -44,7 +44,7 @@ mod tests {
     use crate::closed_loop::{ClosedLoop, Drive, LoopSetup};
     use crate::compensator::{CompensatorKind, default_spec};
     use crate::operator::{OperatorParams, SyntheticOperator};
-    use crate::params::{BodyModel, LoopParams, PlantParams, Station};
+    use crate::params::{BodyModel, LoopParams, PlantParams, Seat};
 
     #[test]
     fn the_counter_sees_allocations() {
@@ -68,7 +68,7 @@ mod tests {
                     plant,
                     body,
                     loop_params: LoopParams::default(),
-                    station: Station::On,
+                    station: Seat::On,
                 };
                 let mut lp = ClosedLoop::new(&setup, 1).unwrap();
                 let mut op =

@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 use crate::closed_loop::{ClosedLoop, Drive, LoopSetup};
 use crate::error::DesignError;
 use crate::linalg::{eigenvalues, spectral_radius};
-use crate::params::{MAX_KBF, Station, check};
+use crate::params::{MAX_KBF, Seat, check};
 use crate::state::LinearState;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -53,7 +53,7 @@ impl LinearizedLoop {
     /// Reads the loop's map off `tick` at the station "on" (feedthrough closed).
     pub fn new(setup: &LoopSetup) -> Result<Self, DesignError> {
         let mut setup = setup.clone();
-        setup.station = Station::On;
+        setup.station = Seat::On;
         setup.plant.accel_noise_std = 0.0;
         setup.plant.dead_band = 0.0;
         let mut lp = ClosedLoop::new(&setup, 0)?;

@@ -12,7 +12,7 @@ use std::time::Duration;
 use bdft_controller::analysis::{AnalysisReport, analyze};
 use bdft_controller::compensator::CompensatorKind;
 use bdft_controller::param_set::ParamSet;
-use bdft_controller::params::{LoopParams, MAX_KBF, NOMINAL_KBF, PlantParams, Station};
+use bdft_controller::params::{LoopParams, MAX_KBF, NOMINAL_KBF, PlantParams, Seat};
 use bdft_controller::runtime;
 use bdft_controller::simulate::{SAMPLE_COLUMNS, SignalKind, SimConfig, simulate};
 
@@ -61,7 +61,7 @@ enum Command {
         /// Operator station: on (feedthrough loop closed) or off [default: on for steps,
         /// off for bench signals, which have no operator].
         #[arg(long)]
-        station: Option<Station>,
+        station: Option<Seat>,
         /// Device-to-cylinder gain K_BF.
         #[arg(long, default_value_t = NOMINAL_KBF, value_parser = parse_kbf_positive)]
         kbf: f64,
@@ -246,7 +246,7 @@ fn execute(command: Command) -> anyhow::Result<()> {
             let compensators = CompensatorKind::ALL
                 .into_iter()
                 .map(|k| {
-                    analyze(&params.setup(k, Station::On, kbf))
+                    analyze(&params.setup(k, Seat::On, kbf))
                         .with_context(|| format!("analysing {k}"))
                 })
                 .collect::<anyhow::Result<Vec<_>>>()?;
@@ -271,9 +271,9 @@ fn execute(command: Command) -> anyhow::Result<()> {
             out: record,
         } => {
             let station = station.unwrap_or(if signal == SignalKind::Steps {
-                Station::On
+                Seat::On
             } else {
-                Station::Off
+                Seat::Off
             });
             let params = load_params(params.as_ref())?;
             let cfg = SimConfig {

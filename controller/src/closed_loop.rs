@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use crate::compensator::{Compensator, CompensatorSpec};
 use crate::error::DesignError;
 use crate::model::{Body, Measurement, Plant};
-use crate::params::{BodyModel, LoopParams, PlantParams, Station};
+use crate::params::{BodyModel, LoopParams, PlantParams, Seat};
 use crate::state::LinearState;
 
 /// Everything that defines a closed loop.
@@ -16,7 +16,7 @@ pub struct LoopSetup {
     pub plant: PlantParams,
     pub body: BodyModel,
     pub loop_params: LoopParams,
-    pub station: Station,
+    pub station: Seat,
     pub compensator: CompensatorSpec,
 }
 
@@ -53,7 +53,7 @@ pub struct ClosedLoop {
     body: Body,
     compensator: Compensator,
     k_bf: f64,
-    station: Station,
+    station: Seat,
     last: Measurement,
 }
 
@@ -91,8 +91,8 @@ impl ClosedLoop {
         self.last = m;
         // The body responds to the true cab motion; at the desk station it is not shaken.
         let h = match self.station {
-            Station::On => self.body.step(self.plant.cab_displacement()),
-            Station::Off => 0.0,
+            Seat::On => self.body.step(self.plant.cab_displacement()),
+            Seat::Off => 0.0,
         };
         let (hand, r_c) = match drive {
             Drive::Hand(p_h) => (p_h, self.k_bf * (p_h - h)),

@@ -9,7 +9,7 @@ use crate::closed_loop::LoopSetup;
 use crate::compensator::{CompensatorKind, CompensatorSpec, default_spec};
 use crate::error::ParamError;
 use crate::operator::OperatorParams;
-use crate::params::{BodyModel, LoopParams, PlantParams, Station, check};
+use crate::params::{BodyModel, LoopParams, PlantParams, Seat, check};
 use crate::signals::StepParams;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -70,7 +70,7 @@ impl ParamSet {
             .unwrap_or_else(|| default_spec(kind, &self.plant))
     }
 
-    pub fn setup(&self, kind: CompensatorKind, station: Station, k_bf: f64) -> LoopSetup {
+    pub fn setup(&self, kind: CompensatorKind, station: Seat, k_bf: f64) -> LoopSetup {
         LoopSetup {
             plant: self.plant,
             body: self.body,

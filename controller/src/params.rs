@@ -3,5 +3,5 @@
 //! ever typed in by hand. The types are wire data, so they live in the protocol crate.
 
 pub use bdft_protocol::params::{
-    BodyModel, LoopParams, MAX_KBF, NOMINAL_KBF, ParamError, PlantParams, Station, check,
+    BodyModel, LoopParams, MAX_KBF, NOMINAL_KBF, ParamError, PlantParams, Seat, check,
 };

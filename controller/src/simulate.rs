@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 use crate::closed_loop::{ClosedLoop, LoopSetup};
 use crate::error::{DesignError, ParamError};
 use crate::operator::{OperatorParams, SyntheticOperator};
-use crate::params::{Station, check};
+use crate::params::{Seat, check};
 use crate::rng::Rng;
 use crate::runner::{HandSource, TrialRunner};
 pub use crate::runner::{SAMPLE_COLUMNS, Sample};
@@ -91,7 +91,7 @@ pub fn simulate(
     let dt = cfg.setup.loop_params.dt;
     check("duration_s", cfg.duration_s, dt, 3600.0)?;
     let bench = cfg.signal != SignalKind::Steps;
-    if bench && cfg.setup.station == Station::On {
+    if bench && cfg.setup.station == Seat::On {
         return Err(ParamError::Invalid {
             name: "station",
             message: format!(

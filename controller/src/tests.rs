@@ -6,11 +6,11 @@ use crate::closed_loop::LoopSetup;
 use crate::compensator::{CompensatorKind, default_spec};
 use crate::fixtures::{poles, reference};
 use crate::operator::OperatorParams;
-use crate::params::{BodyModel, LoopParams, PlantParams, Station};
+use crate::params::{BodyModel, LoopParams, PlantParams, Seat};
 use crate::signals::StepParams;
 use crate::simulate::{SignalKind, SimConfig, simulate};
 
-fn setup(kind: CompensatorKind, station: Station, k_bf: f64) -> LoopSetup {
+fn setup(kind: CompensatorKind, station: Seat, k_bf: f64) -> LoopSetup {
     let plant = PlantParams::default();
     LoopSetup {
         compensator: default_spec(kind, &plant),
@@ -46,19 +46,19 @@ fn closed_loop_poles_match_the_continuous_reference() {
     // of their magnitude; the Tustin-discretized derivative filter pole (−270 rad/s) a bit more.
     let fx = &reference()["closed_loop_poles"];
     let cases = [
-        ("pid_on_kbf0.6", CompensatorKind::Pid, Station::On, 0.6),
-        ("pid_on_kbf0.3", CompensatorKind::Pid, Station::On, 0.3),
-        ("pid_off", CompensatorKind::Pid, Station::Off, 0.6),
+        ("pid_on_kbf0.6", CompensatorKind::Pid, Seat::On, 0.6),
+        ("pid_on_kbf0.3", CompensatorKind::Pid, Seat::On, 0.3),
+        ("pid_off", CompensatorKind::Pid, Seat::Off, 0.6),
         (
             "pid-notch_on_kbf0.6",
             CompensatorKind::PidNotch,
-            Station::On,
+            Seat::On,
             0.6,
         ),
     ];
     for (key, kind, station, k_bf) in cases {
-        let k = if station == Station::Off { 0.0 } else { k_bf };
-        let lin = LinearizedLoop::new(&setup(kind, Station::On, k_bf)).unwrap();
+        let k = if station == Seat::Off { 0.0 } else { k_bf };
+        let lin = LinearizedLoop::new(&setup(kind, Seat::On, k_bf)).unwrap();
         let got = lin.poles(k).unwrap();
         let want = poles(&fx[key]);
         let (slow, fast): (Vec<_>, Vec<_>) = want.iter().partition(|p| p[0].hypot(p[1]) < 100.0);
@@ -75,7 +75,7 @@ fn largest_stable_kbf_matches_the_reference_and_the_expectations() {
         CompensatorKind::PidNotch,
         CompensatorKind::PidShaper,
     ] {
-        let a = analyze(&setup(kind, Station::On, 0.6)).unwrap();
+        let a = analyze(&setup(kind, Seat::On, 0.6)).unwrap();
         let want = fx[kind.name()]["max_kbf"].as_f64().unwrap();
         let got = a.max_stable_kbf.expect("finite margin");
         // Continuous reference vs the sampled loop: one sample of delay costs a little phase.
@@ -94,7 +94,7 @@ fn design_expectations_of_the_system_model_hold() {
     // stabilize it; both LQR designs with the observer are stable with feedthrough, also at
     // the study's K_BF = 0.78.
     for k_bf in [0.6, 0.78] {
-        let verdict = |kind| analyze(&setup(kind, Station::On, k_bf)).unwrap().stable;
+        let verdict = |kind| analyze(&setup(kind, Seat::On, k_bf)).unwrap().stable;
         assert!(!verdict(CompensatorKind::Pid));
         for kind in [
             CompensatorKind::PidNotch,
@@ -113,7 +113,7 @@ fn cab_velocity_feedback_adds_damping_to_the_structure_modes() {
     // Active damping: the least-damped closed-loop pole near the first mode (25 rad/s, the
     // one the feedthrough excites most) is much better damped with β = 2 than without.
     let damping = |kind| {
-        let a = analyze(&setup(kind, Station::On, 0.6)).unwrap();
+        let a = analyze(&setup(kind, Seat::On, 0.6)).unwrap();
         a.poles
             .iter()
             .filter(|p| p[1] > 15.0 && p[1] < 32.0)
@@ -135,7 +135,7 @@ fn stability_verdict_agrees_with_a_long_simulation_of_the_shaper_loop() {
     // The verdict is an eigenvalue computation on a ~210-state matrix; check it against the
     // loop itself just below and just above the margin: a perturbation must decay below and
     // grow above.
-    let base = setup(CompensatorKind::PidShaper, Station::On, 0.6);
+    let base = setup(CompensatorKind::PidShaper, Seat::On, 0.6);
     let margin = analyze(&base).unwrap().max_stable_kbf.unwrap();
     let growth = |k_bf: f64| {
         let mut s = base.clone();
@@ -165,7 +165,7 @@ fn stability_verdict_agrees_with_a_long_simulation_of_the_shaper_loop() {
 fn sim(
     kind: CompensatorKind,
     signal: SignalKind,
-    station: Station,
+    station: Seat,
     seed: u64,
 ) -> crate::simulate::SimSummary {
     let cfg = SimConfig {
@@ -181,24 +181,9 @@ fn sim(
 
 #[test]
 fn simulation_is_deterministic_per_seed() {
-    let a = sim(
-        CompensatorKind::LqrCabvel,
-        SignalKind::Steps,
-        Station::On,
-        5,
-    );
-    let b = sim(
-        CompensatorKind::LqrCabvel,
-        SignalKind::Steps,
-        Station::On,
-        5,
-    );
-    let c = sim(
-        CompensatorKind::LqrCabvel,
-        SignalKind::Steps,
-        Station::On,
-        6,
-    );
+    let a = sim(CompensatorKind::LqrCabvel, SignalKind::Steps, Seat::On, 5);
+    let b = sim(CompensatorKind::LqrCabvel, SignalKind::Steps, Seat::On, 5);
+    let c = sim(CompensatorKind::LqrCabvel, SignalKind::Steps, Seat::On, 6);
     assert_eq!(a, b);
     assert_ne!(a.mse_tracking_mm2, c.mse_tracking_mm2);
     assert_eq!(a.ticks, 140_000);
@@ -211,7 +196,7 @@ fn synthetic_operator_tracks_the_steps_and_feedthrough_costs_tracking_with_plain
     // alone costs about a fifth of each 2 s step at the full step error, so well-tracked
     // trials land near 150–220 mm².
     for kind in CompensatorKind::STUDY {
-        let off = sim(kind, SignalKind::Steps, Station::Off, 3);
+        let off = sim(kind, SignalKind::Steps, Seat::Off, 3);
         assert!(
             off.mse_tracking_mm2 < 0.65 * 400.0,
             "{kind} off: {}",
@@ -220,8 +205,8 @@ fn synthetic_operator_tracks_the_steps_and_feedthrough_costs_tracking_with_plain
     }
     // On the machine the stabilized designs keep tracking, and they shake the cab less than
     // the uncompensated twin does (the point of the study).
-    let notch = sim(CompensatorKind::PidNotch, SignalKind::Steps, Station::On, 3);
-    let pid = sim(CompensatorKind::Pid, SignalKind::Steps, Station::On, 3);
+    let notch = sim(CompensatorKind::PidNotch, SignalKind::Steps, Seat::On, 3);
+    let pid = sim(CompensatorKind::Pid, SignalKind::Steps, Seat::On, 3);
     assert!(
         notch.mse_tracking_mm2 < 0.65 * 400.0,
         "pid-notch on: {}",
@@ -237,11 +222,11 @@ fn synthetic_operator_tracks_the_steps_and_feedthrough_costs_tracking_with_plain
 
 #[test]
 fn bench_signals_are_tracked_and_reject_the_on_station() {
-    let s = sim(CompensatorKind::Pid, SignalKind::Trapezoid, Station::Off, 1);
+    let s = sim(CompensatorKind::Pid, SignalKind::Trapezoid, Seat::Off, 1);
     // A 25 mm trapezoid followed by a well-tuned loop: RMS error of a few mm at most.
     assert!(s.mse_tracking_mm2 < 10.0, "{}", s.mse_tracking_mm2);
     let cfg = SimConfig {
-        setup: setup(CompensatorKind::Pid, Station::On, 0.6),
+        setup: setup(CompensatorKind::Pid, Seat::On, 0.6),
         signal: SignalKind::SweptSine,
         duration_s: 30.0,
         seed: 1,
@@ -257,7 +242,7 @@ fn the_body_model_is_replaceable_and_enters_the_loop() {
     // A seated body with a resonance near the first structure mode amplifies the hand
     // motion there, so the notch loop tolerates less K_BF than with the rigid mass of the
     // same static gain; at zero gain there is no feedthrough and no K_BF limit.
-    let mut s = setup(CompensatorKind::PidNotch, Station::On, 0.6);
+    let mut s = setup(CompensatorKind::PidNotch, Seat::On, 0.6);
     let rigid = analyze(&s).unwrap().max_stable_kbf.unwrap();
     s.body = BodyModel::SingleResonance {
         k_h: 0.56,

@@ -50,6 +50,7 @@ pub enum ControllerToServer {
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct LiveSample {
     pub trial_id: TrialId,
     /// Seconds since the trial started.

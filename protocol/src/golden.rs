@@ -4,7 +4,7 @@
 use crate::PROTOCOL_VERSION;
 use crate::controller_to_server::{ControllerToServer, LiveSample, RecordChunk, TrialResult};
 use crate::framing::{FrameError, MAX_FRAME, decode, encode, payload_len, read_frame};
-use crate::params::{CompensatorSpec, NotchParams, OperatorParams, PidParams, Station};
+use crate::params::{CompensatorSpec, NotchParams, OperatorParams, PidParams, Seat};
 use crate::server_to_controller::{ServerToController, StartTrial};
 use crate::trial::{
     FaultKind, InputSource, Metrics, Outcome, Percentiles, TargetSpec, TimingSummary,
@@ -87,7 +87,7 @@ fn start_trial_with_defaults_filled_in() {
             notch: NotchParams::default()
         }
     );
-    assert_eq!(st.station, Station::On);
+    assert_eq!(st.station, Seat::On);
     assert_eq!(st.live_rate_hz, 100.0);
     assert_eq!(st.stale_input_ms, 100.0);
     assert_eq!(st.plant.k_vc, 22.0);
@@ -108,7 +108,7 @@ fn start_trial_validation_names_the_bad_field() {
                 n: 10.0,
             },
         },
-        station: Station::Off,
+        station: Seat::Off,
         k_bf: f64::NAN,
         target: TargetSpec::Steps {
             interval_s: 2.0,

@@ -6,11 +6,17 @@
 //!   [`framing`] (length-prefixed JSON), opened by `Hello` carrying [`PROTOCOL_VERSION`].
 //! - [`rig`]: the fixed binary UDP datagrams of a real rig and a haptic-device host.
 //! - [`params`], [`trial`]: the data those messages carry.
+//! - [`browser_to_server`] / [`server_to_browser`]: the stations' and the dashboard's
+//!   messages (JSON bodies and WebSocket text); [`records`]: the states of the study's
+//!   records (trial status, consent, station role) as the API and exports name them.
 
+pub mod browser_to_server;
 pub mod controller_to_server;
 pub mod framing;
 pub mod params;
+pub mod records;
 pub mod rig;
+pub mod server_to_browser;
 pub mod server_to_controller;
 pub mod study;
 pub mod trial;
@@ -20,3 +26,5 @@ pub const PROTOCOL_VERSION: u32 = 1;
 
 #[cfg(test)]
 mod golden;
+#[cfg(test)]
+mod golden_browser;

@@ -2,7 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::params::{BodyModel, CompensatorSpec, MAX_KBF, ParamError, PlantParams, Station, check};
+use crate::params::{BodyModel, CompensatorSpec, MAX_KBF, ParamError, PlantParams, Seat, check};
 use crate::trial::{InputSource, MAX_TRIAL_S, TargetSpec, TrialId};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -48,7 +48,7 @@ pub enum ServerToController {
 pub struct StartTrial {
     pub trial_id: TrialId,
     pub compensator: CompensatorSpec,
-    pub station: Station,
+    pub station: Seat,
     pub k_bf: f64,
     pub target: TargetSpec,
     pub duration_s: f64,

@@ -5,13 +5,14 @@
 use serde::{Deserialize, Serialize};
 
 use crate::params::{
-    BodyModel, CompensatorKind, CompensatorSpec, ParamError, PlantParams, Station, check,
+    BodyModel, CompensatorKind, CompensatorSpec, ParamError, PlantParams, Seat, check,
 };
 
 /// The four ratings asked after every test, by key (export columns `rating_<key>`).
 pub const RATING_KEYS: [&str; 4] = ["accuracy", "speed", "smoothness", "controllability"];
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(deny_unknown_fields)]
 pub struct SurveyItem {
     /// One of `RATING_KEYS`.
@@ -23,6 +24,7 @@ pub struct SurveyItem {
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(deny_unknown_fields)]
 pub struct SurveyParams {
     pub items: Vec<SurveyItem>,
@@ -73,6 +75,7 @@ impl Default for SurveyParams {
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(deny_unknown_fields)]
 pub struct ConsentForm {
     pub version: String,
@@ -97,6 +100,7 @@ impl Default for ConsentForm {
 
 /// Whether trials run on the simulated rig or a real machine.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(rename_all = "lowercase")]
 pub enum RigKind {
     Simulated,
@@ -104,6 +108,7 @@ pub enum RigKind {
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(deny_unknown_fields)]
 pub struct StudyParams {
     /// The controllers compared, each with its design (default: the five of the study).
@@ -111,7 +116,7 @@ pub struct StudyParams {
     /// Controller used for the practice run.
     pub practice_controller: CompensatorKind,
     /// The two operator stations, both used by every subject.
-    pub stations: Vec<Station>,
+    pub stations: Vec<Seat>,
     pub trial_s: f64,
     pub practice_s: f64,
     pub step_interval_s: f64,
@@ -150,7 +155,7 @@ impl StudyParams {
         }
         let mut stations = self.stations.clone();
         stations.sort_by_key(|s| s.as_str());
-        if stations != [Station::Off, Station::On] {
+        if stations != [Seat::Off, Seat::On] {
             return invalid(
                 "stations",
                 "a study uses both stations, on and off, once each".into(),
@@ -217,6 +222,7 @@ impl StudyParams {
 
 /// A survey answer as a subject submits it (validated against the study's scale).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(deny_unknown_fields)]
 pub struct SurveyAnswer {
     pub accuracy: Option<i64>,
@@ -232,6 +238,7 @@ pub const MAX_COMMENT_CHARS: usize = 2000;
 
 /// A field of a survey and what is wrong with it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct FieldError {
     pub field: String,
     pub message: String,

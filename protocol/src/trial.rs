@@ -10,6 +10,7 @@ pub type TrialId = u64;
 
 /// The pursuit target, in mm of cylinder position.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum TargetSpec {
     /// The protocol's random steps: `levels_mm[i]` holds from i·interval_s.
@@ -76,6 +77,7 @@ impl TargetSpec {
 
 /// Where the operator's intended hand position comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum InputSource {
     /// `OperatorInput` messages from the server (a browser's pointer or gamepad), held
@@ -91,6 +93,7 @@ pub enum InputSource {
 
 /// Metrics over the full-rate record of a trial.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct Metrics {
     pub ticks: u64,
     /// Mean-squared tracking error, target − cylinder position (mm²).
@@ -101,6 +104,7 @@ pub struct Metrics {
 
 /// Percentiles of a timing histogram (µs).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct Percentiles {
     pub p50: f64,
     pub p99: f64,
@@ -109,6 +113,7 @@ pub struct Percentiles {
 
 /// How the real-time loop kept time during a trial (or a benchmark).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct TimingSummary {
     pub ticks: u64,
     /// Deadlines missed by more than a period (those ticks were skipped, not caught up).
@@ -121,6 +126,7 @@ pub struct TimingSummary {
 
 /// Why a trial or the controller faulted.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(rename_all = "kebab-case")]
 pub enum FaultKind {
     /// Operator input older than the allowed age during a trial.
@@ -138,6 +144,7 @@ pub enum FaultKind {
 
 /// How a trial ended.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(tag = "status", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum Outcome {
     /// Ran its full duration.

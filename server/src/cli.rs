@@ -6,7 +6,10 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 
-use crate::export::ExportKind;
+use crate::config::{DbConfig, ServeConfig};
+use crate::engine::export::ExportKind;
+use crate::engine::{accounts, controller_link, export, filing, pilot};
+use crate::store;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -26,40 +29,12 @@ enum Command {
     #[command(hide = true)]
     Controller(bdft_controller::runtime::ServeArgs),
     /// Run the experiment server: the API and pages on --listen, a supervised controller.
-    Serve {
-        /// SQLite database file (created if missing, migrations applied at start).
-        #[arg(long, env = "BDFT_DB", default_value = "bdft-lab.db")]
-        db: PathBuf,
-        /// Address the server listens on.
-        #[arg(long, env = "BDFT_LISTEN", default_value = "127.0.0.1:8080")]
-        listen: std::net::SocketAddr,
-        /// Connect to a controller already running there (e.g. a real-time PC) instead of
-        /// starting one.
-        #[arg(long, env = "BDFT_CONTROLLER")]
-        controller: Option<std::net::SocketAddr>,
-        /// A bdft-controller binary to start [default: this executable runs the controller in
-        /// a child process of its own].
-        #[arg(long, env = "BDFT_CONTROLLER_BIN")]
-        controller_bin: Option<PathBuf>,
-        /// Extra argument for the started controller (repeatable), e.g. --controller-arg=--rig
-        /// --controller-arg=udp.
-        #[arg(long = "controller-arg", allow_hyphen_values = true)]
-        controller_args: Vec<String>,
-        /// Create the account "admin" with this password if there is no experimenter yet
-        /// (otherwise a one-time set-up link is printed).
-        #[arg(long, env = "BDFT_ADMIN_PASSWORD", hide_env_values = true)]
-        admin_password: Option<String>,
-        /// Serve the pages from this directory instead of the copy built into the binary
-        /// (for developing them).
-        #[arg(long)]
-        web_dir: Option<PathBuf>,
-    },
+    Serve(ServeConfig),
     /// Run the whole protocol for N synthetic subjects, faster than real time, into the
     /// database (subjects flagged synthetic, surveys left empty).
     Pilot {
-        /// SQLite database file (created if missing).
-        #[arg(long, env = "BDFT_DB", default_value = "bdft-lab.db")]
-        db: PathBuf,
+        #[command(flatten)]
+        db: DbConfig,
         /// Study to add the subjects to [default: the newest; a default study if none].
         #[arg(long)]
         study: Option<i64>,
@@ -72,8 +47,8 @@ enum Command {
     },
     /// Write a CSV export of a study.
     Export {
-        #[arg(long, env = "BDFT_DB", default_value = "bdft-lab.db")]
-        db: PathBuf,
+        #[command(flatten)]
+        db: DbConfig,
         /// Study to export [default: the newest].
         #[arg(long)]
         study: Option<i64>,
@@ -134,7 +109,7 @@ pub fn run() -> ExitCode {
 async fn newest_study(pool: &sqlx::SqlitePool, study: Option<i64>) -> anyhow::Result<i64> {
     match study {
         Some(id) => Ok(id),
-        None => crate::store::studies(pool)
+        None => store::studies::all(pool)
             .await?
             .last()
             .map(|s| s.id)
@@ -144,70 +119,7 @@ async fn newest_study(pool: &sqlx::SqlitePool, study: Option<i64>) -> anyhow::Re
 
 async fn execute(command: Command) -> anyhow::Result<()> {
     match command {
-        Command::Serve {
-            db,
-            listen,
-            controller,
-            controller_bin,
-            controller_args,
-            admin_password,
-            web_dir,
-        } => {
-            let pool = crate::db::open(&db).await?;
-            let interrupted = crate::store::interrupt_running(&pool, "server restart").await?;
-            if !interrupted.is_empty() {
-                tracing::warn!(trials = ?interrupted, "trials that were running when the server stopped are marked incomplete");
-            }
-            let listener = tokio::net::TcpListener::bind(listen)
-                .await
-                .with_context(|| format!("listening on {listen}"))?;
-            let addr = listener.local_addr()?;
-            if crate::auth::experimenter_count(&pool)
-                .await
-                .map_err(|e| anyhow::anyhow!("{e}"))?
-                == 0
-            {
-                match admin_password {
-                    Some(pw) => {
-                        crate::auth::create_experimenter(&pool, "admin", &pw)
-                            .await
-                            .map_err(|e| anyhow::anyhow!("--admin-password: {e}"))?;
-                        println!("Created the experimenter account \"admin\".");
-                    }
-                    None => {
-                        let token = crate::auth::new_setup_token(&pool)
-                            .await
-                            .map_err(|e| anyhow::anyhow!("{e}"))?;
-                        println!(
-                            "First start: create the experimenter account at http://{addr}/setup?token={token}"
-                        );
-                    }
-                }
-            }
-            let source = match controller {
-                Some(a) => crate::controller_link::ControllerSource::Connect(a),
-                None => {
-                    let (bin, sub) = match controller_bin {
-                        Some(bin) => (bin, "serve"),
-                        None => (
-                            std::env::current_exe().context("locating this executable")?,
-                            "controller",
-                        ),
-                    };
-                    let args = std::iter::once(sub.to_string())
-                        .chain(controller_args)
-                        .collect();
-                    crate::controller_link::ControllerSource::Spawn { bin, args }
-                }
-            };
-            let link = crate::controller_link::ControllerLink::start(pool.clone(), source);
-            let mut state = crate::state::AppState::new(pool, link);
-            state.web_dir = web_dir;
-            println!("bdft-lab server on http://{addr}");
-            use std::io::Write;
-            let _ = std::io::stdout().flush();
-            crate::run(state, listener, shutdown_signal()).await?;
-        }
+        Command::Serve(config) => serve(config).await?,
         Command::Controller(_) => unreachable!("handled before the runtime starts"),
         Command::Pilot {
             db,
@@ -215,9 +127,9 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             subjects,
             seed,
         } => {
-            let pool = crate::db::open(&db).await?;
+            let pool = store::db::open(&db.db).await?;
             let started = std::time::Instant::now();
-            let report = crate::pilot::run(&pool, study, subjects, seed).await?;
+            let report = pilot::run(&pool, study, subjects, seed).await?;
             println!("{}", serde_json::to_string(&report)?);
             tracing::info!(
                 elapsed_s = started.elapsed().as_secs_f64(),
@@ -230,13 +142,13 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             kind,
             out,
         } => {
-            let pool = crate::db::open(&db).await?;
+            let pool = store::db::open(&db.db).await?;
             let study = newest_study(&pool, study).await?;
             let tmp = out.with_extension("partial");
             let file = tokio::fs::File::create(&tmp)
                 .await
                 .with_context(|| format!("creating {}", tmp.display()))?;
-            if let Err(e) = crate::export::write(&pool, study, kind, file).await {
+            if let Err(e) = export::write(&pool, study, kind, file).await {
                 let _ = tokio::fs::remove_file(&tmp).await;
                 return Err(e.into());
             }
@@ -245,6 +157,60 @@ async fn execute(command: Command) -> anyhow::Result<()> {
                 .with_context(|| format!("renaming to {}", out.display()))?;
         }
     }
+    Ok(())
+}
+
+/// Opens the database, files trials left running as incomplete, makes sure an account or a
+/// set-up link exists, starts the controller link and serves until a signal.
+async fn serve(config: ServeConfig) -> anyhow::Result<()> {
+    let pool = store::db::open(&config.db.db).await?;
+    let interrupted = filing::interrupt_running(&pool, "server restart").await?;
+    if !interrupted.is_empty() {
+        tracing::warn!(trials = ?interrupted, "trials that were running when the server stopped are marked incomplete");
+    }
+    let listener = tokio::net::TcpListener::bind(config.listen)
+        .await
+        .with_context(|| format!("listening on {}", config.listen))?;
+    let addr = listener.local_addr()?;
+    if store::accounts::experimenter_count(&pool).await? == 0 {
+        match &config.admin_password {
+            Some(pw) => {
+                accounts::create_experimenter(&pool, "system", "admin", pw)
+                    .await
+                    .map_err(|e| anyhow::anyhow!("--admin-password: {e}"))?;
+                println!("Created the experimenter account \"admin\".");
+            }
+            None => {
+                let token = accounts::new_setup_token(&pool).await?;
+                println!(
+                    "First start: create the experimenter account at http://{addr}/setup?token={token}"
+                );
+            }
+        }
+    }
+    let source = match config.controller {
+        Some(a) => controller_link::ControllerSource::Connect(a),
+        None => {
+            let (bin, sub) = match config.controller_bin {
+                Some(bin) => (bin, "serve"),
+                None => (
+                    std::env::current_exe().context("locating this executable")?,
+                    "controller",
+                ),
+            };
+            let args = std::iter::once(sub.to_string())
+                .chain(config.controller_args)
+                .collect();
+            controller_link::ControllerSource::Spawn { bin, args }
+        }
+    };
+    let link = controller_link::ControllerLink::start(pool.clone(), source);
+    let mut state = crate::state::AppState::new(pool, link);
+    state.web_dir = config.web_dir;
+    println!("bdft-lab server on http://{addr}");
+    use std::io::Write;
+    let _ = std::io::stdout().flush();
+    crate::run(state, listener, shutdown_signal()).await?;
     Ok(())
 }
 

@@ -1,39 +1,24 @@
-//! The one shared state of the HTTP server.
+//! The one shared state of the HTTP server: the database, the controller link and the few
+//! things kept in memory.
 
-use std::collections::HashMap;
-use std::sync::{Arc, Mutex};
-use std::time::Instant;
+use std::sync::Arc;
 
 use sqlx::SqlitePool;
 
-use crate::controller_link::ControllerLink;
+use crate::engine::accounts::LoginLimiter;
+use crate::engine::controller_link::ControllerLink;
+use crate::engine::pilot::PilotJob;
+use crate::engine::stations::Pairing;
 
 #[derive(Clone, Debug)]
 pub struct AppState {
     pub pool: SqlitePool,
     pub controller: ControllerLink,
-    pub inner: Arc<Shared>,
+    pub login: Arc<LoginLimiter>,
+    pub pairing: Arc<Pairing>,
+    pub pilot: Arc<PilotJob>,
     /// Serve the pages from this directory instead of the embedded copy (development).
     pub web_dir: Option<std::path::PathBuf>,
-}
-
-#[derive(Debug, Default)]
-pub struct Shared {
-    /// Failed logins per (username, client address), for rate limiting.
-    pub login_failures: Mutex<HashMap<String, Vec<Instant>>>,
-    /// Stations that showed a pairing code and wait for the experimenter: code → (token,
-    /// created).
-    pub pending_stations: Mutex<HashMap<String, (String, Instant)>>,
-    /// The pilot run started from the dashboard, if any: (study, progress, outcome).
-    pub pilot: Mutex<Option<PilotRun>>,
-}
-
-#[derive(Debug, Clone)]
-pub struct PilotRun {
-    pub study_id: i64,
-    pub progress: Arc<crate::pilot::Progress>,
-    /// None while running; then Ok(summary) or Err(message).
-    pub outcome: Option<Result<serde_json::Value, String>>,
 }
 
 impl AppState {
@@ -41,7 +26,9 @@ impl AppState {
         Self {
             pool,
             controller,
-            inner: Arc::new(Shared::default()),
+            login: Arc::default(),
+            pairing: Arc::default(),
+            pilot: Arc::default(),
             web_dir: None,
         }
     }

@@ -6,7 +6,7 @@ use bdft_controller::rng::Rng;
 use bdft_controller::simulate::{SignalKind, SimConfig, simulate};
 use bdft_protocol::controller_to_server::ControllerToServer;
 use bdft_protocol::params::{
-    BodyModel, CompensatorKind, LoopParams, OperatorParams, PlantParams, Station, StepParams,
+    BodyModel, CompensatorKind, LoopParams, OperatorParams, PlantParams, Seat, StepParams,
 };
 use bdft_protocol::server_to_controller::{ServerToController, StartTrial};
 use bdft_protocol::trial::{FaultKind, InputSource, Outcome, RECORD_CHANNELS, TargetSpec};
@@ -17,7 +17,7 @@ use bdft_tests::controller_link::{Link, Proc, TrialLog};
 fn synthetic_trial(
     trial_id: u64,
     kind: CompensatorKind,
-    station: Station,
+    station: Seat,
     k_bf: f64,
     duration_s: f64,
     seed: u64,
@@ -53,7 +53,7 @@ fn synthetic_trial(
 
 fn offline(
     kind: CompensatorKind,
-    station: Station,
+    station: Seat,
     k_bf: f64,
     duration_s: f64,
     seed: u64,
@@ -85,7 +85,7 @@ fn server_input_trial(trial_id: u64, duration_s: f64) -> StartTrial {
         ..synthetic_trial(
             trial_id,
             CompensatorKind::Lqr,
-            Station::Off,
+            Seat::Off,
             0.6,
             duration_s,
             1,
@@ -103,9 +103,9 @@ fn lockstep_trials_reproduce_the_offline_simulation_exactly() {
     );
     // Three stations at once, each with its own plant and compensator.
     let trials = [
-        (1, CompensatorKind::LqrCabvel, Station::On, 0.78, 11),
-        (2, CompensatorKind::PidShaper, Station::On, 0.6, 12),
-        (3, CompensatorKind::Pid, Station::Off, 0.6, 13),
+        (1, CompensatorKind::LqrCabvel, Seat::On, 0.78, 11),
+        (2, CompensatorKind::PidShaper, Seat::On, 0.6, 12),
+        (3, CompensatorKind::Pid, Seat::Off, 0.6, 13),
     ];
     let duration = 6.0;
     for &(id, kind, station, k_bf, seed) in &trials {
@@ -233,7 +233,7 @@ fn estop_stops_everything_and_latches_until_reset() {
     link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
         1,
         CompensatorKind::Lqr,
-        Station::On,
+        Seat::On,
         0.6,
         10.0,
         1,
@@ -241,7 +241,7 @@ fn estop_stops_everything_and_latches_until_reset() {
     link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
         2,
         CompensatorKind::PidNotch,
-        Station::On,
+        Seat::On,
         0.6,
         10.0,
         2,
@@ -276,7 +276,7 @@ fn estop_stops_everything_and_latches_until_reset() {
     link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
         3,
         CompensatorKind::Lqr,
-        Station::On,
+        Seat::On,
         0.6,
         1.0,
         3,
@@ -295,7 +295,7 @@ fn estop_stops_everything_and_latches_until_reset() {
     link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
         3,
         CompensatorKind::Lqr,
-        Station::On,
+        Seat::On,
         0.6,
         0.5,
         3,
@@ -423,7 +423,7 @@ fn a_lost_server_link_stops_trials_and_the_controller_accepts_a_new_one() {
     link.start_and_wait(synthetic_trial(
         1,
         CompensatorKind::Lqr,
-        Station::On,
+        Seat::On,
         0.6,
         60.0,
         1,
@@ -462,7 +462,7 @@ fn a_lost_server_link_stops_trials_and_the_controller_accepts_a_new_one() {
     link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
         2,
         CompensatorKind::PidNotch,
-        Station::On,
+        Seat::On,
         0.6,
         0.3,
         2,
@@ -477,7 +477,7 @@ fn a_lost_server_link_stops_trials_and_the_controller_accepts_a_new_one() {
     link.start_and_wait(synthetic_trial(
         3,
         CompensatorKind::Lqr,
-        Station::On,
+        Seat::On,
         0.6,
         60.0,
         3,
@@ -519,7 +519,7 @@ fn a_trial_runs_on_a_rig_over_udp_and_a_silent_rig_is_a_fault() {
             period_s: 6.0,
         },
         input: InputSource::Reference,
-        ..synthetic_trial(1, CompensatorKind::PidNotch, Station::Off, 0.6, 3.0, 1)
+        ..synthetic_trial(1, CompensatorKind::PidNotch, Seat::Off, 0.6, 3.0, 1)
     };
     link.send(&ServerToController::StartTrial(Box::new(bench.clone())));
     let r = link.until_result(1, &mut log);

@@ -4,3 +4,4 @@ mod browser;
 mod controller_cli;
 mod controller_serve;
 mod server_api;
+mod server_layers;

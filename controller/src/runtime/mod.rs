@@ -20,7 +20,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use bdft_protocol::controller_to_server::RealtimeStatus;
-use bdft_protocol::params::{CompensatorKind, PlantParams, Station};
+use bdft_protocol::params::{CompensatorKind, PlantParams, Seat};
 use bdft_protocol::server_to_controller::StartTrial;
 use bdft_protocol::trial::{InputSource, TargetSpec, TimingSummary};
 use serde::Serialize;
@@ -248,7 +248,7 @@ pub fn bench_rt(
         let st = StartTrial {
             trial_id: i as u64 + 1,
             compensator: default_spec(kind, &plant),
-            station: Station::On,
+            station: Seat::On,
             k_bf: 0.6,
             target: TargetSpec::Steps {
                 interval_s: target.interval_s,

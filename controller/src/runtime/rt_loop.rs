@@ -394,7 +394,7 @@ mod tests {
     use crate::compensator::default_spec;
     use crate::runtime::handoff::InputSample;
     use crate::runtime::setup::build_slot;
-    use bdft_protocol::params::{CompensatorKind, OperatorParams, PlantParams, Station};
+    use bdft_protocol::params::{CompensatorKind, OperatorParams, PlantParams, Seat};
     use bdft_protocol::server_to_controller::StartTrial;
     use bdft_protocol::trial::{InputSource, TargetSpec};
 
@@ -403,7 +403,7 @@ mod tests {
         StartTrial {
             trial_id: id,
             compensator: default_spec(kind, &plant),
-            station: Station::On,
+            station: Seat::On,
             k_bf: 0.6,
             target: TargetSpec::Steps {
                 interval_s: 0.5,

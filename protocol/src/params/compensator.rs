@@ -7,6 +7,7 @@ use super::{ParamError, check};
 
 /// The compensators, by the names used everywhere (CLI, protocol, database, exports).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(rename_all = "kebab-case")]
 pub enum CompensatorKind {
     Pid,
@@ -70,8 +71,16 @@ impl std::str::FromStr for CompensatorKind {
     }
 }
 
+impl TryFrom<String> for CompensatorKind {
+    type Error = ParamError;
+    fn try_from(s: String) -> Result<Self, Self::Error> {
+        s.parse()
+    }
+}
+
 /// A compensator and all its parameters: enough to rebuild it exactly.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum CompensatorSpec {
     Pid {
@@ -121,6 +130,7 @@ impl CompensatorSpec {
 /// PID gains in the standard (ISA) form V = Kp·(e + (1/Ti)∫e + Td·de/dt), the derivative
 /// low-passed at N/Td.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(deny_unknown_fields)]
 pub struct PidParams {
     pub kp: f64,
@@ -145,6 +155,7 @@ impl PidParams {
 /// loop: D_N(s) = (s² + 2ζ_Nω_N s + ω_N²)/(s + ω_N)². Zeros midway between the structure
 /// modes, critically damped poles at the same frequency; the gain at ω_N is exactly ζ_N.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct NotchParams {
     pub f_hz: f64,
@@ -169,6 +180,7 @@ impl NotchParams {
 
 /// One structural mode to suppress.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(deny_unknown_fields)]
 pub struct Mode {
     pub f_hz: f64,
@@ -185,6 +197,7 @@ impl Mode {
 
 /// The shaper's design modes (default: the two identified structure modes).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct ShaperParams {
     pub modes: Vec<Mode>,
@@ -225,6 +238,7 @@ impl ShaperParams {
 
 /// Which cab signal the observer measures besides the cylinder position.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(rename_all = "lowercase")]
 pub enum CabOutput {
     /// ẋ_c, from the accelerometer high-passed then leakily integrated.
@@ -235,6 +249,7 @@ pub enum CabOutput {
 
 /// LQR design and implementation parameters.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(deny_unknown_fields)]
 pub struct LqrParams {
     /// Inner velocity-loop gain K_P·K_VC (V = K_P(u − ẏ)).

@@ -5,6 +5,7 @@ use serde::{Deserialize, Serialize};
 use super::{ParamError, check};
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct OperatorParams {
     /// Visual-motor reaction delay τ (s).
@@ -48,6 +49,7 @@ impl OperatorParams {
 
 /// How the protocol's random-step targets are drawn.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct StepParams {
     /// Time between steps (s).

@@ -7,6 +7,7 @@ use super::{ParamError, check};
 
 /// Valve/cylinder, structure and sensor parameters of the (simulated) rig.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct PlantParams {
     /// Valve/cylinder gain K_VC (mm/s per valve unit at steady state).
@@ -80,6 +81,7 @@ impl PlantParams {
 /// people differ widely, so the model is a parameter and richer seated-body models can be
 /// added as variants.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum BodyModel {
     /// h = k_h · x_c (nominal median male: 0.56 mm/mm).
@@ -108,17 +110,20 @@ impl BodyModel {
     }
 }
 
-/// Which operator station a test runs at.
+/// Where the operator sits for a test: on the machine or off it at the desk. (The study and
+/// the wire call it the operator's "station"; in the code a station is the paired computer
+/// at a seat.)
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(rename_all = "lowercase")]
-pub enum Station {
+pub enum Seat {
     /// On the machine: cab vibration shakes the hand, the feedthrough loop is closed.
     On,
     /// At a desk beside the machine: no feedthrough.
     Off,
 }
 
-impl Station {
+impl Seat {
     pub fn as_str(self) -> &'static str {
         match self {
             Self::On => "on",
@@ -127,7 +132,7 @@ impl Station {
     }
 }
 
-impl std::str::FromStr for Station {
+impl std::str::FromStr for Seat {
     type Err = ParamError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         match s {
@@ -141,8 +146,22 @@ impl std::str::FromStr for Station {
     }
 }
 
+impl TryFrom<String> for Seat {
+    type Error = ParamError;
+    fn try_from(s: String) -> Result<Self, Self::Error> {
+        s.parse()
+    }
+}
+
+impl std::fmt::Display for Seat {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
 /// Loop-wide settings.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct LoopParams {
     /// Sample period (s); the loop runs at 1/dt (default 1 kHz).

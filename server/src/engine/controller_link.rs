@@ -19,7 +19,8 @@ use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::net::TcpStream;
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
-use crate::store::{self, Record};
+use super::filing;
+use crate::store::records::Record;
 
 /// Where the controller comes from.
 #[derive(Debug, Clone)]
@@ -126,14 +127,6 @@ impl ControllerLink {
 
     pub fn is_connected(&self) -> bool {
         *self.inner.connected.borrow()
-    }
-
-    /// Waits until the link is up (or the timeout passes).
-    pub async fn wait_connected(&self, timeout: Duration) -> bool {
-        let mut rx = self.inner.connected.subscribe();
-        tokio::time::timeout(timeout, rx.wait_for(|c| *c))
-            .await
-            .is_ok()
     }
 
     /// Sends a message; fails if the controller is not connected.
@@ -244,7 +237,7 @@ async fn supervise(link: ControllerLink, pool: SqlitePool, source: ControllerSou
         for (_, done) in pending {
             let _ = done.send(Err(why.clone()));
         }
-        match store::interrupt_running(&pool, &format!("controller lost: {why}")).await {
+        match filing::interrupt_running(&pool, &format!("controller lost: {why}")).await {
             Ok(ids) => {
                 for id in ids {
                     tracing::warn!(trial = id, "trial marked incomplete: controller lost");
@@ -414,7 +407,7 @@ async fn handle(
         ControllerToServer::TrialResult(r) => {
             let channels = partial.remove(&r.trial_id).unwrap_or_default();
             let record = Record { dt: r.dt, channels };
-            match store::commit_result(pool, &r, &record).await {
+            match filing::file_result(pool, "controller", &r, &record).await {
                 Ok(true) => {
                     tracing::info!(trial = r.trial_id, outcome = ?r.outcome, "trial result stored")
                 }

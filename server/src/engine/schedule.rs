@@ -1,11 +1,11 @@
-//! The protocol engine's pure part: default study parameters, the protocol hash, each
-//! subject's schedule and each test's target. Everything here is a function of the study's
+//! The protocol's pure rules: default study parameters, the protocol hash, each subject's
+//! schedule and each test's target. Everything here is a function of the study's
 //! parameters and seeds, so a schedule can be regenerated on demand and checked.
 
 use bdft_controller::compensator::default_spec;
 use bdft_controller::rng::Rng;
 use bdft_controller::signals::StepTarget;
-use bdft_protocol::params::{CompensatorKind, ParamError, PlantParams, Station, StepParams};
+use bdft_protocol::params::{CompensatorKind, ParamError, PlantParams, Seat, StepParams};
 use bdft_protocol::study::{ConsentForm, RigKind, StudyParams, SurveyParams};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
@@ -23,7 +23,7 @@ pub fn default_params() -> StudyParams {
             .map(|&k| default_spec(k, &plant))
             .collect(),
         practice_controller: CompensatorKind::Pid,
-        stations: vec![Station::On, Station::Off],
+        stations: vec![Seat::On, Seat::Off],
         trial_s: 140.0,
         practice_s: 120.0,
         step_interval_s: 2.0,
@@ -56,31 +56,31 @@ pub struct ScheduledTest {
     /// 0 = practice, then 1.. in order.
     pub slot: u32,
     pub practice: bool,
-    pub station: Station,
-    /// 0 for the practice, 1 for the starting station, 2 for the other.
+    pub seat: Seat,
+    /// 0 for the practice, 1 for the starting seat, 2 for the other.
     pub block: u32,
     /// Position within the block, from 1 (0 for the practice).
     pub position: u32,
-    pub controller: CompensatorKind,
+    pub compensator: CompensatorKind,
     /// What the subject sees ("Controller 3", "Practice").
     pub blinded_label: String,
     pub duration_s: f64,
     pub target_seed: u64,
 }
 
-/// Starting station by enrolment order: on, off, on, … to balance learning effects.
-pub fn starting_station(enrol_index: u32) -> Station {
+/// Starting seat by enrolment order: on, off, on, … to balance learning effects.
+pub fn starting_station(enrol_index: u32) -> Seat {
     if enrol_index % 2 == 0 {
-        Station::On
+        Seat::On
     } else {
-        Station::Off
+        Seat::Off
     }
 }
 
-fn other(s: Station) -> Station {
+fn other(s: Seat) -> Seat {
     match s {
-        Station::On => Station::Off,
-        Station::Off => Station::On,
+        Seat::On => Seat::Off,
+        Seat::Off => Seat::On,
     }
 }
 
@@ -94,9 +94,10 @@ fn shuffle<T>(items: &mut [T], rng: &mut Rng) {
 }
 
 /// The schedule of the subject enrolled `enrol_index`-th (from 0): practice off the machine,
-/// then every controller once at the starting station in random order, then every controller
-/// once at the other station in a different random order. Blinded labels are a random
-/// numbering of the controllers, fixed for the subject across both stations.
+/// then every compensator once at the starting seat in random order, then every compensator
+/// once at the other seat in a different random order. Blinded labels ("Controller k", as
+/// the approved protocol words it for the subject) are a random numbering of the
+/// compensators, fixed for the subject across both seats.
 pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<ScheduledTest> {
     let mut rng = Rng::derive(
         Rng::derive(study_seed, SCHEDULE_STREAM).next_u64(),
@@ -118,7 +119,7 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
         let i = kinds
             .iter()
             .position(|&x| x == k)
-            .expect("controller of the study");
+            .expect("compensator of the study");
         format!("Controller {}", labels[i])
     };
     let mut out = Vec::with_capacity(2 * kinds.len() + 1);
@@ -126,17 +127,17 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
         out.push(ScheduledTest {
             slot: 0,
             practice: true,
-            station: Station::Off,
+            seat: Seat::Off,
             block: 0,
             position: 0,
-            controller: params.practice_controller,
+            compensator: params.practice_controller,
             blinded_label: "Practice".into(),
             duration_s: params.practice_s,
             target_seed: rng.next_u64() >> 11,
         });
     }
     let start = starting_station(enrol_index);
-    for (block, (station, order)) in [(start, &first), (other(start), &second)]
+    for (block, (seat, order)) in [(start, &first), (other(start), &second)]
         .into_iter()
         .enumerate()
     {
@@ -144,10 +145,10 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
             out.push(ScheduledTest {
                 slot: (block * kinds.len() + i + 1) as u32,
                 practice: false,
-                station,
+                seat,
                 block: block as u32 + 1,
                 position: i as u32 + 1,
-                controller: k,
+                compensator: k,
                 blinded_label: label_of(k),
                 duration_s: params.trial_s,
                 target_seed: rng.next_u64() >> 11,
@@ -200,35 +201,31 @@ mod tests {
             let s = schedule(&p, 99, idx);
             assert_eq!(s, schedule(&p, 99, idx), "reproducible");
             assert_eq!(s.len(), 11);
-            assert!(s[0].practice && s[0].station == Station::Off);
-            let start = if idx % 2 == 0 {
-                Station::On
-            } else {
-                Station::Off
-            };
+            assert!(s[0].practice && s[0].seat == Seat::Off);
+            let start = if idx % 2 == 0 { Seat::On } else { Seat::Off };
             let block = |b| s.iter().filter(move |t| t.block == b).collect::<Vec<_>>();
             let (b1, b2) = (block(1), block(2));
-            assert!(b1.iter().all(|t| t.station == start));
-            assert!(b2.iter().all(|t| t.station != start));
+            assert!(b1.iter().all(|t| t.seat == start));
+            assert!(b2.iter().all(|t| t.seat != start));
             for b in [&b1, &b2] {
-                let mut ks: Vec<_> = b.iter().map(|t| t.controller).collect();
+                let mut ks: Vec<_> = b.iter().map(|t| t.compensator).collect();
                 ks.sort();
                 assert_eq!(
                     ks,
                     CompensatorKind::STUDY.to_vec(),
-                    "each controller exactly once per station"
+                    "each compensator exactly once per seat"
                 );
                 assert_eq!(
                     b.iter().map(|t| t.position).collect::<Vec<_>>(),
                     vec![1, 2, 3, 4, 5]
                 );
             }
-            let o1: Vec<_> = b1.iter().map(|t| t.controller).collect();
-            let o2: Vec<_> = b2.iter().map(|t| t.controller).collect();
+            let o1: Vec<_> = b1.iter().map(|t| t.compensator).collect();
+            let o2: Vec<_> = b2.iter().map(|t| t.compensator).collect();
             assert_ne!(o1, o2, "the second order differs from the first");
-            // Blinded labels: one per controller, the same at both stations, never a name.
+            // Blinded labels: one per compensator, the same at both seats, never a name.
             for t in &b1 {
-                let twin = b2.iter().find(|u| u.controller == t.controller).unwrap();
+                let twin = b2.iter().find(|u| u.compensator == t.compensator).unwrap();
                 assert_eq!(t.blinded_label, twin.blinded_label);
                 assert!(t.blinded_label.starts_with("Controller "));
             }
@@ -246,13 +243,13 @@ mod tests {
 
     #[test]
     fn orders_are_balanced_across_many_subjects() {
-        // Random order: each controller should come first about 1/5 of the time.
+        // Random order: each compensator should come first about 1/5 of the time.
         let p = default_params();
         let mut first = std::collections::HashMap::new();
         let n = 2000;
         for idx in 0..n {
             let s = schedule(&p, 7, idx);
-            *first.entry(s[1].controller).or_insert(0) += 1;
+            *first.entry(s[1].compensator).or_insert(0) += 1;
         }
         for k in CompensatorKind::STUDY {
             let share = f64::from(first[&k]) / f64::from(n);

@@ -1,6 +1,6 @@
 //! Tidy CSV exports for R or pandas, streamed row by row (memory stays constant however large
 //! the study): `trials` (one row per test attempt), `samples` (the 1 kHz records, long
-//! format), `summary` (statistics per controller × station). Withdrawn subjects are left
+//! format), `summary` (statistics per compensator × seat). Withdrawn subjects are left
 //! out. Text cells are neutralized against spreadsheet formula injection.
 
 use sqlx::SqlitePool;
@@ -8,8 +8,10 @@ use tokio::io::{AsyncWrite, AsyncWriteExt, BufWriter};
 
 use bdft_protocol::trial::RECORD_CHANNELS;
 
-use crate::db::rfc3339;
-use crate::store::{StoreError, unblob};
+use super::stats::summary_stats;
+use crate::error::AppError;
+use crate::store;
+use crate::store::db::rfc3339;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -87,48 +89,6 @@ pub const TRIAL_COLUMNS: [&str; 32] = [
     "consent_version",
 ];
 
-#[derive(sqlx::FromRow)]
-struct TrialExportRow {
-    study_id: i64,
-    trial_id: i64,
-    code: String,
-    enrol_index: i64,
-    synthetic: bool,
-    starting_station: String,
-    station: String,
-    block: i64,
-    position: i64,
-    slot: i64,
-    attempt: i64,
-    controller: String,
-    blinded_label: String,
-    practice: bool,
-    status: String,
-    status_reason: Option<String>,
-    target_seed: i64,
-    target_mean_mm: f64,
-    target_std_mm: f64,
-    k_bf: f64,
-    duration_s: f64,
-    mse_tracking_mm2: Option<f64>,
-    ms_cab_accel: Option<f64>,
-    accuracy: Option<i64>,
-    speed: Option<i64>,
-    smoothness: Option<i64>,
-    controllability: Option<i64>,
-    comment: Option<String>,
-    protocol_hash: Option<String>,
-    started_at: Option<i64>,
-    finished_at: Option<i64>,
-    consent_version: Option<String>,
-}
-
-const TRIALS_SQL: &str = "SELECT s.study_id, t.id AS trial_id, s.code, s.enrol_index, s.synthetic, s.starting_station, t.station, t.block, t.position, t.slot, t.attempt, \
-     t.controller, t.blinded_label, t.practice, t.status, t.status_reason, t.target_seed, t.target_mean_mm, t.target_std_mm, t.k_bf, t.duration_s, \
-     t.mse_tracking_mm2, t.ms_cab_accel, v.accuracy, v.speed, v.smoothness, v.controllability, v.comment, t.protocol_hash, t.started_at, t.finished_at, s.consent_version \
-     FROM trials t JOIN subjects s ON s.id = t.subject_id LEFT JOIN surveys v ON v.trial_id = t.id \
-     WHERE s.study_id = ? AND s.withdrawn_at IS NULL ORDER BY s.enrol_index, t.slot, t.attempt";
-
 /// Writes the export of `kind` for `study_id` to `out`.
 pub async fn write(
     pool: &SqlitePool,
@@ -136,7 +96,7 @@ pub async fn write(
     kind: ExportKind,
     out: impl AsyncWrite + Unpin,
 ) -> Result<(), ExportError> {
-    crate::store::study(pool, study_id).await?;
+    store::studies::get(pool, study_id).await?;
     let mut w = BufWriter::with_capacity(1 << 16, out);
     match kind {
         ExportKind::Trials => trials(pool, study_id, &mut w).await?,
@@ -150,11 +110,15 @@ pub async fn write(
 #[derive(Debug, thiserror::Error)]
 pub enum ExportError {
     #[error(transparent)]
-    Store(#[from] StoreError),
-    #[error("database: {0}")]
-    Db(#[from] sqlx::Error),
+    Data(#[from] AppError),
     #[error("writing the export: {0}")]
     Io(#[from] std::io::Error),
+}
+
+impl From<sqlx::Error> for ExportError {
+    fn from(e: sqlx::Error) -> Self {
+        Self::Data(e.into())
+    }
 }
 
 async fn trials(
@@ -164,11 +128,7 @@ async fn trials(
 ) -> Result<(), ExportError> {
     w.write_all(format!("{}\n", TRIAL_COLUMNS.join(",")).as_bytes())
         .await?;
-    let rows: Vec<TrialExportRow> = sqlx::query_as(TRIALS_SQL)
-        .bind(study_id)
-        .fetch_all(pool)
-        .await?;
-    for r in rows {
+    for r in store::exports::trial_rows(pool, study_id).await? {
         let rating = |v: Option<i64>| v.map(|x| x.to_string()).unwrap_or_default();
         let cells = [
             r.study_id.to_string(),
@@ -176,16 +136,16 @@ async fn trials(
             text_cell(&r.code),
             (r.enrol_index + 1).to_string(),
             u8::from(r.synthetic).to_string(),
-            r.starting_station,
-            r.station,
+            r.starting_station.as_str().to_string(),
+            r.station.as_str().to_string(),
             r.block.to_string(),
             r.position.to_string(),
             r.slot.to_string(),
             r.attempt.to_string(),
-            r.controller,
+            r.controller.name().to_string(),
             text_cell(&r.blinded_label),
             u8::from(r.practice).to_string(),
-            r.status,
+            r.status.as_str().to_string(),
             text_cell(r.status_reason.as_deref().unwrap_or("")),
             r.target_seed.to_string(),
             r.target_mean_mm.to_string(),
@@ -229,25 +189,13 @@ async fn samples(
     .collect();
     w.write_all(format!("{}\n", header.join(",")).as_bytes())
         .await?;
-    let trials: Vec<(i64, String, String, String, bool)> = sqlx::query_as(
-        "SELECT t.id, s.code, t.station, t.controller, t.practice FROM trials t JOIN subjects s ON s.id = t.subject_id \
-         JOIN trial_records r ON r.trial_id = t.id WHERE s.study_id = ? AND s.withdrawn_at IS NULL ORDER BY s.enrol_index, t.slot, t.attempt",
-    )
-    .bind(study_id)
-    .fetch_all(pool)
-    .await?;
-    // One trial's record in memory at a time (about 5 MB for 140 s).
-    let channels = RECORD_CHANNELS.join(", ");
-    let sql = format!("SELECT dt, {channels} FROM trial_records WHERE trial_id = ?");
     let mut line = String::with_capacity(256);
-    for (trial_id, code, station, controller, practice) in trials {
-        let row = sqlx::query(&sql).bind(trial_id).fetch_one(pool).await?;
-        use sqlx::Row;
-        let dt: f64 = row.try_get(0)?;
-        let cols: Vec<Vec<f32>> = (0..RECORD_CHANNELS.len())
-            .map(|i| row.try_get::<Vec<u8>, _>(i + 1).map(|b| unblob(&b)))
-            .collect::<Result<_, _>>()?;
-        drop(row);
+    for (trial_id, code, station, controller, practice) in
+        store::exports::recorded_trials(pool, study_id).await?
+    {
+        // One trial's record in memory at a time (about 5 MB for 140 s).
+        let store::records::Record { dt, channels: cols } =
+            store::records::get(pool, trial_id).await?;
         let prefix = format!(
             "{study_id},{trial_id},{},{station},{controller},{},",
             text_cell(&code),
@@ -266,92 +214,6 @@ async fn samples(
         }
     }
     Ok(())
-}
-
-/// Quantile by linear interpolation between order statistics (R's type 7, numpy's default).
-pub fn quantile(sorted: &[f64], q: f64) -> f64 {
-    let h = (sorted.len() - 1) as f64 * q;
-    let (lo, hi) = (h.floor() as usize, h.ceil() as usize);
-    sorted[lo] + (h - lo as f64) * (sorted[hi] - sorted[lo])
-}
-
-/// Statistics of one variable for one controller × station.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct Stats {
-    pub controller: String,
-    pub station: String,
-    pub variable: String,
-    pub n: usize,
-    pub mean: f64,
-    pub median: f64,
-    pub q1: f64,
-    pub q3: f64,
-    pub min: f64,
-    pub max: f64,
-}
-
-pub const SUMMARY_VARIABLES: [&str; 6] = [
-    "mse_tracking_mm2",
-    "ms_cab_accel",
-    "rating_accuracy",
-    "rating_speed",
-    "rating_smoothness",
-    "rating_controllability",
-];
-
-/// Values of the summary variables (in `SUMMARY_VARIABLES` order) of every completed,
-/// non-practice test of subjects who have not withdrawn, by (controller, station).
-pub type GroupValues = std::collections::BTreeMap<(String, String), Vec<[Option<f64>; 6]>>;
-
-pub async fn group_values(pool: &SqlitePool, study_id: i64) -> Result<GroupValues, ExportError> {
-    let rows: Vec<TrialExportRow> = sqlx::query_as(TRIALS_SQL)
-        .bind(study_id)
-        .fetch_all(pool)
-        .await?;
-    let mut groups = GroupValues::new();
-    for r in rows
-        .into_iter()
-        .filter(|r| !r.practice && r.status == "complete")
-    {
-        let f = |v: Option<i64>| v.map(|x| x as f64);
-        groups.entry((r.controller, r.station)).or_default().push([
-            r.mse_tracking_mm2,
-            r.ms_cab_accel,
-            f(r.accuracy),
-            f(r.speed),
-            f(r.smoothness),
-            f(r.controllability),
-        ]);
-    }
-    Ok(groups)
-}
-
-/// Per controller × station statistics: the numbers behind the box plots and the table of
-/// averages.
-pub async fn summary_stats(pool: &SqlitePool, study_id: i64) -> Result<Vec<Stats>, ExportError> {
-    let mut out = Vec::new();
-    for ((controller, station), values) in group_values(pool, study_id).await? {
-        for (i, variable) in SUMMARY_VARIABLES.iter().enumerate() {
-            let mut xs: Vec<f64> = values.iter().filter_map(|v| v[i]).collect();
-            if xs.is_empty() {
-                continue;
-            }
-            xs.sort_by(f64::total_cmp);
-            out.push(Stats {
-                controller: controller.clone(),
-                station: station.clone(),
-                variable: (*variable).into(),
-                n: xs.len(),
-                mean: xs.iter().sum::<f64>() / xs.len() as f64,
-                median: quantile(&xs, 0.5),
-                q1: quantile(&xs, 0.25),
-                q3: quantile(&xs, 0.75),
-                min: xs[0],
-                max: xs[xs.len() - 1],
-            });
-        }
-    }
-    Ok(out)
 }
 
 async fn summary(
@@ -384,18 +246,5 @@ mod tests {
         assert_eq!(text_cell("@SUM(A1)"), "'@SUM(A1)");
         assert_eq!(text_cell("a,b"), "\"a,b\"");
         assert_eq!(text_cell("line\nbreak"), "\"line\nbreak\"");
-    }
-
-    #[test]
-    fn quantiles_match_numpy_linear() {
-        // numpy.quantile([1, 2, 3, 4, 10], [0.25, 0.5, 0.75]) = [2, 3, 4]
-        let xs = [1.0, 2.0, 3.0, 4.0, 10.0];
-        assert_eq!(
-            (quantile(&xs, 0.25), quantile(&xs, 0.5), quantile(&xs, 0.75)),
-            (2.0, 3.0, 4.0)
-        );
-        // numpy.quantile([1, 2, 3, 4], [0.25, 0.5]) = [1.75, 2.5]
-        let ys = [1.0, 2.0, 3.0, 4.0];
-        assert_eq!((quantile(&ys, 0.25), quantile(&ys, 0.5)), (1.75, 2.5));
     }
 }

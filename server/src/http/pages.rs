@@ -9,6 +9,7 @@ use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use include_dir::{Dir, include_dir};
 
+use super::error::AppError;
 use crate::state::AppState;
 
 static WEB: Dir<'static> = include_dir!("$CARGO_MANIFEST_DIR/../web");
@@ -39,7 +40,7 @@ async fn file(dir: &Option<PathBuf>, name: &str) -> Option<Vec<u8>> {
     }
 }
 
-pub async fn serve(s: &AppState, name: &str) -> Response {
+async fn serve(s: &AppState, name: &str) -> Response {
     match file(&s.web_dir, name).await {
         Some(body) => {
             let mut r = (StatusCode::OK, body).into_response();
@@ -61,12 +62,12 @@ pub async fn serve(s: &AppState, name: &str) -> Response {
             );
             r
         }
-        None => crate::error::AppError::NotFound("page").into_response(),
+        None => AppError::NotFound("page").into_response(),
     }
 }
 
 /// `/` → the dashboard, `/station`, `/setup`, `/subject` → their pages, `/<file>` → a file.
-pub async fn page(State(s): State<AppState>, Path(path): Path<String>) -> Response {
+async fn page(State(s): State<AppState>, Path(path): Path<String>) -> Response {
     let name = match path.as_str() {
         "station" => "station.html",
         "setup" => "setup.html",
@@ -76,6 +77,14 @@ pub async fn page(State(s): State<AppState>, Path(path): Path<String>) -> Respon
     serve(&s, name).await
 }
 
-pub async fn index(State(s): State<AppState>) -> Response {
+async fn index(State(s): State<AppState>) -> Response {
     serve(&s, "index.html").await
+}
+
+/// The pages: `/` and every file below it (unknown API paths end here too, as JSON 404s).
+pub fn routes() -> axum::Router<AppState> {
+    use axum::routing::get;
+    axum::Router::new()
+        .route("/", get(index))
+        .route("/{*path}", get(page))
 }

@@ -5,7 +5,7 @@
 
 use std::fmt::Write;
 
-use crate::export::quantile;
+use super::stats::quantile;
 
 /// The values of one box: (controller, station, values).
 pub type Group = (String, String, Vec<f64>);
@@ -245,7 +245,7 @@ pub fn box_plot_svg(
     svg
 }
 
-static FONT_DATA: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+static FONT_DATA: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 
 /// The SVG rendered to PNG (twice the nominal size, for print).
 pub fn png(svg: &str) -> anyhow::Result<Vec<u8>> {

@@ -2,11 +2,13 @@
 //! path that live tests and pilot runs share.
 
 use bdft_controller::rng::Rng;
-use bdft_protocol::params::{CompensatorSpec, OperatorParams, Station};
+use bdft_protocol::params::{CompensatorSpec, OperatorParams};
 use bdft_protocol::server_to_controller::StartTrial;
 use bdft_protocol::trial::{InputSource, TargetSpec};
 
-use crate::store::{StoreError, Study, Trial};
+use crate::error::{AppError, Result};
+use crate::store::studies::Study;
+use crate::store::trials::Trial;
 
 /// Who moves the input device in a trial.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -18,22 +20,14 @@ pub enum Operator {
 }
 
 /// The controller message that runs `trial` of `study`.
-pub fn start_message(
-    study: &Study,
-    trial: &Trial,
-    operator: Operator,
-) -> Result<StartTrial, StoreError> {
+pub fn start_message(study: &Study, trial: &Trial, operator: Operator) -> Result<StartTrial> {
     let bad = |what: &str, e: serde_json::Error| {
-        StoreError::Invalid(format!("stored {what} of trial {}: {e}", trial.id))
+        AppError::Internal(anyhow::anyhow!("stored {what} of trial {}: {e}", trial.id))
     };
     let compensator: CompensatorSpec =
         serde_json::from_str(&trial.compensator_json).map_err(|e| bad("compensator", e))?;
     let levels_mm: Vec<f64> =
         serde_json::from_str(&trial.target_levels_json).map_err(|e| bad("target", e))?;
-    let station: Station = trial
-        .station
-        .parse()
-        .map_err(|e: bdft_protocol::params::ParamError| StoreError::Invalid(e.to_string()))?;
     let seed = trial.target_seed as u64;
     let input = match operator {
         Operator::Person => InputSource::Server,
@@ -45,7 +39,7 @@ pub fn start_message(
     Ok(StartTrial {
         trial_id: trial.id as u64,
         compensator,
-        station,
+        station: trial.seat,
         k_bf: trial.k_bf,
         target: TargetSpec::Steps {
             interval_s: study.params.step_interval_s,

@@ -1,0 +1,116 @@
+//! Messages the browsers send the server: the station's operator input (WebSocket text),
+//! consent, survey answers and the display's timing figures (JSON bodies). Every one refuses
+//! unknown fields.
+
+use serde::{Deserialize, Serialize};
+
+use crate::records::ConsentDecision;
+use crate::study::SurveyAnswer;
+
+/// A message on the station's WebSocket.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum StationMessage {
+    /// The operator's intended hand position (mm of device travel) in the running test;
+    /// `seq` increases and comes back in live samples (round-trip timing).
+    Input {
+        trial_id: i64,
+        seq: u64,
+        position_mm: f64,
+    },
+}
+
+/// The subject's decision on the consent form shown.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(deny_unknown_fields)]
+pub struct ConsentRequest {
+    pub decision: ConsentDecision,
+}
+
+/// The survey of one completed test: its id and the answers.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(from = "SurveyFields")]
+pub struct SurveySubmission {
+    pub trial_id: i64,
+    #[serde(flatten)]
+    pub answer: SurveyAnswer,
+}
+
+/// The submission as it is read: every field written out, because serde cannot refuse
+/// unknown fields through `flatten`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SurveyFields {
+    trial_id: i64,
+    accuracy: Option<i64>,
+    speed: Option<i64>,
+    smoothness: Option<i64>,
+    controllability: Option<i64>,
+    #[serde(default)]
+    comment: String,
+}
+
+impl From<SurveyFields> for SurveySubmission {
+    fn from(f: SurveyFields) -> Self {
+        Self {
+            trial_id: f.trial_id,
+            answer: SurveyAnswer {
+                accuracy: f.accuracy,
+                speed: f.speed,
+                smoothness: f.smoothness,
+                controllability: f.controllability,
+                comment: f.comment,
+            },
+        }
+    }
+}
+
+/// Round trips of operator input to its echo in a live sample (ms).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(deny_unknown_fields)]
+pub struct RttPercentiles {
+    pub p50: f64,
+    pub p95: f64,
+    pub max: f64,
+}
+
+/// How the station's display kept up during a test.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(deny_unknown_fields)]
+pub struct TimingReport {
+    pub trial_id: i64,
+    /// Frames drawn.
+    pub frames: u64,
+    /// Frames that took longer than the display's period.
+    pub long_frames: u64,
+    pub rtt_ms: RttPercentiles,
+}
+
+/// Longest round trip accepted (ms): ten minutes.
+const MAX_RTT_MS: f64 = 600_000.0;
+
+impl TimingReport {
+    /// Every figure finite and in range; the message names the field and the range.
+    pub fn validate(&self) -> Result<(), String> {
+        for (name, v) in [
+            ("rtt_ms.p50", self.rtt_ms.p50),
+            ("rtt_ms.p95", self.rtt_ms.p95),
+            ("rtt_ms.max", self.rtt_ms.max),
+        ] {
+            if !v.is_finite() || !(0.0..=MAX_RTT_MS).contains(&v) {
+                return Err(format!(
+                    "{name}: a finite number of milliseconds from 0 to 600000"
+                ));
+            }
+        }
+        if self.long_frames > self.frames {
+            return Err("long_frames cannot exceed frames".into());
+        }
+        Ok(())
+    }
+}

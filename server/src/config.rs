@@ -1,0 +1,43 @@
+//! The server's configuration: one typed struct per command, every setting a flag with an
+//! environment variable (see `.env.sample`), defaults that work on a laptop.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+/// Where the data live.
+#[derive(Debug, Clone, clap::Args)]
+pub struct DbConfig {
+    /// SQLite database file (created if missing, migrations applied at start).
+    #[arg(long, env = "BDFT_DB", default_value = "bdft-lab.db")]
+    pub db: PathBuf,
+}
+
+/// `bdft-server serve`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ServeConfig {
+    #[command(flatten)]
+    pub db: DbConfig,
+    /// Address the server listens on.
+    #[arg(long, env = "BDFT_LISTEN", default_value = "127.0.0.1:8080")]
+    pub listen: SocketAddr,
+    /// Connect to a controller already running there (e.g. a real-time PC) instead of
+    /// starting one.
+    #[arg(long, env = "BDFT_CONTROLLER")]
+    pub controller: Option<SocketAddr>,
+    /// A bdft-controller binary to start [default: this executable runs the controller in
+    /// a child process of its own].
+    #[arg(long, env = "BDFT_CONTROLLER_BIN")]
+    pub controller_bin: Option<PathBuf>,
+    /// Extra argument for the started controller (repeatable), e.g. --controller-arg=--rig
+    /// --controller-arg=udp.
+    #[arg(long = "controller-arg", allow_hyphen_values = true)]
+    pub controller_args: Vec<String>,
+    /// Create the account "admin" with this password if there is no experimenter yet
+    /// (otherwise a one-time set-up link is printed).
+    #[arg(long, env = "BDFT_ADMIN_PASSWORD", hide_env_values = true)]
+    pub admin_password: Option<String>,
+    /// Serve the pages from this directory instead of the copy built into the binary
+    /// (for developing them).
+    #[arg(long, env = "BDFT_WEB_DIR")]
+    pub web_dir: Option<PathBuf>,
+}

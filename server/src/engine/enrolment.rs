@@ -1,0 +1,99 @@
+//! Enrolling a subject: the first enrolment locks the protocol (its hash goes on every
+//! trial); the subject's schedule and every test's target are drawn from the study seed and
+//! stored, all in one immediate transaction with the audit row.
+
+use serde_json::json;
+use sqlx::SqlitePool;
+
+use super::schedule::{protocol_hash, schedule, starting_station, target};
+use crate::error::{AppError, Result};
+use crate::store::subjects::{NewSubject, Subject};
+use crate::store::trials::NewTrial;
+use crate::store::{self, Change};
+
+/// Enrols the study's next subject; returns it and the token of its own page.
+pub async fn enrol(
+    pool: &SqlitePool,
+    actor: &str,
+    study_id: i64,
+    synthetic: bool,
+) -> Result<(Subject, String)> {
+    let mut change = Change::begin(pool, actor).await?;
+    let study = store::studies::get(change.db(), study_id).await?;
+    let hash = match &study.protocol_hash {
+        Some(h) => h.clone(),
+        None => {
+            let h = protocol_hash(&study.params);
+            store::studies::lock(change.db(), study_id, &h).await?;
+            h
+        }
+    };
+    let index = store::subjects::count_in_study(change.db(), study_id).await?;
+    let code = format!("S{:02}", index + 1);
+    let token = store::tokens::random_token();
+    let subject_id = store::subjects::insert(
+        change.db(),
+        &NewSubject {
+            study_id,
+            code: &code,
+            enrol_index: index,
+            synthetic,
+            token: &token,
+            starting_station: starting_station(index),
+        },
+    )
+    .await?;
+    for t in schedule(&study.params, study.seed, index) {
+        let tg = target(&study.params, &t)?;
+        // The practice runs the study's own design of its practice compensator when the
+        // study has one, else that compensator's default design.
+        let spec = study
+            .params
+            .controllers
+            .iter()
+            .find(|c| c.kind() == t.compensator)
+            .cloned()
+            .or_else(|| {
+                t.practice.then(|| {
+                    bdft_controller::compensator::default_spec(t.compensator, &study.params.plant)
+                })
+            })
+            .ok_or_else(|| {
+                AppError::Internal(anyhow::anyhow!(
+                    "scheduled {} is not in the study",
+                    t.compensator
+                ))
+            })?;
+        store::trials::insert(
+            change.db(),
+            &NewTrial {
+                subject_id,
+                slot: t.slot,
+                practice: t.practice,
+                seat: t.seat,
+                block: t.block,
+                position: t.position,
+                compensator: t.compensator,
+                blinded_label: &t.blinded_label,
+                compensator_json: serde_json::to_string(&spec).expect("specs serialize"),
+                k_bf: study.params.k_bf,
+                duration_s: t.duration_s,
+                target_seed: t.target_seed,
+                target_levels_json: serde_json::to_string(&tg.levels_mm).expect("levels serialize"),
+                target_mean_mm: tg.mean_mm,
+                target_std_mm: tg.std_mm,
+                protocol_hash: &hash,
+            },
+        )
+        .await?;
+    }
+    let subject = store::subjects::get(change.db(), subject_id).await?;
+    change
+        .commit(
+            "subject.enrol",
+            Some(format!("subject:{subject_id}")),
+            json!({ "code": code, "synthetic": synthetic }),
+        )
+        .await?;
+    Ok((subject, token))
+}

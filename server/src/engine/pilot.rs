@@ -1,0 +1,296 @@
+//! `bdft-server pilot`: the whole protocol for N synthetic subjects, faster than real time,
+//! through the same enrolment, scheduling, trial and commit code as a live study. Lets a lab
+//! dry-run its protocol and plan the sample size before the first person sits down.
+
+use std::sync::Arc;
+
+use anyhow::Context;
+use sqlx::SqlitePool;
+
+use bdft_protocol::records::ConsentDecision;
+use serde_json::json;
+
+use super::enrolment::enrol;
+use super::filing::file_result;
+use super::orchestrator::{Operator, start_message};
+use super::schedule::default_params;
+use crate::store::records::Record;
+use crate::store::{self, Change};
+
+/// Who the audit log names for a pilot's actions.
+const ACTOR: &str = "pilot";
+
+#[derive(Debug, Clone, serde::Serialize, utoipa::ToSchema)]
+pub struct PilotReport {
+    pub study_id: i64,
+    pub subjects: Vec<String>,
+    pub trials: usize,
+    pub complete: usize,
+}
+
+/// Loop sample period of the simulated trials.
+const DT: f64 = 1e-3;
+
+/// How far a running pilot is (trials run so far, of how many).
+#[derive(Debug, Default)]
+pub struct Progress {
+    pub done: std::sync::atomic::AtomicUsize,
+    pub total: std::sync::atomic::AtomicUsize,
+}
+
+/// Runs the pilot into `study_id` (default: the newest study, or a new default study if
+/// there is none). `seed` seeds a newly created study.
+pub async fn run(
+    pool: &SqlitePool,
+    study_id: Option<i64>,
+    subjects: u32,
+    seed: Option<u64>,
+) -> anyhow::Result<PilotReport> {
+    run_with_progress(
+        pool,
+        study_id,
+        subjects,
+        seed,
+        Arc::new(Progress::default()),
+    )
+    .await
+}
+
+/// `run`, counting finished trials in `progress` (the dashboard's progress bar).
+pub async fn run_with_progress(
+    pool: &SqlitePool,
+    study_id: Option<i64>,
+    subjects: u32,
+    seed: Option<u64>,
+    progress: Arc<Progress>,
+) -> anyhow::Result<PilotReport> {
+    let study_id = match study_id {
+        Some(id) => {
+            store::studies::get(pool, id)
+                .await
+                .with_context(|| format!("study {id}"))?
+                .id
+        }
+        None => match store::studies::all(pool).await?.last() {
+            Some(s) => s.id,
+            None => {
+                super::studies::create(
+                    pool,
+                    ACTOR,
+                    "Pilot (default protocol)",
+                    &default_params(),
+                    seed,
+                )
+                .await?
+            }
+        },
+    };
+    let study = Arc::new(store::studies::get(pool, study_id).await?);
+    Change::begin(pool, ACTOR)
+        .await?
+        .commit(
+            "pilot.start",
+            Some(format!("study:{study_id}")),
+            json!({ "subjects": subjects }),
+        )
+        .await?;
+    let mut report = PilotReport {
+        study_id,
+        subjects: Vec::new(),
+        trials: 0,
+        complete: 0,
+    };
+    let mut work = Vec::new();
+    for _ in 0..subjects {
+        let (subject, _) = enrol(pool, ACTOR, study_id, true).await?;
+        let mut change = Change::begin(pool, ACTOR).await?;
+        store::subjects::record_consent(
+            change.db(),
+            subject.id,
+            &format!("{} (synthetic)", study.params.consent.version),
+            ConsentDecision::Agreed,
+        )
+        .await?;
+        change
+            .commit(
+                "consent",
+                Some(format!("subject:{}", subject.id)),
+                json!({ "decision": "agreed", "synthetic": true }),
+            )
+            .await?;
+        report.subjects.push(subject.code.clone());
+        work.push(subject.id);
+    }
+    let per_subject = super::schedule::schedule(&study.params, study.seed, 0).len();
+    progress.total.store(
+        per_subject * work.len(),
+        std::sync::atomic::Ordering::Relaxed,
+    );
+    // One worker per core; each takes a subject and runs its tests in schedule order.
+    let queue = Arc::new(tokio::sync::Mutex::new(work));
+    let workers = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .max(1);
+    let mut tasks = tokio::task::JoinSet::new();
+    for _ in 0..workers {
+        let (pool, study, queue, progress) = (
+            pool.clone(),
+            Arc::clone(&study),
+            Arc::clone(&queue),
+            Arc::clone(&progress),
+        );
+        tasks.spawn(async move {
+            let mut done = (0, 0);
+            loop {
+                let Some(subject_id) = queue.lock().await.pop() else {
+                    return anyhow::Ok(done);
+                };
+                while let Some(trial) = store::trials::next(&pool, subject_id).await? {
+                    let mut change = Change::begin(&pool, ACTOR).await?;
+                    store::trials::mark_running(change.db(), trial.id).await?;
+                    change
+                        .commit(
+                            "trial.start",
+                            Some(format!("trial:{}", trial.id)),
+                            json!({}),
+                        )
+                        .await?;
+                    let start = start_message(&study, &trial, Operator::Synthetic)?;
+                    let (result, channels) = tokio::task::spawn_blocking(move || {
+                        bdft_controller::runtime::local::run(&start, DT)
+                    })
+                    .await?
+                    .map_err(anyhow::Error::msg)?;
+                    file_result(&pool, ACTOR, &result, &Record { dt: DT, channels }).await?;
+                    done.0 += 1;
+                    progress
+                        .done
+                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    if result.outcome == bdft_protocol::trial::Outcome::Complete {
+                        done.1 += 1;
+                    }
+                }
+            }
+        });
+    }
+    while let Some(r) = tasks.join_next().await {
+        let (t, c) = r??;
+        report.trials += t;
+        report.complete += c;
+    }
+    Change::begin(pool, ACTOR)
+        .await?
+        .commit(
+            "pilot.finish",
+            Some(format!("study:{study_id}")),
+            serde_json::to_value(&report)?,
+        )
+        .await?;
+    Ok(report)
+}
+
+/// The one pilot run the dashboard may have going, with its progress and outcome.
+#[derive(Debug, Default)]
+pub struct PilotJob {
+    run: std::sync::Mutex<Option<PilotRun>>,
+}
+
+#[derive(Debug, Clone)]
+struct PilotRun {
+    study_id: i64,
+    progress: Arc<Progress>,
+    /// None while running; then Ok(report) or Err(message).
+    outcome: Option<Result<PilotReport, String>>,
+}
+
+/// Where the dashboard's pilot run stands.
+#[derive(Debug, Clone, serde::Serialize, utoipa::ToSchema)]
+pub struct PilotStatus {
+    pub running: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub study_id: Option<i64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub done: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub total: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub report: Option<PilotReport>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
+impl PilotJob {
+    fn run(&self) -> std::sync::MutexGuard<'_, Option<PilotRun>> {
+        self.run.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Starts a pilot of `subjects` synthetic subjects into `study_id` in the background;
+    /// refused while another runs.
+    pub async fn start(
+        self: &Arc<Self>,
+        pool: &SqlitePool,
+        actor: &str,
+        study_id: i64,
+        subjects: u32,
+    ) -> crate::error::Result<()> {
+        use crate::error::AppError;
+        if !(1..=50).contains(&subjects) {
+            return Err(AppError::BadRequest("subjects: 1 to 50".into()));
+        }
+        store::studies::get(pool, study_id).await?;
+        let progress = Arc::new(Progress::default());
+        {
+            let mut run = self.run();
+            if run.as_ref().is_some_and(|r| r.outcome.is_none()) {
+                return Err(AppError::Conflict(
+                    "a pilot run is already in progress".into(),
+                ));
+            }
+            *run = Some(PilotRun {
+                study_id,
+                progress: progress.clone(),
+                outcome: None,
+            });
+        }
+        Change::begin(pool, actor)
+            .await?
+            .commit(
+                "pilot.start",
+                Some(format!("study:{study_id}")),
+                json!({ "subjects": subjects }),
+            )
+            .await?;
+        let (job, pool) = (Arc::clone(self), pool.clone());
+        tokio::spawn(async move {
+            let outcome = run_with_progress(&pool, Some(study_id), subjects, None, progress)
+                .await
+                .map_err(|e| format!("{e:#}"));
+            if let Some(run) = job.run().as_mut() {
+                run.outcome = Some(outcome);
+            }
+        });
+        Ok(())
+    }
+
+    pub fn status(&self) -> PilotStatus {
+        use std::sync::atomic::Ordering;
+        match self.run().clone() {
+            None => PilotStatus {
+                running: false,
+                study_id: None,
+                done: None,
+                total: None,
+                report: None,
+                error: None,
+            },
+            Some(r) => PilotStatus {
+                running: r.outcome.is_none(),
+                study_id: Some(r.study_id),
+                done: Some(r.progress.done.load(Ordering::Relaxed)),
+                total: Some(r.progress.total.load(Ordering::Relaxed)),
+                report: r.outcome.as_ref().and_then(|o| o.as_ref().ok()).cloned(),
+                error: r.outcome.as_ref().and_then(|o| o.as_ref().err()).cloned(),
+            },
+        }
+    }
+}

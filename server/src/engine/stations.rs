@@ -1,0 +1,272 @@
+//! Stations: pairing a browser by the code it shows, assigning a subject, and what a station
+//! shows now — the subject's view (blinded) and the experimenter's view of it.
+
+use std::collections::HashMap;
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use bdft_protocol::records::{ConsentDecision, DoneReason, StationRole, TrialStatus};
+use bdft_protocol::server_to_browser::{
+    MonitorStation, MonitorTest, MonitorView, Phase, StationInfo, StationView, TestView,
+};
+use serde_json::json;
+use sqlx::SqlitePool;
+
+use crate::error::{AppError, Result};
+use crate::store::stations::Station;
+use crate::store::trials::{Trial, latest_attempts};
+use crate::store::{self, Change};
+
+/// Letters and digits that cannot be mistaken for one another when read off a screen.
+const CODE_ALPHABET: &[u8] = b"ABCDEFGHJKLMNPQRSTUVWXYZ23456789";
+/// How long a shown pairing code stays valid.
+const CODE_LIFETIME: Duration = Duration::from_secs(3600);
+
+/// Stations that showed a pairing code and wait for the experimenter: code → (token,
+/// created). Kept in memory: a code is good for an hour or until the server restarts.
+#[derive(Debug, Default)]
+pub struct Pairing {
+    pending: Mutex<HashMap<String, (String, Instant)>>,
+}
+
+impl Pairing {
+    fn pending(&self) -> std::sync::MutexGuard<'_, HashMap<String, (String, Instant)>> {
+        self.pending.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// A new station's (bearer token, pairing code).
+    pub fn register(&self) -> (String, String) {
+        let token = store::tokens::random_token();
+        let mut bytes = [0u8; 6];
+        getrandom::fill(&mut bytes).expect("the OS random source works");
+        // 32 symbols divide 256, so every symbol is equally likely.
+        let code: String = bytes
+            .iter()
+            .map(|b| CODE_ALPHABET[usize::from(*b) % CODE_ALPHABET.len()] as char)
+            .collect();
+        self.pending()
+            .insert(code.clone(), (token.clone(), Instant::now()));
+        (token, code)
+    }
+
+    /// The token of the station showing `code`, which is used up.
+    fn take(&self, code: &str) -> Option<String> {
+        let mut pending = self.pending();
+        pending.retain(|_, (_, at)| at.elapsed() < CODE_LIFETIME);
+        pending.remove(code).map(|(t, _)| t)
+    }
+}
+
+/// Pairs the station showing `pairing_code` with a study; returns its id.
+pub async fn pair(
+    pool: &SqlitePool,
+    pairing: &Pairing,
+    actor: &str,
+    study_id: i64,
+    pairing_code: &str,
+    name: &str,
+    role: StationRole,
+) -> Result<i64> {
+    store::studies::get(pool, study_id).await?;
+    super::check_name(name)?;
+    let code = pairing_code.trim().to_uppercase();
+    let token = pairing.take(&code).ok_or_else(|| {
+        AppError::BadRequest(format!(
+            "pairing code {code:?} is not shown by any station (codes expire after an hour)"
+        ))
+    })?;
+    let mut change = Change::begin(pool, actor).await?;
+    let id = store::stations::insert(change.db(), study_id, name, role, &token, &code).await?;
+    change
+        .commit(
+            "station.pair",
+            Some(format!("station:{id}")),
+            json!({ "name": name, "role": role }),
+        )
+        .await?;
+    Ok(id)
+}
+
+/// Assigns a subject of the station's study to it (or none).
+pub async fn assign(
+    pool: &SqlitePool,
+    actor: &str,
+    station_id: i64,
+    subject_id: Option<i64>,
+) -> Result<()> {
+    let mut change = Change::begin(pool, actor).await?;
+    let station = store::stations::get(change.db(), station_id).await?;
+    if let Some(subject_id) = subject_id {
+        let subject = store::subjects::get(change.db(), subject_id).await?;
+        if subject.study_id != station.study_id {
+            return Err(AppError::BadRequest(
+                "the subject belongs to another study".into(),
+            ));
+        }
+    }
+    store::stations::assign(change.db(), station_id, subject_id).await?;
+    change
+        .commit(
+            "station.assign",
+            Some(format!("station:{station_id}")),
+            json!({ "subject_id": subject_id }),
+        )
+        .await
+}
+
+/// What `station` shows now, with each test given by `test` (blinded for the subject,
+/// with the compensator for the experimenter).
+async fn phase<T>(
+    pool: &SqlitePool,
+    station: &Station,
+    test: impl Fn(TestView, &Trial) -> T,
+) -> Result<Phase<T>> {
+    let Some(subject_id) = station.subject_id else {
+        return Ok(Phase::Waiting);
+    };
+    let subject = store::subjects::get(pool, subject_id).await?;
+    let study = store::studies::get(pool, subject.study_id).await?;
+    let code = subject.code.clone();
+    if subject.withdrawn_at.is_some() {
+        return Ok(Phase::Done {
+            subject: code,
+            reason: DoneReason::Withdrawn,
+        });
+    }
+    match subject.consent_decision {
+        None => {
+            return Ok(Phase::Consent {
+                subject: code,
+                consent: study.params.consent,
+            });
+        }
+        Some(ConsentDecision::Declined) => {
+            return Ok(Phase::Done {
+                subject: code,
+                reason: DoneReason::Declined,
+            });
+        }
+        Some(ConsentDecision::Agreed) => {}
+    }
+    if let Some(t) = store::trials::pending_survey(pool, subject_id).await? {
+        // The survey is answered where the test was run; another station sends the
+        // subject there.
+        if !station.role.serves(t.seat) {
+            return Ok(Phase::Move {
+                subject: code,
+                to: t.seat,
+            });
+        }
+        return Ok(Phase::Survey {
+            subject: code,
+            trial_id: t.id,
+            label: t.blinded_label,
+            survey: study.params.survey,
+        });
+    }
+    let trials = store::trials::of_subject(pool, subject_id).await?;
+    let total = latest_attempts(&trials).filter(|t| !t.practice).count();
+    let Some(t) = store::trials::next(pool, subject_id).await? else {
+        return Ok(Phase::Done {
+            subject: code,
+            reason: DoneReason::Finished,
+        });
+    };
+    if !station.role.serves(t.seat) {
+        return Ok(Phase::Move {
+            subject: code,
+            to: t.seat,
+        });
+    }
+    let view = TestView {
+        trial_id: t.id,
+        label: t.blinded_label.clone(),
+        practice: t.practice,
+        number: t.slot,
+        of: total as i64,
+        duration_s: t.duration_s,
+        seat: t.seat,
+        shake_gain: if t.seat == bdft_protocol::params::Seat::On {
+            study.params.display_shake_gain
+        } else {
+            0.0
+        },
+        target_range_mm: study.params.target_range_mm,
+        k_bf: t.k_bf,
+        started_at: t.started_at,
+    };
+    let test = test(view, &t);
+    Ok(if t.status == TrialStatus::Running {
+        Phase::Running {
+            subject: code,
+            test,
+        }
+    } else {
+        Phase::Ready {
+            subject: code,
+            test,
+        }
+    })
+}
+
+/// What the station shows its subject now (never a compensator's name).
+pub async fn station_view(pool: &SqlitePool, station: &Station) -> Result<StationView> {
+    Ok(StationView {
+        station: StationInfo {
+            name: station.name.clone(),
+            role: station.role,
+        },
+        phase: phase(pool, station, |view, _| view).await?,
+    })
+}
+
+/// What a station shows, for the experimenter's live monitor (with the compensator of the
+/// test at hand).
+pub async fn monitor_view(pool: &SqlitePool, station_id: i64) -> Result<MonitorView> {
+    let station = store::stations::get(pool, station_id).await?;
+    Ok(MonitorView {
+        phase: phase(pool, &station, |test, t| MonitorTest {
+            test,
+            compensator: t.compensator,
+        })
+        .await?,
+        station: MonitorStation {
+            id: station.id,
+            name: station.name,
+            role: station.role,
+            subject_id: station.subject_id,
+        },
+    })
+}
+
+/// The trial a station may feed with operator input now: its subject's running test at a
+/// seat the station serves.
+pub async fn running_trial(pool: &SqlitePool, station_id: i64) -> Result<Option<i64>> {
+    let station = store::stations::get(pool, station_id).await?;
+    let Some(subject_id) = station.subject_id else {
+        return Ok(None);
+    };
+    let next = store::trials::next(pool, subject_id).await?;
+    Ok(next
+        .filter(|t| t.status == TrialStatus::Running && station.role.serves(t.seat))
+        .map(|t| t.id))
+}
+
+/// A test of the station's subject (a station never touches another subject's data).
+pub async fn own_trial(pool: &SqlitePool, station: &Station, trial_id: i64) -> Result<Trial> {
+    let subject_id = subject_of(station)?;
+    let trial = store::trials::get(pool, trial_id).await?;
+    if trial.subject_id != subject_id {
+        return Err(AppError::Forbidden(
+            "this test belongs to another subject".into(),
+        ));
+    }
+    Ok(trial)
+}
+
+/// The subject assigned to the station.
+pub fn subject_of(station: &Station) -> Result<i64> {
+    station
+        .subject_id
+        .ok_or_else(|| AppError::Conflict("no subject is assigned to this station".into()))
+}

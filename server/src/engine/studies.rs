@@ -1,0 +1,62 @@
+//! Creating and editing a study: the parameters are validated, and a study whose protocol is
+//! locked (a subject enrolled) cannot change.
+
+use bdft_protocol::study::StudyParams;
+use serde_json::json;
+use sqlx::SqlitePool;
+
+use super::check_name;
+use crate::error::{AppError, Result};
+use crate::store::{self, Change};
+
+/// Seeds are kept below 2^53 so they survive JSON and JavaScript unchanged.
+const SEED_LIMIT: u64 = 1 << 53;
+
+/// Creates a study (default seed: a random one); returns its id.
+pub async fn create(
+    pool: &SqlitePool,
+    actor: &str,
+    name: &str,
+    params: &StudyParams,
+    seed: Option<u64>,
+) -> Result<i64> {
+    check_name(name)?;
+    if seed.is_some_and(|s| s >= SEED_LIMIT) {
+        return Err(AppError::BadRequest(
+            "seed: a whole number below 2^53".into(),
+        ));
+    }
+    params.validate()?;
+    let seed = seed.unwrap_or_else(store::tokens::random_seed);
+    let mut change = Change::begin(pool, actor).await?;
+    let id = store::studies::insert(change.db(), name, params, seed).await?;
+    change
+        .commit(
+            "study.create",
+            Some(format!("study:{id}")),
+            json!({ "name": name, "seed": seed }),
+        )
+        .await?;
+    Ok(id)
+}
+
+/// Replaces the name and parameters of a study that has not started.
+pub async fn update(
+    pool: &SqlitePool,
+    actor: &str,
+    id: i64,
+    name: &str,
+    params: &StudyParams,
+) -> Result<()> {
+    check_name(name)?;
+    params.validate()?;
+    let mut change = Change::begin(pool, actor).await?;
+    store::studies::update(change.db(), id, name, params).await?;
+    change
+        .commit(
+            "study.update",
+            Some(format!("study:{id}")),
+            json!({ "name": name, "params": params }),
+        )
+        .await
+}

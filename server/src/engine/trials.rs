@@ -1,0 +1,235 @@
+//! The rules of a test's life: when it may start (consent, order, surveys, the right rig),
+//! when it may be redone, aborted or filed incomplete, and the E-stop. Every change is committed with its audit row.
+
+use bdft_protocol::records::{ConsentDecision, TrialStatus};
+use bdft_protocol::server_to_controller::ServerToController;
+use bdft_protocol::study::RigKind;
+use serde_json::json;
+use sqlx::SqlitePool;
+
+use super::controller_link::{ControllerEvent, ControllerLink};
+use super::orchestrator::{Operator, start_message};
+use crate::error::{AppError, Result};
+use crate::store::trials::Trial;
+use crate::store::{self, Change};
+
+/// The rig kind a controller must have to run a study on `rig`: "sim" or "udp".
+fn rig_name(rig: RigKind) -> &'static str {
+    match rig {
+        RigKind::Simulated => "sim",
+        RigKind::Real => "udp",
+    }
+}
+
+/// Checks that `trial` may start now and starts it on the controller.
+pub async fn start(
+    pool: &SqlitePool,
+    link: &ControllerLink,
+    actor: &str,
+    trial_id: i64,
+) -> Result<Trial> {
+    let trial = store::trials::get(pool, trial_id).await?;
+    let subject = store::subjects::get(pool, trial.subject_id).await?;
+    if subject.withdrawn_at.is_some() {
+        return Err(AppError::Conflict(format!(
+            "{} has withdrawn",
+            subject.code
+        )));
+    }
+    if subject.consent_decision != Some(ConsentDecision::Agreed) {
+        return Err(AppError::Conflict(format!(
+            "{} has not consented; nothing runs without consent",
+            subject.code
+        )));
+    }
+    let next = store::trials::next(pool, subject.id).await?;
+    if next.as_ref().map(|t| t.id) != Some(trial.id) {
+        return Err(AppError::Conflict(format!(
+            "trial {} is not {}'s next test",
+            trial.id, subject.code
+        )));
+    }
+    // A synthetic subject's surveys may be answered (to try the pages) but never hold up a
+    // dry run; a person's must be answered before the next test.
+    if !subject.synthetic {
+        if let Some(pending) = store::trials::pending_survey(pool, subject.id).await? {
+            return Err(AppError::Conflict(format!(
+                "the survey of trial {} is still to be answered",
+                pending.id
+            )));
+        }
+    }
+    if !link.is_connected() {
+        return Err(AppError::Unavailable(
+            "the controller is not connected".into(),
+        ));
+    }
+    let study = store::studies::get(pool, subject.study_id).await?;
+    // A study run on the real machine must never go to a simulating controller, nor the
+    // reverse: the data would silently mean something else.
+    let want = rig_name(study.params.rig);
+    if link.rig().as_deref() != Some(want) {
+        return Err(AppError::Conflict(format!(
+            "the study runs on the {} rig but the controller's rig is {}",
+            if want == "sim" { "simulated" } else { "real" },
+            link.rig().unwrap_or_else(|| "unknown".into())
+        )));
+    }
+    let operator = if subject.synthetic {
+        Operator::Synthetic
+    } else {
+        Operator::Person
+    };
+    let msg = start_message(&study, &trial, operator)?;
+    let mut change = Change::begin(pool, actor).await?;
+    store::trials::mark_running(change.db(), trial.id).await?;
+    change
+        .commit(
+            "trial.start",
+            Some(format!("trial:{}", trial.id)),
+            json!({ "controller": trial.compensator, "station": trial.seat }),
+        )
+        .await?;
+    if let Err(reason) = link.start_trial(&msg).await {
+        let mut change = Change::begin(pool, actor).await?;
+        store::trials::unmark_running(change.db(), trial.id).await?;
+        change
+            .commit(
+                "trial.start_failed",
+                Some(format!("trial:{}", trial.id)),
+                json!({ "reason": reason }),
+            )
+            .await?;
+        return Err(AppError::Unavailable(format!(
+            "the controller did not start the trial: {reason}"
+        )));
+    }
+    // The station's socket starts forwarding operator input at once.
+    link.emit(ControllerEvent::TrialChanged { trial_id: trial.id });
+    store::trials::get(pool, trial.id).await
+}
+
+/// Stops a running trial early; the controller files it aborted with `reason`.
+pub async fn abort(
+    pool: &SqlitePool,
+    link: &ControllerLink,
+    actor: &str,
+    trial_id: i64,
+    reason: &str,
+) -> Result<()> {
+    super::check_reason(reason)?;
+    let trial = store::trials::get(pool, trial_id).await?;
+    if trial.status != TrialStatus::Running {
+        return Err(AppError::Conflict(format!(
+            "trial {trial_id} is {}, not running",
+            trial.status
+        )));
+    }
+    link.send(&ServerToController::AbortTrial {
+        trial_id: trial_id as u64,
+        reason: reason.to_string(),
+    })
+    .map_err(AppError::Unavailable)?;
+    Change::begin(pool, actor)
+        .await?
+        .commit(
+            "trial.abort",
+            Some(format!("trial:{trial_id}")),
+            json!({ "reason": reason }),
+        )
+        .await
+}
+
+/// Adds the next attempt of a finished test (the latest attempt only); returns it.
+pub async fn redo(pool: &SqlitePool, actor: &str, trial_id: i64, reason: &str) -> Result<Trial> {
+    if reason.chars().count() > 500 {
+        return Err(AppError::BadRequest(
+            "reason: at most 500 characters".into(),
+        ));
+    }
+    // Read and insert in one immediate transaction: two redos racing see each other.
+    let mut change = Change::begin(pool, actor).await?;
+    let t = store::trials::get(change.db(), trial_id).await?;
+    let latest = store::trials::latest_attempt(change.db(), &t).await?;
+    if latest != t.attempt || !t.finished() {
+        return Err(AppError::Conflict(
+            "only the latest attempt of a finished test can be redone".into(),
+        ));
+    }
+    let new_id = store::trials::insert_next_attempt(change.db(), trial_id).await?;
+    let new = store::trials::get(change.db(), new_id).await?;
+    change
+        .commit(
+            "trial.redo",
+            Some(format!("trial:{trial_id}")),
+            json!({ "new_trial": new_id, "reason": reason }),
+        )
+        .await?;
+    Ok(new)
+}
+
+/// The experimenter files a scheduled or complete test as incomplete.
+pub async fn mark_incomplete(
+    pool: &SqlitePool,
+    actor: &str,
+    trial_id: i64,
+    reason: &str,
+) -> Result<Trial> {
+    super::check_reason(reason)?;
+    let mut change = Change::begin(pool, actor).await?;
+    store::trials::mark_incomplete(change.db(), trial_id, reason).await?;
+    let t = store::trials::get(change.db(), trial_id).await?;
+    change
+        .commit(
+            "trial.mark_incomplete",
+            Some(format!("trial:{trial_id}")),
+            json!({ "reason": reason }),
+        )
+        .await?;
+    Ok(t)
+}
+
+/// A note about a test, by its author; returns the note's id.
+pub async fn add_note(pool: &SqlitePool, author: &str, trial_id: i64, text: &str) -> Result<i64> {
+    if text.trim().is_empty() || text.chars().count() > 2000 {
+        return Err(AppError::BadRequest("text: 1 to 2000 characters".into()));
+    }
+    let mut change = Change::begin(pool, author).await?;
+    let t = store::trials::get(change.db(), trial_id).await?;
+    let note = store::subjects::add_note(change.db(), t.subject_id, trial_id, text, author).await?;
+    change
+        .commit(
+            "trial.note",
+            Some(format!("trial:{trial_id}")),
+            json!({ "note": note }),
+        )
+        .await?;
+    Ok(note)
+}
+
+/// The E-stop: sent first, audited after (the stop itself waits for nothing that could
+/// fail); an error when it could not be sent.
+pub async fn estop(pool: &SqlitePool, link: &ControllerLink, actor: &str) -> Result<()> {
+    let sent = link.send(&ServerToController::EStop);
+    Change::begin(pool, actor)
+        .await?
+        .commit(
+            "estop",
+            Some("controller".into()),
+            json!({ "delivered": sent.is_ok() }),
+        )
+        .await?;
+    sent.map_err(AppError::Unavailable)
+}
+
+/// Clears the E-stop latch.
+pub async fn reset_estop(pool: &SqlitePool, link: &ControllerLink, actor: &str) -> Result<()> {
+    link.send(&ServerToController::ResetEStop)
+        .map_err(AppError::Unavailable)?;
+    // The controller's status confirms the cleared latch.
+    let _ = link.send(&ServerToController::Status);
+    Change::begin(pool, actor)
+        .await?
+        .commit("estop.reset", Some("controller".into()), json!({}))
+        .await
+}

@@ -1,0 +1,76 @@
+//! The real-time controller: health, its link and latch, the E-stop and its reset.
+
+use axum::extract::State;
+use serde::Serialize;
+use utoipa::ToSchema;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::error::{ApiResult, AppJson, Done};
+use super::extract::Experimenter;
+use crate::engine::trials;
+use crate::state::AppState;
+
+pub fn public() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new().routes(routes!(health))
+}
+
+pub fn experimenter() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(estop))
+        .routes(routes!(estop_reset))
+        .routes(routes!(controller_status))
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct Health {
+    pub ok: bool,
+    pub controller_connected: bool,
+}
+
+/// Liveness, and whether the controller is connected.
+#[utoipa::path(get, path = "/api/health", tag = "controller", responses((status = 200, body = Health)))]
+async fn health(State(s): State<AppState>) -> AppJson<Health> {
+    AppJson(Health {
+        ok: true,
+        controller_connected: s.controller.is_connected(),
+    })
+}
+
+/// Emergency stop: every valve to zero, every trial stopped; latched until reset.
+#[utoipa::path(post, path = "/api/estop", tag = "controller", responses((status = 200, body = Done)))]
+async fn estop(State(s): State<AppState>, who: Experimenter) -> ApiResult<Done> {
+    trials::estop(&s.pool, &s.controller, &who.username).await?;
+    Ok(Done::ok())
+}
+
+/// Clear the E-stop latch.
+#[utoipa::path(post, path = "/api/estop/reset", tag = "controller", responses((status = 200, body = Done)))]
+async fn estop_reset(State(s): State<AppState>, who: Experimenter) -> ApiResult<Done> {
+    trials::reset_estop(&s.pool, &s.controller, &who.username).await?;
+    Ok(Done::ok())
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ControllerStatus {
+    pub connected: bool,
+    /// Process id of the controller this server started, if any.
+    pub pid: Option<u32>,
+    /// "sim" or "udp".
+    pub rig: Option<String>,
+    pub estop_latched: bool,
+}
+
+/// The controller's link, rig and E-stop latch.
+#[utoipa::path(get, path = "/api/controller", tag = "controller", responses((status = 200, body = ControllerStatus)))]
+async fn controller_status(
+    State(s): State<AppState>,
+    _who: Experimenter,
+) -> AppJson<ControllerStatus> {
+    AppJson(ControllerStatus {
+        connected: s.controller.is_connected(),
+        pid: s.controller.pid(),
+        rig: s.controller.rig(),
+        estop_latched: s.controller.estop_latched(),
+    })
+}

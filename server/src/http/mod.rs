@@ -1,0 +1,193 @@
+//! The HTTP surface: one module per area, each a router of its handlers; `app` puts them
+//! together by who may call them and generates the OpenAPI document from the same routers,
+//! so the document cannot drift from what is served.
+//!
+//! *Invariants:* an area module imports only the infrastructure beside it (`error`,
+//! `extract`, `bodies`), never another area; the experimenter router carries the
+//! authentication layer, so a route added there is protected by default; every API route
+//! is registered with `routes!`, so it is in the document.
+
+pub mod bodies;
+pub mod error;
+pub mod extract;
+
+mod controller;
+mod live;
+mod pages;
+mod pilot;
+mod results;
+mod session;
+mod station_client;
+mod stations;
+mod studies;
+mod subjects;
+mod trials;
+
+use std::sync::Arc;
+
+use axum::extract::DefaultBodyLimit;
+use axum::routing::get;
+use axum::{Json, Router, middleware};
+use utoipa::OpenApi;
+use utoipa::openapi::path::{Operation, PathItem};
+use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityRequirement, SecurityScheme};
+use utoipa::openapi::{ContentBuilder, Ref, ResponseBuilder};
+use utoipa_axum::router::OpenApiRouter;
+
+use crate::state::AppState;
+
+/// Largest request body accepted (study parameters are a few kB).
+const MAX_BODY: usize = 256 * 1024;
+
+/// Who may call a group of routes, as the document names it.
+#[derive(Debug, Clone, Copy)]
+enum Caller {
+    Anyone,
+    /// `session`: the experimenter's cookie (and the CSRF header on changes).
+    Experimenter,
+    /// `bearer`: a station's or a subject's token.
+    Bearer,
+}
+
+#[derive(OpenApi)]
+#[openapi(
+    info(
+        title = "bdft-lab experiment server",
+        description = "Studies, subjects, stations, trials, surveys, results and exports of biodynamic-feedthrough experiments. Errors are JSON `{\"error\": ..., \"fields\": [...]}`: 4xx for what a user got wrong, 500 only for bugs."
+    ),
+    components(schemas(error::ErrorBody))
+)]
+struct ApiDoc;
+
+/// The whole HTTP surface.
+pub fn app(state: AppState) -> Router {
+    let experimenter = OpenApiRouter::new()
+        .merge(session::experimenter())
+        .merge(studies::routes())
+        .merge(subjects::experimenter())
+        .merge(stations::routes())
+        .merge(trials::routes())
+        .merge(controller::experimenter())
+        .merge(pilot::routes())
+        .merge(results::routes())
+        .merge(live::experimenter())
+        .route_layer(middleware::from_fn_with_state(
+            state.clone(),
+            extract::require_experimenter,
+        ));
+    let groups = [
+        (Caller::Anyone, session::public()),
+        (Caller::Anyone, controller::public()),
+        (Caller::Anyone, station_client::public()),
+        // The station socket takes its token in the query.
+        (Caller::Bearer, live::station()),
+        (Caller::Bearer, station_client::station()),
+        (Caller::Bearer, subjects::subject()),
+        (Caller::Experimenter, experimenter),
+    ];
+    let mut doc = ApiDoc::openapi();
+    let mut router = Router::new();
+    for (caller, group) in groups {
+        let (r, mut api) = group.split_for_parts();
+        describe(&mut api, caller);
+        doc.merge(api);
+        router = router.merge(r);
+    }
+    add_security_schemes(&mut doc);
+    let doc = Arc::new(doc);
+    router
+        .route(
+            "/api/openapi.json",
+            get(move || async move { Json(doc.as_ref().clone()) }),
+        )
+        .merge(pages::routes())
+        .layer(DefaultBodyLimit::max(MAX_BODY))
+        .with_state(state)
+}
+
+fn operations(item: &mut PathItem) -> impl Iterator<Item = &mut Operation> {
+    [
+        &mut item.get,
+        &mut item.put,
+        &mut item.post,
+        &mut item.delete,
+        &mut item.patch,
+        &mut item.head,
+        &mut item.options,
+        &mut item.trace,
+    ]
+    .into_iter()
+    .flatten()
+}
+
+/// Marks who may call each operation of `api` and adds the error answers they share.
+fn describe(api: &mut utoipa::openapi::OpenApi, caller: Caller) {
+    let errors: &[(&str, &str)] = &[
+        ("401", "not logged in, or no valid token"),
+        (
+            "403",
+            "forbidden: wrong CSRF token or another subject's data",
+        ),
+        ("404", "not found"),
+        (
+            "409",
+            "not allowed in the current state, or another user changed it first",
+        ),
+        ("413", "the request body is too large"),
+        (
+            "422",
+            "invalid input: `error` says what, `fields` lists bad form fields",
+        ),
+        ("503", "the controller or the database cannot serve it now"),
+    ];
+    for item in api.paths.paths.values_mut() {
+        for op in operations(item) {
+            op.security = Some(match caller {
+                Caller::Anyone => vec![SecurityRequirement::default()],
+                Caller::Experimenter => {
+                    vec![SecurityRequirement::new("session", Vec::<String>::new())]
+                }
+                Caller::Bearer => vec![SecurityRequirement::new("bearer", Vec::<String>::new())],
+            });
+            for (code, what) in errors {
+                op.responses
+                    .responses
+                    .entry((*code).to_string())
+                    .or_insert_with(|| {
+                        ResponseBuilder::new()
+                            .description(*what)
+                            .content(
+                                "application/json",
+                                ContentBuilder::new()
+                                    .schema(Some(Ref::from_schema_name("ErrorBody")))
+                                    .build(),
+                            )
+                            .build()
+                            .into()
+                    });
+            }
+        }
+    }
+}
+
+fn add_security_schemes(doc: &mut utoipa::openapi::OpenApi) {
+    let components = doc.components.get_or_insert_with(Default::default);
+    components.add_security_scheme(
+        "session",
+        SecurityScheme::ApiKey(utoipa::openapi::security::ApiKey::Cookie(
+            utoipa::openapi::security::ApiKeyValue::with_description(
+                extract::SESSION_COOKIE,
+                "the experimenter's session (POST /api/login); changes also need the X-CSRF-Token header",
+            ),
+        )),
+    );
+    components.add_security_scheme(
+        "bearer",
+        SecurityScheme::Http(
+            HttpBuilder::new()
+                .scheme(HttpAuthScheme::Bearer)
+                .description(Some("a station's token (POST /api/station/register, then paired) or a subject's page token"))
+                .build(),
+        ),
+    );
+}

@@ -1,0 +1,53 @@
+//! Pilot runs from the dashboard: synthetic subjects through the whole protocol, in the
+//! background, with progress.
+
+use axum::extract::{Path, State};
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::error::{ApiResult, AppJson};
+use super::extract::Experimenter;
+use crate::engine::pilot::PilotStatus;
+use crate::state::AppState;
+
+pub fn routes() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(start_pilot))
+        .routes(routes!(pilot_status))
+}
+
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PilotBody {
+    /// Synthetic subjects to run: 1 to 50.
+    subjects: u32,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct PilotStarted {
+    pub started: bool,
+}
+
+/// Dry-run the protocol with synthetic subjects in the background (progress at GET
+/// /api/pilot).
+#[utoipa::path(post, path = "/api/studies/{id}/pilot", tag = "pilot", params(("id" = i64, Path)),
+    request_body = PilotBody, responses((status = 200, body = PilotStarted)))]
+async fn start_pilot(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(id): Path<i64>,
+    AppJson(b): AppJson<PilotBody>,
+) -> ApiResult<PilotStarted> {
+    s.pilot
+        .start(&s.pool, &who.username, id, b.subjects)
+        .await?;
+    Ok(AppJson(PilotStarted { started: true }))
+}
+
+/// Where the dashboard's pilot run stands.
+#[utoipa::path(get, path = "/api/pilot", tag = "pilot", responses((status = 200, body = PilotStatus)))]
+async fn pilot_status(State(s): State<AppState>, _who: Experimenter) -> AppJson<PilotStatus> {
+    AppJson(s.pilot.status())
+}

@@ -1,0 +1,130 @@
+//! Results: summary statistics, box plots, streamed CSV exports and the audit log.
+
+use axum::body::Body;
+use axum::extract::{Path, Query, State};
+use axum::http::header;
+use axum::response::{IntoResponse, Response};
+use serde::Deserialize;
+use serde_json::json;
+use utoipa::IntoParams;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::error::{ApiResult, AppError, AppJson};
+use super::extract::Experimenter;
+use crate::engine::export::{self, ExportKind};
+use crate::engine::results::{box_plot, parse_file};
+use crate::engine::stats::{Stats, summary_stats};
+use crate::state::AppState;
+use crate::store::audit::AuditEntry;
+use crate::store::{self, Change};
+
+pub fn routes() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(summary))
+        .routes(routes!(plot))
+        .routes(routes!(download))
+        .routes(routes!(audit_log))
+}
+
+/// Statistics per compensator × seat of every metric and rating.
+#[utoipa::path(get, path = "/api/studies/{id}/summary", tag = "results", params(("id" = i64, Path)),
+    responses((status = 200, body = Vec<Stats>)))]
+async fn summary(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<Vec<Stats>> {
+    store::studies::get(&s.pool, id).await?;
+    Ok(AppJson(summary_stats(&s.pool, id).await?))
+}
+
+/// A box plot of one variable by compensator and seat: `{variable}.svg` or `.png`.
+#[utoipa::path(get, path = "/api/studies/{id}/plots/{file}", tag = "results",
+    params(("id" = i64, Path), ("file" = String, Path, description = "e.g. mse_tracking_mm2.svg")),
+    responses((status = 200, description = "SVG or PNG image", content_type = "image/svg+xml")))]
+async fn plot(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path((id, file)): Path<(i64, String)>,
+) -> Result<Response, AppError> {
+    let (index, format) = parse_file(&file)?;
+    let body = box_plot(&s.pool, id, index, format).await?;
+    Ok((
+        [
+            (header::CONTENT_TYPE, format.mime()),
+            (header::CACHE_CONTROL, "no-cache"),
+        ],
+        body,
+    )
+        .into_response())
+}
+
+/// A CSV export (`trials`, `samples` or `summary`, optionally with `.csv`), streamed: the
+/// response starts at once and is written as rows are read.
+#[utoipa::path(get, path = "/api/studies/{id}/export/{kind}", tag = "results",
+    params(("id" = i64, Path), ("kind" = String, Path, description = "trials, samples or summary")),
+    responses((status = 200, description = "CSV", content_type = "text/csv")))]
+async fn download(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path((id, kind)): Path<(i64, String)>,
+) -> Result<Response, AppError> {
+    let kind_name = kind.trim_end_matches(".csv").to_string();
+    let kind: ExportKind = kind_name.parse().map_err(AppError::BadRequest)?;
+    let study = store::studies::get(&s.pool, id).await?;
+    Change::begin(&s.pool, who.username.as_str())
+        .await?
+        .commit(
+            "export",
+            Some(format!("study:{id}")),
+            json!({ "kind": kind_name }),
+        )
+        .await?;
+    let (w, r) = tokio::io::duplex(1 << 16);
+    let pool = s.pool.clone();
+    tokio::spawn(async move {
+        if let Err(e) = export::write(&pool, id, kind, w).await {
+            tracing::error!("export of study {id} failed mid-stream: {e}");
+        }
+    });
+    let body = Body::from_stream(tokio_util::io::ReaderStream::new(r));
+    let filename = format!(
+        "bdft-study{}-{kind_name}-{}.csv",
+        study.id,
+        &study
+            .protocol_hash
+            .unwrap_or_default()
+            .get(..8)
+            .unwrap_or("unlocked")
+    );
+    Ok((
+        [
+            (header::CONTENT_TYPE, "text/csv; charset=utf-8".to_string()),
+            (
+                header::CONTENT_DISPOSITION,
+                format!("attachment; filename=\"{filename}\""),
+            ),
+        ],
+        body,
+    )
+        .into_response())
+}
+
+#[derive(Debug, Deserialize, IntoParams)]
+struct AuditQuery {
+    /// How many of the newest rows: 1 to 10000 (default 200).
+    limit: Option<i64>,
+}
+
+/// The audit log, newest first.
+#[utoipa::path(get, path = "/api/audit", tag = "results", params(AuditQuery),
+    responses((status = 200, body = Vec<AuditEntry>)))]
+async fn audit_log(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Query(q): Query<AuditQuery>,
+) -> ApiResult<Vec<AuditEntry>> {
+    let limit = q.limit.unwrap_or(200).clamp(1, 10_000);
+    Ok(AppJson(store::audit::newest(&s.pool, limit).await?))
+}

@@ -1,0 +1,145 @@
+//! Logging in and out, and the first account: the session cookie is set here.
+
+use std::net::SocketAddr;
+
+use axum::extract::{ConnectInfo, State};
+use axum::http::{HeaderMap, HeaderValue, header};
+use axum::response::{IntoResponse, Response};
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::error::{ApiResult, AppError, AppJson, Done};
+use super::extract::{Experimenter, SESSION_COOKIE, cookie};
+use crate::engine::accounts::{self, SESSION_HOURS};
+use crate::state::AppState;
+use crate::store;
+
+/// Routes anyone may call.
+pub fn public() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(setup_status, setup))
+        .routes(routes!(login))
+}
+
+/// Routes of a logged-in experimenter.
+pub fn experimenter() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(me))
+        .routes(routes!(logout))
+}
+
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Credentials {
+    pub username: String,
+    pub password: String,
+}
+
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SetupRequest {
+    /// The token of the one-time set-up link printed at the first start.
+    pub token: String,
+    pub username: String,
+    pub password: String,
+}
+
+/// A new session: the cookie is set, the CSRF token is for the `X-CSRF-Token` header.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct SessionStarted {
+    pub username: String,
+    pub csrf: String,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct SetupStatus {
+    /// Whether the first experimenter account must still be created.
+    pub needs_setup: bool,
+}
+
+fn session_cookie(token: &str, max_age_s: i64) -> HeaderValue {
+    HeaderValue::from_str(&format!(
+        "{SESSION_COOKIE}={token}; HttpOnly; SameSite=Strict; Path=/; Max-Age={max_age_s}"
+    ))
+    .expect("tokens are hex")
+}
+
+fn started(username: &str, (token, csrf): (String, String)) -> Response {
+    (
+        [(
+            header::SET_COOKIE,
+            session_cookie(&token, SESSION_HOURS * 3600),
+        )],
+        AppJson(SessionStarted {
+            username: username.to_string(),
+            csrf,
+        }),
+    )
+        .into_response()
+}
+
+/// Log in: sets an HttpOnly session cookie and returns the CSRF token.
+#[utoipa::path(post, path = "/api/login", tag = "session", request_body = Credentials,
+    responses((status = 200, body = SessionStarted), (status = 429, description = "too many failed attempts")))]
+async fn login(
+    State(state): State<AppState>,
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    AppJson(c): AppJson<Credentials>,
+) -> Result<Response, AppError> {
+    let session = accounts::login(
+        &state.pool,
+        &state.login,
+        &c.username,
+        &c.password,
+        peer.ip(),
+    )
+    .await?;
+    Ok(started(&c.username, session))
+}
+
+/// Log out: ends the session.
+#[utoipa::path(post, path = "/api/logout", tag = "session", responses((status = 200, body = Done)))]
+async fn logout(
+    State(state): State<AppState>,
+    who: Experimenter,
+    headers: HeaderMap,
+) -> Result<Response, AppError> {
+    let token = cookie(&headers, SESSION_COOKIE);
+    accounts::end_session(&state.pool, &who.username, token.as_deref()).await?;
+    Ok(([(header::SET_COOKIE, session_cookie("", 0))], Done::ok()).into_response())
+}
+
+/// Create the first experimenter with the one-time set-up token.
+#[utoipa::path(post, path = "/api/setup", tag = "session", request_body = SetupRequest,
+    responses((status = 200, body = SessionStarted)))]
+async fn setup(
+    State(state): State<AppState>,
+    AppJson(req): AppJson<SetupRequest>,
+) -> Result<Response, AppError> {
+    let id = accounts::first_account(&state.pool, &req.token, &req.username, &req.password).await?;
+    let session = accounts::new_session(
+        &state.pool,
+        id,
+        &req.username,
+        "login",
+        serde_json::json!({ "after": "setup" }),
+    )
+    .await?;
+    Ok(started(&req.username, session))
+}
+
+/// Whether the first experimenter account must still be created.
+#[utoipa::path(get, path = "/api/setup", tag = "session", responses((status = 200, body = SetupStatus)))]
+async fn setup_status(State(state): State<AppState>) -> ApiResult<SetupStatus> {
+    Ok(AppJson(SetupStatus {
+        needs_setup: store::accounts::experimenter_count(&state.pool).await? == 0,
+    }))
+}
+
+/// The logged-in experimenter and the CSRF token.
+#[utoipa::path(get, path = "/api/me", tag = "session", responses((status = 200, body = Experimenter)))]
+async fn me(who: Experimenter) -> AppJson<Experimenter> {
+    AppJson(who)
+}

@@ -1,0 +1,96 @@
+//! The station's own API (bearer token of a paired station, acting for the subject assigned
+//! to it): registering for a pairing code, what to show now, consent, surveys and the
+//! display's timing figures.
+
+use axum::extract::State;
+use bdft_protocol::browser_to_server::{ConsentRequest, SurveySubmission, TimingReport};
+use bdft_protocol::server_to_browser::StationView;
+use serde::Serialize;
+use utoipa::ToSchema;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::error::{ApiResult, AppJson, Done};
+use super::extract::StationAuth;
+use crate::engine::{stations, subjects};
+use crate::state::AppState;
+
+/// Anyone may register a browser as a station (it is useless until paired).
+pub fn public() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new().routes(routes!(register))
+}
+
+/// Routes of a paired station.
+pub fn station() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(state))
+        .routes(routes!(consent))
+        .routes(routes!(survey))
+        .routes(routes!(timing))
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct Registered {
+    /// The station's bearer token (kept by the browser).
+    pub token: String,
+    /// The code the station shows for the experimenter to pair it.
+    pub pairing_code: String,
+}
+
+/// Register this browser as a station: a token and a pairing code to show.
+#[utoipa::path(post, path = "/api/station/register", tag = "station", responses((status = 200, body = Registered)))]
+async fn register(State(s): State<AppState>) -> AppJson<Registered> {
+    let (token, pairing_code) = s.pairing.register();
+    AppJson(Registered {
+        token,
+        pairing_code,
+    })
+}
+
+/// What the station shows now (never a compensator's name).
+#[utoipa::path(get, path = "/api/station/state", tag = "station", responses((status = 200, body = StationView)))]
+async fn state(
+    State(s): State<AppState>,
+    StationAuth(station): StationAuth,
+) -> ApiResult<StationView> {
+    Ok(AppJson(stations::station_view(&s.pool, &station).await?))
+}
+
+/// The subject agrees to or declines the consent form; answers what to show next.
+#[utoipa::path(post, path = "/api/station/consent", tag = "station", request_body = ConsentRequest,
+    responses((status = 200, body = StationView)))]
+async fn consent(
+    State(s): State<AppState>,
+    StationAuth(station): StationAuth,
+    AppJson(b): AppJson<ConsentRequest>,
+) -> ApiResult<StationView> {
+    let subject_id = stations::subject_of(&station)?;
+    subjects::consent(&s.pool, subject_id, b.decision, &station.name).await?;
+    Ok(AppJson(stations::station_view(&s.pool, &station).await?))
+}
+
+/// The subject's survey of a completed test; answers what to show next.
+#[utoipa::path(post, path = "/api/station/survey", tag = "station", request_body = SurveySubmission,
+    responses((status = 200, body = StationView)))]
+async fn survey(
+    State(s): State<AppState>,
+    StationAuth(station): StationAuth,
+    AppJson(b): AppJson<SurveySubmission>,
+) -> ApiResult<StationView> {
+    let trial = stations::own_trial(&s.pool, &station, b.trial_id).await?;
+    subjects::answer_survey(&s.pool, &trial, &b).await?;
+    Ok(AppJson(stations::station_view(&s.pool, &station).await?))
+}
+
+/// How the display kept up during a test (frames, long frames, input round trip).
+#[utoipa::path(post, path = "/api/station/timing", tag = "station", request_body = TimingReport,
+    responses((status = 200, body = Done)))]
+async fn timing(
+    State(s): State<AppState>,
+    StationAuth(station): StationAuth,
+    AppJson(b): AppJson<TimingReport>,
+) -> ApiResult<Done> {
+    stations::own_trial(&s.pool, &station, b.trial_id).await?;
+    subjects::report_timing(&s.pool, &station.name, &b).await?;
+    Ok(Done::ok())
+}

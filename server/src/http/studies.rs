@@ -1,0 +1,93 @@
+//! Studies: the published protocol's defaults, creating, reading and editing a study.
+
+use axum::extract::{Path, State};
+use bdft_protocol::study::StudyParams;
+use serde::Deserialize;
+use utoipa::ToSchema;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::error::{ApiResult, AppError, AppJson};
+use super::extract::Experimenter;
+use crate::engine::schedule::default_params;
+use crate::engine::studies;
+use crate::state::AppState;
+use crate::store;
+use crate::store::studies::Study;
+
+pub fn routes() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(defaults))
+        .routes(routes!(list_studies, create_study))
+        .routes(routes!(get_study, update_study))
+}
+
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct StudyBody {
+    /// 1 to 200 characters.
+    name: String,
+    /// Default: the published protocol. Required when editing.
+    params: Option<StudyParams>,
+    /// Seed of every random draw (schedules, targets); default random. Below 2^53; fixed
+    /// at creation.
+    seed: Option<u64>,
+}
+
+/// Default study parameters (the published protocol).
+#[utoipa::path(get, path = "/api/defaults", tag = "studies", responses((status = 200, body = StudyParams)))]
+async fn defaults(_who: Experimenter) -> AppJson<StudyParams> {
+    AppJson(default_params())
+}
+
+/// Every study.
+#[utoipa::path(get, path = "/api/studies", tag = "studies", responses((status = 200, body = Vec<Study>)))]
+async fn list_studies(State(s): State<AppState>, _who: Experimenter) -> ApiResult<Vec<Study>> {
+    Ok(AppJson(store::studies::all(&s.pool).await?))
+}
+
+/// Create a study (default parameters: the published protocol).
+#[utoipa::path(post, path = "/api/studies", tag = "studies", request_body = StudyBody,
+    responses((status = 200, body = Study)))]
+async fn create_study(
+    State(s): State<AppState>,
+    who: Experimenter,
+    AppJson(b): AppJson<StudyBody>,
+) -> ApiResult<Study> {
+    let params = b.params.unwrap_or_else(default_params);
+    let id = studies::create(&s.pool, &who.username, &b.name, &params, b.seed).await?;
+    Ok(AppJson(store::studies::get(&s.pool, id).await?))
+}
+
+/// One study.
+#[utoipa::path(get, path = "/api/studies/{id}", tag = "studies", params(("id" = i64, Path)),
+    responses((status = 200, body = Study)))]
+async fn get_study(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<Study> {
+    Ok(AppJson(store::studies::get(&s.pool, id).await?))
+}
+
+/// Edit a study's name and parameters (until its protocol is locked by the first
+/// enrolment).
+#[utoipa::path(put, path = "/api/studies/{id}", tag = "studies", params(("id" = i64, Path)),
+    request_body = StudyBody, responses((status = 200, body = Study)))]
+async fn update_study(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(id): Path<i64>,
+    AppJson(b): AppJson<StudyBody>,
+) -> ApiResult<Study> {
+    let params = b
+        .params
+        .ok_or_else(|| AppError::BadRequest("params: required".into()))?;
+    if b.seed.is_some() {
+        return Err(AppError::BadRequest(
+            "seed: fixed when the study is created".into(),
+        ));
+    }
+    studies::update(&s.pool, &who.username, id, &b.name, &params).await?;
+    Ok(AppJson(store::studies::get(&s.pool, id).await?))
+}

@@ -1,0 +1,83 @@
+//! The queries behind the exports and statistics: every attempt of every test of the
+//! subjects who have not withdrawn, in schedule order.
+
+use bdft_protocol::params::{CompensatorKind, Seat};
+use bdft_protocol::records::TrialStatus;
+use sqlx::SqliteExecutor;
+
+use crate::error::Result;
+
+/// One test attempt with its subject and survey, as the exports and statistics read it.
+#[derive(Debug, sqlx::FromRow)]
+pub struct TrialExportRow {
+    pub study_id: i64,
+    pub trial_id: i64,
+    pub code: String,
+    pub enrol_index: i64,
+    pub synthetic: bool,
+    #[sqlx(try_from = "String")]
+    pub starting_station: Seat,
+    #[sqlx(try_from = "String")]
+    pub station: Seat,
+    pub block: i64,
+    pub position: i64,
+    pub slot: i64,
+    pub attempt: i64,
+    #[sqlx(try_from = "String")]
+    pub controller: CompensatorKind,
+    pub blinded_label: String,
+    pub practice: bool,
+    #[sqlx(try_from = "String")]
+    pub status: TrialStatus,
+    pub status_reason: Option<String>,
+    pub target_seed: i64,
+    pub target_mean_mm: f64,
+    pub target_std_mm: f64,
+    pub k_bf: f64,
+    pub duration_s: f64,
+    pub mse_tracking_mm2: Option<f64>,
+    pub ms_cab_accel: Option<f64>,
+    pub accuracy: Option<i64>,
+    pub speed: Option<i64>,
+    pub smoothness: Option<i64>,
+    pub controllability: Option<i64>,
+    pub comment: Option<String>,
+    pub protocol_hash: Option<String>,
+    pub started_at: Option<i64>,
+    pub finished_at: Option<i64>,
+    pub consent_version: Option<String>,
+}
+
+const TRIALS_SQL: &str = "SELECT s.study_id, t.id AS trial_id, s.code, s.enrol_index, s.synthetic, s.starting_station, t.station, t.block, t.position, t.slot, t.attempt, \
+     t.controller, t.blinded_label, t.practice, t.status, t.status_reason, t.target_seed, t.target_mean_mm, t.target_std_mm, t.k_bf, t.duration_s, \
+     t.mse_tracking_mm2, t.ms_cab_accel, v.accuracy, v.speed, v.smoothness, v.controllability, v.comment, t.protocol_hash, t.started_at, t.finished_at, s.consent_version \
+     FROM trials t JOIN subjects s ON s.id = t.subject_id LEFT JOIN surveys v ON v.trial_id = t.id \
+     WHERE s.study_id = ? AND s.withdrawn_at IS NULL ORDER BY s.enrol_index, t.slot, t.attempt";
+
+/// Every attempt of every test of the study's subjects who have not withdrawn.
+pub async fn trial_rows<'c>(
+    db: impl SqliteExecutor<'c>,
+    study_id: i64,
+) -> Result<Vec<TrialExportRow>> {
+    Ok(sqlx::query_as(TRIALS_SQL)
+        .bind(study_id)
+        .fetch_all(db)
+        .await?)
+}
+
+/// A trial that has a record: (trial id, subject code, seat, compensator, practice).
+pub type RecordedTrial = (i64, String, String, String, bool);
+
+/// The trials of the study's remaining subjects that have a record, in schedule order.
+pub async fn recorded_trials<'c>(
+    db: impl SqliteExecutor<'c>,
+    study_id: i64,
+) -> Result<Vec<RecordedTrial>> {
+    Ok(sqlx::query_as(
+        "SELECT t.id, s.code, t.station, t.controller, t.practice FROM trials t JOIN subjects s ON s.id = t.subject_id \
+         JOIN trial_records r ON r.trial_id = t.id WHERE s.study_id = ? AND s.withdrawn_at IS NULL ORDER BY s.enrol_index, t.slot, t.attempt",
+    )
+    .bind(study_id)
+    .fetch_all(db)
+    .await?)
+}

@@ -1,0 +1,60 @@
+//! The only SQL of the server: one module per table group. Reads take any executor (the
+//! pool, or a transaction's connection); every change runs inside a [`Change`], which
+//! commits the change and its audit row in one immediate transaction, so nothing is ever
+//! half-stored and no change goes unaudited.
+//!
+//! *Invariant:* no module outside `store` writes SQL; only hashes of tokens are stored.
+
+pub mod accounts;
+pub mod audit;
+pub mod db;
+pub mod exports;
+pub mod records;
+pub mod stations;
+pub mod studies;
+pub mod subjects;
+pub mod tokens;
+pub mod trials;
+
+use serde_json::Value;
+use sqlx::{Sqlite, SqliteConnection, SqlitePool, Transaction};
+
+use crate::error::Result;
+
+/// One change to the data and the audit row that records it, committed together.
+///
+/// The transaction is `BEGIN IMMEDIATE`: it takes SQLite's write lock at the start, so two
+/// changes racing wait for each other (up to the busy timeout) instead of one failing with
+/// "database is locked" when it upgrades a read to a write.
+#[derive(Debug)]
+pub struct Change {
+    tx: Transaction<'static, Sqlite>,
+    actor: String,
+}
+
+impl Change {
+    /// Starts a change made by `actor` (a username, `subject:S01`, `pilot`, `system`).
+    pub async fn begin(pool: &SqlitePool, actor: impl Into<String>) -> Result<Self> {
+        Ok(Self {
+            tx: pool.begin_with("BEGIN IMMEDIATE").await?,
+            actor: actor.into(),
+        })
+    }
+
+    /// The connection the change's statements run on.
+    pub fn db(&mut self) -> &mut SqliteConnection {
+        &mut self.tx
+    }
+
+    /// Writes the audit row and commits everything.
+    pub async fn commit(
+        mut self,
+        action: &str,
+        target: Option<String>,
+        detail: Value,
+    ) -> Result<()> {
+        audit::append(&mut self.tx, &self.actor, action, target, &detail).await?;
+        self.tx.commit().await?;
+        Ok(())
+    }
+}

@@ -1,0 +1,87 @@
+//! A finished trial's result: status, metrics, the controller's timing, and the full 1 kHz
+//! record (one little-endian f32 blob per channel of `RECORD_CHANNELS`).
+
+use bdft_protocol::controller_to_server::TrialResult;
+use bdft_protocol::records::TrialStatus;
+use bdft_protocol::trial::RECORD_CHANNELS;
+use sqlx::{SqliteConnection, SqliteExecutor};
+
+use super::db::now_ms;
+use crate::error::Result;
+
+/// The full-rate record of a trial, one channel per `RECORD_CHANNELS` entry.
+#[derive(Debug, Clone, Default)]
+pub struct Record {
+    pub dt: f64,
+    pub channels: Vec<Vec<f32>>,
+}
+
+fn blob(values: &[f32]) -> Vec<u8> {
+    values.iter().flat_map(|v| v.to_le_bytes()).collect()
+}
+
+fn unblob(bytes: &[u8]) -> Vec<f32> {
+    bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
+/// Files a finished trial — status, metrics, timing and the full record — on `db` (the
+/// caller's transaction). Only a running trial takes a result: `false` when it was no longer
+/// running (a result arriving after a restart marked it incomplete is dropped).
+pub async fn file_result(
+    db: &mut SqliteConnection,
+    result: &TrialResult,
+    status: TrialStatus,
+    reason: Option<&str>,
+    record: &Record,
+) -> Result<bool> {
+    let done = sqlx::query(
+        "UPDATE trials SET status = ?, status_reason = ?, finished_at = MAX(?, COALESCE(started_at, 0)), mse_tracking_mm2 = ?, ms_cab_accel = ?, timing_json = ? WHERE id = ? AND status = 'running'",
+    )
+    .bind(status.as_str())
+    .bind(reason)
+    .bind(now_ms())
+    .bind(result.metrics.mse_tracking_mm2)
+    .bind(result.metrics.ms_cab_accel)
+    .bind(serde_json::to_string(&result.timing).expect("timing serializes"))
+    .bind(result.trial_id as i64)
+    .execute(&mut *db)
+    .await?;
+    if done.rows_affected() == 0 {
+        return Ok(false);
+    }
+    if record.channels.len() == RECORD_CHANNELS.len() && !record.channels[0].is_empty() {
+        let mut q = sqlx::query(
+            "INSERT OR REPLACE INTO trial_records (trial_id, dt, samples, target_mm, hand_mm, feedthrough_mm, cyl_ref_mm, valve_cmd, cyl_pos_mm, cab_accel_mm_s2, device_mm, tick_latency_us) \
+             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+        )
+        .bind(result.trial_id as i64)
+        .bind(record.dt)
+        .bind(record.channels[0].len() as i64);
+        for c in &record.channels {
+            q = q.bind(blob(c));
+        }
+        q.execute(db).await?;
+    }
+    Ok(true)
+}
+
+/// The record of one trial (about 5 MB for 140 s), channels in `RECORD_CHANNELS` order.
+pub async fn get<'c>(db: impl SqliteExecutor<'c>, trial_id: i64) -> Result<Record> {
+    use sqlx::Row;
+    let channels = RECORD_CHANNELS.join(", ");
+    let row = sqlx::query(&format!(
+        "SELECT dt, {channels} FROM trial_records WHERE trial_id = ?"
+    ))
+    .bind(trial_id)
+    .fetch_one(db)
+    .await?;
+    Ok(Record {
+        dt: row.try_get(0)?,
+        channels: (0..RECORD_CHANNELS.len())
+            .map(|i| row.try_get::<Vec<u8>, _>(i + 1).map(|b| unblob(&b)))
+            .collect::<Result<_, _>>()?,
+    })
+}

@@ -1,0 +1,83 @@
+//! Stations: the paired computers at the seats (on the machine, at the desk, or one serving
+//! both), each with its bearer token's hash and the subject assigned to it.
+
+use bdft_protocol::records::StationRole;
+use serde::Serialize;
+use sqlx::{SqliteConnection, SqliteExecutor};
+
+use super::db::now_ms;
+use super::tokens::token_hash;
+use crate::error::{AppError, Result};
+
+#[derive(Debug, Clone, Serialize, sqlx::FromRow, utoipa::ToSchema)]
+pub struct Station {
+    pub id: i64,
+    pub study_id: i64,
+    pub name: String,
+    /// Which seats it serves.
+    #[sqlx(try_from = "String")]
+    pub role: StationRole,
+    pub subject_id: Option<i64>,
+}
+
+const COLUMNS: &str = "id, study_id, name, role, subject_id";
+
+pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Station> {
+    sqlx::query_as(&format!("SELECT {COLUMNS} FROM stations WHERE id = ?"))
+        .bind(id)
+        .fetch_optional(db)
+        .await?
+        .ok_or(AppError::NotFound("station"))
+}
+
+/// The station whose bearer token this is.
+pub async fn by_token<'c>(db: impl SqliteExecutor<'c>, token: &str) -> Result<Option<Station>> {
+    Ok(sqlx::query_as(&format!(
+        "SELECT {COLUMNS} FROM stations WHERE token_hash = ?"
+    ))
+    .bind(token_hash(token))
+    .fetch_optional(db)
+    .await?)
+}
+
+pub async fn of_study<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<Vec<Station>> {
+    Ok(sqlx::query_as(&format!(
+        "SELECT {COLUMNS} FROM stations WHERE study_id = ? ORDER BY id"
+    ))
+    .bind(study_id)
+    .fetch_all(db)
+    .await?)
+}
+
+/// Stores a newly paired station; returns its id.
+pub async fn insert(
+    db: &mut SqliteConnection,
+    study_id: i64,
+    name: &str,
+    role: StationRole,
+    token: &str,
+    pairing_code: &str,
+) -> Result<i64> {
+    let now = now_ms();
+    Ok(sqlx::query("INSERT INTO stations (study_id, name, role, token_hash, pairing_code, paired_at, created_at) VALUES (?, ?, ?, ?, ?, ?, ?)")
+        .bind(study_id)
+        .bind(name)
+        .bind(role.as_str())
+        .bind(token_hash(token))
+        .bind(pairing_code)
+        .bind(now)
+        .bind(now)
+        .execute(db)
+        .await?
+        .last_insert_rowid())
+}
+
+/// Assigns a subject to the station (or none).
+pub async fn assign(db: &mut SqliteConnection, id: i64, subject_id: Option<i64>) -> Result<()> {
+    sqlx::query("UPDATE stations SET subject_id = ? WHERE id = ?")
+        .bind(subject_id)
+        .bind(id)
+        .execute(db)
+        .await?;
+    Ok(())
+}

@@ -1,0 +1,126 @@
+//! Studies: name, parameters (JSON), seed, and the lock taken at the first enrolment (a SQL
+//! trigger refuses any later change of parameters or seed).
+
+use bdft_protocol::study::StudyParams;
+use serde::Serialize;
+use sqlx::{SqliteConnection, SqliteExecutor};
+
+use super::db::now_ms;
+use crate::error::{AppError, Result};
+
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct Study {
+    pub id: i64,
+    pub name: String,
+    pub params: StudyParams,
+    pub seed: u64,
+    pub locked_at: Option<i64>,
+    /// SHA-256 of the canonical parameters, set when the protocol is locked.
+    pub protocol_hash: Option<String>,
+    pub created_at: i64,
+}
+
+#[derive(sqlx::FromRow)]
+struct StudyRow {
+    id: i64,
+    name: String,
+    params_json: String,
+    seed: i64,
+    locked_at: Option<i64>,
+    protocol_hash: Option<String>,
+    created_at: i64,
+}
+
+impl TryFrom<StudyRow> for Study {
+    type Error = AppError;
+    fn try_from(r: StudyRow) -> Result<Self> {
+        Ok(Study {
+            id: r.id,
+            name: r.name,
+            params: serde_json::from_str(&r.params_json).map_err(|e| {
+                AppError::Internal(anyhow::anyhow!("stored parameters of study {}: {e}", r.id))
+            })?,
+            seed: r.seed as u64,
+            locked_at: r.locked_at,
+            protocol_hash: r.protocol_hash,
+            created_at: r.created_at,
+        })
+    }
+}
+
+fn params_json(params: &StudyParams) -> String {
+    serde_json::to_string(params).expect("study parameters always serialize")
+}
+
+/// Stores a new study (its parameters already validated); returns its id.
+pub async fn insert(
+    db: &mut SqliteConnection,
+    name: &str,
+    params: &StudyParams,
+    seed: u64,
+) -> Result<i64> {
+    Ok(
+        sqlx::query(
+            "INSERT INTO studies (name, params_json, seed, created_at) VALUES (?, ?, ?, ?)",
+        )
+        .bind(name)
+        .bind(params_json(params))
+        .bind(seed as i64)
+        .bind(now_ms())
+        .execute(db)
+        .await?
+        .last_insert_rowid(),
+    )
+}
+
+pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Study> {
+    let row: Option<StudyRow> = sqlx::query_as("SELECT * FROM studies WHERE id = ?")
+        .bind(id)
+        .fetch_optional(db)
+        .await?;
+    row.ok_or(AppError::NotFound("study"))?.try_into()
+}
+
+pub async fn all<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<Study>> {
+    let rows: Vec<StudyRow> = sqlx::query_as("SELECT * FROM studies ORDER BY id")
+        .fetch_all(db)
+        .await?;
+    rows.into_iter().map(Study::try_from).collect()
+}
+
+/// Replaces the name and parameters of a study whose protocol is not locked.
+pub async fn update(
+    db: &mut SqliteConnection,
+    id: i64,
+    name: &str,
+    params: &StudyParams,
+) -> Result<()> {
+    let done = sqlx::query(
+        "UPDATE studies SET name = ?, params_json = ? WHERE id = ? AND locked_at IS NULL",
+    )
+    .bind(name)
+    .bind(params_json(params))
+    .bind(id)
+    .execute(&mut *db)
+    .await?;
+    if done.rows_affected() == 0 {
+        get(&mut *db, id).await?;
+        return Err(AppError::Conflict(
+            "the study's protocol is locked: a subject has been enrolled".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// Locks the protocol with its hash (the first enrolment does this).
+pub async fn lock(db: &mut SqliteConnection, id: i64, hash: &str) -> Result<()> {
+    sqlx::query(
+        "UPDATE studies SET locked_at = ?, protocol_hash = ? WHERE id = ? AND locked_at IS NULL",
+    )
+    .bind(now_ms())
+    .bind(hash)
+    .bind(id)
+    .execute(db)
+    .await?;
+    Ok(())
+}

@@ -1,0 +1,218 @@
+//! Subjects (pseudonymous: a code and a page token's hash), their consent and withdrawal, and
+//! the experimenter's notes about them.
+
+use bdft_protocol::params::Seat;
+use bdft_protocol::records::ConsentDecision;
+use serde::Serialize;
+use sqlx::{SqliteConnection, SqliteExecutor};
+
+use super::db::now_ms;
+use super::tokens::token_hash;
+use crate::error::{AppError, Result};
+
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct Subject {
+    pub id: i64,
+    pub study_id: i64,
+    /// The pseudonym ("S01"); nothing else identifies the person.
+    pub code: String,
+    pub enrol_index: i64,
+    pub synthetic: bool,
+    pub starting_station: Seat,
+    pub consent_version: Option<String>,
+    pub consent_decision: Option<ConsentDecision>,
+    pub consent_at: Option<i64>,
+    pub withdrawn_at: Option<i64>,
+    pub withdraw_reason: Option<String>,
+    pub created_at: i64,
+}
+
+#[derive(sqlx::FromRow)]
+struct SubjectRow {
+    id: i64,
+    study_id: i64,
+    code: String,
+    enrol_index: i64,
+    synthetic: bool,
+    starting_station: String,
+    consent_version: Option<String>,
+    consent_decision: Option<String>,
+    consent_at: Option<i64>,
+    withdrawn_at: Option<i64>,
+    withdraw_reason: Option<String>,
+    created_at: i64,
+}
+
+impl TryFrom<SubjectRow> for Subject {
+    type Error = AppError;
+    fn try_from(r: SubjectRow) -> Result<Self> {
+        let corrupt =
+            |e: String| AppError::Internal(anyhow::anyhow!("stored subject {}: {e}", r.id));
+        Ok(Subject {
+            starting_station: r
+                .starting_station
+                .parse()
+                .map_err(|e| corrupt(format!("{e}")))?,
+            consent_decision: r
+                .consent_decision
+                .as_deref()
+                .map(str::parse)
+                .transpose()
+                .map_err(|e| corrupt(format!("{e}")))?,
+            id: r.id,
+            study_id: r.study_id,
+            code: r.code,
+            enrol_index: r.enrol_index,
+            synthetic: r.synthetic,
+            consent_version: r.consent_version,
+            consent_at: r.consent_at,
+            withdrawn_at: r.withdrawn_at,
+            withdraw_reason: r.withdraw_reason,
+            created_at: r.created_at,
+        })
+    }
+}
+
+const COLUMNS: &str = "id, study_id, code, enrol_index, synthetic, starting_station, consent_version, consent_decision, consent_at, withdrawn_at, withdraw_reason, created_at";
+
+pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Subject> {
+    let row: Option<SubjectRow> =
+        sqlx::query_as(&format!("SELECT {COLUMNS} FROM subjects WHERE id = ?"))
+            .bind(id)
+            .fetch_optional(db)
+            .await?;
+    row.ok_or(AppError::NotFound("subject"))?.try_into()
+}
+
+/// The subject whose page token this is.
+pub async fn by_token<'c>(db: impl SqliteExecutor<'c>, token: &str) -> Result<Option<Subject>> {
+    let row: Option<SubjectRow> = sqlx::query_as(&format!(
+        "SELECT {COLUMNS} FROM subjects WHERE token_hash = ?"
+    ))
+    .bind(token_hash(token))
+    .fetch_optional(db)
+    .await?;
+    row.map(Subject::try_from).transpose()
+}
+
+pub async fn of_study<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<Vec<Subject>> {
+    let rows: Vec<SubjectRow> = sqlx::query_as(&format!(
+        "SELECT {COLUMNS} FROM subjects WHERE study_id = ? ORDER BY enrol_index"
+    ))
+    .bind(study_id)
+    .fetch_all(db)
+    .await?;
+    rows.into_iter().map(Subject::try_from).collect()
+}
+
+pub async fn count_in_study<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<u32> {
+    let (n,): (i64,) = sqlx::query_as("SELECT COUNT(*) FROM subjects WHERE study_id = ?")
+        .bind(study_id)
+        .fetch_one(db)
+        .await?;
+    Ok(n as u32)
+}
+
+/// A new subject row; returns its id.
+#[derive(Debug)]
+pub struct NewSubject<'a> {
+    pub study_id: i64,
+    pub code: &'a str,
+    pub enrol_index: u32,
+    pub synthetic: bool,
+    pub token: &'a str,
+    pub starting_station: Seat,
+}
+
+pub async fn insert(db: &mut SqliteConnection, s: &NewSubject<'_>) -> Result<i64> {
+    Ok(sqlx::query(
+        "INSERT INTO subjects (study_id, code, enrol_index, synthetic, token_hash, starting_station, created_at) VALUES (?, ?, ?, ?, ?, ?, ?)",
+    )
+    .bind(s.study_id)
+    .bind(s.code)
+    .bind(i64::from(s.enrol_index))
+    .bind(s.synthetic)
+    .bind(token_hash(s.token))
+    .bind(s.starting_station.as_str())
+    .bind(now_ms())
+    .execute(db)
+    .await?
+    .last_insert_rowid())
+}
+
+/// Records the subject's decision on the consent form `version`; only the first decision
+/// counts.
+pub async fn record_consent(
+    db: &mut SqliteConnection,
+    subject_id: i64,
+    version: &str,
+    decision: ConsentDecision,
+) -> Result<()> {
+    let done = sqlx::query("UPDATE subjects SET consent_version = ?, consent_decision = ?, consent_at = ? WHERE id = ? AND consent_decision IS NULL")
+        .bind(version)
+        .bind(decision.as_str())
+        .bind(now_ms())
+        .bind(subject_id)
+        .execute(db)
+        .await?;
+    if done.rows_affected() == 0 {
+        return Err(AppError::Conflict(
+            "consent has already been recorded".into(),
+        ));
+    }
+    Ok(())
+}
+
+pub async fn withdraw(db: &mut SqliteConnection, subject_id: i64, reason: &str) -> Result<()> {
+    let done = sqlx::query("UPDATE subjects SET withdrawn_at = ?, withdraw_reason = ? WHERE id = ? AND withdrawn_at IS NULL")
+        .bind(now_ms())
+        .bind(reason)
+        .bind(subject_id)
+        .execute(&mut *db)
+        .await?;
+    if done.rows_affected() == 0 {
+        get(&mut *db, subject_id).await?;
+        return Err(AppError::Conflict(
+            "the subject has already withdrawn".into(),
+        ));
+    }
+    Ok(())
+}
+
+#[derive(Debug, Clone, Serialize, sqlx::FromRow, utoipa::ToSchema)]
+pub struct Note {
+    pub id: i64,
+    pub trial_id: Option<i64>,
+    pub text: String,
+    pub author: String,
+    pub created_at: i64,
+}
+
+pub async fn notes<'c>(db: impl SqliteExecutor<'c>, subject_id: i64) -> Result<Vec<Note>> {
+    Ok(sqlx::query_as(
+        "SELECT id, trial_id, text, author, created_at FROM notes WHERE subject_id = ? ORDER BY id",
+    )
+    .bind(subject_id)
+    .fetch_all(db)
+    .await?)
+}
+
+pub async fn add_note(
+    db: &mut SqliteConnection,
+    subject_id: i64,
+    trial_id: i64,
+    text: &str,
+    author: &str,
+) -> Result<i64> {
+    Ok(sqlx::query(
+        "INSERT INTO notes (subject_id, trial_id, text, author, created_at) VALUES (?, ?, ?, ?, ?)",
+    )
+    .bind(subject_id)
+    .bind(trial_id)
+    .bind(text)
+    .bind(author)
+    .bind(now_ms())
+    .execute(db)
+    .await?
+    .last_insert_rowid())
+}

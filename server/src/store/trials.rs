@@ -1,0 +1,316 @@
+//! Trials (one row per attempt of a scheduled test), their status transitions, surveys and
+//! the station's timing figures.
+//!
+//! *Invariant:* a trial takes a result only while `running`; a status changes only by the
+//! guarded UPDATEs here, so two users racing cannot move a trial twice.
+
+use bdft_protocol::params::{CompensatorKind, Seat};
+use bdft_protocol::records::TrialStatus;
+use bdft_protocol::study::SurveyAnswer;
+use serde::Serialize;
+use sqlx::{SqliteConnection, SqliteExecutor};
+
+use super::db::now_ms;
+use crate::error::{AppError, Result};
+
+#[derive(Debug, Clone, Serialize, sqlx::FromRow, utoipa::ToSchema)]
+pub struct Trial {
+    pub id: i64,
+    pub subject_id: i64,
+    /// Position in the subject's schedule (0 = practice).
+    pub slot: i64,
+    /// 1 for the first attempt; a redo adds the next.
+    pub attempt: i64,
+    pub practice: bool,
+    #[sqlx(rename = "station", try_from = "String")]
+    #[serde(rename = "station")]
+    pub seat: Seat,
+    pub block: i64,
+    pub position: i64,
+    /// The compensator this test runs (never shown to the subject).
+    #[sqlx(rename = "controller", try_from = "String")]
+    #[serde(rename = "controller")]
+    pub compensator: CompensatorKind,
+    pub blinded_label: String,
+    /// The full design (`CompensatorSpec`) as recorded at enrolment.
+    pub compensator_json: String,
+    pub k_bf: f64,
+    pub duration_s: f64,
+    pub target_seed: i64,
+    pub target_levels_json: String,
+    pub target_mean_mm: f64,
+    pub target_std_mm: f64,
+    #[sqlx(try_from = "String")]
+    pub status: TrialStatus,
+    pub status_reason: Option<String>,
+    pub protocol_hash: Option<String>,
+    pub started_at: Option<i64>,
+    pub finished_at: Option<i64>,
+    pub mse_tracking_mm2: Option<f64>,
+    pub ms_cab_accel: Option<f64>,
+    pub timing_json: Option<String>,
+    pub client_timing_json: Option<String>,
+}
+
+impl Trial {
+    /// Whether the test has ended one way or another (it can be redone).
+    pub fn finished(&self) -> bool {
+        matches!(
+            self.status,
+            TrialStatus::Complete | TrialStatus::Aborted | TrialStatus::Incomplete
+        )
+    }
+}
+
+/// The latest attempt of each slot of `trials` (every attempt of one subject).
+pub fn latest_attempts(trials: &[Trial]) -> impl Iterator<Item = &Trial> {
+    trials.iter().filter(move |t| {
+        !trials
+            .iter()
+            .any(|u| u.slot == t.slot && u.attempt > t.attempt)
+    })
+}
+
+pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Trial> {
+    sqlx::query_as("SELECT * FROM trials WHERE id = ?")
+        .bind(id)
+        .fetch_optional(db)
+        .await?
+        .ok_or(AppError::NotFound("trial"))
+}
+
+/// Every attempt of every test of a subject, in schedule order.
+pub async fn of_subject<'c>(db: impl SqliteExecutor<'c>, subject_id: i64) -> Result<Vec<Trial>> {
+    Ok(
+        sqlx::query_as("SELECT * FROM trials WHERE subject_id = ? ORDER BY slot, attempt")
+            .bind(subject_id)
+            .fetch_all(db)
+            .await?,
+    )
+}
+
+/// The subject's next test: the first slot whose latest attempt is scheduled or running.
+pub async fn next<'c>(db: impl SqliteExecutor<'c>, subject_id: i64) -> Result<Option<Trial>> {
+    Ok(sqlx::query_as(
+        "SELECT t.* FROM trials t WHERE t.subject_id = ? AND t.status IN ('scheduled', 'running') \
+         AND t.attempt = (SELECT MAX(attempt) FROM trials u WHERE u.subject_id = t.subject_id AND u.slot = t.slot) \
+         ORDER BY t.slot LIMIT 1",
+    )
+    .bind(subject_id)
+    .fetch_optional(db)
+    .await?)
+}
+
+/// The first completed test of the subject whose survey is still missing.
+pub async fn pending_survey<'c>(
+    db: impl SqliteExecutor<'c>,
+    subject_id: i64,
+) -> Result<Option<Trial>> {
+    Ok(sqlx::query_as(
+        "SELECT t.* FROM trials t WHERE t.subject_id = ? AND t.practice = 0 AND t.status = 'complete' \
+         AND NOT EXISTS (SELECT 1 FROM surveys v WHERE v.trial_id = t.id) \
+         AND t.attempt = (SELECT MAX(attempt) FROM trials u WHERE u.subject_id = t.subject_id AND u.slot = t.slot) ORDER BY t.slot LIMIT 1",
+    )
+    .bind(subject_id)
+    .fetch_optional(db)
+    .await?)
+}
+
+/// A scheduled test as enrolment stores it.
+#[derive(Debug)]
+pub struct NewTrial<'a> {
+    pub subject_id: i64,
+    pub slot: u32,
+    pub practice: bool,
+    pub seat: Seat,
+    pub block: u32,
+    pub position: u32,
+    pub compensator: CompensatorKind,
+    pub blinded_label: &'a str,
+    pub compensator_json: String,
+    pub k_bf: f64,
+    pub duration_s: f64,
+    pub target_seed: u64,
+    pub target_levels_json: String,
+    pub target_mean_mm: f64,
+    pub target_std_mm: f64,
+    pub protocol_hash: &'a str,
+}
+
+pub async fn insert(db: &mut SqliteConnection, t: &NewTrial<'_>) -> Result<i64> {
+    Ok(sqlx::query(
+        "INSERT INTO trials (subject_id, slot, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, protocol_hash) \
+         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+    )
+    .bind(t.subject_id)
+    .bind(i64::from(t.slot))
+    .bind(t.practice)
+    .bind(t.seat.as_str())
+    .bind(i64::from(t.block))
+    .bind(i64::from(t.position))
+    .bind(t.compensator.name())
+    .bind(t.blinded_label)
+    .bind(&t.compensator_json)
+    .bind(t.k_bf)
+    .bind(t.duration_s)
+    .bind(t.target_seed as i64)
+    .bind(&t.target_levels_json)
+    .bind(t.target_mean_mm)
+    .bind(t.target_std_mm)
+    .bind(t.protocol_hash)
+    .execute(db)
+    .await?
+    .last_insert_rowid())
+}
+
+/// The highest attempt of `trial`'s slot.
+pub async fn latest_attempt<'c>(db: impl SqliteExecutor<'c>, trial: &Trial) -> Result<i64> {
+    let (latest,): (i64,) =
+        sqlx::query_as("SELECT MAX(attempt) FROM trials WHERE subject_id = ? AND slot = ?")
+            .bind(trial.subject_id)
+            .bind(trial.slot)
+            .fetch_one(db)
+            .await?;
+    Ok(latest)
+}
+
+/// A new scheduled attempt of `trial_id`'s test, with the same design and target; returns
+/// its id. (The unique (subject, slot, attempt) makes a racing second redo fail.)
+pub async fn insert_next_attempt(db: &mut SqliteConnection, trial_id: i64) -> Result<i64> {
+    Ok(sqlx::query(
+        "INSERT INTO trials (subject_id, slot, attempt, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, protocol_hash) \
+         SELECT subject_id, slot, attempt + 1, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, protocol_hash FROM trials WHERE id = ?",
+    )
+    .bind(trial_id)
+    .execute(db)
+    .await?
+    .last_insert_rowid())
+}
+
+/// Marks a scheduled trial running; fails if it is not scheduled (two starts racing).
+pub async fn mark_running(db: &mut SqliteConnection, trial_id: i64) -> Result<()> {
+    let done = sqlx::query(
+        "UPDATE trials SET status = 'running', started_at = ? WHERE id = ? AND status = 'scheduled'",
+    )
+    .bind(now_ms())
+    .bind(trial_id)
+    .execute(db)
+    .await?;
+    if done.rows_affected() == 0 {
+        return Err(AppError::Conflict(format!(
+            "trial {trial_id} is not waiting to start"
+        )));
+    }
+    Ok(())
+}
+
+/// Puts a trial that could not be started back in the queue.
+pub async fn unmark_running(db: &mut SqliteConnection, trial_id: i64) -> Result<()> {
+    sqlx::query("UPDATE trials SET status = 'scheduled', started_at = NULL WHERE id = ? AND status = 'running'")
+        .bind(trial_id)
+        .execute(db)
+        .await?;
+    Ok(())
+}
+
+/// The experimenter files a scheduled or complete test as incomplete.
+pub async fn mark_incomplete(db: &mut SqliteConnection, trial_id: i64, reason: &str) -> Result<()> {
+    let done = sqlx::query("UPDATE trials SET status = 'incomplete', status_reason = ? WHERE id = ? AND status IN ('complete', 'scheduled')")
+        .bind(reason)
+        .bind(trial_id)
+        .execute(&mut *db)
+        .await?;
+    if done.rows_affected() == 0 {
+        get(&mut *db, trial_id).await?;
+        return Err(AppError::Conflict(
+            "only a scheduled or complete test can be marked incomplete".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// Marks every running trial incomplete (after a server restart or a controller death);
+/// returns their ids.
+pub async fn interrupt_running(db: &mut SqliteConnection, reason: &str) -> Result<Vec<i64>> {
+    let ids: Vec<(i64,)> = sqlx::query_as("UPDATE trials SET status = 'incomplete', status_reason = ?, finished_at = MAX(?, COALESCE(started_at, 0)) WHERE status = 'running' RETURNING id")
+        .bind(reason)
+        .bind(now_ms())
+        .fetch_all(db)
+        .await?;
+    Ok(ids.into_iter().map(|r| r.0).collect())
+}
+
+/// The station's figures of how the display kept up (JSON), kept with the trial.
+pub async fn set_client_timing(db: &mut SqliteConnection, trial_id: i64, json: &str) -> Result<()> {
+    sqlx::query("UPDATE trials SET client_timing_json = ? WHERE id = ?")
+        .bind(json)
+        .bind(trial_id)
+        .execute(db)
+        .await?;
+    Ok(())
+}
+
+/// A survey's answers as stored (ratings in item order).
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct Survey {
+    pub accuracy: i64,
+    pub speed: i64,
+    pub smoothness: i64,
+    pub controllability: i64,
+    pub comment: String,
+}
+
+/// Surveys of a subject's trials, by trial id.
+pub async fn surveys_of_subject<'c>(
+    db: impl SqliteExecutor<'c>,
+    subject_id: i64,
+) -> Result<Vec<(i64, Survey)>> {
+    let rows: Vec<(i64, i64, i64, i64, i64, String)> = sqlx::query_as(
+        "SELECT v.trial_id, v.accuracy, v.speed, v.smoothness, v.controllability, v.comment FROM surveys v JOIN trials t ON t.id = v.trial_id WHERE t.subject_id = ?",
+    )
+    .bind(subject_id)
+    .fetch_all(db)
+    .await?;
+    Ok(rows
+        .into_iter()
+        .map(
+            |(id, accuracy, speed, smoothness, controllability, comment)| {
+                (
+                    id,
+                    Survey {
+                        accuracy,
+                        speed,
+                        smoothness,
+                        controllability,
+                        comment,
+                    },
+                )
+            },
+        )
+        .collect())
+}
+
+/// Stores a survey's validated ratings; a second answer to the same test is refused.
+pub async fn insert_survey(
+    db: &mut SqliteConnection,
+    trial_id: i64,
+    ratings: [u8; 4],
+    answer: &SurveyAnswer,
+) -> Result<()> {
+    let done = sqlx::query("INSERT OR IGNORE INTO surveys (trial_id, accuracy, speed, smoothness, controllability, comment, submitted_at) VALUES (?, ?, ?, ?, ?, ?, ?)")
+        .bind(trial_id)
+        .bind(i64::from(ratings[0]))
+        .bind(i64::from(ratings[1]))
+        .bind(i64::from(ratings[2]))
+        .bind(i64::from(ratings[3]))
+        .bind(&answer.comment)
+        .bind(now_ms())
+        .execute(db)
+        .await?;
+    if done.rows_affected() == 0 {
+        return Err(AppError::Conflict(
+            "this test's survey has already been answered".into(),
+        ));
+    }
+    Ok(())
+}

@@ -1,0 +1,187 @@
+//! The server's layers seen from outside: changes racing each other are serialized or
+//! refused with a 409 (never a 500), every change has its audit row, and the OpenAPI
+//! document describes every operation with its schemas.
+
+use std::time::Duration;
+
+use bdft_tests::server::{Api, Server, eventually, pair_station, run_trial, short_study};
+use serde_json::{Value, json};
+
+/// Runs `n` copies of `call` at once (each with its own logged-in client); returns the
+/// status codes and bodies.
+fn at_once(
+    server: &Server,
+    n: usize,
+    call: impl Fn(&Api) -> (u16, Value) + Sync,
+) -> Vec<(u16, Value)> {
+    let clients: Vec<Api> = (0..n).map(|_| server.experimenter()).collect();
+    let barrier = std::sync::Barrier::new(n);
+    std::thread::scope(|s| {
+        let handles: Vec<_> = clients
+            .iter()
+            .map(|c| {
+                let (call, barrier) = (&call, &barrier);
+                s.spawn(move || {
+                    barrier.wait();
+                    call(c)
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    })
+}
+
+fn audit_actions(api: &Api) -> Vec<String> {
+    let (_, log) = api.get("/api/audit?limit=10000");
+    log.as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a["action"].as_str().unwrap().to_string())
+        .collect()
+}
+
+#[test]
+fn racing_changes_are_serialized_or_refused_never_a_500() {
+    let server = Server::start("layers-race");
+    let api = server.experimenter();
+    let study = short_study(&api, 1.0, 0.3);
+
+    // Twelve enrolments at once: every one succeeds, each with its own code and index.
+    let answers = at_once(&server, 12, |c| {
+        c.post(
+            &format!("/api/studies/{study}/subjects"),
+            json!({ "synthetic": true }),
+        )
+    });
+    for (code, body) in &answers {
+        assert_eq!(*code, 200, "{body}");
+    }
+    let mut codes: Vec<String> = answers
+        .iter()
+        .map(|(_, b)| b["subject"]["code"].as_str().unwrap().to_string())
+        .collect();
+    codes.sort();
+    let expected: Vec<String> = (1..=12).map(|i| format!("S{i:02}")).collect();
+    assert_eq!(codes, expected);
+    let enrolments = audit_actions(&api)
+        .iter()
+        .filter(|a| *a == "subject.enrol")
+        .count();
+    assert_eq!(enrolments, 12, "one audit row per enrolment");
+
+    // Run the first subject's practice, then redo it eight times at once: one new attempt,
+    // seven clear conflicts.
+    let subject = answers[0].1["subject"]["id"].as_i64().unwrap();
+    let (station, token) = pair_station(&api, study, "both");
+    api.ok(
+        &format!("/api/stations/{station}/assign"),
+        json!({ "subject_id": subject }),
+    );
+    Api::with_bearer(&server.base, &token)
+        .ok("/api/station/consent", json!({ "decision": "agreed" }));
+    eventually(Duration::from_secs(20), || {
+        (api.get("/api/controller").1["connected"] == true).then_some(())
+    });
+    let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
+    let practice = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
+    let done = run_trial(&api, subject, practice);
+    assert_eq!(done["status"], "complete", "{done}");
+    let redos = at_once(&server, 8, |c| {
+        c.post(
+            &format!("/api/trials/{practice}/redo"),
+            json!({ "reason": "race" }),
+        )
+    });
+    let ok = redos.iter().filter(|(c, _)| *c == 200).count();
+    let conflicts = redos.iter().filter(|(c, _)| *c == 409).count();
+    assert_eq!((ok, conflicts), (1, 7), "{redos:?}");
+    for (code, body) in &redos {
+        if *code == 409 {
+            assert!(
+                body["error"].as_str().is_some_and(|e| !e.is_empty()),
+                "{body}"
+            );
+        }
+    }
+    let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
+    let attempts = detail["trials"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|t| t["trial"]["slot"] == 0)
+        .count();
+    assert_eq!(attempts, 2, "exactly one new attempt");
+    let actions = audit_actions(&api);
+    assert_eq!(actions.iter().filter(|a| *a == "trial.redo").count(), 1);
+    // The controller's filing of the result has its audit row too.
+    assert!(actions.iter().any(|a| a == "trial.finish"), "{actions:?}");
+
+    // Two experimenters editing a locked study: both refused with the reason.
+    let (_, current) = api.get(&format!("/api/studies/{study}"));
+    let edits = at_once(&server, 2, |c| {
+        c.call(
+            "PUT",
+            &format!("/api/studies/{study}"),
+            Some(json!({ "name": "renamed", "params": current["params"] })),
+        )
+    });
+    for (code, body) in &edits {
+        assert_eq!(*code, 409, "{body}");
+        assert!(body["error"].as_str().unwrap().contains("locked"), "{body}");
+    }
+}
+
+#[test]
+fn the_openapi_document_has_schemas_for_every_operation() {
+    let server = Server::start("layers-doc");
+    let (code, doc) = Api::anonymous(&server.base).get("/api/openapi.json");
+    assert_eq!(code, 200);
+    let schemas = doc["components"]["schemas"].as_object().unwrap();
+    let mut operations = 0;
+    for (path, item) in doc["paths"].as_object().unwrap() {
+        for (method, op) in item.as_object().unwrap() {
+            operations += 1;
+            let answers = op["responses"].as_object().unwrap();
+            assert!(
+                answers.contains_key("200") || answers.contains_key("101"),
+                "{method} {path} documents no success answer"
+            );
+            assert!(
+                answers.contains_key("422"),
+                "{method} {path} documents no error answer"
+            );
+            assert!(
+                op["security"].is_array(),
+                "{method} {path} says nothing of who may call it"
+            );
+            // A JSON answer names its schema, and that schema exists.
+            if let Some(json) = answers
+                .get("200")
+                .and_then(|a| a["content"].get("application/json"))
+            {
+                let text = json["schema"].to_string();
+                for name in text.split("#/components/schemas/").skip(1) {
+                    let name = name.split('"').next().unwrap();
+                    assert!(
+                        schemas.contains_key(name),
+                        "{method} {path}: schema {name} is missing"
+                    );
+                }
+            }
+        }
+    }
+    assert!(operations >= 40, "only {operations} operations");
+    // Request bodies are described, down to the study's parameters.
+    let create = &doc["paths"]["/api/studies"]["post"];
+    assert!(create["requestBody"]["content"]["application/json"]["schema"].is_object());
+    let study_params = &schemas["StudyParams"]["properties"];
+    for field in ["k_bf", "trial_s", "controllers", "survey"] {
+        assert!(
+            study_params.get(field).is_some(),
+            "StudyParams has no {field}"
+        );
+    }
+    // The subject-facing view of a test has no field for a compensator's name.
+    let test_view = schemas["TestView"]["properties"].as_object().unwrap();
+    assert!(!test_view.contains_key("controller") && !test_view.contains_key("compensator"));
+}
