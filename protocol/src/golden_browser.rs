@@ -186,9 +186,7 @@ fn live_socket_events() {
     let sample_text = r#"{"trial_id":7,"t":0.5,"target_mm":10.0,"device_mm":16.0,"cylinder_mm":9.5,"cab_accel_mm_s2":-120.0,"input_seq":41,"stamp_us":123456}"#;
     assert_golden(&StationEvent::Changed, r#"{"type":"changed"}"#);
     assert_golden(
-        &StationEvent::Live {
-            sample: sample.clone(),
-        },
+        &StationEvent::Live { sample },
         &format!(r#"{{"type":"live","sample":{sample_text}}}"#),
     );
     assert_golden(

@@ -41,9 +41,12 @@ pub struct AuditEntry {
     pub detail: Option<Value>,
 }
 
+/// id, at, actor, action, target, detail_json
+type AuditRow = (i64, i64, String, String, Option<String>, Option<String>);
+
 /// The newest `limit` rows, newest first.
 pub async fn newest<'c>(db: impl SqliteExecutor<'c>, limit: i64) -> Result<Vec<AuditEntry>> {
-    let rows: Vec<(i64, i64, String, String, Option<String>, Option<String>)> = sqlx::query_as(
+    let rows: Vec<AuditRow> = sqlx::query_as(
         "SELECT id, at, actor, action, target, detail_json FROM audit_log ORDER BY id DESC LIMIT ?",
     )
     .bind(limit)

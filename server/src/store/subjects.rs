@@ -51,14 +51,14 @@ impl TryFrom<SubjectRow> for Subject {
         Ok(Subject {
             starting_station: r
                 .starting_station
-                .parse()
-                .map_err(|e| corrupt(format!("{e}")))?,
+                .parse::<Seat>()
+                .map_err(|e| corrupt(e.to_string()))?,
             consent_decision: r
                 .consent_decision
                 .as_deref()
-                .map(str::parse)
+                .map(str::parse::<ConsentDecision>)
                 .transpose()
-                .map_err(|e| corrupt(format!("{e}")))?,
+                .map_err(corrupt)?,
             id: r.id,
             study_id: r.study_id,
             code: r.code,
