@@ -48,6 +48,7 @@ pub async fn run(
 ) -> anyhow::Result<PilotReport> {
     run_with_progress(
         pool,
+        ACTOR,
         study_id,
         subjects,
         seed,
@@ -56,9 +57,11 @@ pub async fn run(
     .await
 }
 
-/// `run`, counting finished trials in `progress` (the dashboard's progress bar).
+/// `run` on behalf of `requested_by` (who the audit log names for starting it), counting
+/// finished trials in `progress` (the dashboard's progress bar).
 pub async fn run_with_progress(
     pool: &SqlitePool,
+    requested_by: &str,
     study_id: Option<i64>,
     subjects: u32,
     seed: Option<u64>,
@@ -86,7 +89,7 @@ pub async fn run_with_progress(
         },
     };
     let study = Arc::new(store::studies::get(pool, study_id).await?);
-    Change::begin(pool, ACTOR)
+    Change::begin(pool, requested_by)
         .await?
         .commit(
             "pilot.start",
@@ -252,19 +255,12 @@ impl PilotJob {
                 outcome: None,
             });
         }
-        Change::begin(pool, actor)
-            .await?
-            .commit(
-                "pilot.start",
-                Some(format!("study:{study_id}")),
-                json!({ "subjects": subjects }),
-            )
-            .await?;
-        let (job, pool) = (Arc::clone(self), pool.clone());
+        let (job, pool, actor) = (Arc::clone(self), pool.clone(), actor.to_string());
         tokio::spawn(async move {
-            let outcome = run_with_progress(&pool, Some(study_id), subjects, None, progress)
-                .await
-                .map_err(|e| format!("{e:#}"));
+            let outcome =
+                run_with_progress(&pool, &actor, Some(study_id), subjects, None, progress)
+                    .await
+                    .map_err(|e| format!("{e:#}"));
             if let Some(run) = job.run().as_mut() {
                 run.outcome = Some(outcome);
             }
