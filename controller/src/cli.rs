@@ -65,9 +65,6 @@ enum Command {
         /// Device-to-cylinder gain K_BF.
         #[arg(long, default_value_t = NOMINAL_KBF, value_parser = parse_kbf_positive)]
         kbf: f64,
-        /// Operator model driving the device (steps only).
-        #[arg(long, default_value = "synthetic", value_parser = ["synthetic"])]
-        operator: String,
         /// Seed of the target, the accelerometer noise and the operator's remnant.
         #[arg(long, default_value_t = 1)]
         seed: u64,
@@ -265,7 +262,6 @@ fn execute(command: Command) -> anyhow::Result<()> {
             duration,
             station,
             kbf,
-            operator: _,
             seed,
             json,
             out: record,

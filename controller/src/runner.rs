@@ -168,10 +168,6 @@ impl<L: Loop> TrialRunner<L> {
         self.metrics.metrics()
     }
 
-    pub fn signal(&self) -> &Signal {
-        &self.signal
-    }
-
     pub fn loop_mut(&mut self) -> &mut L {
         &mut self.lp
     }

@@ -40,7 +40,23 @@ fn hello_and_small_messages() {
         },
         r#"{"type":"operator_input","trial_id":7,"seq":42,"position_mm":-3.5}"#,
     );
-    assert_golden(&ServerToController::EStop, r#"{"type":"e_stop"}"#);
+    assert_golden(&ServerToController::EStop {}, r#"{"type":"e_stop"}"#);
+    assert_golden(
+        &ServerToController::ResetEStop {},
+        r#"{"type":"reset_e_stop"}"#,
+    );
+    assert_golden(&ServerToController::Status {}, r#"{"type":"status"}"#);
+    // A message without fields refuses unknown ones too, as every other does.
+    for text in [
+        r#"{"type":"status","x":1}"#,
+        r#"{"type":"e_stop","now":true}"#,
+        r#"{"type":"reset_e_stop","all":1}"#,
+    ] {
+        assert!(
+            decode::<ServerToController>(text.as_bytes()).is_err(),
+            "{text}"
+        );
+    }
     assert_golden(
         &ServerToController::Step { ticks: 10 },
         r#"{"type":"step","ticks":10}"#,
@@ -208,12 +224,12 @@ fn framing_rejects_oversized_empty_and_malformed_frames() {
     assert!(decode::<ServerToController>(br#"{"type":"heartbeat","seq":1,"extra":2}"#).is_err());
     // A stream of two frames reads back as two messages, then a clean end.
     let mut bytes = encode(&ServerToController::Heartbeat { seq: 1 });
-    bytes.extend(encode(&ServerToController::Status));
+    bytes.extend(encode(&ServerToController::Status {}));
     let mut r = std::io::Cursor::new(bytes);
     assert!(read_frame(&mut r).unwrap().is_some());
     assert_eq!(
         decode::<ServerToController>(&read_frame(&mut r).unwrap().unwrap()).unwrap(),
-        ServerToController::Status
+        ServerToController::Status {}
     );
     assert!(read_frame(&mut r).unwrap().is_none());
 }

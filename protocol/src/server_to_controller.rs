@@ -30,12 +30,14 @@ pub enum ServerToController {
     Heartbeat {
         seq: u64,
     },
+    // The fieldless messages are empty struct variants, not unit variants: serde's
+    // `deny_unknown_fields` refuses `{"type":"status","x":1}` only for struct variants.
     /// Emergency stop: every valve to zero at once, every trial faulted; latched.
-    EStop,
+    EStop {},
     /// Clears a latched E-stop.
-    ResetEStop,
+    ResetEStop {},
     /// Asks for a `Status`.
-    Status,
+    Status {},
     /// Lockstep mode only: run this many ticks, then answer `Stepped`.
     Step {
         ticks: u32,

@@ -247,7 +247,7 @@ fn estop_stops_everything_and_latches_until_reset() {
         2,
     ))));
     link.step(100, &mut log);
-    link.send(&ServerToController::EStop);
+    link.send(&ServerToController::EStop {});
     link.step(1, &mut log);
     for id in [1, 2] {
         let r = log
@@ -287,7 +287,7 @@ fn estop_stops_everything_and_latches_until_reset() {
         "{:?}",
         log.rejected
     );
-    link.send(&ServerToController::ResetEStop);
+    link.send(&ServerToController::ResetEStop {});
     match link.recv() {
         ControllerToServer::Status(s) => assert!(!s.estop_latched),
         other => panic!("{other:?}"),
@@ -314,7 +314,7 @@ fn bad_messages_are_rejected_counted_and_never_reach_the_valve() {
     let ctl = Proc::controller(&["--lockstep"]);
     // A client that does not say hello first is turned away.
     let mut rude = Link::raw(ctl.addr);
-    rude.send(&ServerToController::Status);
+    rude.send(&ServerToController::Status {});
     assert!(matches!(
         rude.try_recv(),
         Some(ControllerToServer::Rejected { .. })
@@ -404,7 +404,7 @@ fn bad_messages_are_rejected_counted_and_never_reach_the_valve() {
     );
     assert!(rec[4].iter().all(|v| v.is_finite() && v.abs() <= 10.0));
     // Step is refused outside lockstep? Here we are in lockstep, so check the status counts.
-    link.send(&ServerToController::Status);
+    link.send(&ServerToController::Status {});
     let status = loop {
         match link.recv() {
             ControllerToServer::Status(s) => break s,
@@ -451,7 +451,7 @@ fn a_lost_server_link_stops_trials_and_the_controller_accepts_a_new_one() {
         assert!(l.try_recv().is_none());
     };
     let status = loop {
-        link.send(&ServerToController::Status);
+        link.send(&ServerToController::Status {});
         match link.recv() {
             ControllerToServer::Status(s) if s.running_trials.is_empty() => break s,
             ControllerToServer::Status(_) => continue,
@@ -491,7 +491,7 @@ fn a_lost_server_link_stops_trials_and_the_controller_accepts_a_new_one() {
     };
     assert!(closed);
     let (mut link, _) = Link::connect(ctl.addr);
-    link.send(&ServerToController::Status);
+    link.send(&ServerToController::Status {});
     let running = loop {
         match link.recv() {
             ControllerToServer::Status(s) => break s.running_trials,

@@ -245,7 +245,13 @@ impl Session {
 
     /// Moves a pointer (mouse) over the element through `points` (offsets from its centre,
     /// CSS pixels), pressing the button at the first point.
-    pub fn pointer_path(&self, css: &str, points: &[(i64, i64)], step_ms: u64) {
+    /// The driver's refusal (e.g. the element was hidden meanwhile) is returned.
+    pub fn pointer_path(
+        &self,
+        css: &str,
+        points: &[(i64, i64)],
+        step_ms: u64,
+    ) -> Result<(), String> {
         let id = self.find(css);
         let origin = json!({ "element-6066-11e4-a52e-4f735466cecf": id });
         let mut actions = vec![];
@@ -257,7 +263,7 @@ impl Session {
         }
         actions.push(json!({ "type": "pointerUp", "button": 0 }));
         self.cmd("POST", "/actions", json!({ "actions": [{ "type": "pointer", "id": "mouse", "parameters": { "pointerType": "mouse" }, "actions": actions }] }))
-            .unwrap_or_else(|e| panic!("pointer actions: {e}"));
+            .map(|_| ())
     }
 
     /// Saves a screenshot of the page as a PNG.

@@ -63,7 +63,6 @@ struct Io {
     rejected_inputs: u64,
     rejected_datagrams: u64,
     last_rx: Instant,
-    live_dropped: u64,
 }
 
 type Shared = Arc<Mutex<Io>>;
@@ -174,7 +173,7 @@ impl Io {
                 vec![]
             }
             ServerToController::Heartbeat { .. } => vec![],
-            ServerToController::EStop => {
+            ServerToController::EStop {} => {
                 self.rt.shared.estop.store(true, Ordering::SeqCst);
                 let _ = self.rt.send(Command::EStop);
                 tracing::warn!("E-STOP: every valve to zero, trials stopped, latched until reset");
@@ -184,7 +183,7 @@ impl Io {
                     message: "e-stop pressed: valves at zero, latched until reset_e_stop".into(),
                 })]
             }
-            ServerToController::ResetEStop => {
+            ServerToController::ResetEStop {} => {
                 match self.rt.send(Command::ResetEStop) {
                     Ok(()) => self.rt.shared.estop.store(false, Ordering::SeqCst),
                     Err(_) => {
@@ -196,7 +195,7 @@ impl Io {
                 tracing::info!("e-stop reset");
                 vec![self.status_frame()]
             }
-            ServerToController::Status => vec![self.status_frame()],
+            ServerToController::Status {} => vec![self.status_frame()],
             ServerToController::Step { ticks } => {
                 if !self.cfg.lockstep {
                     return self.reject(
@@ -359,7 +358,6 @@ pub async fn run(
         rejected_inputs: 0,
         rejected_datagrams: 0,
         last_rx: Instant::now(),
-        live_dropped: 0,
     }));
     let tasks = [
         tokio::spawn(accept(Arc::clone(&io), listener)),
@@ -553,10 +551,10 @@ async fn pump(io: Shared) {
                     }
                     Event::Live(s) => {
                         if let (Some((id, tx)), Some(e)) = (&sender, g.trials.get(&s.trial_id)) {
-                            if e.conn == *id
-                                && tx.try_send(frame(&ControllerToServer::Live(s))).is_err()
-                            {
-                                g.live_dropped += 1;
+                            // A live sample the link cannot take now is dropped: it is a
+                            // preview, and the full record follows in chunks.
+                            if e.conn == *id {
+                                let _ = tx.try_send(frame(&ControllerToServer::Live(s)));
                             }
                         }
                     }

@@ -334,7 +334,7 @@ async fn connection(link: &ControllerLink, pool: &SqlitePool, stream: TcpStream)
             *link.inner.rig.lock().unwrap_or_else(|p| p.into_inner()) = Some(rig);
             // Learn the latch state of this controller (a fresh one has none).
             let _ = wr
-                .write_all(&framing::encode(&ServerToController::Status))
+                .write_all(&framing::encode(&ServerToController::Status {}))
                 .await;
         }
         Ok(other) => return format!("unexpected answer to hello: {other:?}"),

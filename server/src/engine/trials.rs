@@ -210,7 +210,7 @@ pub async fn add_note(pool: &SqlitePool, author: &str, trial_id: i64, text: &str
 /// The E-stop: sent first, audited after (the stop itself waits for nothing that could
 /// fail); an error when it could not be sent.
 pub async fn estop(pool: &SqlitePool, link: &ControllerLink, actor: &str) -> Result<()> {
-    let sent = link.send(&ServerToController::EStop);
+    let sent = link.send(&ServerToController::EStop {});
     Change::begin(pool, actor)
         .await?
         .commit(
@@ -224,10 +224,10 @@ pub async fn estop(pool: &SqlitePool, link: &ControllerLink, actor: &str) -> Res
 
 /// Clears the E-stop latch.
 pub async fn reset_estop(pool: &SqlitePool, link: &ControllerLink, actor: &str) -> Result<()> {
-    link.send(&ServerToController::ResetEStop)
+    link.send(&ServerToController::ResetEStop {})
         .map_err(AppError::Unavailable)?;
     // The controller's status confirms the cleared latch.
-    let _ = link.send(&ServerToController::Status);
+    let _ = link.send(&ServerToController::Status {});
     Change::begin(pool, actor)
         .await?
         .commit("estop.reset", Some("controller".into()), json!({}))
