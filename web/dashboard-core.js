@@ -151,7 +151,8 @@ export function mmss(s) {
   return `${neg ? '−' : ''}${Math.floor(t / 60)}:${pad(t % 60)}`;
 }
 
-export const STATION_NAME = { on: 'ON the machine', off: 'OFF (desk)', both: 'both' };
+/** Seats (and a station's role: the seats it serves). */
+export const SEAT_NAME = { on: 'ON the machine', off: 'OFF (desk)', both: 'both seats' };
 
 /** Human name of a controller kind (the real, unblinded one). */
 export const CONTROLLER_NAME = {

@@ -3,7 +3,7 @@
 
 import { wsUrl } from './common.js';
 import {
-  S, act, CONTROLLER_NAME, controllerName, el, emit, errText, get, mmss, num, on, post, when, STATION_NAME,
+  S, act, CONTROLLER_NAME, controllerName, el, emit, errText, get, mmss, num, on, post, when, SEAT_NAME,
 } from './dashboard-core.js';
 import { StripChart } from './dashboard-chart.js';
 
@@ -388,7 +388,7 @@ function hintText(st) {
         : there.length
           ? `assign them to “${there.map((x) => x.name).join('” or “')}” under Stations`
           : 'no station of this study serves it yet: pair one';
-      return `${who}'s next test is ${STATION_NAME[st.to] || st.to}: move the subject there; ${where}.`;
+      return `${who}'s next test is ${SEAT_NAME[st.to] || st.to}: move the subject there; ${where}.`;
     }
     case 'ready':
       return st.test && st.test.practice
@@ -413,7 +413,7 @@ function renderPanel(p) {
   const st = p.state;
   const station = p.station;
   p.title.textContent = `${station.name} `;
-  p.title.append(el('span', { class: 'muted small' }, `station #${station.id} · role ${STATION_NAME[station.role] || station.role}`));
+  p.title.append(el('span', { class: 'muted small' }, `station #${station.id} · serves ${SEAT_NAME[station.role] || station.role}`));
   const phase = st ? st.phase : 'unknown';
   p.root.className = `monitor phase-${phase}`;
   p.phase.textContent = st ? PHASE_TEXT[phase] || phase : '…';
@@ -424,7 +424,7 @@ function renderPanel(p) {
   if (test) p.f.controller.v.replaceChildren(CONTROLLER_NAME[test.controller] || test.controller, el('span', { class: 'sub' }, test.controller));
   else p.f.controller.v.textContent = '—';
   p.f.label.v.textContent = test ? test.label : st && st.phase === 'survey' ? st.label : '—';
-  p.f.where.v.textContent = test ? `${STATION_NAME[test.station] || test.station}, ${mmss(test.duration_s)} long` : '—';
+  p.f.where.v.textContent = test ? `${SEAT_NAME[test.station] || test.station}, ${mmss(test.duration_s)} long` : '—';
   updateLiveText(p);
 
   const ready = phase === 'ready' && test;

@@ -1,7 +1,7 @@
 // Operator stations of the selected study: pairing by the code a station shows, and which
 // subject each station serves.
 
-import { S, act, el, emit, get, on, post, setStatus, syncRows, STATION_NAME } from './dashboard-core.js';
+import { S, act, el, emit, get, on, post, setStatus, syncRows, SEAT_NAME } from './dashboard-core.js';
 
 const $ = (id) => document.getElementById(id);
 
@@ -62,7 +62,7 @@ async function pair() {
   }
   $('pair-submit').disabled = true;
   const r = await act(`Pair station “${name}”`, $('pair-status'), () => post(`/api/studies/${id}/stations`, { pairing_code: code, name, role }), (d) =>
-    `paired as station #${d.id} (${STATION_NAME[d.role] || d.role}); assign a subject to it below`,
+    `paired as station #${d.id} (${SEAT_NAME[d.role] || d.role}); assign a subject to it below`,
   );
   $('pair-submit').disabled = false;
   if (r.ok) {
@@ -125,7 +125,7 @@ function render() {
       return [
         el('td', { class: 'num' }, st.id),
         el('td', {}, st.name),
-        el('td', {}, STATION_NAME[st.role] || st.role),
+        el('td', {}, SEAT_NAME[st.role] || st.role),
         el('td', {}, sel),
         el('td', {}, res ? el('span', { class: `status ${res[0]}` }, res[1]) : ''),
       ];

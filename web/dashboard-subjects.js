@@ -2,7 +2,7 @@
 // with every trial attempt (real controller, blinded label, results, survey) and its actions.
 
 import {
-  S, act, CONTROLLER_NAME, el, emit, get, num, on, post, setStatus, syncRows, when, STATION_NAME,
+  S, act, CONTROLLER_NAME, el, emit, get, num, on, post, setStatus, syncRows, when, SEAT_NAME,
 } from './dashboard-core.js';
 import { reloadSelected } from './dashboard-study.js';
 
@@ -85,7 +85,7 @@ async function enrol(synthetic) {
     synthetic ? 'Enrol synthetic subject' : 'Enrol subject',
     $('enrol-status'),
     () => post(`/api/studies/${id}/subjects`, synthetic ? { synthetic: true } : {}),
-    (d) => `${d.subject.code} enrolled (${d.subject.synthetic ? 'synthetic' : 'person'}, starts ${STATION_NAME[d.subject.starting_station] || d.subject.starting_station})`,
+    (d) => `${d.subject.code} enrolled (${d.subject.synthetic ? 'synthetic' : 'person'}, starts ${SEAT_NAME[d.subject.starting_station] || d.subject.starting_station})`,
   );
   btn.disabled = false;
   if (!r.ok) return;
@@ -297,8 +297,8 @@ function renderSchedule(d) {
     el(
       'p',
       {},
-      `${s.synthetic ? 'Synthetic subject (the synthetic operator drives the tests)' : 'Person'} · starts ${STATION_NAME[s.starting_station] || s.starting_station} · consent ${consentText(s)} · ${done} of ${tests.length} tests complete` +
-        (next ? ` · next: slot ${next.slot} (${next.practice ? 'practice' : next.blinded_label}, ${STATION_NAME[next.station]})` : ' · nothing left to run'),
+      `${s.synthetic ? 'Synthetic subject (the synthetic operator drives the tests)' : 'Person'} · starts ${SEAT_NAME[s.starting_station] || s.starting_station} · consent ${consentText(s)} · ${done} of ${tests.length} tests complete` +
+        (next ? ` · next: slot ${next.slot} (${next.practice ? 'practice' : next.blinded_label}, ${SEAT_NAME[next.station]})` : ' · nothing left to run'),
     ),
     s.withdrawn_at ? el('p', { class: 'status err' }, `Withdrawn ${when(s.withdrawn_at)}: ${s.withdraw_reason || ''}`) : '',
   );

@@ -263,8 +263,8 @@ const renderers = {
   },
   move(s) {
     $('move-to').textContent = s.to === 'on'
-      ? 'Please move to the station on the machine'
-      : 'Please move to the station at the desk';
+      ? 'Please move to the seat on the machine'
+      : 'Please move to the seat at the desk';
   },
   done(s) {
     let title = 'Thank you!';
