@@ -248,6 +248,51 @@ function showStudy(st) {
   $('study-save').disabled = locked;
   $('study-save').textContent = `Save changes to study #${st.id}`;
   $('study-copy').disabled = false;
+  showStability(st);
+}
+
+/** The stability gate: each compensator analysed at the study's K_BF, on and off the machine. */
+async function showStability(st) {
+  const box = $('stability');
+  box.replaceChildren(el('p', { class: 'muted' }, 'Analysing every compensator at the study’s K_BF, on and off the machine…'));
+  const r = await get(`/api/studies/${st.id}/stability`);
+  if (!S.study || S.study.id !== st.id) return;
+  if (!r.ok) {
+    box.replaceChildren(el('p', { class: 'status err' }, `Stability analysis failed: ${r.data && r.data.error}`));
+    return;
+  }
+  const rep = r.data;
+  const yes = (ok) => el('td', { class: ok ? 'ok' : 'err' }, ok ? 'stable' : 'UNSTABLE');
+  const rows = rep.verdicts.map((v) =>
+    el('tr', { class: v.stable_on && v.stable_off ? '' : 'unstable' },
+      el('td', {}, controllerName(v.controller)),
+      yes(v.stable_on),
+      yes(v.stable_off),
+      el('td', {}, v.max_stable_kbf == null ? 'above 20' : v.max_stable_kbf.toFixed(2)),
+      el('td', { class: v.has_margin ? 'ok' : 'err' }, v.has_margin ? 'yes' : 'no')));
+  const table = el('table', { class: 'grid numeric' },
+    el('thead', {}, el('tr', {}, ...[`Compensator`, `On the machine at K_BF ${rep.k_bf}`, 'Off the machine', 'Largest stable K_BF', `Margin ≥ ${rep.margin}× K_BF`].map((h) => el('th', {}, h)))),
+    el('tbody', {}, ...rows));
+  const parts = [el('h3', {}, 'Stability with the feedthrough loop closed'), table];
+  const unstable = rep.verdicts.filter((v) => !v.stable_on || !v.stable_off);
+  if (unstable.length && !st.locked_at) {
+    if (st.params.rig === 'real') {
+      parts.push(el('p', { class: 'status err' }, 'This study runs on the real machine: it cannot be locked (no subject can be enrolled) while a design is unstable. Change the design or K_BF.'));
+    } else if (st.instability_ack) {
+      parts.push(el('p', { class: 'status info' }, `Acknowledged by ${st.instability_ack.by} ${when(st.instability_ack.at)}: “${st.instability_ack.reason}”. It runs in simulation only.`));
+    } else {
+      const reason = el('input', { id: 'ack-reason', maxlength: 500, size: 40, placeholder: 'why run it anyway (kept in the audit log)' });
+      const out = el('span', { class: 'status', role: 'status' });
+      const btn = el('button', { type: 'button', class: 'danger' }, 'Acknowledge and allow in simulation');
+      btn.addEventListener('click', async () => {
+        const r2 = await act('Acknowledge instability', out, () => send('POST', `/api/studies/${st.id}/acknowledge-instability`, { reason: reason.value }));
+        if (r2.ok) reloadSelected().then(() => S.study && showStudy(S.study));
+      });
+      parts.push(el('p', { class: 'status err' }, 'A design is unstable on the machine: subjects can be enrolled only after you acknowledge it (simulation only).'),
+        el('div', { class: 'toolbar' }, reason, btn, out));
+    }
+  }
+  box.replaceChildren(...parts);
 }
 
 async function showDraft(params, name, why) {

@@ -8,6 +8,7 @@ use sqlx::SqlitePool;
 use crate::engine::accounts::LoginLimiter;
 use crate::engine::controller_link::ControllerLink;
 use crate::engine::pilot::PilotJob;
+use crate::engine::stability::StabilityCache;
 use crate::engine::stations::Pairing;
 
 #[derive(Clone, Debug)]
@@ -17,6 +18,7 @@ pub struct AppState {
     pub login: Arc<LoginLimiter>,
     pub pairing: Arc<Pairing>,
     pub pilot: Arc<PilotJob>,
+    pub stability: Arc<StabilityCache>,
     /// Serve the pages from this directory instead of the embedded copy (development).
     pub web_dir: Option<std::path::PathBuf>,
 }
@@ -29,6 +31,7 @@ impl AppState {
             login: Arc::default(),
             pairing: Arc::default(),
             pilot: Arc::default(),
+            stability: Arc::default(),
             web_dir: None,
         }
     }

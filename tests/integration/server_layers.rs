@@ -185,3 +185,92 @@ fn the_openapi_document_has_schemas_for_every_operation() {
     let test_view = schemas["TestView"]["properties"].as_object().unwrap();
     assert!(!test_view.contains_key("controller") && !test_view.contains_key("compensator"));
 }
+
+/// Study parameters with the bench (Ziegler–Nichols) PID family: unstable on the machine at
+/// the study's K_BF 0.78 (stable only up to 0.35).
+fn bench_tuned(api: &Api, rig: &str) -> Value {
+    let (_, mut params) = api.get("/api/defaults");
+    let zn = json!({ "kp": 0.5203636363636363, "ti": 0.14818833271649967, "td": 0.03704708317912492, "n": 10.0 });
+    for c in params["controllers"].as_array_mut().unwrap() {
+        if c.get("pid").is_some() {
+            c["pid"] = zn.clone();
+        }
+    }
+    params["rig"] = json!(rig);
+    params
+}
+
+#[test]
+fn the_stability_gate_keeps_unstable_designs_off_the_machine() {
+    let server = Server::start("layers-gate");
+    let api = server.experimenter();
+    // The default study: every design stable on and off the machine, with the margin.
+    let (_, defaults) = api.get("/api/defaults");
+    let good = api.ok(
+        "/api/studies",
+        json!({ "name": "default", "params": defaults }),
+    )["id"]
+        .as_i64()
+        .unwrap();
+    let (code, report) = api.get(&format!("/api/studies/{good}/stability"));
+    assert_eq!(code, 200, "{report}");
+    let verdicts = report["verdicts"].as_array().unwrap();
+    assert_eq!(verdicts.len(), 5);
+    for v in verdicts {
+        assert_eq!(v["stable_on"], true, "{v}");
+        assert_eq!(v["stable_off"], true, "{v}");
+        assert_eq!(v["has_margin"], true, "{v}");
+    }
+    // The bench PID on the real machine: the study cannot be locked, nor acknowledged.
+    let real = api.ok(
+        "/api/studies",
+        json!({ "name": "bench on the machine", "params": bench_tuned(&api, "real") }),
+    )["id"]
+        .as_i64()
+        .unwrap();
+    let (_, report) = api.get(&format!("/api/studies/{real}/stability"));
+    let pid = &report["verdicts"][0];
+    assert_eq!(
+        (pid["controller"].as_str(), &pid["stable_on"]),
+        (Some("pid"), &json!(false)),
+        "{report}"
+    );
+    let limit = pid["max_stable_kbf"].as_f64().unwrap();
+    assert!((limit - 0.35).abs() < 0.01, "{limit}");
+    let (code, body) = api.post(&format!("/api/studies/{real}/subjects"), json!({}));
+    assert_eq!(code, 409, "{body}");
+    assert!(
+        body["error"].as_str().unwrap().contains("real machine"),
+        "{body}"
+    );
+    let (code, _) = api.post(
+        &format!("/api/studies/{real}/acknowledge-instability"),
+        json!({ "reason": "trying" }),
+    );
+    assert_eq!(code, 409);
+    assert!(api.get(&format!("/api/studies/{real}")).1["locked_at"].is_null());
+    // In simulation it runs only after an acknowledgement, which the audit log keeps.
+    let sim = api.ok(
+        "/api/studies",
+        json!({ "name": "bench in simulation", "params": bench_tuned(&api, "simulated") }),
+    )["id"]
+        .as_i64()
+        .unwrap();
+    let (code, body) = api.post(&format!("/api/studies/{sim}/subjects"), json!({}));
+    assert_eq!(code, 409, "{body}");
+    assert!(
+        body["error"].as_str().unwrap().contains("acknowledge"),
+        "{body}"
+    );
+    api.ok(
+        &format!("/api/studies/{sim}/acknowledge-instability"),
+        json!({ "reason": "reproducing the limit cycle in simulation" }),
+    );
+    let (code, body) = api.post(&format!("/api/studies/{sim}/subjects"), json!({}));
+    assert_eq!(code, 200, "{body}");
+    assert!(
+        audit_actions(&api)
+            .iter()
+            .any(|a| a == "study.acknowledge_instability")
+    );
+}

@@ -10,7 +10,7 @@ mod pid;
 
 pub use bdft_protocol::params::{CompensatorKind, CompensatorSpec};
 pub use lqr::{CabOutput, Lqr, LqrDesign, LqrParams};
-pub use pid::{NotchParams, Pid, PidParams, notch_filter, ziegler_nichols};
+pub use pid::{NotchParams, Pid, PidParams, notch_filter, tyreus_luyben_pi, ziegler_nichols};
 
 use crate::error::DesignError;
 use crate::filters::Biquad;
@@ -20,9 +20,20 @@ use crate::shaper::{Shaper, ShaperParams};
 use crate::state::LinearState;
 
 /// The documented default design of `kind` for this plant (PID tuned by Ziegler–Nichols
-/// from the plant's ultimate gain).
+/// from the plant's ultimate gain): the bench design, and the one the published stability
+/// facts are about.
 pub fn default_spec(kind: CompensatorKind, plant: &PlantParams) -> CompensatorSpec {
-    let pid = ziegler_nichols(plant);
+    spec_with_pid(kind, ziegler_nichols(plant))
+}
+
+/// The design of `kind` for tests with people on the machine: the PID family tuned slow
+/// (`tyreus_luyben_pi`; notch and shaper keep the PID's gains, as in the original study),
+/// the LQR designs as `default_spec`.
+pub fn study_spec(kind: CompensatorKind, plant: &PlantParams) -> CompensatorSpec {
+    spec_with_pid(kind, tyreus_luyben_pi(plant))
+}
+
+fn spec_with_pid(kind: CompensatorKind, pid: PidParams) -> CompensatorSpec {
     match kind {
         CompensatorKind::Pid => CompensatorSpec::Pid { pid },
         CompensatorKind::PidNotch => CompensatorSpec::PidNotch {

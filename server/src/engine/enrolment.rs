@@ -6,20 +6,36 @@ use serde_json::json;
 use sqlx::SqlitePool;
 
 use super::schedule::{protocol_hash, schedule, starting_station, target};
+use super::stability::{StabilityCache, check_lockable};
 use crate::error::{AppError, Result};
 use crate::store::subjects::{NewSubject, Subject};
 use crate::store::trials::NewTrial;
 use crate::store::{self, Change};
 
-/// Enrols the study's next subject; returns it and the token of its own page.
+/// Enrols the study's next subject; returns it and the token of its own page. The first
+/// enrolment passes the stability gate before it locks the protocol.
 pub async fn enrol(
     pool: &SqlitePool,
+    stability: &StabilityCache,
     actor: &str,
     study_id: i64,
     synthetic: bool,
 ) -> Result<(Subject, String)> {
+    // The analysis takes seconds: it runs before the write transaction, never inside it.
+    let before = store::studies::get(pool, study_id).await?;
+    if before.locked_at.is_none() {
+        let report = stability.report(&before.params).await?;
+        check_lockable(&before.params, &report, before.instability_ack.is_some())?;
+    }
     let mut change = Change::begin(pool, actor).await?;
     let study = store::studies::get(change.db(), study_id).await?;
+    if study.locked_at.is_none()
+        && (study.params != before.params || study.instability_ack != before.instability_ack)
+    {
+        return Err(AppError::Conflict(
+            "the study was edited meanwhile; try again".into(),
+        ));
+    }
     let hash = match &study.protocol_hash {
         Some(h) => h.clone(),
         None => {
@@ -46,7 +62,7 @@ pub async fn enrol(
     for t in schedule(&study.params, study.seed, index) {
         let tg = target(&study.params, &t)?;
         // The practice runs the study's own design of its practice compensator when the
-        // study has one, else that compensator's default design.
+        // study has one, else that compensator's design for people.
         let spec = study
             .params
             .controllers
@@ -55,7 +71,7 @@ pub async fn enrol(
             .cloned()
             .or_else(|| {
                 t.practice.then(|| {
-                    bdft_controller::compensator::default_spec(t.compensator, &study.params.plant)
+                    bdft_controller::compensator::study_spec(t.compensator, &study.params.plant)
                 })
             })
             .ok_or_else(|| {

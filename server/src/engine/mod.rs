@@ -15,6 +15,7 @@ pub mod pilot;
 pub mod plots;
 pub mod results;
 pub mod schedule;
+pub mod stability;
 pub mod stations;
 pub mod stats;
 pub mod studies;

@@ -89,6 +89,7 @@ pub async fn run_with_progress(
         },
     };
     let study = Arc::new(store::studies::get(pool, study_id).await?);
+    let stability = super::stability::StabilityCache::default();
     Change::begin(pool, requested_by)
         .await?
         .commit(
@@ -105,7 +106,7 @@ pub async fn run_with_progress(
     };
     let mut work = Vec::new();
     for _ in 0..subjects {
-        let (subject, _) = enrol(pool, ACTOR, study_id, true).await?;
+        let (subject, _) = enrol(pool, &stability, ACTOR, study_id, true).await?;
         let mut change = Change::begin(pool, ACTOR).await?;
         store::subjects::record_consent(
             change.db(),

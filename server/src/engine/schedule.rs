@@ -2,7 +2,7 @@
 //! schedule and each test's target. Everything here is a function of the study's
 //! parameters and seeds, so a schedule can be regenerated on demand and checked.
 
-use bdft_controller::compensator::default_spec;
+use bdft_controller::compensator::study_spec;
 use bdft_controller::rng::Rng;
 use bdft_controller::signals::StepTarget;
 use bdft_protocol::params::{CompensatorKind, ParamError, PlantParams, Seat, StepParams};
@@ -14,13 +14,14 @@ use sha2::{Digest, Sha256};
 /// feedthrough is clearly felt.
 pub const STUDY_KBF: f64 = 0.78;
 
-/// The published study's protocol with the identified rig.
+/// The published study's protocol with the identified rig, and the compensators tuned for
+/// people on the machine (`study_spec`: the PID family slow, as the original study did).
 pub fn default_params() -> StudyParams {
     let plant = PlantParams::default();
     StudyParams {
         controllers: CompensatorKind::STUDY
             .iter()
-            .map(|&k| default_spec(k, &plant))
+            .map(|&k| study_spec(k, &plant))
             .collect(),
         practice_controller: CompensatorKind::Pid,
         stations: vec![Seat::On, Seat::Off],

@@ -6,6 +6,7 @@ use serde_json::json;
 use sqlx::SqlitePool;
 
 use super::check_name;
+use super::stability::{StabilityCache, StabilityReport};
 use crate::error::{AppError, Result};
 use crate::store::{self, Change};
 
@@ -59,4 +60,39 @@ pub async fn update(
             json!({ "name": name, "params": params }),
         )
         .await
+}
+
+/// Records that `actor` knows the study's design is unstable on the machine and wants it run
+/// in simulation all the same (a real-machine study cannot be acknowledged).
+pub async fn acknowledge_instability(
+    pool: &SqlitePool,
+    stability: &StabilityCache,
+    actor: &str,
+    id: i64,
+    reason: &str,
+) -> Result<StabilityReport> {
+    super::check_reason(reason)?;
+    let study = store::studies::get(pool, id).await?;
+    let report = stability.report(&study.params).await?;
+    if report.unstable().is_empty() {
+        return Err(AppError::Conflict(
+            "every design is stable on and off the machine: there is nothing to acknowledge".into(),
+        ));
+    }
+    if study.params.rig == bdft_protocol::study::RigKind::Real {
+        return Err(AppError::Conflict(
+            "the study runs on the real machine: an unstable design cannot be acknowledged, only changed".into(),
+        ));
+    }
+    let ack = json!({ "by": actor, "at": store::db::now_ms(), "reason": reason });
+    let mut change = Change::begin(pool, actor).await?;
+    store::studies::acknowledge_instability(change.db(), id, &ack).await?;
+    change
+        .commit(
+            "study.acknowledge_instability",
+            Some(format!("study:{id}")),
+            json!({ "reason": reason, "unstable": report.unstable() }),
+        )
+        .await?;
+    Ok(report)
 }

@@ -7,9 +7,11 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::bodies::ReasonBody;
 use super::error::{ApiResult, AppError, AppJson};
 use super::extract::Experimenter;
 use crate::engine::schedule::default_params;
+use crate::engine::stability::StabilityReport;
 use crate::engine::studies;
 use crate::state::AppState;
 use crate::store;
@@ -20,6 +22,8 @@ pub fn routes() -> OpenApiRouter<AppState> {
         .routes(routes!(defaults))
         .routes(routes!(list_studies, create_study))
         .routes(routes!(get_study, update_study))
+        .routes(routes!(stability))
+        .routes(routes!(acknowledge_instability))
 }
 
 #[derive(Debug, Deserialize, ToSchema)]
@@ -56,6 +60,7 @@ async fn create_study(
 ) -> ApiResult<Study> {
     let params = b.params.unwrap_or_else(default_params);
     let id = studies::create(&s.pool, &who.username, &b.name, &params, b.seed).await?;
+    s.stability.prefetch(&params);
     Ok(AppJson(store::studies::get(&s.pool, id).await?))
 }
 
@@ -89,5 +94,35 @@ async fn update_study(
         ));
     }
     studies::update(&s.pool, &who.username, id, &b.name, &params).await?;
+    s.stability.prefetch(&params);
     Ok(AppJson(store::studies::get(&s.pool, id).await?))
+}
+
+/// Every compensator of the study analysed at its K_BF with its plant and body, on and off
+/// the machine: the verdict, the largest stable K_BF and whether it keeps the margin.
+#[utoipa::path(get, path = "/api/studies/{id}/stability", tag = "studies", params(("id" = i64, Path)),
+    responses((status = 200, body = StabilityReport)))]
+async fn stability(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<StabilityReport> {
+    let study = store::studies::get(&s.pool, id).await?;
+    Ok(AppJson(s.stability.report(&study.params).await?))
+}
+
+/// Acknowledge that a design of a simulated study is unstable on the machine, so the study
+/// can be locked and run in simulation (refused for the real machine).
+#[utoipa::path(post, path = "/api/studies/{id}/acknowledge-instability", tag = "studies",
+    params(("id" = i64, Path)), request_body = ReasonBody, responses((status = 200, body = StabilityReport)))]
+async fn acknowledge_instability(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(id): Path<i64>,
+    AppJson(b): AppJson<ReasonBody>,
+) -> ApiResult<StabilityReport> {
+    Ok(AppJson(
+        studies::acknowledge_instability(&s.pool, &s.stability, &who.username, id, &b.reason)
+            .await?,
+    ))
 }

@@ -67,7 +67,8 @@ async fn enrol_subject(
     body: axum::body::Bytes,
 ) -> ApiResult<Enrolled> {
     let b: EnrolBody = optional_json(&body, "enrolment")?;
-    let (subject, subject_token) = enrol(&s.pool, &who.username, id, b.synthetic).await?;
+    let (subject, subject_token) =
+        enrol(&s.pool, &s.stability, &who.username, id, b.synthetic).await?;
     let study = store::studies::get(&s.pool, id).await?;
     Ok(AppJson(Enrolled {
         subject,

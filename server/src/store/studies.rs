@@ -18,6 +18,10 @@ pub struct Study {
     /// SHA-256 of the canonical parameters, set when the protocol is locked.
     pub protocol_hash: Option<String>,
     pub created_at: i64,
+    /// Who acknowledged that a design is unstable on the machine, when and why (simulated
+    /// studies only; cleared by an edit).
+    #[schema(value_type = Option<Object>)]
+    pub instability_ack: Option<serde_json::Value>,
 }
 
 #[derive(sqlx::FromRow)]
@@ -29,6 +33,7 @@ struct StudyRow {
     locked_at: Option<i64>,
     protocol_hash: Option<String>,
     created_at: i64,
+    instability_ack_json: Option<String>,
 }
 
 impl TryFrom<StudyRow> for Study {
@@ -44,6 +49,9 @@ impl TryFrom<StudyRow> for Study {
             locked_at: r.locked_at,
             protocol_hash: r.protocol_hash,
             created_at: r.created_at,
+            instability_ack: r
+                .instability_ack_json
+                .and_then(|j| serde_json::from_str(&j).ok()),
         })
     }
 }
@@ -96,7 +104,7 @@ pub async fn update(
     params: &StudyParams,
 ) -> Result<()> {
     let done = sqlx::query(
-        "UPDATE studies SET name = ?, params_json = ? WHERE id = ? AND locked_at IS NULL",
+        "UPDATE studies SET name = ?, params_json = ?, instability_ack_json = NULL WHERE id = ? AND locked_at IS NULL",
     )
     .bind(name)
     .bind(params_json(params))
@@ -122,5 +130,27 @@ pub async fn lock(db: &mut SqliteConnection, id: i64, hash: &str) -> Result<()> 
     .bind(id)
     .execute(db)
     .await?;
+    Ok(())
+}
+
+/// Records the acknowledgement that a design is unstable (before the lock only).
+pub async fn acknowledge_instability(
+    db: &mut SqliteConnection,
+    id: i64,
+    ack: &serde_json::Value,
+) -> Result<()> {
+    let done = sqlx::query(
+        "UPDATE studies SET instability_ack_json = ? WHERE id = ? AND locked_at IS NULL",
+    )
+    .bind(ack.to_string())
+    .bind(id)
+    .execute(&mut *db)
+    .await?;
+    if done.rows_affected() == 0 {
+        get(&mut *db, id).await?;
+        return Err(AppError::Conflict(
+            "the study's protocol is locked already".into(),
+        ));
+    }
     Ok(())
 }
