@@ -51,6 +51,7 @@ pub enum ControllerToServer {
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(deny_unknown_fields)]
 pub struct LiveSample {
     pub trial_id: TrialId,
     /// Seconds since the trial started.
@@ -68,6 +69,7 @@ pub struct LiveSample {
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct RecordChunk {
     pub trial_id: TrialId,
     /// Chunk number from 0.
@@ -79,6 +81,7 @@ pub struct RecordChunk {
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct TrialResult {
     pub trial_id: TrialId,
     pub outcome: Outcome,
@@ -90,6 +93,7 @@ pub struct TrialResult {
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Status {
     pub estop_latched: bool,
     pub running_trials: Vec<TrialId>,
@@ -105,6 +109,7 @@ pub struct Status {
 
 /// What the operating system granted the loop thread.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct RealtimeStatus {
     pub sched_fifo: bool,
     pub memory_locked: bool,

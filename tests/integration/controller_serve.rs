@@ -17,7 +17,7 @@ use bdft_tests::controller_link::{Link, Proc, TrialLog};
 fn synthetic_trial(
     trial_id: u64,
     kind: CompensatorKind,
-    station: Seat,
+    seat: Seat,
     k_bf: f64,
     duration_s: f64,
     seed: u64,
@@ -32,7 +32,7 @@ fn synthetic_trial(
     StartTrial {
         trial_id,
         compensator: default_spec(kind, &plant),
-        station,
+        station: seat,
         k_bf,
         target: TargetSpec::Steps {
             interval_s: target.interval_s,
@@ -53,7 +53,7 @@ fn synthetic_trial(
 
 fn offline(
     kind: CompensatorKind,
-    station: Seat,
+    seat: Seat,
     k_bf: f64,
     duration_s: f64,
     seed: u64,
@@ -68,7 +68,7 @@ fn offline(
                 k_bf,
                 ..LoopParams::default()
             },
-            station,
+            station: seat,
         },
         signal: SignalKind::Steps,
         duration_s,
@@ -336,10 +336,7 @@ fn bad_messages_are_rejected_counted_and_never_reach_the_valve() {
     let (mut link, _) = Link::connect(ctl.addr);
     let mut log = TrialLog::default();
     // Malformed JSON in a valid frame: rejected, the link stays usable.
-    let junk = br#"{"type":"launch_missiles"}"#;
-    let mut frame = (junk.len() as u32).to_be_bytes().to_vec();
-    frame.extend_from_slice(junk);
-    link.send_bytes(&frame);
+    link.send_json(r#"{"type":"launch_missiles"}"#);
     assert!(matches!(link.recv(), ControllerToServer::Rejected { .. }));
     // Out-of-range parameters: the reason names the field.
     let mut bad = server_input_trial(9, 1.0);
@@ -413,6 +410,37 @@ fn bad_messages_are_rejected_counted_and_never_reach_the_valve() {
     };
     assert!(status.rejected_messages >= 6, "{status:?}");
     assert!(status.running_trials.is_empty());
+}
+
+#[test]
+fn a_message_without_fields_refuses_unknown_fields() {
+    let ctl = Proc::controller(&["--lockstep"]);
+    let (mut link, _) = Link::connect(ctl.addr);
+    // docs/protocol.md: unknown fields are refused, also beside a message that has none.
+    for text in [
+        r#"{"type":"status","x":1}"#,
+        r#"{"type":"e_stop","now":true}"#,
+        r#"{"type":"reset_e_stop","x":null}"#,
+    ] {
+        link.send_json(text);
+        match link.recv() {
+            ControllerToServer::Rejected { trial_id, reason } => {
+                assert_eq!(trial_id, None);
+                assert!(reason.contains("unknown field"), "{text}: {reason}");
+            }
+            other => panic!("{text} was answered with {other:?}"),
+        }
+    }
+    // None of them acted (no e-stop latched), and the link is still up: the same message
+    // without the stray field is answered.
+    link.send_json(r#"{"type":"status"}"#);
+    match link.recv() {
+        ControllerToServer::Status(s) => {
+            assert!(!s.estop_latched, "the refused e_stop did nothing");
+            assert_eq!(s.rejected_messages, 3);
+        }
+        other => panic!("{other:?}"),
+    }
 }
 
 #[test]

@@ -10,8 +10,8 @@ use bdft_protocol::PROTOCOL_VERSION;
 use bdft_protocol::controller_to_server::{
     ControllerToServer, LiveSample, RecordChunk, TrialResult,
 };
-use bdft_protocol::framing::{decode, encode, read_frame};
-use bdft_protocol::server_to_controller::ServerToController;
+use bdft_protocol::framing::BlockingFramed;
+use bdft_protocol::server_to_controller::{ServerToController, StartTrial};
 
 use crate::binary;
 
@@ -92,10 +92,10 @@ impl Drop for Proc {
 /// a loaded 2-core machine; a healthy exchange takes milliseconds).
 pub const PATIENCE: Duration = Duration::from_secs(60);
 
-/// The server end of a controller link.
+/// The server end of a controller link, framed by the protocol's one codec.
 #[derive(Debug)]
 pub struct Link {
-    stream: TcpStream,
+    framed: BlockingFramed<TcpStream, ControllerToServer, ServerToController>,
 }
 
 impl Link {
@@ -115,35 +115,49 @@ impl Link {
         let stream = TcpStream::connect(addr).expect("connect to the controller");
         stream.set_read_timeout(Some(PATIENCE)).unwrap();
         stream.set_nodelay(true).unwrap();
-        Self { stream }
+        Self {
+            framed: BlockingFramed::new(stream),
+        }
     }
 
     pub fn send(&mut self, msg: &ServerToController) {
-        self.stream.write_all(&encode(msg)).expect("send");
+        self.framed.send(msg).expect("send");
     }
 
+    /// Raw bytes on the stream (hand-made frames, JSON that is no message).
     pub fn send_bytes(&mut self, bytes: &[u8]) {
-        self.stream.write_all(bytes).expect("send");
+        self.framed.get_mut().write_all(bytes).expect("send");
+    }
+
+    /// A JSON text as one frame, whatever it says.
+    pub fn send_json(&mut self, text: &str) {
+        let mut frame = (text.len() as u32).to_be_bytes().to_vec();
+        frame.extend_from_slice(text.as_bytes());
+        self.send_bytes(&frame);
     }
 
     /// Next message other than a heartbeat; panics on timeout or a closed link.
     pub fn recv(&mut self) -> ControllerToServer {
-        loop {
-            let payload = read_frame(&mut self.stream)
-                .expect("read")
-                .expect("the controller closed the link");
-            let msg: ControllerToServer = decode(&payload).expect("a valid message");
-            if !matches!(msg, ControllerToServer::Heartbeat { .. }) {
-                return msg;
-            }
-        }
+        self.try_recv().expect("the controller closed the link")
     }
 
-    /// `None` if the controller closed the link.
+    /// `None` if the controller closed the link (or broke it); panics on a timeout or on a
+    /// message this protocol does not know.
     pub fn try_recv(&mut self) -> Option<ControllerToServer> {
         loop {
-            let payload = read_frame(&mut self.stream).ok()??;
-            let msg: ControllerToServer = decode(&payload).expect("a valid message");
+            let msg = match self.framed.recv() {
+                Ok(Some(msg)) => msg.expect("a valid message"),
+                Ok(None) => return None,
+                Err(bdft_protocol::framing::FrameError::Io(e))
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) =>
+                {
+                    panic!("no message from the controller within {PATIENCE:?}")
+                }
+                Err(_) => return None,
+            };
             if !matches!(msg, ControllerToServer::Heartbeat { .. }) {
                 return Some(msg);
             }
@@ -151,7 +165,7 @@ impl Link {
     }
 
     /// Starts a trial and reads until the controller confirms it.
-    pub fn start_and_wait(&mut self, st: bdft_protocol::server_to_controller::StartTrial) {
+    pub fn start_and_wait(&mut self, st: StartTrial) {
         let id = st.trial_id;
         self.send(&ServerToController::StartTrial(Box::new(st)));
         loop {

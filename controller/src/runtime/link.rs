@@ -1,6 +1,7 @@
-//! The I/O side of `bdft-controller serve`: the TCP link to the server (one at a time), the
-//! optional UDP input port of a haptic-device host, and the pump that forwards the loop's
-//! events. Runs on a single-threaded tokio runtime beside the real-time thread.
+//! The I/O side of `bdft-controller serve`: the TCP link to the server (one at a time,
+//! framed by `bdft_protocol::framing::ControllerCodec`), the optional UDP input port of a
+//! haptic-device host, and the pump that forwards the loop's events. Runs on a
+//! single-threaded tokio runtime beside the real-time thread.
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
@@ -10,13 +11,14 @@ use std::time::{Duration, Instant};
 
 use bdft_protocol::PROTOCOL_VERSION;
 use bdft_protocol::controller_to_server::{ControllerToServer, RecordChunk, Status, TrialResult};
-use bdft_protocol::framing::{self, FrameError};
+use bdft_protocol::framing::{ControllerCodec, FrameError};
 use bdft_protocol::rig::InputDatagram;
 use bdft_protocol::server_to_controller::{ServerToController, StartTrial};
 use bdft_protocol::trial::{FaultKind, InputSource, Outcome, TimingSummary, TrialId};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use futures_util::{SinkExt, StreamExt};
 use tokio::net::{TcpListener, TcpStream, UdpSocket};
 use tokio::sync::mpsc;
+use tokio_util::codec::{FramedRead, FramedWrite};
 
 use super::handoff::{InputCell, InputSample};
 use super::rt_loop::{Command, Event, LoopHandle};
@@ -39,9 +41,12 @@ pub struct LinkConfig {
     pub input_udp: bool,
 }
 
+/// Messages queued for a connection's writer, which frames them ([`ControllerCodec`]).
+type Outbox = mpsc::Sender<ControllerToServer>;
+
 struct Conn {
     id: u64,
-    tx: mpsc::Sender<Vec<u8>>,
+    tx: Outbox,
 }
 
 struct TrialEntry {
@@ -71,13 +76,9 @@ fn lock(io: &Shared) -> MutexGuard<'_, Io> {
     io.lock().unwrap_or_else(|p| p.into_inner())
 }
 
-fn frame(msg: &ControllerToServer) -> Vec<u8> {
-    framing::encode(msg)
-}
-
 impl Io {
-    /// Frames for the current connection, if any, with its sender.
-    fn sender(&self) -> Option<(u64, mpsc::Sender<Vec<u8>>)> {
+    /// The current connection, if any, with its outbox.
+    fn sender(&self) -> Option<(u64, Outbox)> {
         self.conn.as_ref().map(|c| (c.id, c.tx.clone()))
     }
 
@@ -121,18 +122,22 @@ impl Io {
         }))
     }
 
-    fn reject(&mut self, reason: String) -> Vec<Vec<u8>> {
+    fn reject(&mut self, reason: String) -> Vec<ControllerToServer> {
         self.reject_trial(None, reason)
     }
 
-    fn reject_trial(&mut self, trial_id: Option<TrialId>, reason: String) -> Vec<Vec<u8>> {
+    fn reject_trial(
+        &mut self,
+        trial_id: Option<TrialId>,
+        reason: String,
+    ) -> Vec<ControllerToServer> {
         self.rejected_messages += 1;
         tracing::info!(reason, "rejected a message from the server");
-        vec![frame(&ControllerToServer::Rejected { trial_id, reason })]
+        vec![ControllerToServer::Rejected { trial_id, reason }]
     }
 
-    /// Acts on one message from connection `conn`; returns the frames to answer with.
-    fn handle(&mut self, conn: u64, msg: ServerToController) -> Vec<Vec<u8>> {
+    /// Acts on one message from connection `conn`; returns the messages to answer with.
+    fn handle(&mut self, conn: u64, msg: ServerToController) -> Vec<ControllerToServer> {
         self.last_rx = Instant::now();
         match msg {
             ServerToController::Hello { .. } => self.reject("hello was already exchanged".into()),
@@ -177,11 +182,11 @@ impl Io {
                 self.rt.shared.estop.store(true, Ordering::SeqCst);
                 let _ = self.rt.send(Command::EStop);
                 tracing::warn!("E-STOP: every valve to zero, trials stopped, latched until reset");
-                vec![frame(&ControllerToServer::Fault {
+                vec![ControllerToServer::Fault {
                     trial_id: None,
                     kind: FaultKind::EStop,
                     message: "e-stop pressed: valves at zero, latched until reset_e_stop".into(),
-                })]
+                }]
             }
             ServerToController::ResetEStop {} => {
                 match self.rt.send(Command::ResetEStop) {
@@ -193,9 +198,9 @@ impl Io {
                     }
                 }
                 tracing::info!("e-stop reset");
-                vec![self.status_frame()]
+                vec![self.status()]
             }
-            ServerToController::Status {} => vec![self.status_frame()],
+            ServerToController::Status {} => vec![self.status()],
             ServerToController::Step { ticks } => {
                 if !self.cfg.lockstep {
                     return self.reject(
@@ -210,11 +215,7 @@ impl Io {
         }
     }
 
-    fn status_frame(&self) -> Vec<u8> {
-        frame(&self.status())
-    }
-
-    fn start(&mut self, conn: u64, st: &StartTrial) -> Vec<Vec<u8>> {
+    fn start(&mut self, conn: u64, st: &StartTrial) -> Vec<ControllerToServer> {
         let id = st.trial_id;
         if self.rt.shared.estop.load(Ordering::SeqCst) {
             return self.reject_trial(
@@ -286,12 +287,12 @@ impl Io {
                 uses_rig,
             },
         );
-        tracing::info!(trial = id, compensator = %st.compensator.kind(), station = st.station.as_str(), k_bf = st.k_bf, "trial starting");
+        tracing::info!(trial = id, compensator = %st.compensator.kind(), seat = st.station.as_str(), k_bf = st.k_bf, "trial starting");
         vec![]
     }
 
     /// The messages that report an ended trial: its record in chunks, then the result.
-    fn finished(&mut self, slot: Box<TrialSlot>) -> (Option<u64>, Vec<Vec<u8>>) {
+    fn finished(&mut self, slot: Box<TrialSlot>) -> (Option<u64>, Vec<ControllerToServer>) {
         let entry = self.trials.remove(&slot.trial_id);
         if let Some(ch) = entry.as_ref().and_then(|e| e.channel) {
             self.channels.remove(&ch);
@@ -301,25 +302,25 @@ impl Io {
             entry.as_ref().and_then(|e| e.abort_reason.clone()),
         );
         tracing::info!(trial = slot.trial_id, ?outcome, "trial ended");
-        let mut frames = Vec::with_capacity(slot.record.len() / CHUNK + 2);
+        let mut msgs = Vec::with_capacity(slot.record.len() / CHUNK + 2);
         if let (Outcome::Faulted { fault, message }, Some(_)) = (&outcome, entry.as_ref()) {
             if *fault != FaultKind::EStop && *fault != FaultKind::LinkLost {
-                frames.push(frame(&ControllerToServer::Fault {
+                msgs.push(ControllerToServer::Fault {
                     trial_id: Some(slot.trial_id),
                     kind: *fault,
                     message: message.clone(),
-                }));
+                });
             }
         }
         let n_chunks = slot.record.len().div_ceil(CHUNK);
         for index in 0..n_chunks {
             let from = index * CHUNK;
-            frames.push(frame(&ControllerToServer::RecordChunk(RecordChunk {
+            msgs.push(ControllerToServer::RecordChunk(RecordChunk {
                 trial_id: slot.trial_id,
                 index: index as u32,
                 start_tick: from as u64,
                 channels: slot.record_channels(from, (from + CHUNK).min(slot.record.len())),
-            })));
+            }));
         }
         let result = TrialResult {
             trial_id: slot.trial_id,
@@ -334,8 +335,8 @@ impl Io {
             dt: self.cfg.dt,
             record_chunks: n_chunks as u32,
         };
-        frames.push(frame(&ControllerToServer::TrialResult(Box::new(result))));
-        (entry.map(|e| e.conn), frames)
+        msgs.push(ControllerToServer::TrialResult(Box::new(result)));
+        (entry.map(|e| e.conn), msgs)
     }
 }
 
@@ -398,34 +399,23 @@ async fn accept(io: Shared, listener: TcpListener) {
     }
 }
 
-async fn read_message(
-    r: &mut (impl AsyncReadExt + Unpin),
-) -> Result<Option<Result<ServerToController, FrameError>>, FrameError> {
-    let mut header = [0u8; 4];
-    match r.read_exact(&mut header).await {
-        Ok(_) => {}
-        Err(_) => return Ok(None),
-    }
-    let len = framing::payload_len(header)?;
-    let mut payload = vec![0; len];
-    if r.read_exact(&mut payload).await.is_err() {
-        return Ok(None);
-    }
-    Ok(Some(framing::decode(&payload)))
-}
+/// Reads the server's messages off a connection (the one frame codec of `bdft_protocol`).
+type Reader = FramedRead<tokio::net::tcp::OwnedReadHalf, ControllerCodec>;
+/// Writes our messages onto a connection.
+type Writer = FramedWrite<tokio::net::tcp::OwnedWriteHalf, ControllerCodec>;
 
 async fn connection(io: Shared, stream: TcpStream, peer: SocketAddr) {
-    let (mut rd, mut wr) = stream.into_split();
+    let (rd, wr) = stream.into_split();
+    let mut rd: Reader = FramedRead::new(rd, ControllerCodec::default());
+    let mut wr: Writer = FramedWrite::new(wr, ControllerCodec::default());
     // Handshake first: nothing else is accepted before a hello of our version.
-    let hello = tokio::time::timeout(Duration::from_secs(5), read_message(&mut rd)).await;
-    let refuse = |reason: String| {
-        framing::encode(&ControllerToServer::Rejected {
-            trial_id: None,
-            reason,
-        })
+    let hello = tokio::time::timeout(Duration::from_secs(5), rd.next()).await;
+    let refuse = |reason: String| ControllerToServer::Rejected {
+        trial_id: None,
+        reason,
     };
     let client = match hello {
-        Ok(Ok(Some(Ok(ServerToController::Hello {
+        Ok(Some(Ok(Ok(ServerToController::Hello {
             protocol_version,
             client,
         }))))
@@ -433,20 +423,20 @@ async fn connection(io: Shared, stream: TcpStream, peer: SocketAddr) {
         {
             client
         }
-        Ok(Ok(Some(Ok(ServerToController::Hello {
+        Ok(Some(Ok(Ok(ServerToController::Hello {
             protocol_version, ..
         })))) => {
-            let _ = wr.write_all(&refuse(format!("protocol version {protocol_version} not supported; this controller speaks {PROTOCOL_VERSION}"))).await;
+            let _ = wr.send(refuse(format!("protocol version {protocol_version} not supported; this controller speaks {PROTOCOL_VERSION}"))).await;
             return;
         }
         _ => {
             let _ = wr
-                .write_all(&refuse("the first message must be hello".into()))
+                .send(refuse("the first message must be hello".into()))
                 .await;
             return;
         }
     };
-    let (tx, mut rx) = mpsc::channel::<Vec<u8>>(16_384);
+    let (tx, mut rx) = mpsc::channel::<ControllerToServer>(16_384);
     let accepted = {
         let mut g = lock(&io);
         if g.conn.is_some() {
@@ -464,12 +454,12 @@ async fn connection(io: Shared, stream: TcpStream, peer: SocketAddr) {
                 rig: if g.cfg.real_rig { "udp" } else { "sim" }.into(),
                 lockstep: g.cfg.lockstep,
             };
-            Some((id, framing::encode(&ack)))
+            Some((id, ack))
         }
     };
     let Some((conn, ack)) = accepted else {
         let _ = wr
-            .write_all(&refuse(
+            .send(refuse(
                 "another server is connected to this controller".into(),
             ))
             .await;
@@ -477,52 +467,57 @@ async fn connection(io: Shared, stream: TcpStream, peer: SocketAddr) {
     };
     let writer_io = Arc::clone(&io);
     let writer = tokio::spawn(async move {
-        if wr.write_all(&ack).await.is_err() {
+        if wr.send(ack).await.is_err() {
             return;
         }
-        while let Some(f) = rx.recv().await {
-            if wr.write_all(&f).await.is_err() {
-                lock(&writer_io).link_lost(conn, "write failed");
+        // Frame everything queued, then flush once: a record's chunks go out together.
+        while let Some(msg) = rx.recv().await {
+            let mut sent = wr.feed(msg).await;
+            while sent.is_ok() {
+                match rx.try_recv() {
+                    Ok(msg) => sent = wr.feed(msg).await,
+                    Err(_) => break,
+                }
+            }
+            if let Err(e) = sent.and(wr.flush().await) {
+                lock(&writer_io).link_lost(conn, &format!("write failed: {e}"));
                 return;
             }
         }
     });
     drop(tx);
     loop {
-        match read_message(&mut rd).await {
-            Ok(Some(Ok(msg))) => {
-                let (replies, sender) = {
-                    let mut g = lock(&io);
-                    if g.conn.as_ref().is_none_or(|c| c.id != conn) {
-                        break; // replaced or timed out
-                    }
-                    (g.handle(conn, msg), g.sender())
-                };
-                if let Some((_, tx)) = sender {
-                    for f in replies {
-                        let _ = tx.send(f).await;
-                    }
+        let replies = match rd.next().await {
+            Some(Ok(Ok(msg))) => {
+                let mut g = lock(&io);
+                if g.conn.as_ref().is_none_or(|c| c.id != conn) {
+                    break; // replaced or timed out
                 }
+                let replies = g.handle(conn, msg);
+                (replies, g.sender())
             }
-            Ok(Some(Err(e))) => {
-                let (replies, sender) = {
-                    let mut g = lock(&io);
-                    (g.reject(e.to_string()), g.sender())
-                };
-                if let Some((_, tx)) = sender {
-                    for f in replies {
-                        let _ = tx.send(f).await;
-                    }
-                }
+            // A frame that is not a message: answered, and the link goes on.
+            Some(Ok(Err(malformed))) => {
+                let mut g = lock(&io);
+                (g.reject(malformed.to_string()), g.sender())
             }
-            Ok(None) => {
+            None => {
                 lock(&io).link_lost(conn, "connection closed");
                 break;
             }
-            Err(e) => {
-                // A frame we cannot delimit leaves the stream unusable.
+            Some(Err(FrameError::Io(e))) => {
+                lock(&io).link_lost(conn, &format!("connection failed: {e}"));
+                break;
+            }
+            // A frame we cannot delimit leaves the stream unusable.
+            Some(Err(e)) => {
                 lock(&io).link_lost(conn, &format!("bad frame: {e}"));
                 break;
+            }
+        };
+        if let (replies, Some((_, tx))) = replies {
+            for msg in replies {
+                let _ = tx.send(msg).await;
             }
         }
     }
@@ -535,7 +530,7 @@ async fn pump(io: Shared) {
     every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     loop {
         every.tick().await;
-        let mut outgoing: Vec<(u64, Vec<Vec<u8>>)> = Vec::new();
+        let mut outgoing: Vec<(u64, Vec<ControllerToServer>)> = Vec::new();
         let sender = {
             let mut g = lock(&io);
             let sender = g.sender();
@@ -545,29 +540,27 @@ async fn pump(io: Shared) {
                         if let Some(e) = g.trials.get(&trial_id) {
                             outgoing.push((
                                 e.conn,
-                                vec![frame(&ControllerToServer::TrialStarted { trial_id, tick })],
+                                vec![ControllerToServer::TrialStarted { trial_id, tick }],
                             ));
                         }
                     }
                     Event::Live(s) => {
                         if let (Some((id, tx)), Some(e)) = (&sender, g.trials.get(&s.trial_id)) {
-                            // A live sample the link cannot take now is dropped: it is a
-                            // preview, and the full record follows in chunks.
                             if e.conn == *id {
-                                let _ = tx.try_send(frame(&ControllerToServer::Live(s)));
+                                // Dropped rather than delayed when the link is congested.
+                                let _ = tx.try_send(ControllerToServer::Live(s));
                             }
                         }
                     }
                     Event::Finished(slot) => {
-                        let (conn, frames) = g.finished(slot);
+                        let (conn, msgs) = g.finished(slot);
                         if let Some(conn) = conn {
-                            outgoing.push((conn, frames));
+                            outgoing.push((conn, msgs));
                         }
                     }
                     Event::Stepped { tick } => {
                         if let Some((id, _)) = &sender {
-                            outgoing
-                                .push((*id, vec![frame(&ControllerToServer::Stepped { tick })]));
+                            outgoing.push((*id, vec![ControllerToServer::Stepped { tick }]));
                         }
                     }
                 }
@@ -575,10 +568,10 @@ async fn pump(io: Shared) {
             sender
         };
         if let Some((id, tx)) = sender {
-            for (conn, frames) in outgoing {
+            for (conn, msgs) in outgoing {
                 if conn == id {
-                    for f in frames {
-                        if tx.send(f).await.is_err() {
+                    for msg in msgs {
+                        if tx.send(msg).await.is_err() {
                             break;
                         }
                     }
@@ -606,7 +599,7 @@ async fn heartbeat(io: Shared) {
             g.sender()
         };
         if let Some((_, tx)) = sender {
-            let _ = tx.try_send(frame(&ControllerToServer::Heartbeat { seq }));
+            let _ = tx.try_send(ControllerToServer::Heartbeat { seq });
         }
     }
 }

@@ -15,7 +15,7 @@ use bdft_protocol::framing;
 use bdft_protocol::server_to_controller::{ServerToController, StartTrial};
 use bdft_protocol::trial::{RECORD_CHANNELS, TrialId};
 use sqlx::SqlitePool;
-use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 use tokio::net::TcpStream;
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
@@ -138,7 +138,8 @@ impl ControllerLink {
             .unwrap_or_else(|p| p.into_inner())
             .clone();
         let tx = tx.ok_or_else(|| "the controller is not connected".to_string())?;
-        tx.try_send(framing::encode(msg))
+        let frame = framing::encode(msg).map_err(|e| e.to_string())?;
+        tx.try_send(frame)
             .map_err(|_| "the controller link is congested".to_string())
     }
 
@@ -299,24 +300,30 @@ struct Supervised {
     _stdin: Option<tokio::process::ChildStdin>,
 }
 
-async fn read_frame(r: &mut (impl AsyncReadExt + Unpin)) -> Result<ControllerToServer, String> {
-    let mut header = [0u8; 4];
-    r.read_exact(&mut header)
-        .await
-        .map_err(|e| format!("link closed ({e})"))?;
-    let len = framing::payload_len(header).map_err(|e| e.to_string())?;
-    let mut payload = vec![0; len];
-    r.read_exact(&mut payload)
-        .await
-        .map_err(|e| format!("link closed ({e})"))?;
-    framing::decode(&payload).map_err(|e| e.to_string())
+/// The controller's messages, decoded by the protocol's one frame codec.
+type Reader = tokio_util::codec::FramedRead<tokio::net::tcp::OwnedReadHalf, framing::ServerCodec>;
+
+async fn read_frame(r: &mut Reader) -> Result<ControllerToServer, String> {
+    use futures_util::StreamExt;
+    match r.next().await {
+        Some(Ok(Ok(msg))) => Ok(msg),
+        Some(Ok(Err(malformed))) => Err(format!("the controller sent {malformed}")),
+        Some(Err(e)) => Err(format!("link closed ({e})")),
+        None => Err("link closed".to_string()),
+    }
+}
+
+/// A message the server always sends, as a frame (they are a few bytes).
+fn frame(msg: &ServerToController) -> Vec<u8> {
+    framing::encode(msg).expect("a control message fits a frame")
 }
 
 /// Runs one connection until it fails; returns why.
 async fn connection(link: &ControllerLink, pool: &SqlitePool, stream: TcpStream) -> String {
     let _ = stream.set_nodelay(true);
-    let (mut rd, mut wr) = stream.into_split();
-    let hello = framing::encode(&ServerToController::Hello {
+    let (rd, mut wr) = stream.into_split();
+    let mut rd: Reader = tokio_util::codec::FramedRead::new(rd, framing::ServerCodec::default());
+    let hello = frame(&ServerToController::Hello {
         protocol_version: PROTOCOL_VERSION,
         client: format!("bdft-server {}", env!("CARGO_PKG_VERSION")),
     });
@@ -333,9 +340,7 @@ async fn connection(link: &ControllerLink, pool: &SqlitePool, stream: TcpStream)
             tracing::info!(controller, rig, lockstep, "controller connected");
             *link.inner.rig.lock().unwrap_or_else(|p| p.into_inner()) = Some(rig);
             // Learn the latch state of this controller (a fresh one has none).
-            let _ = wr
-                .write_all(&framing::encode(&ServerToController::Status {}))
-                .await;
+            let _ = wr.write_all(&frame(&ServerToController::Status {})).await;
         }
         Ok(other) => return format!("unexpected answer to hello: {other:?}"),
         Err(e) => return e,
@@ -355,7 +360,7 @@ async fn connection(link: &ControllerLink, pool: &SqlitePool, stream: TcpStream)
                 },
                 _ = beat.tick() => {
                     seq += 1;
-                    if let Err(e) = wr.write_all(&framing::encode(&ServerToController::Heartbeat { seq })).await {
+                    if let Err(e) = wr.write_all(&frame(&ServerToController::Heartbeat { seq })).await {
                         return format!("write failed: {e}");
                     }
                 }

@@ -119,17 +119,20 @@ fn key(params: &StudyParams) -> String {
     .to_string()
 }
 
+/// A report once computed (or the reason it could not be), shared by everyone who waits.
+type Slot = Arc<OnceCell<std::result::Result<StabilityReport, String>>>;
+
 /// Reports already computed (or being computed), by the parameters they depend on.
 #[derive(Debug, Default)]
 pub struct StabilityCache {
-    reports: Mutex<HashMap<String, Arc<OnceCell<std::result::Result<StabilityReport, String>>>>>,
+    reports: Mutex<HashMap<String, Slot>>,
 }
 
 /// Distinct parameter sets kept; a lab has a handful of studies.
 const CACHE_ENTRIES: usize = 64;
 
 impl StabilityCache {
-    fn cell(&self, key: String) -> Arc<OnceCell<std::result::Result<StabilityReport, String>>> {
+    fn cell(&self, key: String) -> Slot {
         let mut reports = self.reports.lock().unwrap_or_else(|p| p.into_inner());
         if reports.len() >= CACHE_ENTRIES && !reports.contains_key(&key) {
             reports.clear();
