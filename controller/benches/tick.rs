@@ -80,6 +80,7 @@ fn main() {
             seed: 1,
             operator: OperatorParams::default(),
             steps: StepParams::default(),
+            max_cab_rms_mm_s2: None,
         };
         let ms = median(
             (0..RUNS)

@@ -11,6 +11,7 @@ use std::time::Duration;
 
 use bdft_controller::analysis::{AnalysisReport, analyze};
 use bdft_controller::compensator::CompensatorKind;
+use bdft_controller::interlock::DEFAULT_LIMIT_MM_S2;
 use bdft_controller::param_set::ParamSet;
 use bdft_controller::params::{LoopParams, MAX_KBF, NOMINAL_KBF, PlantParams, Seat};
 use bdft_controller::runtime;
@@ -68,6 +69,10 @@ enum Command {
         /// Seed of the target, the accelerometer noise and the operator's remnant.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Cab-vibration interlock for steps (an operator in the cab): stop when the RMS
+        /// cab acceleration over 1 s exceeds this (mm/s²). Bench signals run without it.
+        #[arg(long, default_value_t = DEFAULT_LIMIT_MM_S2)]
+        max_cab_rms: f64,
         /// Print JSON instead of a table.
         #[arg(long)]
         json: bool,
@@ -263,6 +268,7 @@ fn execute(command: Command) -> anyhow::Result<()> {
             station,
             kbf,
             seed,
+            max_cab_rms,
             json,
             out: record,
         } => {
@@ -279,6 +285,7 @@ fn execute(command: Command) -> anyhow::Result<()> {
                 seed,
                 operator: params.operator,
                 steps: params.steps,
+                max_cab_rms_mm_s2: (signal == SignalKind::Steps).then_some(max_cab_rms),
             };
             let summary = match record {
                 Some(path) => write_record(&cfg, &path)?,
@@ -307,6 +314,13 @@ fn execute(command: Command) -> anyhow::Result<()> {
                 )?;
                 if let (Some(m), Some(s)) = (summary.target_mean_mm, summary.target_std_mm) {
                     writeln!(out, "target            mean {m:.3} mm, std {s:.3} mm")?;
+                }
+                match (summary.stopped_at_s, summary.stop_rms_mm_s2) {
+                    (Some(t), Some(rms)) => writeln!(
+                        out,
+                        "outcome           STOPPED by the cab-vibration interlock at t = {t:.3} s ({rms:.0} mm/s² RMS over 1 s, limit {max_cab_rms:.0})"
+                    )?,
+                    _ => writeln!(out, "outcome           {}", summary.outcome)?,
                 }
             }
         }

@@ -15,6 +15,7 @@ pub mod closed_loop;
 pub mod compensator;
 pub mod error;
 pub mod filters;
+pub mod interlock;
 pub mod linalg;
 pub mod model;
 pub mod operator;

@@ -5,6 +5,7 @@
 use bdft_protocol::trial::Metrics;
 
 use crate::closed_loop::{ClosedLoop, Drive, TickRecord};
+use crate::interlock::{VibrationInterlock, WINDOW_S};
 use crate::operator::SyntheticOperator;
 use crate::signals::Signal;
 
@@ -115,6 +116,8 @@ pub struct TrialRunner<L> {
     dt: f64,
     k: u64,
     total: u64,
+    interlock: Option<VibrationInterlock>,
+    tripped: bool,
 }
 
 impl<L: Loop> TrialRunner<L> {
@@ -127,7 +130,26 @@ impl<L: Loop> TrialRunner<L> {
             dt,
             k: 0,
             total: (duration_s / dt).round() as u64,
+            interlock: None,
+            tripped: false,
         }
+    }
+
+    /// Watches the cab acceleration with the vibration interlock (limit in mm/s² RMS over
+    /// `interlock::WINDOW_S`); the caller stops the trial once `tripped`.
+    pub fn with_interlock(mut self, limit_mm_s2: f64) -> Self {
+        let window = (WINDOW_S / self.dt).round() as usize;
+        self.interlock = Some(VibrationInterlock::new(limit_mm_s2, window));
+        self
+    }
+
+    /// Whether the vibration interlock has tripped.
+    pub fn tripped(&self) -> bool {
+        self.tripped
+    }
+
+    pub fn interlock(&self) -> Option<&VibrationInterlock> {
+        self.interlock.as_ref()
     }
 
     /// One tick; `external_hand` is used when the hand source is external.
@@ -142,6 +164,9 @@ impl<L: Loop> TrialRunner<L> {
         };
         let r = self.lp.tick(drive);
         self.metrics.add(target, r.y, r.cab_accel);
+        if let Some(il) = &mut self.interlock {
+            self.tripped |= il.update(r.cab_accel);
+        }
         self.k += 1;
         Sample {
             t,

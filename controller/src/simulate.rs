@@ -61,6 +61,9 @@ pub struct SimConfig {
     pub seed: u64,
     pub operator: OperatorParams,
     pub steps: StepParams,
+    /// The cab-vibration interlock's limit (mm/s² RMS over 1 s), or none (bench signals
+    /// have no person in the cab).
+    pub max_cab_rms_mm_s2: Option<f64>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -81,6 +84,13 @@ pub struct SimSummary {
     pub target_mean_mm: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub target_std_mm: Option<f64>,
+    /// `complete`, or `cab-vibration` when the interlock stopped the run.
+    pub outcome: String,
+    /// When the interlock stopped the run (s), and the RMS it measured (mm/s²).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stopped_at_s: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stop_rms_mm_s2: Option<f64>,
 }
 
 /// Runs the configured simulation; `on_sample` sees every tick's record.
@@ -124,9 +134,19 @@ pub fn simulate(
         )?)
     };
     let mut runner = TrialRunner::new(signal, lp, hand, dt, cfg.duration_s);
-    while !runner.done() {
+    if let Some(limit) = cfg.max_cab_rms_mm_s2 {
+        check("max_cab_rms_mm_s2", limit, 10.0, 1e6)?;
+        runner = runner.with_interlock(limit);
+    }
+    while !runner.done() && !runner.tripped() {
         on_sample(&runner.tick(0.0));
     }
+    let stop = runner.tripped().then(|| {
+        (
+            runner.progress().0 as f64 * dt,
+            runner.interlock().map_or(0.0, |il| il.rms()),
+        )
+    });
     let metrics = runner.metrics();
     let (target_mean_mm, target_std_mm) = (stats.map(|s| s.0), stats.map(|s| s.1));
     Ok(SimSummary {
@@ -141,5 +161,13 @@ pub fn simulate(
         ms_cab_accel: metrics.ms_cab_accel,
         target_mean_mm,
         target_std_mm,
+        outcome: if stop.is_some() {
+            "cab-vibration"
+        } else {
+            "complete"
+        }
+        .to_string(),
+        stopped_at_s: stop.map(|s| s.0),
+        stop_rms_mm_s2: stop.map(|s| s.1),
     })
 }

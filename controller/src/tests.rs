@@ -175,6 +175,7 @@ fn sim(
         seed,
         operator: OperatorParams::default(),
         steps: StepParams::default(),
+        max_cab_rms_mm_s2: None,
     };
     simulate(&cfg, |_| {}).unwrap()
 }
@@ -232,6 +233,7 @@ fn bench_signals_are_tracked_and_reject_the_on_station() {
         seed: 1,
         operator: OperatorParams::default(),
         steps: StepParams::default(),
+        max_cab_rms_mm_s2: None,
     };
     let err = simulate(&cfg, |_| {}).unwrap_err().to_string();
     assert!(err.contains("station"), "{err}");

@@ -142,6 +142,7 @@ fn start_trial_validation_names_the_bad_field() {
         noise_seed: 0,
         live_rate_hz: 100.0,
         stale_input_ms: 100.0,
+        max_cab_rms_mm_s2: crate::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
     };
     assert!(st.validate().unwrap_err().to_string().contains("k_bf"));
     let st = StartTrial {

@@ -69,6 +69,17 @@ pub struct StartTrial {
     /// Operator input older than this stops the trial (ms).
     #[serde(default = "default_stale_ms")]
     pub stale_input_ms: f64,
+    /// The cab-vibration interlock: RMS cab acceleration over a 1 s sliding window above
+    /// this stops the trial (mm/s²).
+    #[serde(default = "default_max_cab_rms")]
+    pub max_cab_rms_mm_s2: f64,
+}
+
+/// 3 m/s² RMS (the controller's `interlock::DEFAULT_LIMIT_MM_S2`).
+pub const DEFAULT_MAX_CAB_RMS_MM_S2: f64 = 3000.0;
+
+fn default_max_cab_rms() -> f64 {
+    DEFAULT_MAX_CAB_RMS_MM_S2
 }
 
 fn default_live_rate() -> f64 {
@@ -89,6 +100,7 @@ impl StartTrial {
         self.body.validate()?;
         check("live_rate_hz", self.live_rate_hz, 1.0, 1000.0)?;
         check("stale_input_ms", self.stale_input_ms, 5.0, 10_000.0)?;
+        check("max_cab_rms_mm_s2", self.max_cab_rms_mm_s2, 10.0, 1e6)?;
         if let InputSource::Synthetic { operator, .. } = &self.input {
             operator.validate()?;
         }

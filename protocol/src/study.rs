@@ -133,6 +133,21 @@ pub struct StudyParams {
     pub body: BodyModel,
     /// How much the on-machine station's display shakes with the simulated cab (0 = off).
     pub display_shake_gain: f64,
+    /// Operator input older than this stops a test (ms).
+    #[serde(default = "default_stale_input_ms")]
+    pub stale_input_ms: f64,
+    /// The cab-vibration interlock: RMS cab acceleration over a 1 s sliding window above
+    /// this stops a test (mm/s²).
+    #[serde(default = "default_max_cab_rms")]
+    pub max_cab_rms_mm_s2: f64,
+}
+
+fn default_stale_input_ms() -> f64 {
+    100.0
+}
+
+fn default_max_cab_rms() -> f64 {
+    crate::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2
 }
 
 impl StudyParams {
@@ -176,6 +191,8 @@ impl StudyParams {
         )?;
         check("k_bf", self.k_bf, 0.01, crate::params::MAX_KBF)?;
         check("display_shake_gain", self.display_shake_gain, 0.0, 10.0)?;
+        check("stale_input_ms", self.stale_input_ms, 5.0, 10_000.0)?;
+        check("max_cab_rms_mm_s2", self.max_cab_rms_mm_s2, 10.0, 1e6)?;
         let s = &self.survey;
         if !(2..=11).contains(&s.scale_points) {
             return invalid(

@@ -137,6 +137,9 @@ pub enum FaultKind {
     EStop,
     /// The server link was lost.
     LinkLost,
+    /// The cab-vibration interlock: RMS cab acceleration over the sliding window above the
+    /// trial's limit.
+    CabVibration,
     /// The controller process restarted or the trial could not continue for an internal
     /// reason.
     Internal,

@@ -48,6 +48,7 @@ fn synthetic_trial(
         noise_seed: Rng::derive(seed, Rng::ACCEL_NOISE).next_u64(),
         live_rate_hz: 100.0,
         stale_input_ms: 100.0,
+        max_cab_rms_mm_s2: bdft_protocol::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
     }
 }
 
@@ -75,6 +76,7 @@ fn offline(
         seed,
         operator: OperatorParams::default(),
         steps: StepParams::default(),
+        max_cab_rms_mm_s2: None,
     };
     simulate(&cfg, |_| {}).unwrap()
 }

@@ -264,6 +264,7 @@ pub fn bench_rt(
             noise_seed: i as u64,
             live_rate_hz: 100.0,
             stale_input_ms: 100.0,
+            max_cab_rms_mm_s2: bdft_protocol::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
         };
         let built = setup::build_slot(&st, dt, false).map_err(anyhow::Error::msg)?;
         rt.send(Command::Start(built.slot))

@@ -58,7 +58,8 @@ pub fn build_slot(st: &StartTrial, dt: f64, real_rig: bool) -> Result<Built, Str
         hand,
         dt,
         st.duration_s,
-    );
+    )
+    .with_interlock(st.max_cab_rms_mm_s2);
     let stale_ticks = (st.stale_input_ms * 1e-3 / dt).round() as u64;
     let live_every = (1.0 / (st.live_rate_hz * dt)).round().max(1.0) as u64;
     let slot = Box::new(TrialSlot::new(

@@ -10,6 +10,7 @@ use super::handoff::InputCell;
 use super::histogram::Histogram;
 use crate::closed_loop::{ClosedLoop, Drive, TickRecord};
 use crate::compensator::Compensator;
+use crate::interlock::WINDOW_S;
 use crate::model::{Measurement, saturate};
 use crate::runner::{Loop, Sample, TrialRunner};
 
@@ -200,6 +201,10 @@ impl TrialSlot {
             s.device() as f32,
             latency_us,
         ]);
+        if self.runner.tripped() {
+            self.end(EndReason::Faulted(FaultKind::CabVibration));
+            return SlotTick::Ended;
+        }
         if self.runner.done() {
             self.end(EndReason::Complete);
             return SlotTick::Ended;
@@ -247,6 +252,15 @@ impl TrialSlot {
             }
             FaultKind::EStop => "e-stop pressed".into(),
             FaultKind::LinkLost => "server link lost".into(),
+            FaultKind::CabVibration => {
+                let (rms, limit) = self
+                    .runner
+                    .interlock()
+                    .map_or((0.0, 0.0), |il| (il.rms(), il.limit()));
+                format!(
+                    "cab vibration {rms:.0} mm/s² RMS over {WINDOW_S} s exceeded the limit of {limit:.0} at t = {at:.3} s; valve set to zero"
+                )
+            }
             FaultKind::Internal => {
                 "the controller could not run this trial (no free slot or shutting down)".into()
             }

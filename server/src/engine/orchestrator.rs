@@ -51,6 +51,7 @@ pub fn start_message(study: &Study, trial: &Trial, operator: Operator) -> Result
         body: study.params.body,
         noise_seed: Rng::derive(seed, Rng::ACCEL_NOISE).next_u64(),
         live_rate_hz: 100.0,
-        stale_input_ms: 100.0,
+        stale_input_ms: study.params.stale_input_ms,
+        max_cab_rms_mm_s2: study.params.max_cab_rms_mm_s2,
     })
 }

@@ -1,0 +1,99 @@
+//! The cab-vibration interlock: the RMS of the cab acceleration over a sliding window, and a
+//! trip when it exceeds the limit. A design that limit-cycles on the machine (the bench PID
+//! at the study's K_BF shakes the cab at about 1.7 g RMS) is stopped within a window
+//! instead of shaking a person for the whole test.
+//!
+//! The window is a ring of squared samples allocated when the trial is built; `update` is
+//! the per-tick part and never allocates.
+
+/// Length of the sliding window (s).
+pub const WINDOW_S: f64 = 1.0;
+
+/// Default limit (mm/s² RMS over the window): 3 m/s², above ISO 2631-1's "extremely
+/// uncomfortable" (> 2.5 m/s²) and far below the limit cycle's 17 m/s²; every study design
+/// stays well under it on the identified rig.
+pub const DEFAULT_LIMIT_MM_S2: f64 = bdft_protocol::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2;
+
+#[derive(Debug, Clone)]
+pub struct VibrationInterlock {
+    squares: Vec<f64>,
+    next: usize,
+    filled: bool,
+    sum: f64,
+    limit_sq: f64,
+}
+
+impl VibrationInterlock {
+    /// An interlock tripping above `limit_mm_s2` RMS over `window_ticks` samples.
+    pub fn new(limit_mm_s2: f64, window_ticks: usize) -> Self {
+        Self {
+            squares: vec![0.0; window_ticks.max(1)],
+            next: 0,
+            filled: false,
+            sum: 0.0,
+            limit_sq: limit_mm_s2 * limit_mm_s2,
+        }
+    }
+
+    /// Adds one sample; `true` when the RMS over the last full window exceeds the limit.
+    #[inline]
+    pub fn update(&mut self, accel_mm_s2: f64) -> bool {
+        let sq = if accel_mm_s2.is_finite() {
+            accel_mm_s2 * accel_mm_s2
+        } else {
+            f64::INFINITY
+        };
+        self.sum += sq - self.squares[self.next];
+        self.squares[self.next] = sq;
+        self.next += 1;
+        if self.next == self.squares.len() {
+            self.next = 0;
+            self.filled = true;
+            // Re-add from scratch once a window: running sums drift by rounding.
+            self.sum = self.squares.iter().sum();
+        }
+        // A non-finite reading trips at once; otherwise only a full window is judged.
+        sq.is_infinite() || (self.filled && self.mean_square() > self.limit_sq)
+    }
+
+    fn mean_square(&self) -> f64 {
+        self.sum.max(0.0) / self.squares.len() as f64
+    }
+
+    /// RMS over the window so far (mm/s²).
+    pub fn rms(&self) -> f64 {
+        self.mean_square().sqrt()
+    }
+
+    pub fn limit(&self) -> f64 {
+        self.limit_sq.sqrt()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn trips_on_a_sine_whose_rms_exceeds_the_limit_and_not_below() {
+        // A sine of amplitude A has RMS A/√2 over whole periods (4 Hz: 250 samples a
+        // period at 1 kHz; the 1000-sample window holds exactly four).
+        let window = 1000;
+        let sine =
+            |a: f64, k: usize| a * (2.0 * std::f64::consts::PI * 4.0 * k as f64 / 1000.0).sin();
+        let limit = 3000.0;
+        let below = limit * std::f64::consts::SQRT_2 * 0.99;
+        let above = limit * std::f64::consts::SQRT_2 * 1.01;
+        let mut quiet = VibrationInterlock::new(limit, window);
+        assert!((0..5000).all(|k| !quiet.update(sine(below, k))));
+        assert!((quiet.rms() - below / std::f64::consts::SQRT_2).abs() < 1.0);
+        let mut loud = VibrationInterlock::new(limit, window);
+        let trip = (0..5000).position(|k| loud.update(sine(above, k)));
+        assert_eq!(trip, Some(window - 1), "judged on the first full window");
+        let mut broken = VibrationInterlock::new(limit, window);
+        assert!(
+            broken.update(f64::NAN),
+            "a non-finite reading trips at once"
+        );
+    }
+}
