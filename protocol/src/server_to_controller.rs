@@ -75,8 +75,8 @@ pub struct StartTrial {
     pub max_cab_rms_mm_s2: f64,
 }
 
-/// 3 m/s² RMS (the controller's `interlock::DEFAULT_LIMIT_MM_S2`).
-pub const DEFAULT_MAX_CAB_RMS_MM_S2: f64 = 3000.0;
+/// 6 m/s² RMS (why: the controller's `interlock::DEFAULT_LIMIT_MM_S2`).
+pub const DEFAULT_MAX_CAB_RMS_MM_S2: f64 = 6000.0;
 
 fn default_max_cab_rms() -> f64 {
     DEFAULT_MAX_CAB_RMS_MM_S2

@@ -255,3 +255,57 @@ fn parameters_round_trip_through_a_file() {
         "{err}"
     );
 }
+
+#[test]
+fn the_interlock_stops_the_bench_pid_on_the_machine_and_spares_stable_loops() {
+    // The Ziegler–Nichols PID closed through the feedthrough at the study's K_BF 0.78 is a
+    // 4 Hz limit cycle (the analysis: stable only up to 0.35): stopped within seconds, with
+    // the RMS it measured above the limit.
+    let v = json_of(&[
+        "simulate",
+        "--compensator",
+        "pid",
+        "--signal",
+        "steps",
+        "--station",
+        "on",
+        "--kbf",
+        "0.78",
+        "--json",
+    ]);
+    assert_eq!(v["outcome"], "cab-vibration", "{v}");
+    let t = v["stopped_at_s"].as_f64().unwrap();
+    assert!((1.0..20.0).contains(&t), "{v}");
+    assert!(v["stop_rms_mm_s2"].as_f64().unwrap() > 6000.0, "{v}");
+    // The same PID far inside its stable range, and the notch (stable to 1.04) at 0.78, run
+    // to the end. (At 0.3, just inside 0.35, the loop is so lightly damped that it trips.)
+    for (compensator, kbf) in [("pid", "0.1"), ("pid-notch", "0.78")] {
+        let v = json_of(&[
+            "simulate",
+            "--compensator",
+            compensator,
+            "--signal",
+            "steps",
+            "--station",
+            "on",
+            "--kbf",
+            kbf,
+            "--duration",
+            "20",
+            "--json",
+        ]);
+        assert_eq!(v["outcome"], "complete", "{compensator} at {kbf}: {v}");
+        assert!(v.get("stopped_at_s").is_none());
+    }
+    // A lower limit is the experimenter's to set, and it is checked.
+    let err = stderr_of_failure(&[
+        "simulate",
+        "--compensator",
+        "pid",
+        "--signal",
+        "steps",
+        "--max-cab-rms",
+        "0",
+    ]);
+    assert!(err.contains("max_cab_rms_mm_s2"), "{err}");
+}

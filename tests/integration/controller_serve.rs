@@ -642,3 +642,60 @@ fn operator_input_arrives_over_udp_from_a_haptic_host() {
     );
     assert!(log.live.iter().any(|s| s.input_seq > 100));
 }
+
+#[test]
+fn the_vibration_interlock_stops_the_bench_pid_on_the_machine_in_the_real_process() {
+    let ctl = Proc::controller(&["--lockstep"]);
+    let (mut link, _) = Link::connect(ctl.addr);
+    // Ziegler–Nichols PID, on the machine at the study's K_BF: a limit cycle.
+    link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
+        9,
+        CompensatorKind::Pid,
+        Seat::On,
+        0.78,
+        30.0,
+        3,
+    ))));
+    let mut log = TrialLog::default();
+    let r = run_to_result(&mut link, 9, &mut log);
+    let Outcome::Faulted {
+        fault: FaultKind::CabVibration,
+        message,
+    } = &r.outcome
+    else {
+        panic!("{:?}", r.outcome)
+    };
+    assert!(
+        message.contains("mm/s² RMS") && message.contains("6000"),
+        "{message}"
+    );
+    assert!(
+        r.metrics.ticks < 20_000,
+        "stopped after {} ticks",
+        r.metrics.ticks
+    );
+    // The valve got no command after the trip: the record ends at the tick that tripped.
+    let record = log.record(9);
+    assert_eq!(record[0].len() as u64, r.metrics.ticks);
+    // The study's slow PI on the machine runs to the end.
+    let mut slow = synthetic_trial(10, CompensatorKind::Pid, Seat::On, 0.78, 10.0, 3);
+    slow.compensator = bdft_controller::compensator::study_spec(CompensatorKind::Pid, &slow.plant);
+    link.send(&ServerToController::StartTrial(Box::new(slow)));
+    let r = run_to_result(&mut link, 10, &mut log);
+    assert_eq!(r.outcome, Outcome::Complete);
+}
+
+/// Steps a lockstep controller until `trial_id` has its result.
+fn run_to_result(
+    link: &mut Link,
+    trial_id: u64,
+    log: &mut TrialLog,
+) -> bdft_protocol::controller_to_server::TrialResult {
+    for _ in 0..200 {
+        if let Some(r) = log.results.iter().find(|r| r.trial_id == trial_id) {
+            return r.clone();
+        }
+        link.step(500, log);
+    }
+    panic!("trial {trial_id} has no result after 100,000 ticks");
+}
