@@ -274,3 +274,73 @@ fn the_stability_gate_keeps_unstable_designs_off_the_machine() {
             .any(|a| a == "study.acknowledge_instability")
     );
 }
+
+#[test]
+fn one_input_source_per_test_and_withdrawal_stops_the_running_test() {
+    let server = Server::start("layers-withdraw");
+    let api = server.experimenter();
+    let study = short_study(&api, 60.0, 60.0);
+    let enrolled = api.ok(
+        &format!("/api/studies/{study}/subjects"),
+        json!({ "synthetic": true }),
+    );
+    let subject = enrolled["subject"]["id"].as_i64().unwrap();
+    // A desk station and a machine station may share the subject; a second station serving
+    // the same seat may not (both would feed the same test).
+    let (desk, _) = pair_station(&api, study, "off");
+    let (machine, _) = pair_station(&api, study, "on");
+    let (both, token) = pair_station(&api, study, "both");
+    for station in [desk, machine] {
+        api.ok(
+            &format!("/api/stations/{station}/assign"),
+            json!({ "subject_id": subject }),
+        );
+    }
+    let (code, body) = api.post(
+        &format!("/api/stations/{both}/assign"),
+        json!({ "subject_id": subject }),
+    );
+    assert_eq!(code, 409, "{body}");
+    assert!(
+        body["error"].as_str().unwrap().contains("same seat"),
+        "{body}"
+    );
+    // Moved to the one station that serves both seats, it is fine.
+    for station in [desk, machine] {
+        api.ok(
+            &format!("/api/stations/{station}/assign"),
+            json!({ "subject_id": null }),
+        );
+    }
+    api.ok(
+        &format!("/api/stations/{both}/assign"),
+        json!({ "subject_id": subject }),
+    );
+    Api::with_bearer(&server.base, &token)
+        .ok("/api/station/consent", json!({ "decision": "agreed" }));
+    eventually(Duration::from_secs(20), || {
+        (api.get("/api/controller").1["connected"] == true).then_some(())
+    });
+    let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
+    let practice = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
+    let (code, body) = api.post(&format!("/api/trials/{practice}/start"), json!({}));
+    assert_eq!(code, 200, "{body}");
+    // The subject withdraws mid-test: the test stops at once, filed aborted with the reason.
+    api.ok(
+        &format!("/api/subjects/{subject}/withdraw"),
+        json!({ "reason": "felt unwell" }),
+    );
+    let stopped = eventually(Duration::from_secs(20), || {
+        let (_, d) = api.get(&format!("/api/subjects/{subject}"));
+        let t = d["trials"][0]["trial"].clone();
+        (t["status"] != "running").then_some(t)
+    });
+    assert_eq!(stopped["status"], "aborted", "{stopped}");
+    assert!(
+        stopped["status_reason"]
+            .as_str()
+            .unwrap()
+            .contains("withdrew"),
+        "{stopped}"
+    );
+}

@@ -5,6 +5,7 @@ use std::collections::HashMap;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
+use bdft_protocol::params::Seat;
 use bdft_protocol::records::{ConsentDecision, DoneReason, StationRole, TrialStatus};
 use bdft_protocol::server_to_browser::{
     MonitorStation, MonitorTest, MonitorView, Phase, StationInfo, StationView, TestView,
@@ -103,6 +104,18 @@ pub async fn assign(
                 "the subject belongs to another study".into(),
             ));
         }
+        // One input source per test: a subject may be at a desk station and a machine
+        // station, never at two stations that serve the same seat (both would feed it).
+        let others = store::stations::of_subject(change.db(), subject_id).await?;
+        if let Some(other) = others
+            .iter()
+            .find(|o| o.id != station_id && shares_a_seat(o.role, station.role))
+        {
+            return Err(AppError::Conflict(format!(
+                "{} is already assigned to station {:?}, which serves the same seat; unassign it there first",
+                subject.code, other.name
+            )));
+        }
     }
     store::stations::assign(change.db(), station_id, subject_id).await?;
     change
@@ -112,6 +125,13 @@ pub async fn assign(
             json!({ "subject_id": subject_id }),
         )
         .await
+}
+
+/// Whether two stations' roles have a seat in common.
+fn shares_a_seat(a: StationRole, b: StationRole) -> bool {
+    [Seat::On, Seat::Off]
+        .into_iter()
+        .any(|seat| a.serves(seat) && b.serves(seat))
 }
 
 /// What `station` shows now, with each test given by `test` (blinded for the subject,
@@ -186,7 +206,7 @@ async fn phase<T>(
         of: total as i64,
         duration_s: t.duration_s,
         seat: t.seat,
-        shake_gain: if t.seat == bdft_protocol::params::Seat::On {
+        shake_gain: if t.seat == Seat::On {
             study.params.display_shake_gain
         } else {
             0.0

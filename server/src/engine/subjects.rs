@@ -4,10 +4,12 @@
 
 use bdft_protocol::browser_to_server::{SurveySubmission, TimingReport};
 use bdft_protocol::records::{ConsentDecision, TrialStatus};
+use bdft_protocol::server_to_controller::ServerToController;
 use serde::Serialize;
 use serde_json::json;
 use sqlx::SqlitePool;
 
+use super::controller_link::ControllerLink;
 use crate::error::{AppError, Result};
 use crate::store::subjects::{Note, Subject};
 use crate::store::trials::{Survey, Trial, latest_attempts};
@@ -82,17 +84,38 @@ pub async fn report_timing(
         .await
 }
 
-pub async fn withdraw(pool: &SqlitePool, actor: &str, subject_id: i64, reason: &str) -> Result<()> {
+/// Records the withdrawal and stops the subject's running test at once (the controller
+/// files it aborted); returns the stopped trial, if one was running.
+pub async fn withdraw(
+    pool: &SqlitePool,
+    link: &ControllerLink,
+    actor: &str,
+    subject_id: i64,
+    reason: &str,
+) -> Result<Option<i64>> {
     super::check_reason(reason)?;
     let mut change = Change::begin(pool, actor).await?;
     store::subjects::withdraw(change.db(), subject_id, reason).await?;
+    let running = store::trials::next(change.db(), subject_id)
+        .await?
+        .filter(|t| t.status == TrialStatus::Running)
+        .map(|t| t.id);
+    // Stopped before the commit is acknowledged: a withdrawn person is never driven on.
+    let stopped = running.map(|id| {
+        link.send(&ServerToController::AbortTrial {
+            trial_id: id as u64,
+            reason: format!("the subject withdrew: {reason}"),
+        })
+        .is_ok()
+    });
     change
         .commit(
             "subject.withdraw",
             Some(format!("subject:{subject_id}")),
-            json!({ "reason": reason }),
+            json!({ "reason": reason, "running_trial": running, "stop_sent": stopped }),
         )
-        .await
+        .await?;
+    Ok(running)
 }
 
 /// A subject in the experimenter's list, with how far they are.

@@ -97,7 +97,7 @@ async fn withdraw(
     Path(id): Path<i64>,
     AppJson(b): AppJson<ReasonBody>,
 ) -> ApiResult<Done> {
-    subjects::withdraw(&s.pool, &who.username, id, &b.reason).await?;
+    subjects::withdraw(&s.pool, &s.controller, &who.username, id, &b.reason).await?;
     Ok(Done::ok())
 }
 

@@ -49,6 +49,16 @@ pub async fn of_study<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<
     .await?)
 }
 
+/// The stations a subject is assigned to.
+pub async fn of_subject<'c>(db: impl SqliteExecutor<'c>, subject_id: i64) -> Result<Vec<Station>> {
+    Ok(sqlx::query_as(&format!(
+        "SELECT {COLUMNS} FROM stations WHERE subject_id = ? ORDER BY id"
+    ))
+    .bind(subject_id)
+    .fetch_all(db)
+    .await?)
+}
+
 /// Stores a newly paired station; returns its id.
 pub async fn insert(
     db: &mut SqliteConnection,
