@@ -204,7 +204,11 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
             controller_link::ControllerSource::Spawn { bin, args }
         }
     };
-    let link = controller_link::ControllerLink::start(pool.clone(), source);
+    let link = controller_link::ControllerLink::start(
+        pool.clone(),
+        source,
+        std::time::Duration::from_millis(config.controller_silence_ms),
+    );
     let mut state = crate::state::AppState::new(pool, link);
     state.web_dir = config.web_dir;
     println!("bdft-lab server on http://{addr}");

@@ -36,6 +36,10 @@ pub struct ServeConfig {
     /// (otherwise a one-time set-up link is printed).
     #[arg(long, env = "BDFT_ADMIN_PASSWORD", hide_env_values = true)]
     pub admin_password: Option<String>,
+    /// The controller counts as lost after this long without a message from it (ms); it
+    /// heartbeats every 50 ms.
+    #[arg(long, env = "BDFT_CONTROLLER_SILENCE_MS", default_value_t = crate::engine::controller_link::DEFAULT_SILENCE.as_millis() as u64, value_parser = clap::value_parser!(u64).range(60..=10_000))]
+    pub controller_silence_ms: u64,
     /// Serve the pages from this directory instead of the copy built into the binary
     /// (for developing them).
     #[arg(long, env = "BDFT_WEB_DIR")]

@@ -344,3 +344,72 @@ fn one_input_source_per_test_and_withdrawal_stops_the_running_test() {
         "{stopped}"
     );
 }
+
+#[test]
+fn a_hung_controller_is_noticed_within_its_silence_limit() {
+    let server = Server::start("layers-hung");
+    let api = server.experimenter();
+    let study = short_study(&api, 60.0, 60.0);
+    let enrolled = api.ok(
+        &format!("/api/studies/{study}/subjects"),
+        json!({ "synthetic": true }),
+    );
+    let subject = enrolled["subject"]["id"].as_i64().unwrap();
+    let (station, token) = pair_station(&api, study, "both");
+    api.ok(
+        &format!("/api/stations/{station}/assign"),
+        json!({ "subject_id": subject }),
+    );
+    Api::with_bearer(&server.base, &token)
+        .ok("/api/station/consent", json!({ "decision": "agreed" }));
+    let pid = eventually(Duration::from_secs(20), || {
+        let (_, c) = api.get("/api/controller");
+        (c["connected"] == true)
+            .then(|| c["pid"].as_u64())
+            .flatten()
+    });
+    let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
+    let practice = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
+    assert_eq!(
+        api.post(&format!("/api/trials/{practice}/start"), json!({}))
+            .0,
+        200
+    );
+    let stopped_at = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_millis() as i64;
+    // SIGSTOP: the process and its socket stay open; only its silence tells.
+    let status = std::process::Command::new("kill")
+        .args(["-STOP", &pid.to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let row = eventually(Duration::from_secs(10), || {
+        let (_, d) = api.get(&format!("/api/subjects/{subject}"));
+        let t = d["trials"][0]["trial"].clone();
+        (t["status"] != "running").then_some(t)
+    });
+    assert_eq!(row["status"], "incomplete", "{row}");
+    assert!(
+        row["status_reason"]
+            .as_str()
+            .unwrap()
+            .contains("sent nothing"),
+        "{row}"
+    );
+    // The limit is 100 ms of silence after the last message (live samples come every
+    // 10 ms): the trial is filed within that and a little scheduling slack.
+    let noticed = row["finished_at"].as_i64().unwrap() - stopped_at;
+    assert!(noticed <= 200, "noticed {noticed} ms after the stop");
+    // The hung process is replaced (killed, so SIGCONT is not needed) and trials run again.
+    let new_pid = eventually(Duration::from_secs(20), || {
+        let (_, c) = api.get("/api/controller");
+        (c["connected"] == true && c["pid"].as_u64() != Some(pid))
+            .then(|| c["pid"].as_u64().unwrap())
+    });
+    assert_ne!(new_pid, pid);
+    let _ = std::process::Command::new("kill")
+        .args(["-CONT", &pid.to_string()])
+        .status();
+}

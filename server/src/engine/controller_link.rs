@@ -33,6 +33,15 @@ pub enum ControllerSource {
     Connect(SocketAddr),
 }
 
+/// How long the controller may stay silent before the link counts as lost: it sends a
+/// heartbeat every 50 ms, so the default allows one to go missing. A hung controller
+/// (stopped, deadlocked, its machine frozen) is noticed this fast: its trials are filed
+/// incomplete and an E-stop is reported undelivered instead of answering ok.
+pub const DEFAULT_SILENCE: Duration = Duration::from_millis(100);
+
+/// How long a controller may take to answer the hello (it may still be starting).
+const HELLO_TIMEOUT: Duration = Duration::from_secs(10);
+
 /// What the rest of the server hears from the controller.
 #[derive(Debug, Clone)]
 pub enum ControllerEvent {
@@ -75,7 +84,7 @@ type Partial = HashMap<TrialId, Vec<Vec<f32>>>;
 
 impl ControllerLink {
     /// Starts the supervisor; the link comes up in the background.
-    pub fn start(pool: SqlitePool, source: ControllerSource) -> Self {
+    pub fn start(pool: SqlitePool, source: ControllerSource, silence: Duration) -> Self {
         let (events, _) = broadcast::channel(16_384);
         let (connected, _) = watch::channel(false);
         let link = Self {
@@ -89,7 +98,7 @@ impl ControllerLink {
                 estop: std::sync::atomic::AtomicBool::new(false),
             }),
         };
-        tokio::spawn(supervise(link.clone(), pool, source));
+        tokio::spawn(supervise(link.clone(), pool, source, silence));
         link
     }
 
@@ -190,7 +199,12 @@ impl ControllerLink {
     }
 }
 
-async fn supervise(link: ControllerLink, pool: SqlitePool, source: ControllerSource) {
+async fn supervise(
+    link: ControllerLink,
+    pool: SqlitePool,
+    source: ControllerSource,
+    silence: Duration,
+) {
     let mut backoff = Duration::from_millis(100);
     loop {
         let (addr, mut child) = match &source {
@@ -211,7 +225,7 @@ async fn supervise(link: ControllerLink, pool: SqlitePool, source: ControllerSou
         let why = match TcpStream::connect(addr).await {
             Ok(stream) => {
                 backoff = Duration::from_millis(100);
-                let run = connection(&link, &pool, stream);
+                let run = connection(&link, &pool, stream, silence);
                 match &mut child {
                     Some(c) => tokio::select! {
                         why = run => why,
@@ -319,7 +333,12 @@ fn frame(msg: &ServerToController) -> Vec<u8> {
 }
 
 /// Runs one connection until it fails; returns why.
-async fn connection(link: &ControllerLink, pool: &SqlitePool, stream: TcpStream) -> String {
+async fn connection(
+    link: &ControllerLink,
+    pool: &SqlitePool,
+    stream: TcpStream,
+    silence: Duration,
+) -> String {
     let _ = stream.set_nodelay(true);
     let (rd, mut wr) = stream.into_split();
     let mut rd: Reader = tokio_util::codec::FramedRead::new(rd, framing::ServerCodec::default());
@@ -330,7 +349,10 @@ async fn connection(link: &ControllerLink, pool: &SqlitePool, stream: TcpStream)
     if let Err(e) = wr.write_all(&hello).await {
         return format!("hello failed: {e}");
     }
-    match read_frame(&mut rd).await {
+    let ack = tokio::time::timeout(HELLO_TIMEOUT, read_frame(&mut rd))
+        .await
+        .unwrap_or_else(|_| Err(format!("no answer to hello within {HELLO_TIMEOUT:?}")));
+    match ack {
         Ok(ControllerToServer::HelloAck {
             controller,
             rig,
@@ -370,9 +392,15 @@ async fn connection(link: &ControllerLink, pool: &SqlitePool, stream: TcpStream)
     let reader = async {
         let mut partial: Partial = HashMap::new();
         loop {
-            let msg = match read_frame(&mut rd).await {
-                Ok(m) => m,
-                Err(e) => return e,
+            let msg = match tokio::time::timeout(silence, read_frame(&mut rd)).await {
+                Ok(Ok(m)) => m,
+                Ok(Err(e)) => return e,
+                Err(_) => {
+                    return format!(
+                        "the controller sent nothing for {} ms (it heartbeats every 50 ms)",
+                        silence.as_millis()
+                    );
+                }
             };
             handle(link, pool, &mut partial, msg).await;
         }
