@@ -473,7 +473,8 @@ fn a_lost_server_link_stops_trials_and_the_controller_accepts_a_new_one() {
     drop(link);
     // A new connection after the loss finds no trial running and can run a new one.
     let (mut link, _) = loop {
-        let (mut l, ack) = Link::connect(ctl.addr);
+        // Hello only: the latch stays as the first server left it (cleared).
+        let (mut l, ack) = Link::hello(ctl.addr);
         if matches!(ack, ControllerToServer::HelloAck { .. }) {
             break (l, ack);
         }
@@ -698,4 +699,45 @@ fn run_to_result(
         link.step(500, log);
     }
     panic!("trial {trial_id} has no result after 100,000 ticks");
+}
+
+#[test]
+fn a_controller_starts_with_the_estop_latched_until_a_server_clears_it() {
+    let ctl = Proc::controller(&["--lockstep"]);
+    let (mut link, _) = Link::hello(ctl.addr);
+    link.send(&ServerToController::Status {});
+    let ControllerToServer::Status(status) = link.recv() else {
+        panic!("status expected")
+    };
+    assert!(status.estop_latched, "a fresh controller is latched");
+    link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
+        1,
+        CompensatorKind::Lqr,
+        Seat::On,
+        0.6,
+        1.0,
+        1,
+    ))));
+    match link.recv() {
+        ControllerToServer::Rejected {
+            trial_id: Some(1),
+            reason,
+        } => {
+            assert!(reason.contains("e-stop is latched"), "{reason}")
+        }
+        other => panic!("{other:?}"),
+    }
+    link.send(&ServerToController::ResetEStop {});
+    let ControllerToServer::Status(status) = link.recv() else {
+        panic!("status expected")
+    };
+    assert!(!status.estop_latched);
+    link.start_and_wait(synthetic_trial(
+        2,
+        CompensatorKind::Lqr,
+        Seat::On,
+        0.6,
+        1.0,
+        1,
+    ));
 }

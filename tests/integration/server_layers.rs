@@ -413,3 +413,55 @@ fn a_hung_controller_is_noticed_within_its_silence_limit() {
         .args(["-CONT", &pid.to_string()])
         .status();
 }
+
+#[test]
+fn the_estop_latch_holds_across_a_controller_restart_until_reset() {
+    let server = Server::start("layers-latch");
+    let api = server.experimenter();
+    let study = short_study(&api, 1.0, 0.3);
+    let enrolled = api.ok(
+        &format!("/api/studies/{study}/subjects"),
+        json!({ "synthetic": true }),
+    );
+    let subject = enrolled["subject"]["id"].as_i64().unwrap();
+    let (station, token) = pair_station(&api, study, "both");
+    api.ok(
+        &format!("/api/stations/{station}/assign"),
+        json!({ "subject_id": subject }),
+    );
+    Api::with_bearer(&server.base, &token)
+        .ok("/api/station/consent", json!({ "decision": "agreed" }));
+    let pid = eventually(Duration::from_secs(20), || {
+        let (_, c) = api.get("/api/controller");
+        (c["connected"] == true && c["estop_latched"] == false)
+            .then(|| c["pid"].as_u64())
+            .flatten()
+    });
+    api.ok("/api/estop", json!({}));
+    // The controller dies; its successor starts latched and the server keeps it so.
+    let status = std::process::Command::new("kill")
+        .args(["-9", &pid.to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    eventually(Duration::from_secs(20), || {
+        let (_, c) = api.get("/api/controller");
+        (c["connected"] == true && c["pid"].as_u64() != Some(pid) && c["estop_latched"] == true)
+            .then_some(())
+    });
+    let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
+    let practice = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
+    let (code, body) = api.post(&format!("/api/trials/{practice}/start"), json!({}));
+    assert_eq!(code, 409, "{body}");
+    assert!(
+        body["error"].as_str().unwrap().contains("latched"),
+        "{body}"
+    );
+    // Only the experimenter's reset releases it, and then tests run again.
+    api.ok("/api/estop/reset", json!({}));
+    eventually(Duration::from_secs(20), || {
+        (api.get("/api/controller").1["estop_latched"] == false).then_some(())
+    });
+    let done = run_trial(&api, subject, practice);
+    assert_eq!(done["status"], "complete", "{done}");
+}

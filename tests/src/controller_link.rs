@@ -99,8 +99,23 @@ pub struct Link {
 }
 
 impl Link {
-    /// Connects and exchanges hellos; returns the link and the controller's `HelloAck`.
+    /// Connects, exchanges hellos and, as the server does when it holds no latch, clears the
+    /// E-stop the controller starts with; returns the link and the controller's `HelloAck`.
     pub fn connect(addr: SocketAddr) -> (Self, ControllerToServer) {
+        let (mut link, ack) = Self::hello(addr);
+        link.send(&ServerToController::ResetEStop {});
+        // The reset is answered by a status; wait for it so the stream starts clean.
+        loop {
+            if let ControllerToServer::Status(s) = link.recv() {
+                assert!(!s.estop_latched, "the reset cleared the latch");
+                break;
+            }
+        }
+        (link, ack)
+    }
+
+    /// Connects and exchanges hellos only (the controller's E-stop stays as it is).
+    pub fn hello(addr: SocketAddr) -> (Self, ControllerToServer) {
         let mut link = Self::raw(addr);
         link.send(&ServerToController::Hello {
             protocol_version: PROTOCOL_VERSION,

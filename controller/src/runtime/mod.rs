@@ -164,7 +164,15 @@ pub fn serve(
         .enable_all()
         .build()
         .context("starting the I/O runtime")?;
-    let rt = rt_loop::spawn(lc);
+    let mut rt = rt_loop::spawn(lc);
+    // Fail-safe: the process starts with the E-stop latched, and only a connected server
+    // clears it (it re-sends its own latch to every new connection). A controller that
+    // restarts after an E-stop never comes up ready to move the machine.
+    rt.shared
+        .estop
+        .store(true, std::sync::atomic::Ordering::SeqCst);
+    let _ = rt.send(rt_loop::Command::EStop);
+    tracing::info!("starting with the E-stop latched: the server clears it when it connects");
     let link_cfg = link::LinkConfig {
         dt: cfg.dt,
         lockstep: cfg.lockstep,

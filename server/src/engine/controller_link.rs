@@ -361,7 +361,18 @@ async fn connection(
         }) => {
             tracing::info!(controller, rig, lockstep, "controller connected");
             *link.inner.rig.lock().unwrap_or_else(|p| p.into_inner()) = Some(rig);
-            // Learn the latch state of this controller (a fresh one has none).
+            // The controller starts latched; the server's latch decides. If the database
+            // cannot say, it stays latched.
+            let latched = crate::store::latch::latched(pool).await.unwrap_or(true);
+            let latch = if latched {
+                ServerToController::EStop {}
+            } else {
+                ServerToController::ResetEStop {}
+            };
+            if let Err(e) = wr.write_all(&frame(&latch)).await {
+                return format!("sending the E-stop latch failed: {e}");
+            }
+            // The answer tells the link the controller's latch.
             let _ = wr.write_all(&frame(&ServerToController::Status {})).await;
         }
         Ok(other) => return format!("unexpected answer to hello: {other:?}"),

@@ -59,6 +59,11 @@ pub async fn start(
             )));
         }
     }
+    if store::latch::latched(pool).await? {
+        return Err(AppError::Conflict(
+            "the E-stop is latched: reset it (Reset e-stop, POST /api/estop/reset) before starting a test".into(),
+        ));
+    }
     if !link.is_connected() {
         return Err(AppError::Unavailable(
             "the controller is not connected".into(),
@@ -207,12 +212,14 @@ pub async fn add_note(pool: &SqlitePool, author: &str, trial_id: i64, text: &str
     Ok(note)
 }
 
-/// The E-stop: sent first, audited after (the stop itself waits for nothing that could
-/// fail); an error when it could not be sent.
+/// The E-stop: sent first (the stop itself waits for nothing that could fail), then the
+/// server's latch is set — it is re-sent to every controller connection until an
+/// experimenter resets it — and audited; an error when it could not be sent.
 pub async fn estop(pool: &SqlitePool, link: &ControllerLink, actor: &str) -> Result<()> {
     let sent = link.send(&ServerToController::EStop {});
-    Change::begin(pool, actor)
-        .await?
+    let mut change = Change::begin(pool, actor).await?;
+    store::latch::set(change.db(), true).await?;
+    change
         .commit(
             "estop",
             Some("controller".into()),
@@ -222,14 +229,17 @@ pub async fn estop(pool: &SqlitePool, link: &ControllerLink, actor: &str) -> Res
     sent.map_err(AppError::Unavailable)
 }
 
-/// Clears the E-stop latch.
+/// Clears the E-stop latch: the server's first (so a controller that connects meanwhile is
+/// told the same), then the controller's.
 pub async fn reset_estop(pool: &SqlitePool, link: &ControllerLink, actor: &str) -> Result<()> {
+    let mut change = Change::begin(pool, actor).await?;
+    store::latch::set(change.db(), false).await?;
+    change
+        .commit("estop.reset", Some("controller".into()), json!({}))
+        .await?;
     link.send(&ServerToController::ResetEStop {})
         .map_err(AppError::Unavailable)?;
     // The controller's status confirms the cleared latch.
     let _ = link.send(&ServerToController::Status {});
-    Change::begin(pool, actor)
-        .await?
-        .commit("estop.reset", Some("controller".into()), json!({}))
-        .await
+    Ok(())
 }

@@ -9,6 +9,7 @@ pub mod accounts;
 pub mod audit;
 pub mod db;
 pub mod exports;
+pub mod latch;
 pub mod records;
 pub mod stations;
 pub mod studies;
