@@ -130,25 +130,8 @@ impl Session {
     pub fn find(&self, css: &str) -> String {
         let start = Instant::now();
         loop {
-            if let Ok(v) = self.cmd(
-                "POST",
-                "/element",
-                json!({ "using": "css selector", "value": css }),
-            ) {
-                let id = v
-                    .as_object()
-                    .and_then(|o| o.values().next())
-                    .and_then(Value::as_str)
-                    .unwrap_or_default()
-                    .to_string();
-                if !id.is_empty()
-                    && self
-                        .cmd("GET", &format!("/element/{id}/displayed"), json!({}))
-                        .ok()
-                        == Some(Value::Bool(true))
-                {
-                    return id;
-                }
+            if let Some(id) = self.visible(css) {
+                return id;
             }
             assert!(
                 start.elapsed() < PATIENCE,
@@ -157,6 +140,27 @@ impl Session {
             );
             std::thread::sleep(Duration::from_millis(50));
         }
+    }
+
+    /// Element id of the first match of `css` if it is displayed now.
+    pub fn visible(&self, css: &str) -> Option<String> {
+        let v = self
+            .cmd(
+                "POST",
+                "/element",
+                json!({ "using": "css selector", "value": css }),
+            )
+            .ok()?;
+        let id = v
+            .as_object()
+            .and_then(|o| o.values().next())
+            .and_then(Value::as_str)
+            .filter(|id| !id.is_empty())?
+            .to_string();
+        let shown = self
+            .cmd("GET", &format!("/element/{id}/displayed"), json!({}))
+            .ok();
+        (shown == Some(Value::Bool(true))).then_some(id)
     }
 
     pub fn exists(&self, css: &str) -> bool {
@@ -252,7 +256,9 @@ impl Session {
         points: &[(i64, i64)],
         step_ms: u64,
     ) -> Result<(), String> {
-        let id = self.find(css);
+        let id = self
+            .visible(css)
+            .ok_or_else(|| format!("{css} is not displayed"))?;
         let origin = json!({ "element-6066-11e4-a52e-4f735466cecf": id });
         let mut actions = vec![];
         for (i, (x, y)) in points.iter().enumerate() {
