@@ -31,6 +31,41 @@ fn at_once(
     })
 }
 
+/// A consented synthetic subject at a station serving both seats, with the controller
+/// connected and unlatched: (subject id, its practice trial's id, the controller's pid).
+fn consented_synthetic_subject(server: &Server, api: &Api, study: i64) -> (i64, i64, u64) {
+    let enrolled = api.ok(
+        &format!("/api/studies/{study}/subjects"),
+        json!({ "synthetic": true }),
+    );
+    let subject = enrolled["subject"]["id"].as_i64().unwrap();
+    let (station, token) = pair_station(api, study, "both");
+    api.ok(
+        &format!("/api/stations/{station}/assign"),
+        json!({ "subject_id": subject }),
+    );
+    Api::with_bearer(&server.base, &token)
+        .ok("/api/station/consent", json!({ "decision": "agreed" }));
+    let pid = eventually(Duration::from_secs(20), || {
+        let (_, c) = api.get("/api/controller");
+        (c["connected"] == true && c["estop_latched"] == false)
+            .then(|| c["pid"].as_u64())
+            .flatten()
+    });
+    let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
+    let practice = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
+    (subject, practice, pid)
+}
+
+/// Sends a signal (`-STOP`, `-KILL`, …) to a process.
+fn signal(pid: u64, sig: &str) {
+    let status = std::process::Command::new("kill")
+        .args([sig, &pid.to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success(), "kill {sig} {pid}");
+}
+
 fn audit_actions(api: &Api) -> Vec<String> {
     let (_, log) = api.get("/api/audit?limit=10000");
     log.as_array()
@@ -350,26 +385,7 @@ fn a_hung_controller_is_noticed_within_its_silence_limit() {
     let server = Server::start("layers-hung");
     let api = server.experimenter();
     let study = short_study(&api, 60.0, 60.0);
-    let enrolled = api.ok(
-        &format!("/api/studies/{study}/subjects"),
-        json!({ "synthetic": true }),
-    );
-    let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let (station, token) = pair_station(&api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
-    Api::with_bearer(&server.base, &token)
-        .ok("/api/station/consent", json!({ "decision": "agreed" }));
-    let pid = eventually(Duration::from_secs(20), || {
-        let (_, c) = api.get("/api/controller");
-        (c["connected"] == true)
-            .then(|| c["pid"].as_u64())
-            .flatten()
-    });
-    let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
-    let practice = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
+    let (subject, practice, pid) = consented_synthetic_subject(&server, &api, study);
     assert_eq!(
         api.post(&format!("/api/trials/{practice}/start"), json!({}))
             .0,
@@ -380,11 +396,7 @@ fn a_hung_controller_is_noticed_within_its_silence_limit() {
         .unwrap()
         .as_millis() as i64;
     // SIGSTOP: the process and its socket stay open; only its silence tells.
-    let status = std::process::Command::new("kill")
-        .args(["-STOP", &pid.to_string()])
-        .status()
-        .unwrap();
-    assert!(status.success());
+    signal(pid, "-STOP");
     let row = eventually(Duration::from_secs(10), || {
         let (_, d) = api.get(&format!("/api/subjects/{subject}"));
         let t = d["trials"][0]["trial"].clone();
@@ -402,16 +414,13 @@ fn a_hung_controller_is_noticed_within_its_silence_limit() {
     // 10 ms): the trial is filed within that and a little scheduling slack.
     let noticed = row["finished_at"].as_i64().unwrap() - stopped_at;
     assert!(noticed <= 200, "noticed {noticed} ms after the stop");
-    // The hung process is replaced (killed, so SIGCONT is not needed) and trials run again.
+    // The hung process is replaced (the server kills it) and trials run again.
     let new_pid = eventually(Duration::from_secs(20), || {
         let (_, c) = api.get("/api/controller");
         (c["connected"] == true && c["pid"].as_u64() != Some(pid))
             .then(|| c["pid"].as_u64().unwrap())
     });
     assert_ne!(new_pid, pid);
-    let _ = std::process::Command::new("kill")
-        .args(["-CONT", &pid.to_string()])
-        .status();
 }
 
 #[test]
@@ -419,38 +428,15 @@ fn the_estop_latch_holds_across_a_controller_restart_until_reset() {
     let server = Server::start("layers-latch");
     let api = server.experimenter();
     let study = short_study(&api, 1.0, 0.3);
-    let enrolled = api.ok(
-        &format!("/api/studies/{study}/subjects"),
-        json!({ "synthetic": true }),
-    );
-    let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let (station, token) = pair_station(&api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
-    Api::with_bearer(&server.base, &token)
-        .ok("/api/station/consent", json!({ "decision": "agreed" }));
-    let pid = eventually(Duration::from_secs(20), || {
-        let (_, c) = api.get("/api/controller");
-        (c["connected"] == true && c["estop_latched"] == false)
-            .then(|| c["pid"].as_u64())
-            .flatten()
-    });
+    let (subject, practice, pid) = consented_synthetic_subject(&server, &api, study);
     api.ok("/api/estop", json!({}));
     // The controller dies; its successor starts latched and the server keeps it so.
-    let status = std::process::Command::new("kill")
-        .args(["-9", &pid.to_string()])
-        .status()
-        .unwrap();
-    assert!(status.success());
+    signal(pid, "-KILL");
     eventually(Duration::from_secs(20), || {
         let (_, c) = api.get("/api/controller");
         (c["connected"] == true && c["pid"].as_u64() != Some(pid) && c["estop_latched"] == true)
             .then_some(())
     });
-    let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
-    let practice = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
     let (code, body) = api.post(&format!("/api/trials/{practice}/start"), json!({}));
     assert_eq!(code, 409, "{body}");
     assert!(
