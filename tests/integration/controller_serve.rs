@@ -741,3 +741,76 @@ fn a_controller_starts_with_the_estop_latched_until_a_server_clears_it() {
         1,
     ));
 }
+
+#[test]
+fn spoofed_and_replayed_input_datagrams_never_keep_a_trial_alive() {
+    let ctl = Proc::controller(&["--lockstep", "--input-udp", "127.0.0.1:0"]);
+    let input = ctl.input_udp.expect("input port announced");
+    let (mut link, _) = Link::connect(ctl.addr);
+    let mut log = TrialLog::default();
+    link.start_and_wait(StartTrial {
+        input: InputSource::Udp { channel: 4 },
+        ..server_input_trial(1, 10.0)
+    });
+    let datagram = |seq| {
+        bdft_protocol::rig::InputDatagram {
+            channel: 4,
+            seq,
+            position_mm: 8.0,
+        }
+        .encode()
+    };
+    let host = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let intruder = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    // The host's first datagram pins it as the trial's source; wait until the loop uses it.
+    host.send_to(&datagram(1), input).unwrap();
+    for _ in 0..200 {
+        if log.live.iter().any(|s| s.trial_id == 1 && s.input_seq == 1) {
+            break;
+        }
+        // Re-sending the same datagram is a replay: it is refused but harmless here.
+        host.send_to(&datagram(1), input).unwrap();
+        link.step(10, &mut log);
+    }
+    assert!(
+        log.live.iter().any(|s| s.input_seq == 1),
+        "the host's input reached the loop"
+    );
+    // The host goes silent; a replay of its last datagram and an intruder with a newer
+    // sequence arrive before every 10 ticks. Neither counts: the input goes stale.
+    for seq in 2..60u32 {
+        host.send_to(&datagram(1), input).unwrap();
+        intruder.send_to(&datagram(seq), input).unwrap();
+        link.step(10, &mut log);
+        if log.results.iter().any(|r| r.trial_id == 1) {
+            break;
+        }
+    }
+    let r = log
+        .results
+        .iter()
+        .find(|r| r.trial_id == 1)
+        .expect("the trial ended");
+    assert!(
+        matches!(
+            r.outcome,
+            Outcome::Faulted {
+                fault: FaultKind::StaleInput,
+                ..
+            }
+        ),
+        "{:?}",
+        r.outcome
+    );
+    assert!(
+        log.live.iter().all(|s| s.input_seq <= 1),
+        "no foreign sequence was used"
+    );
+    link.send(&ServerToController::Status {});
+    let status = loop {
+        if let ControllerToServer::Status(s) = link.recv() {
+            break s;
+        }
+    };
+    assert!(status.rejected_datagrams >= 10, "{status:?}");
+}
