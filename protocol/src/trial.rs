@@ -140,6 +140,9 @@ pub enum FaultKind {
     /// The cab-vibration interlock: RMS cab acceleration over the sliding window above the
     /// trial's limit.
     CabVibration,
+    /// A rig reading that cannot be true: not finite, the cylinder beyond its stroke, an
+    /// acceleration no cab reaches, or a reply to a command never sent.
+    RigImplausible,
     /// The controller process restarted or the trial could not continue for an internal
     /// reason.
     Internal,

@@ -8,6 +8,7 @@ use bdft_protocol::controller_to_server::ControllerToServer;
 use bdft_protocol::params::{
     BodyModel, CompensatorKind, LoopParams, OperatorParams, PlantParams, Seat, StepParams,
 };
+use bdft_protocol::rig::{RigCommand, RigState};
 use bdft_protocol::server_to_controller::{ServerToController, StartTrial};
 use bdft_protocol::trial::{FaultKind, InputSource, Outcome, RECORD_CHANNELS, TargetSpec};
 use bdft_tests::controller_link::{Link, Proc, TrialLog};
@@ -813,4 +814,88 @@ fn spoofed_and_replayed_input_datagrams_never_keep_a_trial_alive() {
         }
     };
     assert!(status.rejected_datagrams >= 10, "{status:?}");
+}
+
+/// A rig that answers every command like `rig-sim` at rest, except that after `good`
+/// commands it sends what `lie` makes of the reply.
+fn lying_rig(good: u32, lie: fn(RigState) -> RigState) -> std::net::SocketAddr {
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let addr = socket.local_addr().unwrap();
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 64];
+        let mut n = 0u32;
+        while let Ok((len, from)) = socket.recv_from(&mut buf) {
+            let Ok(cmd) = RigCommand::decode(&buf[..len]) else {
+                continue;
+            };
+            n += 1;
+            let honest = RigState {
+                seq: cmd.seq,
+                cylinder_mm: 0.5,
+                cab_accel_mm_s2: 10.0,
+            };
+            let reply = if n > good { lie(honest) } else { honest };
+            let _ = socket.send_to(&reply.encode(), from);
+        }
+    });
+    addr
+}
+
+#[test]
+fn implausible_rig_readings_fault_the_trial_with_the_reason() {
+    let lies: [(fn(RigState) -> RigState, &str); 4] = [
+        (
+            |s| RigState {
+                cylinder_mm: 1e300,
+                ..s
+            },
+            "beyond the stroke",
+        ),
+        (
+            |s| RigState {
+                cab_accel_mm_s2: -2e5,
+                ..s
+            },
+            "beyond the plausible",
+        ),
+        (
+            |s| RigState {
+                cylinder_mm: f64::NAN,
+                ..s
+            },
+            "not a finite number",
+        ),
+        (
+            |s| RigState {
+                seq: s.seq + 5000,
+                ..s
+            },
+            "never sent",
+        ),
+    ];
+    for (lie, words) in lies {
+        let rig = lying_rig(300, lie);
+        let ctl = Proc::controller(&["--rig", "udp", "--rig-addr", &rig.to_string()]);
+        let (mut link, _) = Link::connect(ctl.addr);
+        let mut log = TrialLog::default();
+        link.start_and_wait(StartTrial {
+            target: TargetSpec::Trapezoid {
+                amplitude_mm: 5.0,
+                period_s: 6.0,
+            },
+            input: InputSource::Reference,
+            ..synthetic_trial(1, CompensatorKind::PidNotch, Seat::Off, 0.6, 10.0, 1)
+        });
+        let r = link.until_result(1, &mut log);
+        let Outcome::Faulted {
+            fault: FaultKind::RigImplausible,
+            message,
+        } = &r.outcome
+        else {
+            panic!("{words}: {:?}", r.outcome)
+        };
+        assert!(message.contains(words), "{message}");
+        // Stopped at the first lie, long before the 10 s trial would end.
+        assert!(r.metrics.ticks < 2000, "{words}: {} ticks", r.metrics.ticks);
+    }
 }

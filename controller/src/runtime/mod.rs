@@ -156,8 +156,13 @@ pub fn serve(
     if let Some(addr) = cfg.rig {
         let ticks = (cfg.rig_timeout.as_secs_f64() / cfg.dt).round() as u64;
         lc.rig = Some(
-            rig_udp::UdpRig::connect(addr, ticks, PlantParams::default().v_max)
-                .with_context(|| format!("opening the UDP link to the rig at {addr}"))?,
+            rig_udp::UdpRig::connect(
+                addr,
+                ticks,
+                PlantParams::default().v_max,
+                PlantParams::default().stroke_mm,
+            )
+            .with_context(|| format!("opening the UDP link to the rig at {addr}"))?,
         );
     }
     let runtime = tokio::runtime::Builder::new_current_thread()

@@ -345,8 +345,10 @@ impl RtLoop {
             self.latch_estop();
         }
         let now = self.tick;
+        let mut implausible = None;
         if let Some(rig) = &mut self.cfg.rig {
             rig.poll(now);
+            implausible = rig.take_implausible();
         }
         let latency_us = latency_ns as f32 / 1e3;
         let mut rig_command = 0.0;
@@ -356,7 +358,10 @@ impl RtLoop {
             };
             if let (SlotLoop::Rig(ext), Some(rig)) = (slot.runner.loop_mut(), self.cfg.rig.as_ref())
             {
-                if rig.timed_out(now, slot.start_tick.unwrap_or(now)) {
+                if let Some(why) = implausible {
+                    slot.rig_fault = Some(why);
+                    slot.end(EndReason::Faulted(FaultKind::RigImplausible));
+                } else if rig.timed_out(now, slot.start_tick.unwrap_or(now)) {
                     slot.end(EndReason::Faulted(FaultKind::RigTimeout));
                 } else {
                     ext.measurement = rig.measurement();

@@ -8,6 +8,7 @@ use bdft_protocol::trial::{FaultKind, Outcome, RECORD_CHANNELS, TrialId};
 
 use super::handoff::InputCell;
 use super::histogram::Histogram;
+use super::rig_udp::Implausible;
 use crate::closed_loop::{ClosedLoop, Drive, TickRecord};
 use crate::compensator::Compensator;
 use crate::interlock::WINDOW_S;
@@ -114,6 +115,8 @@ pub struct TrialSlot {
     pub overruns_at_start: u64,
     pub overruns: u64,
     pub end: Option<EndReason>,
+    /// What was wrong with the rig reading that ended the trial.
+    pub rig_fault: Option<Implausible>,
 }
 
 /// An empty record with room for the whole trial, its pages already touched: otherwise the
@@ -155,6 +158,7 @@ impl TrialSlot {
             overruns_at_start: 0,
             overruns: 0,
             end: None,
+            rig_fault: None,
         }
     }
 
@@ -247,6 +251,12 @@ impl TrialSlot {
                 "no operator input for more than {:.0} ms at t = {at:.3} s; valve set to zero",
                 self.stale_ticks as f64 * dt * 1e3
             ),
+            FaultKind::RigImplausible => match self.rig_fault {
+                Some(why) => format!("the rig reported {why} at t = {at:.3} s; valve set to zero"),
+                None => format!(
+                    "the rig reported an implausible reading at t = {at:.3} s; valve set to zero"
+                ),
+            },
             FaultKind::RigTimeout => {
                 format!("the rig stopped answering at t = {at:.3} s; valve set to zero")
             }
