@@ -816,9 +816,12 @@ fn spoofed_and_replayed_input_datagrams_never_keep_a_trial_alive() {
     assert!(status.rejected_datagrams >= 10, "{status:?}");
 }
 
+/// What a lying rig makes of an honest reply.
+type Lie = fn(RigState) -> RigState;
+
 /// A rig that answers every command like `rig-sim` at rest, except that after `good`
 /// commands it sends what `lie` makes of the reply.
-fn lying_rig(good: u32, lie: fn(RigState) -> RigState) -> std::net::SocketAddr {
+fn lying_rig(good: u32, lie: Lie) -> std::net::SocketAddr {
     let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     let addr = socket.local_addr().unwrap();
     std::thread::spawn(move || {
@@ -843,7 +846,7 @@ fn lying_rig(good: u32, lie: fn(RigState) -> RigState) -> std::net::SocketAddr {
 
 #[test]
 fn implausible_rig_readings_fault_the_trial_with_the_reason() {
-    let lies: [(fn(RigState) -> RigState, &str); 4] = [
+    let lies: [(Lie, &str); 4] = [
         (
             |s| RigState {
                 cylinder_mm: 1e300,
