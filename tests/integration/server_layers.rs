@@ -44,7 +44,14 @@ fn consented_synthetic_subject(server: &Server, api: &Api, study: i64) -> (i64, 
         &format!("/api/stations/{station}/assign"),
         json!({ "subject_id": subject }),
     );
-    Api::with_bearer(&server.base, &token)
+    let (practice, pid) = consent_at(server, api, &token, subject);
+    (subject, practice, pid)
+}
+
+/// The subject consents at the station of `token`; waits for the controller to be
+/// connected and unlatched: (the subject's practice trial's id, the controller's pid).
+fn consent_at(server: &Server, api: &Api, token: &str, subject: i64) -> (i64, u64) {
+    Api::with_bearer(&server.base, token)
         .ok("/api/station/consent", json!({ "decision": "agreed" }));
     let pid = eventually(Duration::from_secs(20), || {
         let (_, c) = api.get("/api/controller");
@@ -54,7 +61,7 @@ fn consented_synthetic_subject(server: &Server, api: &Api, study: i64) -> (i64, 
     });
     let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
     let practice = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
-    (subject, practice, pid)
+    (practice, pid)
 }
 
 /// Sends a signal (`-STOP`, `-KILL`, …) to a process.
@@ -112,13 +119,7 @@ fn racing_changes_are_serialized_or_refused_never_a_500() {
         &format!("/api/stations/{station}/assign"),
         json!({ "subject_id": subject }),
     );
-    Api::with_bearer(&server.base, &token)
-        .ok("/api/station/consent", json!({ "decision": "agreed" }));
-    eventually(Duration::from_secs(20), || {
-        (api.get("/api/controller").1["connected"] == true).then_some(())
-    });
-    let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
-    let practice = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
+    let (practice, _) = consent_at(&server, &api, &token, subject);
     let done = run_trial(&api, subject, practice);
     assert_eq!(done["status"], "complete", "{done}");
     let redos = at_once(&server, 8, |c| {
@@ -351,13 +352,7 @@ fn one_input_source_per_test_and_withdrawal_stops_the_running_test() {
         &format!("/api/stations/{both}/assign"),
         json!({ "subject_id": subject }),
     );
-    Api::with_bearer(&server.base, &token)
-        .ok("/api/station/consent", json!({ "decision": "agreed" }));
-    eventually(Duration::from_secs(20), || {
-        (api.get("/api/controller").1["connected"] == true).then_some(())
-    });
-    let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
-    let practice = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
+    let (practice, _) = consent_at(&server, &api, &token, subject);
     let (code, body) = api.post(&format!("/api/trials/{practice}/start"), json!({}));
     assert_eq!(code, 200, "{body}");
     // The subject withdraws mid-test: the test stops at once, filed aborted with the reason.
