@@ -446,3 +446,87 @@ fn the_estop_latch_holds_across_a_controller_restart_until_reset() {
     let done = run_trial(&api, subject, practice);
     assert_eq!(done["status"], "complete", "{done}");
 }
+
+#[test]
+fn the_estop_is_confirmed_while_a_station_floods_input() {
+    let server = Server::start("layers-flood");
+    let api = server.experimenter();
+    let study = short_study(&api, 60.0, 60.0);
+    // A person's test, fed by the station socket.
+    let enrolled = api.ok(&format!("/api/studies/{study}/subjects"), json!({}));
+    let subject = enrolled["subject"]["id"].as_i64().unwrap();
+    let (station, token) = pair_station(&api, study, "both");
+    api.ok(
+        &format!("/api/stations/{station}/assign"),
+        json!({ "subject_id": subject }),
+    );
+    let (practice, _) = consent_at(&server, &api, &token, subject);
+    let ws_url = format!(
+        "{}/api/station/ws?token={token}",
+        server.base.replace("http://", "ws://")
+    );
+    let (mut ws, _) = tungstenite::connect(ws_url).expect("station socket");
+    assert_eq!(
+        api.post(&format!("/api/trials/{practice}/start"), json!({}))
+            .0,
+        200
+    );
+    // The station floods input as fast as it can (far beyond any display's rate).
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let count = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let flooding = {
+        let (stop, count) = (std::sync::Arc::clone(&stop), std::sync::Arc::clone(&count));
+        std::thread::spawn(move || {
+            let mut seq = 0u64;
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) && seq < 2_000_000 {
+                seq += 1;
+                count.store(seq, std::sync::atomic::Ordering::Relaxed);
+                let msg = json!({ "type": "input", "trial_id": practice, "seq": seq, "position_mm": 5.0 });
+                if ws
+                    .send(tungstenite::Message::Text(msg.to_string().into()))
+                    .is_err()
+                {
+                    break;
+                }
+            }
+            seq
+        })
+    };
+    // Let the flood build up, then stop the machine.
+    eventually(Duration::from_secs(20), || {
+        let (_, d) = api.get(&format!("/api/subjects/{subject}"));
+        (d["trials"][0]["trial"]["status"] == "running").then_some(())
+    });
+    eventually(Duration::from_secs(20), || {
+        (count.load(std::sync::atomic::Ordering::Relaxed) > 5000).then_some(())
+    });
+    let asked = std::time::Instant::now();
+    let (code, body) = api.post("/api/estop", json!({}));
+    let answered = asked.elapsed();
+    assert_eq!(code, 200, "the controller confirmed the E-stop: {body}");
+    assert!(
+        answered < Duration::from_millis(500),
+        "confirmed after {answered:?}"
+    );
+    let row = eventually(Duration::from_secs(10), || {
+        let (_, d) = api.get(&format!("/api/subjects/{subject}"));
+        let t = d["trials"][0]["trial"].clone();
+        (t["status"] != "running").then_some(t)
+    });
+    assert_eq!(row["status"], "aborted", "{row}");
+    assert!(
+        row["status_reason"].as_str().unwrap().contains("e-stop"),
+        "{row}"
+    );
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let sent = flooding.join().unwrap();
+    assert!(sent > 1000, "the station flooded ({sent} messages)");
+    let (_, audit) = api.get("/api/audit?limit=50");
+    let estop = audit
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|a| a["action"] == "estop")
+        .expect("audited");
+    assert_eq!(estop["detail"]["delivered"], true);
+}

@@ -77,6 +77,14 @@ struct Inner {
     rig: Mutex<Option<String>>,
     /// Whether the controller's e-stop is latched (as it last told us).
     estop: std::sync::atomic::AtomicBool,
+    /// The E-stop's own path to the writer, ahead of everything else.
+    urgent: Mutex<Option<mpsc::Sender<Vec<u8>>>>,
+    /// Who waits for the controller to confirm an E-stop.
+    estop_waiters: Mutex<Vec<oneshot::Sender<()>>>,
+    /// The newest operator input of each trial not yet written: a flood of input coalesces
+    /// here instead of queueing in front of anything (at most one entry per running trial).
+    inputs: Mutex<HashMap<TrialId, (u64, f64)>>,
+    input_ready: tokio::sync::Notify,
 }
 
 /// Samples per trial kept while its record arrives, channel by channel.
@@ -96,6 +104,10 @@ impl ControllerLink {
                 pid: Mutex::new(None),
                 rig: Mutex::new(None),
                 estop: std::sync::atomic::AtomicBool::new(false),
+                urgent: Mutex::new(None),
+                estop_waiters: Mutex::new(Vec::new()),
+                inputs: Mutex::new(HashMap::new()),
+                input_ready: tokio::sync::Notify::new(),
             }),
         };
         tokio::spawn(supervise(link.clone(), pool, source, silence));
@@ -136,6 +148,61 @@ impl ControllerLink {
 
     pub fn is_connected(&self) -> bool {
         *self.inner.connected.borrow()
+    }
+
+    /// Operator input for a running trial: only the newest per trial waits to be written.
+    pub fn send_input(&self, trial_id: TrialId, seq: u64, position_mm: f64) {
+        if !self.is_connected() {
+            return;
+        }
+        self.inner
+            .inputs
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .insert(trial_id, (seq, position_mm));
+        self.inner.input_ready.notify_one();
+    }
+
+    /// The E-stop on its own path, written before anything queued; `Ok` once the controller
+    /// confirms it (its `e-stop` fault), an error saying why when it could not be delivered
+    /// or was not confirmed within `wait`.
+    pub async fn estop(&self, wait: Duration) -> Result<(), String> {
+        let (done, confirmed) = oneshot::channel();
+        self.inner
+            .estop_waiters
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .push(done);
+        let urgent = self
+            .inner
+            .urgent
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+            .ok_or_else(|| "the controller is not connected".to_string())?;
+        urgent
+            .try_send(frame(&ServerToController::EStop {}))
+            .map_err(|_| "the E-stop path is full".to_string())?;
+        match tokio::time::timeout(wait, confirmed).await {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(_)) => Err("the controller link went down before it confirmed".into()),
+            Err(_) => Err(format!(
+                "the controller did not confirm within {} ms",
+                wait.as_millis()
+            )),
+        }
+    }
+
+    fn confirm_estop(&self) {
+        for done in self
+            .inner
+            .estop_waiters
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .drain(..)
+        {
+            let _ = done.send(());
+        }
     }
 
     /// Sends a message; fails if the controller is not connected.
@@ -237,6 +304,18 @@ async fn supervise(
             Err(e) => format!("cannot connect to the controller at {addr}: {e}"),
         };
         *link.inner.tx.lock().unwrap_or_else(|p| p.into_inner()) = None;
+        *link.inner.urgent.lock().unwrap_or_else(|p| p.into_inner()) = None;
+        // Nobody waits for a confirmation that cannot come (their E-stop reports it).
+        link.inner
+            .estop_waiters
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clear();
+        link.inner
+            .inputs
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clear();
         if link.is_connected() {
             link.inner.connected.send_replace(false);
             link.emit(ControllerEvent::Link { connected: false });
@@ -378,15 +457,27 @@ async fn connection(
         Ok(other) => return format!("unexpected answer to hello: {other:?}"),
         Err(e) => return e,
     }
-    let (tx, mut rx) = mpsc::channel::<Vec<u8>>(16_384);
+    let (tx, mut rx) = mpsc::channel::<Vec<u8>>(1024);
     *link.inner.tx.lock().unwrap_or_else(|p| p.into_inner()) = Some(tx.clone());
+    let (urgent_tx, mut urgent) = mpsc::channel::<Vec<u8>>(8);
+    *link.inner.urgent.lock().unwrap_or_else(|p| p.into_inner()) = Some(urgent_tx);
     link.inner.connected.send_replace(true);
     link.emit(ControllerEvent::Link { connected: true });
     let writer = async {
         let mut beat = tokio::time::interval(Duration::from_millis(200));
         let mut seq = 0;
         loop {
+            // Biased: the E-stop first, then the newest input, then everything else.
             tokio::select! {
+                biased;
+                Some(f) = urgent.recv() => if let Err(e) = wr.write_all(&f).await { return format!("write failed: {e}") },
+                _ = link.inner.input_ready.notified() => {
+                    let inputs: Vec<_> = link.inner.inputs.lock().unwrap_or_else(|p| p.into_inner()).drain().collect();
+                    for (trial_id, (seq, position_mm)) in inputs {
+                        let f = frame(&ServerToController::OperatorInput { trial_id, seq, position_mm });
+                        if let Err(e) = wr.write_all(&f).await { return format!("write failed: {e}") }
+                    }
+                }
                 f = rx.recv() => match f {
                     Some(f) => if let Err(e) = wr.write_all(&f).await { return format!("write failed: {e}") },
                     None => return "writer closed".to_string(),
@@ -472,6 +563,7 @@ async fn handle(
         } => {
             if trial_id.is_none() && kind == bdft_protocol::trial::FaultKind::EStop {
                 link.set_estop(true);
+                link.confirm_estop();
             }
             tracing::warn!(?trial_id, ?kind, message, "controller fault")
         }

@@ -216,7 +216,7 @@ pub async fn add_note(pool: &SqlitePool, author: &str, trial_id: i64, text: &str
 /// server's latch is set — it is re-sent to every controller connection until an
 /// experimenter resets it — and audited; an error when it could not be sent.
 pub async fn estop(pool: &SqlitePool, link: &ControllerLink, actor: &str) -> Result<()> {
-    let sent = link.send(&ServerToController::EStop {});
+    let sent = link.estop(ESTOP_CONFIRMATION).await;
     let mut change = Change::begin(pool, actor).await?;
     store::latch::set(change.db(), true).await?;
     change
@@ -226,8 +226,16 @@ pub async fn estop(pool: &SqlitePool, link: &ControllerLink, actor: &str) -> Res
             json!({ "delivered": sent.is_ok() }),
         )
         .await?;
-    sent.map_err(AppError::Unavailable)
+    sent.map_err(|why| {
+        AppError::Unavailable(format!(
+            "the E-stop was NOT confirmed by the controller ({why}); stop the machine by hand"
+        ))
+    })
 }
+
+/// How long the API waits for the controller to confirm an E-stop before saying it was not
+/// delivered.
+const ESTOP_CONFIRMATION: std::time::Duration = std::time::Duration::from_millis(500);
 
 /// Clears the E-stop latch: the server's first (so a controller that connects meanwhile is
 /// told the same), then the controller's.

@@ -7,7 +7,6 @@ use axum::http::HeaderMap;
 use axum::response::Response;
 use bdft_protocol::browser_to_server::StationMessage;
 use bdft_protocol::server_to_browser::{MonitorEvent, StationEvent};
-use bdft_protocol::server_to_controller::ServerToController;
 use serde::Deserialize;
 use tokio::sync::broadcast::error::RecvError;
 use utoipa::IntoParams;
@@ -88,11 +87,7 @@ async fn station_socket(s: AppState, station_id: i64, socket: WebSocket) {
                             && position_mm.is_finite()
                             && position_mm.abs() <= MAX_POSITION_MM =>
                     {
-                        let _ = s.controller.send(&ServerToController::OperatorInput {
-                            trial_id: trial_id as u64,
-                            seq,
-                            position_mm,
-                        });
+                        s.controller.send_input(trial_id as u64, seq, position_mm);
                     }
                     // Input for a trial that is not this station's running one, or garbage: dropped.
                     _ => {}
