@@ -111,7 +111,13 @@ pub async fn update(
     .bind(id)
     .execute(&mut *db)
     .await?;
-    if done.rows_affected() == 0 {
+    unless_locked(db, id, done.rows_affected()).await
+}
+
+/// The answer to an UPDATE guarded by `locked_at IS NULL`: 404 for no such study, 409 when
+/// it matched nothing because the protocol is locked.
+async fn unless_locked(db: &mut SqliteConnection, id: i64, rows: u64) -> Result<()> {
+    if rows == 0 {
         get(&mut *db, id).await?;
         return Err(AppError::Conflict(
             "the study's protocol is locked: a subject has been enrolled".into(),
@@ -146,11 +152,5 @@ pub async fn acknowledge_instability(
     .bind(id)
     .execute(&mut *db)
     .await?;
-    if done.rows_affected() == 0 {
-        get(&mut *db, id).await?;
-        return Err(AppError::Conflict(
-            "the study's protocol is locked already".into(),
-        ));
-    }
-    Ok(())
+    unless_locked(db, id, done.rows_affected()).await
 }
