@@ -86,6 +86,12 @@ enum Command {
     /// Run the real-time controller: the server connects here and runs trials at 1 kHz on
     /// the simulated rig (default) or a real rig over UDP.
     Serve(runtime::ServeArgs),
+    /// Make a new link key file (readable only by you) for `serve --key-file` and the
+    /// server's `--controller-key-file`; an existing file is never overwritten.
+    Keygen {
+        /// Where to write the key.
+        file: PathBuf,
+    },
     /// Play a rig over UDP with the validated model: each command datagram steps the model
     /// one sample and is answered with the sensors.
     RigSim {
@@ -190,6 +196,10 @@ fn execute(command: Command) -> anyhow::Result<()> {
     let mut out = stdout.lock();
     match command {
         Command::Serve(args) => runtime::serve_announcing(&args)?,
+        Command::Keygen { file } => {
+            bdft_protocol::link_auth::LinkKey::create_file(&file)?;
+            writeln!(out, "wrote a new link key to {}", file.display())?;
+        }
         Command::RigSim { listen, seed } => {
             runtime::rig_udp::run_rig_sim(
                 listen,

@@ -2,13 +2,22 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::link_auth::Bytes32;
 use crate::trial::{FaultKind, Metrics, Outcome, TimingSummary, TrialId};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 pub enum ControllerToServer {
+    /// The controller's first frame on every connection: a fresh nonce the server's `Hello`
+    /// must prove the link key over ([`crate::link_auth`]).
+    Challenge {
+        protocol_version: u32,
+        nonce: Bytes32,
+    },
+    /// The hello was authentic; `proof` is the controller's proof of the same key.
     HelloAck {
         protocol_version: u32,
+        proof: Bytes32,
         controller: String,
         loop_rate_hz: f64,
         /// "sim" or "udp".

@@ -25,11 +25,7 @@
 //! let (rd, wr) = stream.into_split();
 //! let mut rd = FramedRead::new(rd, ServerCodec::default());
 //! let mut wr = FramedWrite::new(wr, ServerCodec::default());
-//! let hello = ServerToController::Hello {
-//!     protocol_version: bdft_protocol::PROTOCOL_VERSION,
-//!     client: "bdft-server".into(),
-//! };
-//! wr.send(hello).await.unwrap();
+//! wr.send(ServerToController::Status {}).await.unwrap();
 //! while let Some(frame) = rd.next().await {
 //!     match frame {
 //!         Ok(Ok(_msg)) => { /* a ControllerToServer */ }
@@ -58,8 +54,8 @@ pub const MAX_FRAME: usize = 8 << 20;
 /// The stream cannot be delimited any more, or the connection failed: end it.
 #[derive(Debug, Error)]
 pub enum FrameError {
-    #[error("frame of {0} bytes exceeds the {MAX_FRAME}-byte limit")]
-    TooLarge(usize),
+    #[error("frame of {size} bytes exceeds the {limit}-byte limit")]
+    TooLarge { size: usize, limit: usize },
     #[error("empty frame")]
     Empty,
     #[error("the stream ended inside a frame")]
@@ -83,6 +79,8 @@ pub type Decoded<In> = Result<In, MalformedMessage>;
 /// Frames in, `In` messages out of the decoder; `Out` messages into the encoder.
 pub struct FrameCodec<In, Out> {
     frames: LengthDelimitedCodec,
+    /// Largest payload read: [`MAX_FRAME`], or less before a peer is authenticated.
+    limit: usize,
     _messages: PhantomData<fn(Out) -> In>,
 }
 
@@ -93,14 +91,27 @@ pub type ControllerCodec = FrameCodec<ServerToController, ControllerToServer>;
 
 impl<In, Out> FrameCodec<In, Out> {
     pub fn new() -> Self {
+        Self::with_limit(MAX_FRAME)
+    }
+
+    /// A codec that refuses frames above `limit` bytes from the length header alone, before
+    /// buffering any of it (an unauthenticated peer's frames are kept small this way).
+    pub fn with_limit(limit: usize) -> Self {
         Self {
             frames: LengthDelimitedCodec::builder()
                 .big_endian()
                 .length_field_length(4)
-                .max_frame_length(MAX_FRAME)
+                .max_frame_length(limit)
                 .new_codec(),
+            limit,
             _messages: PhantomData,
         }
+    }
+
+    /// Changes the limit for the frames still to come (raised once the peer is known).
+    pub fn set_limit(&mut self, limit: usize) {
+        self.frames.set_max_frame_length(limit);
+        self.limit = limit;
     }
 }
 
@@ -114,6 +125,7 @@ impl<In, Out> Clone for FrameCodec<In, Out> {
     fn clone(&self) -> Self {
         Self {
             frames: self.frames.clone(),
+            limit: self.limit,
             _messages: PhantomData,
         }
     }
@@ -147,7 +159,10 @@ impl<In: DeserializeOwned, Out> Decoder for FrameCodec<In, Out> {
                 if e.get_ref()
                     .is_some_and(|e| e.is::<LengthDelimitedCodecError>()) =>
             {
-                Err(FrameError::TooLarge(announced.unwrap_or(usize::MAX)))
+                Err(FrameError::TooLarge {
+                    size: announced.unwrap_or(usize::MAX),
+                    limit: self.limit,
+                })
             }
             Err(e) => Err(FrameError::Io(e)),
         }
@@ -179,7 +194,10 @@ fn encode_with<T: Serialize + ?Sized>(
 ) -> Result<(), FrameError> {
     let json = serde_json::to_vec(msg).map_err(FrameError::Unserializable)?;
     if json.len() > MAX_FRAME {
-        return Err(FrameError::TooLarge(json.len()));
+        return Err(FrameError::TooLarge {
+            size: json.len(),
+            limit: MAX_FRAME,
+        });
     }
     Encoder::<Bytes>::encode(frames, Bytes::from(json), dst)?;
     Ok(())
@@ -324,12 +342,39 @@ mod tests {
             .unwrap();
         assert!(matches!(
             controller.next().await,
-            Some(Err(FrameError::TooLarge(n))) if n == u32::MAX as usize
+            Some(Err(FrameError::TooLarge { size, limit: MAX_FRAME })) if size == u32::MAX as usize
         ));
         assert!(
             controller.next().await.is_none(),
             "nothing after a broken length"
         );
+    }
+
+    /// Before authentication a peer's length header alone decides: a frame above the small
+    /// limit is refused before any of it is buffered, and the limit can be raised later.
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_lowered_limit_refuses_big_frames_from_the_header() {
+        let (mut a, b) = tokio::io::duplex(64);
+        let mut controller = FramedRead::new(b, ControllerCodec::with_limit(1024));
+        tokio::io::AsyncWriteExt::write_all(&mut a, &2000u32.to_be_bytes())
+            .await
+            .unwrap();
+        assert!(matches!(
+            controller.next().await,
+            Some(Err(FrameError::TooLarge {
+                size: 2000,
+                limit: 1024
+            }))
+        ));
+        let mut codec = ControllerCodec::with_limit(16);
+        codec.set_limit(MAX_FRAME);
+        let frame = encode(&ServerToController::AbortTrial {
+            trial_id: 1,
+            reason: "x".repeat(100),
+        })
+        .unwrap();
+        let mut src = BytesMut::from(&frame[..]);
+        assert!(matches!(codec.decode(&mut src), Ok(Some(Ok(_)))));
     }
 
     #[test]
@@ -338,7 +383,7 @@ mod tests {
             trial_id: 1,
             reason: "x".repeat(MAX_FRAME),
         };
-        assert!(matches!(encode(&huge), Err(FrameError::TooLarge(_))));
+        assert!(matches!(encode(&huge), Err(FrameError::TooLarge { .. })));
         let mut dst = BytesMut::new();
         assert!(ServerCodec::default().encode(huge, &mut dst).is_err());
         assert!(dst.is_empty(), "nothing half-written");

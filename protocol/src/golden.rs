@@ -31,8 +31,25 @@ fn hello_and_small_messages() {
         &ServerToController::Hello {
             protocol_version: PROTOCOL_VERSION,
             client: "bdft-server".into(),
+            role: crate::link_auth::LinkRole::EStop,
+            nonce: crate::link_auth::Bytes32([0xab; 32]),
+            proof: crate::link_auth::Bytes32([0x01; 32]),
         },
-        r#"{"type":"hello","protocol_version":1,"client":"bdft-server"}"#,
+        &format!(
+            r#"{{"type":"hello","protocol_version":2,"client":"bdft-server","role":"e_stop","nonce":"{}","proof":"{}"}}"#,
+            "ab".repeat(32),
+            "01".repeat(32)
+        ),
+    );
+    assert_golden(
+        &crate::controller_to_server::ControllerToServer::Challenge {
+            protocol_version: PROTOCOL_VERSION,
+            nonce: crate::link_auth::Bytes32([0xff; 32]),
+        },
+        &format!(
+            r#"{{"type":"challenge","protocol_version":2,"nonce":"{}"}}"#,
+            "ff".repeat(32)
+        ),
     );
     assert_golden(
         &ServerToController::OperatorInput {

@@ -3,7 +3,9 @@
 //! to these at the boundary.
 //!
 //! - [`server_to_controller`] / [`controller_to_server`]: the TCP link, framed by
-//!   [`framing`] (length-prefixed JSON), opened by `Hello` carrying [`PROTOCOL_VERSION`].
+//!   [`framing`] (length-prefixed JSON), opened by the controller's `Challenge` and the
+//!   server's `Hello` carrying [`PROTOCOL_VERSION`] and a proof of the shared key
+//!   ([`link_auth`]).
 //! - [`rig`]: the fixed binary UDP datagrams of a real rig and a haptic-device host.
 //! - [`params`], [`trial`]: the data those messages carry.
 //! - [`browser_to_server`] / [`server_to_browser`]: the stations' and the dashboard's
@@ -13,6 +15,7 @@
 pub mod browser_to_server;
 pub mod controller_to_server;
 pub mod framing;
+pub mod link_auth;
 pub mod params;
 pub mod records;
 pub mod rig;
@@ -22,7 +25,7 @@ pub mod study;
 pub mod trial;
 
 /// Version of the server ↔ controller protocol; both ends must agree in the hello.
-pub const PROTOCOL_VERSION: u32 = 1;
+pub const PROTOCOL_VERSION: u32 = 2;
 
 #[cfg(test)]
 mod golden;

@@ -2,16 +2,22 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::link_auth::{Bytes32, LinkRole};
 use crate::params::{BodyModel, CompensatorSpec, MAX_KBF, ParamError, PlantParams, Seat, check};
 use crate::trial::{InputSource, MAX_TRIAL_S, TargetSpec, TrialId};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 pub enum ServerToController {
-    /// First message on a connection; answered by `HelloAck` or `Rejected` + close.
+    /// The answer to the controller's `Challenge`, and the first message on a connection:
+    /// the server's nonce and its proof of the link key ([`crate::link_auth`]). Answered by
+    /// `HelloAck` or `Rejected` + close.
     Hello {
         protocol_version: u32,
         client: String,
+        role: LinkRole,
+        nonce: Bytes32,
+        proof: Bytes32,
     },
     StartTrial(Box<StartTrial>),
     /// Stop a running trial early, as aborted with this reason.

@@ -10,6 +10,7 @@ use crate::config::{DbConfig, ServeConfig};
 use crate::engine::export::ExportKind;
 use crate::engine::{accounts, controller_link, export, filing, pilot};
 use crate::store;
+use bdft_protocol::link_auth::LinkKey;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -204,9 +205,17 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
             controller_link::ControllerSource::Spawn { bin, args }
         }
     };
+    let key = match (&config.controller_key_file, &source) {
+        (Some(path), _) => LinkKey::load(path)?,
+        (None, controller_link::ControllerSource::Connect(a)) => anyhow::bail!(
+            "--controller {a} needs --controller-key-file FILE: the key the controller was started with (`bdft-controller keygen FILE`, then `bdft-controller serve --key-file FILE` there)"
+        ),
+        (None, controller_link::ControllerSource::Spawn { .. }) => LinkKey::generate()?,
+    };
     let link = controller_link::ControllerLink::start(
         pool.clone(),
         source,
+        key,
         std::time::Duration::from_millis(config.controller_silence_ms),
     );
     let mut state = crate::state::AppState::new(pool, link);

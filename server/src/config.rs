@@ -24,6 +24,11 @@ pub struct ServeConfig {
     /// starting one.
     #[arg(long, env = "BDFT_CONTROLLER")]
     pub controller: Option<SocketAddr>,
+    /// The link key file shared with the controller (made by `bdft-controller keygen FILE`,
+    /// readable only by its owner): needed with --controller. A controller this server
+    /// starts gets this key, or a new one made at every start when no file is given.
+    #[arg(long, env = "BDFT_CONTROLLER_KEY_FILE")]
+    pub controller_key_file: Option<PathBuf>,
     /// A bdft-controller binary to start [default: this executable runs the controller in
     /// a child process of its own].
     #[arg(long, env = "BDFT_CONTROLLER_BIN")]

@@ -5,6 +5,7 @@ use bdft_controller::compensator::default_spec;
 use bdft_controller::rng::Rng;
 use bdft_controller::simulate::{SignalKind, SimConfig, simulate};
 use bdft_protocol::controller_to_server::ControllerToServer;
+use bdft_protocol::link_auth::{Bytes32, LinkRole};
 use bdft_protocol::params::{
     BodyModel, CompensatorKind, LoopParams, OperatorParams, PlantParams, Seat, StepParams,
 };
@@ -15,7 +16,7 @@ use bdft_tests::controller_link::{Link, Proc, TrialLog};
 
 /// The StartTrial that reproduces `simulate` with these settings (same target, same noise,
 /// same synthetic operator seeds).
-fn synthetic_trial(
+pub(crate) fn synthetic_trial(
     trial_id: u64,
     kind: CompensatorKind,
     seat: Seat,
@@ -82,7 +83,7 @@ fn offline(
     simulate(&cfg, |_| {}).unwrap()
 }
 
-fn server_input_trial(trial_id: u64, duration_s: f64) -> StartTrial {
+pub(crate) fn server_input_trial(trial_id: u64, duration_s: f64) -> StartTrial {
     StartTrial {
         input: InputSource::Server,
         ..synthetic_trial(
@@ -99,7 +100,7 @@ fn server_input_trial(trial_id: u64, duration_s: f64) -> StartTrial {
 #[test]
 fn lockstep_trials_reproduce_the_offline_simulation_exactly() {
     let ctl = Proc::controller(&["--lockstep"]);
-    let (mut link, ack) = Link::connect(ctl.addr);
+    let (mut link, ack) = Link::connect(&ctl);
     assert!(
         matches!(ack, ControllerToServer::HelloAck { lockstep: true, .. }),
         "{ack:?}"
@@ -164,7 +165,7 @@ fn lockstep_trials_reproduce_the_offline_simulation_exactly() {
 #[test]
 fn stale_operator_input_stops_the_trial_with_a_fault() {
     let ctl = Proc::controller(&["--lockstep"]);
-    let (mut link, _) = Link::connect(ctl.addr);
+    let (mut link, _) = Link::connect(&ctl);
     link.send(&ServerToController::StartTrial(Box::new(
         server_input_trial(5, 10.0),
     )));
@@ -231,7 +232,7 @@ fn stale_operator_input_stops_the_trial_with_a_fault() {
 #[test]
 fn estop_stops_everything_and_latches_until_reset() {
     let ctl = Proc::controller(&["--lockstep"]);
-    let (mut link, _) = Link::connect(ctl.addr);
+    let (mut link, _) = Link::connect(&ctl);
     let mut log = TrialLog::default();
     link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
         1,
@@ -317,6 +318,7 @@ fn bad_messages_are_rejected_counted_and_never_reach_the_valve() {
     let ctl = Proc::controller(&["--lockstep"]);
     // A client that does not say hello first is turned away.
     let mut rude = Link::raw(ctl.addr);
+    rude.challenge();
     rude.send(&ServerToController::Status {});
     assert!(matches!(
         rude.try_recv(),
@@ -325,9 +327,14 @@ fn bad_messages_are_rejected_counted_and_never_reach_the_valve() {
     assert!(rude.try_recv().is_none(), "closed after the refusal");
     // So is a client of another protocol version.
     let mut old = Link::raw(ctl.addr);
+    let challenge = old.challenge();
+    let nonce = Bytes32([5; 32]);
     old.send(&ServerToController::Hello {
         protocol_version: 999,
         client: "old".into(),
+        role: LinkRole::Control,
+        nonce,
+        proof: ctl.key.server_proof(LinkRole::Control, &challenge, &nonce),
     });
     match old.try_recv() {
         Some(ControllerToServer::Rejected { reason, .. }) => {
@@ -336,7 +343,7 @@ fn bad_messages_are_rejected_counted_and_never_reach_the_valve() {
         other => panic!("{other:?}"),
     }
 
-    let (mut link, _) = Link::connect(ctl.addr);
+    let (mut link, _) = Link::connect(&ctl);
     let mut log = TrialLog::default();
     // Malformed JSON in a valid frame: rejected, the link stays usable.
     link.send_json(r#"{"type":"launch_missiles"}"#);
@@ -418,7 +425,7 @@ fn bad_messages_are_rejected_counted_and_never_reach_the_valve() {
 #[test]
 fn a_message_without_fields_refuses_unknown_fields() {
     let ctl = Proc::controller(&["--lockstep"]);
-    let (mut link, _) = Link::connect(ctl.addr);
+    let (mut link, _) = Link::connect(&ctl);
     // docs/protocol.md: unknown fields are refused, also beside a message that has none.
     for text in [
         r#"{"type":"status","x":1}"#,
@@ -449,7 +456,7 @@ fn a_message_without_fields_refuses_unknown_fields() {
 #[test]
 fn a_lost_server_link_stops_trials_and_the_controller_accepts_a_new_one() {
     let ctl = Proc::controller(&["--link-timeout-ms", "300"]);
-    let (mut link, _) = Link::connect(ctl.addr);
+    let (mut link, _) = Link::connect(&ctl);
     let mut log = TrialLog::default();
     link.start_and_wait(synthetic_trial(
         1,
@@ -460,13 +467,8 @@ fn a_lost_server_link_stops_trials_and_the_controller_accepts_a_new_one() {
         1,
     ));
     // While one server is connected, another is turned away.
-    let mut second = Link::raw(ctl.addr);
-    second.send(&ServerToController::Hello {
-        protocol_version: bdft_protocol::PROTOCOL_VERSION,
-        client: "second".into(),
-    });
-    match second.try_recv() {
-        Some(ControllerToServer::Rejected { reason, .. }) => {
+    match Link::hello(&ctl).1 {
+        ControllerToServer::Rejected { reason, .. } => {
             assert!(reason.contains("another server"), "{reason}")
         }
         other => panic!("{other:?}"),
@@ -475,7 +477,7 @@ fn a_lost_server_link_stops_trials_and_the_controller_accepts_a_new_one() {
     // A new connection after the loss finds no trial running and can run a new one.
     let (mut link, _) = loop {
         // Hello only: the latch stays as the first server left it (cleared).
-        let (mut l, ack) = Link::hello(ctl.addr);
+        let (mut l, ack) = Link::hello(&ctl);
         if matches!(ack, ControllerToServer::HelloAck { .. }) {
             break (l, ack);
         }
@@ -522,7 +524,7 @@ fn a_lost_server_link_stops_trials_and_the_controller_accepts_a_new_one() {
         }
     };
     assert!(closed);
-    let (mut link, _) = Link::connect(ctl.addr);
+    let (mut link, _) = Link::connect(&ctl);
     link.send(&ServerToController::Status {});
     let running = loop {
         match link.recv() {
@@ -538,7 +540,7 @@ fn a_trial_runs_on_a_rig_over_udp_and_a_silent_rig_is_a_fault() {
     let mut rig = Proc::rig_sim();
     let rig_addr = rig.addr.to_string();
     let ctl = Proc::controller(&["--rig", "udp", "--rig-addr", &rig_addr]);
-    let (mut link, ack) = Link::connect(ctl.addr);
+    let (mut link, ack) = Link::connect(&ctl);
     assert!(
         matches!(&ack, ControllerToServer::HelloAck { rig, .. } if rig == "udp"),
         "{ack:?}"
@@ -605,7 +607,7 @@ fn a_trial_runs_on_a_rig_over_udp_and_a_silent_rig_is_a_fault() {
 fn operator_input_arrives_over_udp_from_a_haptic_host() {
     let ctl = Proc::controller(&["--input-udp", "127.0.0.1:0"]);
     let input = ctl.input_udp.expect("input port announced");
-    let (mut link, _) = Link::connect(ctl.addr);
+    let (mut link, _) = Link::connect(&ctl);
     let mut log = TrialLog::default();
     let st = StartTrial {
         input: InputSource::Udp { channel: 4 },
@@ -648,7 +650,7 @@ fn operator_input_arrives_over_udp_from_a_haptic_host() {
 #[test]
 fn the_vibration_interlock_stops_the_bench_pid_on_the_machine_in_the_real_process() {
     let ctl = Proc::controller(&["--lockstep"]);
-    let (mut link, _) = Link::connect(ctl.addr);
+    let (mut link, _) = Link::connect(&ctl);
     // Ziegler–Nichols PID, on the machine at the study's K_BF: a limit cycle.
     link.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
         9,
@@ -705,7 +707,7 @@ fn run_to_result(
 #[test]
 fn a_controller_starts_with_the_estop_latched_until_a_server_clears_it() {
     let ctl = Proc::controller(&["--lockstep"]);
-    let (mut link, _) = Link::hello(ctl.addr);
+    let (mut link, _) = Link::hello(&ctl);
     link.send(&ServerToController::Status {});
     let ControllerToServer::Status(status) = link.recv() else {
         panic!("status expected")
@@ -747,7 +749,7 @@ fn a_controller_starts_with_the_estop_latched_until_a_server_clears_it() {
 fn spoofed_and_replayed_input_datagrams_never_keep_a_trial_alive() {
     let ctl = Proc::controller(&["--lockstep", "--input-udp", "127.0.0.1:0"]);
     let input = ctl.input_udp.expect("input port announced");
-    let (mut link, _) = Link::connect(ctl.addr);
+    let (mut link, _) = Link::connect(&ctl);
     let mut log = TrialLog::default();
     link.start_and_wait(StartTrial {
         input: InputSource::Udp { channel: 4 },
@@ -879,7 +881,7 @@ fn implausible_rig_readings_fault_the_trial_with_the_reason() {
     for (lie, words) in lies {
         let rig = lying_rig(300, lie);
         let ctl = Proc::controller(&["--rig", "udp", "--rig-addr", &rig.to_string()]);
-        let (mut link, _) = Link::connect(ctl.addr);
+        let (mut link, _) = Link::connect(&ctl);
         let mut log = TrialLog::default();
         link.start_and_wait(StartTrial {
             target: TargetSpec::Trapezoid {

@@ -2,6 +2,7 @@
 
 mod browser;
 mod controller_cli;
+mod controller_link_auth;
 mod controller_serve;
 mod server_api;
 mod server_layers;

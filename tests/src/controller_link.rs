@@ -11,6 +11,7 @@ use bdft_protocol::controller_to_server::{
     ControllerToServer, LiveSample, RecordChunk, TrialResult,
 };
 use bdft_protocol::framing::BlockingFramed;
+use bdft_protocol::link_auth::{Bytes32, KEY_ENV, LinkKey, LinkRole};
 use bdft_protocol::server_to_controller::{ServerToController, StartTrial};
 
 use crate::binary;
@@ -19,6 +20,9 @@ use crate::binary;
 #[derive(Debug)]
 pub struct Proc {
     pub child: Child,
+    /// The link key handed to the process (`BDFT_CONTROLLER_KEY`): a controller proves it
+    /// and demands it of every client.
+    pub key: LinkKey,
     /// Addresses the process printed ("listening on …", "input udp on …").
     pub addr: SocketAddr,
     pub input_udp: Option<SocketAddr>,
@@ -28,8 +32,10 @@ impl Proc {
     /// Starts `binary` with `args` and waits for the line announcing its address
     /// (`prefix ADDR` on stdout).
     pub fn spawn(bin: &str, args: &[&str], prefix: &str) -> Self {
+        let key = LinkKey::generate().expect("random key");
         let child = Command::new(binary(bin))
             .args(args)
+            .env(KEY_ENV, key.to_hex())
             .env(
                 "RUST_LOG",
                 std::env::var("RUST_LOG").unwrap_or_else(|_| "warn".into()),
@@ -41,6 +47,7 @@ impl Proc {
         // Owned by a Proc from here on, so a failed start still kills the process.
         let mut proc = Self {
             child,
+            key,
             addr: SocketAddr::from(([0, 0, 0, 0], 0)),
             input_udp: None,
         };
@@ -99,10 +106,10 @@ pub struct Link {
 }
 
 impl Link {
-    /// Connects, exchanges hellos and, as the server does when it holds no latch, clears the
+    /// Connects, authenticates and, as the server does when it holds no latch, clears the
     /// E-stop the controller starts with; returns the link and the controller's `HelloAck`.
-    pub fn connect(addr: SocketAddr) -> (Self, ControllerToServer) {
-        let (mut link, ack) = Self::hello(addr);
+    pub fn connect(ctl: &Proc) -> (Self, ControllerToServer) {
+        let (mut link, ack) = Self::hello(ctl);
         link.send(&ServerToController::ResetEStop {});
         // The reset is answered by a status; wait for it so the stream starts clean.
         loop {
@@ -114,24 +121,55 @@ impl Link {
         (link, ack)
     }
 
-    /// Connects and exchanges hellos only (the controller's E-stop stays as it is).
-    pub fn hello(addr: SocketAddr) -> (Self, ControllerToServer) {
+    /// Connects and authenticates the control connection only (the controller's E-stop
+    /// stays as it is); the answer is the `HelloAck` or why not.
+    pub fn hello(ctl: &Proc) -> (Self, ControllerToServer) {
+        Self::hello_as(ctl.addr, &ctl.key, LinkRole::Control)
+    }
+
+    /// Connects and proves `key` for `role`, as the server does. The answer is returned
+    /// unchecked; a `HelloAck`'s proof is checked against `key`.
+    pub fn hello_as(addr: SocketAddr, key: &LinkKey, role: LinkRole) -> (Self, ControllerToServer) {
         let mut link = Self::raw(addr);
+        let challenge = link.challenge();
+        let nonce = Bytes32::random().expect("random nonce");
         link.send(&ServerToController::Hello {
             protocol_version: PROTOCOL_VERSION,
             client: "bdft-tests".into(),
+            role,
+            nonce,
+            proof: key.server_proof(role, &challenge, &nonce),
         });
         let ack = link.recv();
+        if let ControllerToServer::HelloAck { proof, .. } = &ack {
+            assert!(
+                key.verify_controller(role, &challenge, &nonce, proof),
+                "the controller proves the key"
+            );
+        }
         (link, ack)
     }
 
-    /// Connects without a hello.
+    /// Connects without authenticating (the controller's challenge is waiting to be read).
     pub fn raw(addr: SocketAddr) -> Self {
         let stream = TcpStream::connect(addr).expect("connect to the controller");
         stream.set_read_timeout(Some(PATIENCE)).unwrap();
         stream.set_nodelay(true).unwrap();
         Self {
             framed: BlockingFramed::new(stream),
+        }
+    }
+
+    /// Another handle on the connection's socket (to write raw bytes from another thread).
+    pub fn stream_clone(&self) -> TcpStream {
+        self.framed.get_ref().try_clone().expect("clone the socket")
+    }
+
+    /// Reads the controller's challenge, the first frame on every connection.
+    pub fn challenge(&mut self) -> Bytes32 {
+        match self.recv() {
+            ControllerToServer::Challenge { nonce, .. } => nonce,
+            other => panic!("expected the challenge, got {other:?}"),
         }
     }
 

@@ -18,42 +18,49 @@ pub struct Server {
     pub base: String,
     pub db: PathBuf,
     pub dir: TempDir,
+    /// Options beyond the test defaults, kept for a restart.
+    extra: Vec<String>,
 }
 
 impl Server {
     pub fn start(tag: &str) -> Self {
+        Self::start_with(tag, &[])
+    }
+
+    /// A server with more options (e.g. `--controller ADDR --controller-key-file F`).
+    pub fn start_with(tag: &str, extra: &[&str]) -> Self {
         let dir = TempDir::new(tag);
         let db = dir.path().join("bdft-lab.db");
-        let proc = Self::spawn(&db);
+        let extra: Vec<String> = extra.iter().map(|s| s.to_string()).collect();
+        let proc = Self::spawn(&db, &extra);
         Self {
             base: format!("http://{}", proc.addr),
             proc,
             db,
             dir,
+            extra,
         }
     }
 
-    fn spawn(db: &Path) -> Proc {
-        Proc::spawn(
-            "bdft-server",
-            &[
-                "serve",
-                "--db",
-                db.to_str().unwrap(),
-                "--listen",
-                "127.0.0.1:0",
-                "--admin-password",
-                ADMIN_PASSWORD,
-            ],
-            "bdft-lab server on http://",
-        )
+    fn spawn(db: &Path, extra: &[String]) -> Proc {
+        let mut args = vec![
+            "serve",
+            "--db",
+            db.to_str().unwrap(),
+            "--listen",
+            "127.0.0.1:0",
+            "--admin-password",
+            ADMIN_PASSWORD,
+        ];
+        args.extend(extra.iter().map(String::as_str));
+        Proc::spawn("bdft-server", &args, "bdft-lab server on http://")
     }
 
     /// Kills the server (SIGKILL: no clean shutdown) and starts it again on the same
     /// database.
     pub fn crash_and_restart(&mut self) {
         self.proc.kill();
-        self.proc = Self::spawn(&self.db);
+        self.proc = Self::spawn(&self.db, &self.extra);
         self.base = format!("http://{}", self.proc.addr);
     }
 

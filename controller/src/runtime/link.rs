@@ -5,22 +5,24 @@
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use bdft_protocol::PROTOCOL_VERSION;
 use bdft_protocol::controller_to_server::{ControllerToServer, RecordChunk, Status, TrialResult};
-use bdft_protocol::framing::{ControllerCodec, FrameError};
-use bdft_protocol::rig::InputDatagram;
+use bdft_protocol::framing::FrameError;
+use bdft_protocol::link_auth::{LinkKey, LinkRole};
 use bdft_protocol::server_to_controller::{ServerToController, StartTrial};
 use bdft_protocol::trial::{FaultKind, InputSource, Outcome, TimingSummary, TrialId};
 use futures_util::{SinkExt, StreamExt};
 use tokio::net::{TcpListener, TcpStream, UdpSocket};
 use tokio::sync::mpsc;
-use tokio_util::codec::{FramedRead, FramedWrite};
 
+use super::estop_path;
 use super::handoff::{InputCell, InputSample};
+use super::handshake::{self, Pending, PendingGate, Reader, Writer};
+use super::input_port;
 use super::rt_loop::{Command, Event, LoopHandle};
 use super::setup::build_slot;
 use super::slot::TrialSlot;
@@ -28,7 +30,7 @@ use super::slot::TrialSlot;
 /// Samples per record chunk.
 const CHUNK: usize = 1000;
 /// Largest |operator input| accepted (mm of device travel).
-const MAX_INPUT_MM: f64 = 1000.0;
+pub(super) const MAX_INPUT_MM: f64 = 1000.0;
 
 #[derive(Debug, Clone)]
 pub struct LinkConfig {
@@ -39,6 +41,8 @@ pub struct LinkConfig {
     /// Silence from the server for this long counts as a lost link.
     pub link_timeout: Duration,
     pub input_udp: bool,
+    /// The key a server must prove before anything it sends is read.
+    pub key: LinkKey,
 }
 
 /// Messages queued for a connection's writer, which frames them ([`ControllerCodec`]).
@@ -57,22 +61,22 @@ struct TrialEntry {
     uses_rig: bool,
 }
 
-struct Io {
+pub(super) struct Io {
     cfg: LinkConfig,
-    rt: LoopHandle,
+    pub(super) rt: LoopHandle,
     conn: Option<Conn>,
     next_conn: u64,
     trials: HashMap<TrialId, TrialEntry>,
-    channels: HashMap<u32, Arc<InputCell>>,
+    pub(super) channels: HashMap<u32, Arc<InputCell>>,
     rejected_messages: u64,
     rejected_inputs: u64,
-    rejected_datagrams: u64,
+    pub(super) rejected_datagrams: u64,
     last_rx: Instant,
 }
 
-type Shared = Arc<Mutex<Io>>;
+pub(super) type Shared = Arc<Mutex<Io>>;
 
-fn lock(io: &Shared) -> MutexGuard<'_, Io> {
+pub(super) fn lock(io: &Shared) -> MutexGuard<'_, Io> {
     io.lock().unwrap_or_else(|p| p.into_inner())
 }
 
@@ -182,11 +186,7 @@ impl Io {
                 self.rt.shared.estop.store(true, Ordering::SeqCst);
                 let _ = self.rt.send(Command::EStop);
                 tracing::warn!("E-STOP: every valve to zero, trials stopped, latched until reset");
-                vec![ControllerToServer::Fault {
-                    trial_id: None,
-                    kind: FaultKind::EStop,
-                    message: "e-stop pressed: valves at zero, latched until reset_e_stop".into(),
-                }]
+                vec![estop_path::confirmation()]
             }
             ServerToController::ResetEStop {} => {
                 match self.rt.send(Command::ResetEStop) {
@@ -365,7 +365,7 @@ pub async fn run(
         tokio::spawn(pump(Arc::clone(&io))),
         tokio::spawn(heartbeat(Arc::clone(&io))),
     ];
-    let udp = input_udp.map(|s| tokio::spawn(input_port(Arc::clone(&io), s)));
+    let udp = input_udp.map(|s| tokio::spawn(input_port::run(Arc::clone(&io), s)));
     shutdown.await;
     for t in tasks.iter().chain(udp.iter()) {
         t.abort();
@@ -385,6 +385,8 @@ pub async fn run(
 }
 
 async fn accept(io: Shared, listener: TcpListener) {
+    let gate = Arc::new(PendingGate::default());
+    let estop_open = Arc::new(AtomicUsize::new(0));
     loop {
         let (stream, peer) = match listener.accept().await {
             Ok(s) => s,
@@ -394,48 +396,78 @@ async fn accept(io: Shared, listener: TcpListener) {
                 continue;
             }
         };
+        // Over the cap the socket is closed unread: nobody unauthenticated gets more.
+        let Some(pending) = gate.admit(peer.ip()) else {
+            tracing::debug!(%peer, "too many connections in the handshake; closed");
+            continue;
+        };
         let _ = stream.set_nodelay(true);
-        tokio::spawn(connection(Arc::clone(&io), stream, peer));
+        tokio::spawn(connection(
+            Arc::clone(&io),
+            Arc::clone(&estop_open),
+            stream,
+            peer,
+            pending,
+        ));
     }
 }
 
-/// Reads the server's messages off a connection (the one frame codec of `bdft_protocol`).
-type Reader = FramedRead<tokio::net::tcp::OwnedReadHalf, ControllerCodec>;
-/// Writes our messages onto a connection.
-type Writer = FramedWrite<tokio::net::tcp::OwnedWriteHalf, ControllerCodec>;
+async fn connection(
+    io: Shared,
+    estop_open: Arc<AtomicUsize>,
+    stream: TcpStream,
+    peer: SocketAddr,
+    pending: Pending,
+) {
+    let (mut rd, mut wr) = handshake::frame(stream);
+    let key = lock(&io).cfg.key.clone();
+    let auth = match handshake::authenticate(&mut rd, &mut wr, &key).await {
+        Ok(auth) => auth,
+        Err(why) => {
+            tracing::warn!(%peer, why, "connection refused");
+            return;
+        }
+    };
+    drop(pending);
+    let ack = {
+        let g = lock(&io);
+        ControllerToServer::HelloAck {
+            protocol_version: PROTOCOL_VERSION,
+            proof: auth.proof,
+            controller: format!("bdft-controller {}", env!("CARGO_PKG_VERSION")),
+            loop_rate_hz: 1.0 / g.cfg.dt,
+            rig: if g.cfg.real_rig { "udp" } else { "sim" }.into(),
+            lockstep: g.cfg.lockstep,
+        }
+    };
+    match auth.role {
+        LinkRole::Control => control(io, rd, wr, peer, auth.client, ack).await,
+        LinkRole::EStop => {
+            if wr.send(ack).await.is_err() {
+                return;
+            }
+            tracing::info!(%peer, client = auth.client, "e-stop path connected");
+            let (loop_state, silence) = {
+                let g = lock(&io);
+                (Arc::clone(&g.rt.shared), g.cfg.link_timeout)
+            };
+            estop_path::serve(loop_state, estop_open, rd, wr, silence, || {
+                lock(&io).status()
+            })
+            .await;
+        }
+    }
+}
 
-async fn connection(io: Shared, stream: TcpStream, peer: SocketAddr) {
-    let (rd, wr) = stream.into_split();
-    let mut rd: Reader = FramedRead::new(rd, ControllerCodec::default());
-    let mut wr: Writer = FramedWrite::new(wr, ControllerCodec::default());
-    // Handshake first: nothing else is accepted before a hello of our version.
-    let hello = tokio::time::timeout(Duration::from_secs(5), rd.next()).await;
-    let refuse = |reason: String| ControllerToServer::Rejected {
-        trial_id: None,
-        reason,
-    };
-    let client = match hello {
-        Ok(Some(Ok(Ok(ServerToController::Hello {
-            protocol_version,
-            client,
-        }))))
-            if protocol_version == PROTOCOL_VERSION =>
-        {
-            client
-        }
-        Ok(Some(Ok(Ok(ServerToController::Hello {
-            protocol_version, ..
-        })))) => {
-            let _ = wr.send(refuse(format!("protocol version {protocol_version} not supported; this controller speaks {PROTOCOL_VERSION}"))).await;
-            return;
-        }
-        _ => {
-            let _ = wr
-                .send(refuse("the first message must be hello".into()))
-                .await;
-            return;
-        }
-    };
+/// The control connection: one at a time; trials, input, records, the latch.
+async fn control(
+    io: Shared,
+    mut rd: Reader,
+    mut wr: Writer,
+    peer: SocketAddr,
+    client: String,
+    ack: ControllerToServer,
+) {
     let (tx, mut rx) = mpsc::channel::<ControllerToServer>(16_384);
     let accepted = {
         let mut g = lock(&io);
@@ -447,21 +479,15 @@ async fn connection(io: Shared, stream: TcpStream, peer: SocketAddr) {
             g.conn = Some(Conn { id, tx: tx.clone() });
             g.last_rx = Instant::now();
             tracing::info!(%peer, client, conn = id, "server connected");
-            let ack = ControllerToServer::HelloAck {
-                protocol_version: PROTOCOL_VERSION,
-                controller: format!("bdft-controller {}", env!("CARGO_PKG_VERSION")),
-                loop_rate_hz: 1.0 / g.cfg.dt,
-                rig: if g.cfg.real_rig { "udp" } else { "sim" }.into(),
-                lockstep: g.cfg.lockstep,
-            };
-            Some((id, ack))
+            Some(id)
         }
     };
-    let Some((conn, ack)) = accepted else {
+    let Some(conn) = accepted else {
         let _ = wr
-            .send(refuse(
-                "another server is connected to this controller".into(),
-            ))
+            .send(ControllerToServer::Rejected {
+                trial_id: None,
+                reason: "another server is connected to this controller".into(),
+            })
             .await;
         return;
     };
@@ -486,7 +512,15 @@ async fn connection(io: Shared, stream: TcpStream, peer: SocketAddr) {
         }
     });
     drop(tx);
+    let mut since_yield = 0u32;
     loop {
+        // A flood of frames is always ready to read; hand the runtime back now and then so
+        // the E-stop path (same thread) is never kept waiting behind it.
+        since_yield += 1;
+        if since_yield == 32 {
+            since_yield = 0;
+            tokio::task::yield_now().await;
+        }
         let replies = match rd.next().await {
             Some(Ok(Ok(msg))) => {
                 let mut g = lock(&io);
@@ -601,73 +635,5 @@ async fn heartbeat(io: Shared) {
         if let Some((_, tx)) = sender {
             let _ = tx.try_send(ControllerToServer::Heartbeat { seq });
         }
-    }
-}
-
-/// Who feeds a channel's current trial: the first sender (pinned) and its newest sequence.
-struct Peer {
-    cell: Arc<InputCell>,
-    from: std::net::SocketAddr,
-    seq: u32,
-}
-
-/// Operator input from a haptic-device host. The first datagram of a trial's channel pins
-/// its sender; after that only that sender, with increasing sequence numbers, counts. A
-/// spoofed or replayed datagram is rejected, so it never refreshes the input: the trial's
-/// stale-input limit stops it as if the host had gone silent.
-async fn input_port(io: Shared, socket: UdpSocket) {
-    let mut buf = [0u8; 64];
-    let mut peers: HashMap<u32, Peer> = HashMap::new();
-    loop {
-        let Ok((n, from)) = socket.recv_from(&mut buf).await else {
-            continue;
-        };
-        let mut g = lock(&io);
-        // Bounded by the channels in use: forget the peers of finished trials.
-        if peers.len() > g.channels.len() {
-            peers.retain(|ch, p| g.channels.get(ch).is_some_and(|c| Arc::ptr_eq(c, &p.cell)));
-        }
-        let d = match InputDatagram::decode(&buf[..n]) {
-            Ok(d) if d.position_mm.abs() <= MAX_INPUT_MM => d,
-            _ => {
-                g.rejected_datagrams += 1;
-                continue;
-            }
-        };
-        let Some(cell) = g.channels.get(&d.channel).cloned() else {
-            g.rejected_datagrams += 1;
-            continue;
-        };
-        let accepted = match peers.get_mut(&d.channel) {
-            Some(p) if Arc::ptr_eq(&p.cell, &cell) => {
-                let ok = p.from == from && d.seq > p.seq;
-                if ok {
-                    p.seq = d.seq;
-                }
-                ok
-            }
-            // A new trial on this channel: its first sender is pinned.
-            _ => {
-                peers.insert(
-                    d.channel,
-                    Peer {
-                        cell: Arc::clone(&cell),
-                        from,
-                        seq: d.seq,
-                    },
-                );
-                true
-            }
-        };
-        if !accepted {
-            g.rejected_datagrams += 1;
-            continue;
-        }
-        let tick = g.rt.shared.tick.load(Ordering::Acquire);
-        cell.write(InputSample {
-            position_mm: d.position_mm,
-            seq: u64::from(d.seq),
-            arrival_tick: tick,
-        });
     }
 }

@@ -5,8 +5,11 @@
 //! trials ([`setup`]) and sends their records. They share only lock-free queues, atomics and
 //! the latest-value input cells ([`handoff`]).
 
+pub mod estop_path;
 pub mod handoff;
+pub mod handshake;
 pub mod histogram;
+mod input_port;
 pub mod link;
 pub mod local;
 pub mod os;
@@ -16,10 +19,12 @@ pub mod setup;
 pub mod slot;
 
 use std::net::SocketAddr;
+use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Context;
 use bdft_protocol::controller_to_server::RealtimeStatus;
+use bdft_protocol::link_auth::{KEY_ENV, LinkKey};
 use bdft_protocol::params::{CompensatorKind, PlantParams, Seat};
 use bdft_protocol::server_to_controller::StartTrial;
 use bdft_protocol::trial::{InputSource, TargetSpec, TimingSummary};
@@ -45,6 +50,8 @@ pub struct ServeConfig {
     pub dt: f64,
     /// Stop when standard input reaches end of file.
     pub exit_with_stdin: bool,
+    /// The link key every server connection must prove.
+    pub key: LinkKey,
 }
 
 fn loop_config(
@@ -103,11 +110,26 @@ pub struct ServeArgs {
     /// its controller with it).
     #[arg(long)]
     pub exit_with_stdin: bool,
+    /// File with the link key a server must prove before anything it sends is read (64 hex
+    /// digits, readable only by its owner; make one with `bdft-controller keygen FILE` and
+    /// give the server the same file). Without it the key comes from BDFT_CONTROLLER_KEY,
+    /// as the experiment server hands it to the controller it starts.
+    #[arg(long, env = "BDFT_CONTROLLER_KEY_FILE")]
+    pub key_file: Option<PathBuf>,
 }
 
 impl ServeArgs {
-    pub fn config(&self) -> ServeConfig {
-        ServeConfig {
+    /// The configuration, with the link key read; fails when there is no key (a controller
+    /// anyone could drive is never started).
+    pub fn config(&self) -> anyhow::Result<ServeConfig> {
+        let key = match (&self.key_file, std::env::var(KEY_ENV)) {
+            (Some(path), _) => LinkKey::load(path)?,
+            (None, Ok(hex)) => LinkKey::from_hex(&hex).context(KEY_ENV)?,
+            (None, Err(_)) => anyhow::bail!(
+                "no link key: pass --key-file FILE (make one with `bdft-controller keygen FILE`) or set {KEY_ENV}"
+            ),
+        };
+        Ok(ServeConfig {
             listen: self.listen,
             rig: if self.rig == "udp" {
                 self.rig_addr
@@ -123,7 +145,8 @@ impl ServeArgs {
             cpu: self.cpu.or_else(default_cpu),
             dt: bdft_protocol::params::LoopParams::default().dt,
             exit_with_stdin: self.exit_with_stdin,
-        }
+            key,
+        })
     }
 }
 
@@ -131,7 +154,7 @@ impl ServeArgs {
 /// read these lines), then runs until stopped.
 pub fn serve_announcing(args: &ServeArgs) -> anyhow::Result<()> {
     use std::io::Write;
-    serve(args.config(), |addr, input| {
+    serve(args.config()?, |addr, input| {
         if let Some(input) = input {
             println!("input udp on {input}");
         }
@@ -185,6 +208,7 @@ pub fn serve(
         max_trials: cfg.max_trials,
         link_timeout: cfg.link_timeout,
         input_udp: cfg.input_udp.is_some(),
+        key: cfg.key.clone(),
     };
     runtime.block_on(async {
         let listener = tokio::net::TcpListener::bind(cfg.listen)

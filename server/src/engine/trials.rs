@@ -215,7 +215,12 @@ pub async fn add_note(pool: &SqlitePool, author: &str, trial_id: i64, text: &str
 /// The E-stop: sent first (the stop itself waits for nothing that could fail), then the
 /// server's latch is set — it is re-sent to every controller connection until an
 /// experimenter resets it — and audited; an error when it could not be sent.
-pub async fn estop(pool: &SqlitePool, link: &ControllerLink, actor: &str) -> Result<()> {
+/// Returns how long the controller took to confirm.
+pub async fn estop(
+    pool: &SqlitePool,
+    link: &ControllerLink,
+    actor: &str,
+) -> Result<std::time::Duration> {
     let sent = link.estop(ESTOP_CONFIRMATION).await;
     let mut change = Change::begin(pool, actor).await?;
     store::latch::set(change.db(), true).await?;
@@ -223,7 +228,10 @@ pub async fn estop(pool: &SqlitePool, link: &ControllerLink, actor: &str) -> Res
         .commit(
             "estop",
             Some("controller".into()),
-            json!({ "delivered": sent.is_ok() }),
+            json!({
+                "delivered": sent.is_ok(),
+                "confirmed_ms": sent.as_ref().ok().map(|d| d.as_secs_f64() * 1e3),
+            }),
         )
         .await?;
     sent.map_err(|why| {

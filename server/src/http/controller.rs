@@ -37,11 +37,23 @@ async fn health(State(s): State<AppState>) -> AppJson<Health> {
     })
 }
 
-/// Emergency stop: every valve to zero, every trial stopped; latched until reset.
-#[utoipa::path(post, path = "/api/estop", tag = "controller", responses((status = 200, body = Done)))]
-async fn estop(State(s): State<AppState>, who: Experimenter) -> ApiResult<Done> {
-    trials::estop(&s.pool, &s.controller, &who.username).await?;
-    Ok(Done::ok())
+/// A confirmed E-stop.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct EStopConfirmed {
+    pub ok: bool,
+    /// From the server's handling of the request to the controller's confirmation (ms).
+    pub confirmed_ms: f64,
+}
+
+/// Emergency stop: every valve to zero, every trial stopped; latched until reset. Answers
+/// only once the controller confirms; 503 "NOT confirmed" otherwise.
+#[utoipa::path(post, path = "/api/estop", tag = "controller", responses((status = 200, body = EStopConfirmed)))]
+async fn estop(State(s): State<AppState>, who: Experimenter) -> ApiResult<EStopConfirmed> {
+    let took = trials::estop(&s.pool, &s.controller, &who.username).await?;
+    Ok(AppJson(EStopConfirmed {
+        ok: true,
+        confirmed_ms: took.as_secs_f64() * 1e3,
+    }))
 }
 
 /// Clear the E-stop latch.
@@ -59,6 +71,11 @@ pub struct ControllerStatus {
     /// "sim" or "udp".
     pub rig: Option<String>,
     pub estop_latched: bool,
+    /// Whether the E-stop's own connection is up (the control connection carries every
+    /// E-stop too).
+    pub estop_path: bool,
+    /// Why the link last went down, if it did (shown while it is down).
+    pub down_because: Option<String>,
 }
 
 /// The controller's link, rig and E-stop latch.
@@ -72,5 +89,7 @@ async fn controller_status(
         pid: s.controller.pid(),
         rig: s.controller.rig(),
         estop_latched: s.controller.estop_latched(),
+        estop_path: s.controller.estop_path_up(),
+        down_because: s.controller.down_because(),
     })
 }
