@@ -60,20 +60,20 @@ async function check() {
       bar.max = d.total;
       bar.value = d.done;
     } else bar.removeAttribute('value');
-    setStatus($('pilot-status'), 'busy', `Pilot run in study #${d.study_id}: ${d.done} of ${d.total || '?'} trials run…`);
+    setStatus($('pilot-status'), 'busy', `Pilot run in dry run #${d.study_id}: ${d.done} of ${d.total || '?'} trials run…`);
     emit('trial', null);
     follow();
     return;
   }
   $('pilot-start').disabled = false;
   bar.hidden = true;
-  if (d.error) setStatus($('pilot-status'), 'err', `Last pilot run (study #${d.study_id}) failed: ${d.error}`);
+  if (d.error) setStatus($('pilot-status'), 'err', `Last pilot run (dry run #${d.study_id}) failed: ${d.error}`);
   else if (d.report) {
     const rep = d.report;
     setStatus(
       $('pilot-status'),
       'ok',
-      `Last pilot run (study #${rep.study_id}): ${rep.subjects.length} synthetic subjects (${rep.subjects.join(', ')}), ${rep.complete} of ${rep.trials} trials complete.`,
+      `Last pilot run (dry run #${rep.study_id}, apart from the study's people): ${rep.subjects.length} synthetic subjects (${rep.subjects.join(', ')}), ${rep.complete} of ${rep.trials} trials complete.`,
     );
   }
   if (timer) {

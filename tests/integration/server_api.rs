@@ -4,7 +4,7 @@
 use std::time::{Duration, Instant};
 
 use bdft_tests::controller_link::Proc;
-use bdft_tests::server::{Api, Server, eventually, pair_station, run_trial, short_study};
+use bdft_tests::server::{Api, Server, dry_run, eventually, pair_station, run_trial, short_study};
 use bdft_tests::{TempDir, binary};
 use serde_json::{Value, json};
 
@@ -57,7 +57,7 @@ fn ready_subject(api: &Api, study: i64, synthetic: bool) -> (i64, Api) {
 fn a_subject_goes_through_the_whole_protocol_via_the_api() {
     let server = Server::start("protocol");
     let api = server.experimenter();
-    let study = short_study(&api, 1.0, 0.5);
+    let study = dry_run(&api, short_study(&api, 1.0, 0.5));
     let (subject, station) = ready_subject(&api, study, true);
     // Nothing runs without consent.
     let (_, s) = api.get(&format!("/api/subjects/{subject}"));
@@ -349,7 +349,7 @@ fn tokens_never_open_experimenter_routes_and_bad_input_gets_4xx() {
 fn a_server_killed_mid_trial_restarts_with_the_trial_incomplete_and_the_rest_intact() {
     let mut server = Server::start("crash");
     let api = server.experimenter();
-    let study = short_study(&api, 60.0, 0.5);
+    let study = dry_run(&api, short_study(&api, 60.0, 0.5));
     let (subject, station) = ready_subject(&api, study, true);
     station.ok("/api/station/consent", json!({ "decision": "agreed" }));
     let (_, s) = api.get(&format!("/api/subjects/{subject}"));
@@ -394,7 +394,7 @@ fn a_server_killed_mid_trial_restarts_with_the_trial_incomplete_and_the_rest_int
 fn controller_death_is_detected_within_100_ms_and_the_controller_restarts() {
     let server = Server::start("controller-death");
     let api = server.experimenter();
-    let study = short_study(&api, 60.0, 60.0);
+    let study = dry_run(&api, short_study(&api, 60.0, 60.0));
     let (subject, station) = ready_subject(&api, study, true);
     station.ok("/api/station/consent", json!({ "decision": "agreed" }));
     let (_, s) = api.get(&format!("/api/subjects/{subject}"));

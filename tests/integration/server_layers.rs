@@ -4,7 +4,7 @@
 
 use std::time::Duration;
 
-use bdft_tests::server::{Api, Server, eventually, pair_station, run_trial, short_study};
+use bdft_tests::server::{Api, Server, dry_run, eventually, pair_station, run_trial, short_study};
 use serde_json::{Value, json};
 
 /// Runs `n` copies of `call` at once (each with its own logged-in client); returns the
@@ -86,7 +86,7 @@ fn audit_actions(api: &Api) -> Vec<String> {
 fn racing_changes_are_serialized_or_refused_never_a_500() {
     let server = Server::start("layers-race");
     let api = server.experimenter();
-    let study = short_study(&api, 1.0, 0.3);
+    let study = dry_run(&api, short_study(&api, 1.0, 0.3));
 
     // Twelve enrolments at once: every one succeeds, each with its own code and index.
     let answers = at_once(&server, 12, |c| {
@@ -315,7 +315,7 @@ fn the_stability_gate_keeps_unstable_designs_off_the_machine() {
 fn one_input_source_per_test_and_withdrawal_stops_the_running_test() {
     let server = Server::start("layers-withdraw");
     let api = server.experimenter();
-    let study = short_study(&api, 60.0, 60.0);
+    let study = dry_run(&api, short_study(&api, 60.0, 60.0));
     let enrolled = api.ok(
         &format!("/api/studies/{study}/subjects"),
         json!({ "synthetic": true }),
@@ -379,7 +379,7 @@ fn one_input_source_per_test_and_withdrawal_stops_the_running_test() {
 fn a_hung_controller_is_noticed_within_its_silence_limit() {
     let server = Server::start("layers-hung");
     let api = server.experimenter();
-    let study = short_study(&api, 60.0, 60.0);
+    let study = dry_run(&api, short_study(&api, 60.0, 60.0));
     let (subject, practice, pid) = consented_synthetic_subject(&server, &api, study);
     assert_eq!(
         api.post(&format!("/api/trials/{practice}/start"), json!({}))
@@ -422,7 +422,7 @@ fn a_hung_controller_is_noticed_within_its_silence_limit() {
 fn the_estop_latch_holds_across_a_controller_restart_until_reset() {
     let server = Server::start("layers-latch");
     let api = server.experimenter();
-    let study = short_study(&api, 1.0, 0.3);
+    let study = dry_run(&api, short_study(&api, 1.0, 0.3));
     let (subject, practice, pid) = consented_synthetic_subject(&server, &api, study);
     api.ok("/api/estop", json!({}));
     // The controller dies; its successor starts latched and the server keeps it so.
@@ -530,4 +530,67 @@ fn the_estop_is_confirmed_while_a_station_floods_input() {
         .find(|a| a["action"] == "estop")
         .expect("audited");
     assert_eq!(estop["detail"]["delivered"], true);
+}
+
+#[test]
+fn a_pilot_never_writes_into_a_study_with_people() {
+    let server = Server::start("layers-dry-run");
+    let api = server.experimenter();
+    let study = short_study(&api, 0.5, 0.3);
+    let person = api.ok(&format!("/api/studies/{study}/subjects"), json!({}));
+    // A synthetic subject cannot join a study for people, nor a person a dry run.
+    let (code, body) = api.post(
+        &format!("/api/studies/{study}/subjects"),
+        json!({ "synthetic": true }),
+    );
+    assert_eq!(code, 409, "{body}");
+    assert!(
+        body["error"].as_str().unwrap().contains("dry-run copy"),
+        "{body}"
+    );
+    // The dashboard's pilot of the study runs in its dry-run copy.
+    api.ok(
+        &format!("/api/studies/{study}/pilot"),
+        json!({ "subjects": 2 }),
+    );
+    let status = eventually(Duration::from_secs(300), || {
+        let (_, s) = api.get("/api/pilot");
+        (s["running"] == false && (s["report"].is_object() || s["error"].is_string())).then_some(s)
+    });
+    let copy = status["report"]["study_id"]
+        .as_i64()
+        .expect("the pilot ran");
+    assert_ne!(copy, study, "{status}");
+    let (_, info) = api.get(&format!("/api/studies/{copy}/dry-run"));
+    assert_eq!(info["dry_run"], true);
+    assert_eq!(info["copy_of"], study);
+    let (_, original) = api.get(&format!("/api/studies/{study}/dry-run"));
+    assert_eq!(
+        (
+            original["dry_run"].clone(),
+            original["dry_run_copy"].as_i64()
+        ),
+        (json!(false), Some(copy))
+    );
+    let (code, body) = api.post(&format!("/api/studies/{copy}/subjects"), json!({}));
+    assert_eq!(code, 409, "{body}");
+    // The study with a person holds that person only, in its pages and its exports.
+    let (_, subjects) = api.get(&format!("/api/studies/{study}/subjects"));
+    let subjects = subjects.as_array().unwrap();
+    assert_eq!(subjects.len(), 1, "{subjects:?}");
+    assert_eq!(subjects[0]["subject"]["id"], person["subject"]["id"]);
+    let (code, csv) = api.get_text(&format!("/api/studies/{study}/export/trials"));
+    assert_eq!(code, 200);
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let synthetic = header.iter().position(|h| *h == "synthetic").unwrap();
+    assert!(
+        csv.lines()
+            .skip(1)
+            .all(|l| l.split(',').nth(synthetic) == Some("0")),
+        "{csv}"
+    );
+    let (_, pilots) = api.get(&format!("/api/studies/{copy}/subjects"));
+    assert_eq!(pilots.as_array().unwrap().len(), 2);
+    let actions = audit_actions(&api);
+    assert!(actions.iter().any(|a| a == "study.dry_run"), "{actions:?}");
 }

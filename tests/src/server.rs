@@ -194,6 +194,14 @@ pub fn short_study(api: &Api, trial_s: f64, practice_s: f64) -> i64 {
     body["id"].as_i64().unwrap()
 }
 
+/// The dry-run copy of `study`: where synthetic subjects go (a study holds people or
+/// synthetic subjects, never both).
+pub fn dry_run(api: &Api, study: i64) -> i64 {
+    api.ok(&format!("/api/studies/{study}/dry-run"), json!({}))["study_id"]
+        .as_i64()
+        .unwrap()
+}
+
 /// Pairs a new station with `role` to `study`; returns (station id, station token).
 pub fn pair_station(api: &Api, study: i64, role: &str) -> (i64, String) {
     let reg = Api::anonymous(&api.base).ok("/api/station/register", json!({}));

@@ -28,6 +28,7 @@ pub async fn enrol(
         check_lockable(&before.params, &report, before.instability_ack.is_some())?;
     }
     let mut change = Change::begin(pool, actor).await?;
+    super::dry_run::check_enrolment(change.db(), study_id, synthetic).await?;
     let study = store::studies::get(change.db(), study_id).await?;
     if study.locked_at.is_none()
         && (study.params != before.params || study.instability_ack != before.instability_ack)

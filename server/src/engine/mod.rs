@@ -7,6 +7,7 @@
 
 pub mod accounts;
 pub mod controller_link;
+pub mod dry_run;
 pub mod enrolment;
 pub mod export;
 pub mod filing;

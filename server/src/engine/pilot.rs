@@ -22,6 +22,7 @@ const ACTOR: &str = "pilot";
 
 #[derive(Debug, Clone, serde::Serialize, utoipa::ToSchema)]
 pub struct PilotReport {
+    /// The dry run the pilot ran in (never a study with people).
     pub study_id: i64,
     pub subjects: Vec<String>,
     pub trials: usize,
@@ -67,25 +68,14 @@ pub async fn run_with_progress(
     seed: Option<u64>,
     progress: Arc<Progress>,
 ) -> anyhow::Result<PilotReport> {
+    // A pilot never writes into a study with people: it runs in the study's dry-run copy.
     let study_id = match study_id {
-        Some(id) => {
-            store::studies::get(pool, id)
-                .await
-                .with_context(|| format!("study {id}"))?
-                .id
-        }
+        Some(id) => super::dry_run::for_pilot(pool, requested_by, id)
+            .await
+            .with_context(|| format!("study {id}"))?,
         None => match store::studies::all(pool).await?.last() {
-            Some(s) => s.id,
-            None => {
-                super::studies::create(
-                    pool,
-                    ACTOR,
-                    "Pilot (default protocol)",
-                    &default_params(),
-                    seed,
-                )
-                .await?
-            }
+            Some(s) => super::dry_run::for_pilot(pool, requested_by, s.id).await?,
+            None => super::dry_run::create(pool, ACTOR, &default_params(), seed).await?,
         },
     };
     let study = Arc::new(store::studies::get(pool, study_id).await?);
@@ -241,7 +231,8 @@ impl PilotJob {
         if !(1..=50).contains(&subjects) {
             return Err(AppError::BadRequest("subjects: 1 to 50".into()));
         }
-        store::studies::get(pool, study_id).await?;
+        // Resolved now, so the dashboard names the dry run the data goes to.
+        let study_id = super::dry_run::for_pilot(pool, actor, study_id).await?;
         let progress = Arc::new(Progress::default());
         {
             let mut run = self.run();

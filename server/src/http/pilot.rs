@@ -1,5 +1,6 @@
 //! Pilot runs from the dashboard: synthetic subjects through the whole protocol, in the
-//! background, with progress.
+//! background, with progress, always in a dry run (a study's dry-run copy), never in a
+//! study with people.
 
 use axum::extract::{Path, State};
 use serde::{Deserialize, Serialize};
@@ -9,6 +10,7 @@ use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppJson};
 use super::extract::Experimenter;
+use crate::engine::dry_run::{self, DryRunInfo};
 use crate::engine::pilot::PilotStatus;
 use crate::state::AppState;
 
@@ -16,6 +18,32 @@ pub fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(start_pilot))
         .routes(routes!(pilot_status))
+        .routes(routes!(dry_run_info, make_dry_run))
+}
+
+/// Whether the study is a dry run (synthetic subjects only), which study it copies, and its
+/// dry-run copy if it has one.
+#[utoipa::path(get, path = "/api/studies/{id}/dry-run", tag = "pilot", params(("id" = i64, Path)),
+    responses((status = 200, body = DryRunInfo)))]
+async fn dry_run_info(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<DryRunInfo> {
+    Ok(AppJson(dry_run::info(&s.pool, id).await?))
+}
+
+/// The study's dry-run copy (same parameters and seed), made now if it has none: where
+/// synthetic subjects and pilots go.
+#[utoipa::path(post, path = "/api/studies/{id}/dry-run", tag = "pilot", params(("id" = i64, Path)),
+    responses((status = 200, body = DryRunInfo)))]
+async fn make_dry_run(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<DryRunInfo> {
+    let copy = dry_run::for_pilot(&s.pool, &who.username, id).await?;
+    Ok(AppJson(dry_run::info(&s.pool, copy).await?))
 }
 
 #[derive(Debug, Deserialize, ToSchema)]
@@ -30,8 +58,8 @@ pub struct PilotStarted {
     pub started: bool,
 }
 
-/// Dry-run the protocol with synthetic subjects in the background (progress at GET
-/// /api/pilot).
+/// Dry-run the protocol with synthetic subjects in the background, in the study's dry-run
+/// copy (progress at GET /api/pilot).
 #[utoipa::path(post, path = "/api/studies/{id}/pilot", tag = "pilot", params(("id" = i64, Path)),
     request_body = PilotBody, responses((status = 200, body = PilotStarted)))]
 async fn start_pilot(

@@ -8,6 +8,7 @@
 pub mod accounts;
 pub mod audit;
 pub mod db;
+pub mod dry_runs;
 pub mod exports;
 pub mod latch;
 pub mod records;
