@@ -3,5 +3,6 @@
 mod browser;
 mod controller_cli;
 mod controller_serve;
+mod hardening;
 mod server_api;
 mod server_layers;

@@ -18,42 +18,48 @@ pub struct Server {
     pub base: String,
     pub db: PathBuf,
     pub dir: TempDir,
+    /// Its arguments after `serve --db … --listen …`.
+    args: Vec<String>,
 }
 
 impl Server {
+    /// A server with the account "admin" ([`ADMIN_PASSWORD`]).
     pub fn start(tag: &str) -> Self {
+        Self::start_with(tag, &["--admin-password", ADMIN_PASSWORD])
+    }
+
+    /// A server started with `args` (no account unless they make one).
+    pub fn start_with(tag: &str, args: &[&str]) -> Self {
         let dir = TempDir::new(tag);
         let db = dir.path().join("bdft-lab.db");
-        let proc = Self::spawn(&db);
+        let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
+        let proc = Self::spawn(&db, &args);
         Self {
             base: format!("http://{}", proc.addr),
             proc,
             db,
             dir,
+            args,
         }
     }
 
-    fn spawn(db: &Path) -> Proc {
-        Proc::spawn(
-            "bdft-server",
-            &[
-                "serve",
-                "--db",
-                db.to_str().unwrap(),
-                "--listen",
-                "127.0.0.1:0",
-                "--admin-password",
-                ADMIN_PASSWORD,
-            ],
-            "bdft-lab server on http://",
-        )
+    fn spawn(db: &Path, extra: &[String]) -> Proc {
+        let mut args = vec![
+            "serve",
+            "--db",
+            db.to_str().unwrap(),
+            "--listen",
+            "127.0.0.1:0",
+        ];
+        args.extend(extra.iter().map(String::as_str));
+        Proc::spawn("bdft-server", &args, "bdft-lab server on http://")
     }
 
     /// Kills the server (SIGKILL: no clean shutdown) and starts it again on the same
     /// database.
     pub fn crash_and_restart(&mut self) {
         self.proc.kill();
-        self.proc = Self::spawn(&self.db);
+        self.proc = Self::spawn(&self.db, &self.args);
         self.base = format!("http://{}", self.proc.addr);
     }
 

@@ -38,9 +38,9 @@ fn check_new_credentials(username: &str, password: &str) -> Result<()> {
             .chars()
             .all(|c| c.is_ascii_alphanumeric() || "._-".contains(c));
     if !ok_name {
-        return Err(AppError::BadRequest(
-            format!("username: 3 to {MAX_USERNAME} letters, digits, '.', '_' or '-'"),
-        ));
+        return Err(AppError::BadRequest(format!(
+            "username: 3 to {MAX_USERNAME} letters, digits, '.', '_' or '-'"
+        )));
     }
     if password.chars().count() < MIN_PASSWORD || password.len() > MAX_PASSWORD_BYTES {
         return Err(AppError::BadRequest(format!(

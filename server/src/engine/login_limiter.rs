@@ -176,7 +176,10 @@ mod tests {
             .collect();
         assert_eq!(names.len(), 15);
         // A window later everything is free again.
-        assert!(l.reserve("ann", ip(1), t0 + Duration::from_secs(60)).is_some());
+        assert!(
+            l.reserve("ann", ip(1), t0 + Duration::from_secs(60))
+                .is_some()
+        );
     }
 
     #[test]
@@ -189,9 +192,7 @@ mod tests {
         let ok = l.reserve("ann", ip(1), t0).unwrap();
         l.succeeded(ok);
         assert_eq!(
-            (0..10)
-                .filter_map(|_| l.reserve("ann", ip(1), t0))
-                .count(),
+            (0..10).filter_map(|_| l.reserve("ann", ip(1), t0)).count(),
             5,
             "ann's failures were forgotten at her login"
         );
@@ -215,7 +216,10 @@ mod tests {
         }
         assert_eq!(taken, MAX_KEYS / 2);
         assert_eq!(l.keys(), MAX_KEYS);
-        assert!(l.reserve("y", ip(1), t0).is_none(), "full: refused, not evicted");
+        assert!(
+            l.reserve("y", ip(1), t0).is_none(),
+            "full: refused, not evicted"
+        );
         // After the window the expired keys are swept and room is back.
         let later = t0 + Duration::from_secs(61);
         assert!(l.reserve("y", ip(1), later).is_some());

@@ -72,13 +72,17 @@ pub async fn hash(password: &str) -> anyhow::Result<String> {
     let mut salt = [0u8; 16];
     getrandom::fill(&mut salt).map_err(|e| anyhow::anyhow!("random salt: {e}"))?;
     let pw = password.to_string();
-    WORKERS.run(move |memory| hash_with(&pw, &salt, memory)).await?
+    WORKERS
+        .run(move |memory| hash_with(&pw, &salt, memory))
+        .await?
 }
 
 /// Whether `password` matches the PHC string `phc` (false for a malformed string too).
 pub async fn verify(password: &str, phc: &str) -> anyhow::Result<bool> {
     let (pw, phc) = (password.to_string(), phc.to_string());
-    WORKERS.run(move |memory| verify_with(&pw, &phc, memory)).await
+    WORKERS
+        .run(move |memory| verify_with(&pw, &phc, memory))
+        .await
 }
 
 fn hash_with(password: &str, salt: &[u8], memory: &mut [Block]) -> anyhow::Result<String> {
@@ -111,7 +115,8 @@ fn verify_with(password: &str, phc: &str, memory: &mut [Block]) -> bool {
     let (Some(salt), Some(expected)) = (hash.salt, hash.hash) else {
         return false;
     };
-    let (Ok(algorithm), Ok(params)) = (Algorithm::try_from(hash.algorithm), Params::try_from(&hash))
+    let (Ok(algorithm), Ok(params)) =
+        (Algorithm::try_from(hash.algorithm), Params::try_from(&hash))
     else {
         return false;
     };
@@ -149,7 +154,10 @@ mod tests {
     async fn hashes_are_those_of_the_argon2_crate_both_ways() {
         // Ours verifies with the crate's own verifier, so every stored hash stays valid…
         let ours = super::hash("correct horse battery").await.unwrap();
-        assert!(ours.starts_with("$argon2id$v=19$m=19456,t=2,p=1$"), "{ours}");
+        assert!(
+            ours.starts_with("$argon2id$v=19$m=19456,t=2,p=1$"),
+            "{ours}"
+        );
         let parsed = argon2::PasswordHash::new(&ours).unwrap();
         assert!(
             argon2::Argon2::default()
@@ -162,9 +170,17 @@ mod tests {
             .hash_password(b"correct horse battery", &salt)
             .unwrap()
             .to_string();
-        assert!(super::verify("correct horse battery", &theirs).await.unwrap());
+        assert!(
+            super::verify("correct horse battery", &theirs)
+                .await
+                .unwrap()
+        );
         assert!(!super::verify("wrong horse battery", &theirs).await.unwrap());
-        assert!(!super::verify("correct horse battery", "not a hash").await.unwrap());
+        assert!(
+            !super::verify("correct horse battery", "not a hash")
+                .await
+                .unwrap()
+        );
     }
 
     #[tokio::test]
