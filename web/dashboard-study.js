@@ -20,6 +20,8 @@ const FIELDS = [
 
 /** What the form holds: 'draft' (a study not yet created) or 'study' (the selected one). */
 let mode = 'draft';
+/** The study as the form was filled from it: an edit is based on its `version`. */
+let base = null;
 let defaults = null;
 
 const STORE_KEY = 'bdft.dashboard.study';
@@ -39,6 +41,10 @@ export function init() {
   $('study-copy').addEventListener('click', copyToDraft);
   $('study-form').addEventListener('submit', (e) => e.preventDefault());
   $('p-json').addEventListener('input', () => setStatus($('p-json-error'), 'err', ''));
+  // Where a refused edit (someone else saved first) is explained, below the save status.
+  const conflict = el('div', { id: 'study-conflict', class: 'status err', role: 'alert' });
+  conflict.hidden = true;
+  $('study-status').after(conflict);
 }
 
 async function loadDefaults() {
@@ -224,6 +230,8 @@ function showHash(hash) {
 
 function showStudy(st) {
   mode = 'study';
+  base = st;
+  $('study-conflict').hidden = true;
   fillForm(st.params);
   const locked = !!st.locked_at;
   setReadOnly(locked);
@@ -428,8 +436,9 @@ async function save() {
   const id = S.study.id;
   const btn = $('study-save');
   btn.disabled = true;
-  const r = await act(`Save study #${id}`, $('study-status'), () => send('PUT', `/api/studies/${id}`, { name, params }), () =>
-    `saved${lastOverridden.length ? ` (${ignoredText()})` : ''}`,
+  const version = base && base.id === id ? base.version : S.study.version;
+  const r = await act(`Save study #${id}`, $('study-status'), () => send('PUT', `/api/studies/${id}`, { name, params, version }), (d) =>
+    `saved as version ${d.version}${lastOverridden.length ? ` (${ignoredText()})` : ''}`,
   );
   btn.disabled = false;
   if (r.ok) {
@@ -441,7 +450,47 @@ async function save() {
     emit('study-updated', r.data);
   } else {
     markField(r.data && r.data.error ? r.data.error : '');
-    if (r.status === 409) reloadSelected().then(() => S.study && showStudy(S.study));
+    if (r.status === 409 && r.data && r.data.current) showConflict(r.data.current);
+    else if (r.status === 409) reloadSelected().then(() => S.study && showStudy(S.study));
   }
+}
+
+/** What differs between two versions of a study: its name and the top-level parameters. */
+function differences(a, b) {
+  const out = a.name === b.name ? [] : [`name (“${a.name}” → “${b.name}”)`];
+  const keys = new Set([...Object.keys(a.params), ...Object.keys(b.params)]);
+  for (const k of keys) {
+    if (JSON.stringify(a.params[k]) !== JSON.stringify(b.params[k])) out.push(k);
+  }
+  return out;
+}
+
+/**
+ * Someone else saved the study after the version this form was based on: nothing of ours
+ * was saved. The edits stay in the form; the experimenter sees what the other change was
+ * and chooses to take the current version or to save the form over it.
+ */
+function showConflict(current) {
+  const i = S.studies.findIndex((s) => s.id === current.id);
+  if (i >= 0) S.studies[i] = current;
+  S.study = current;
+  const changed = base ? differences(base, current) : [];
+  const box = $('study-conflict');
+  const take = el('button', { type: 'button' }, `Show version ${current.version} (drop my edits)`);
+  take.addEventListener('click', () => showStudy(current));
+  const over = el('button', { type: 'button', class: 'danger' }, `Save my form over version ${current.version}`);
+  over.addEventListener('click', () => {
+    base = current;
+    box.hidden = true;
+    save();
+  });
+  box.replaceChildren(
+    el('strong', {}, `Not saved: study #${current.id} was changed by someone else`),
+    ` (now version ${current.version}, your form was based on version ${base ? base.version : '?'}). `,
+    changed.length ? `Their change: ${changed.join(', ')}. ` : '',
+    'Your edits are still in the form.',
+    el('div', { class: 'toolbar' }, take, over),
+  );
+  box.hidden = false;
 }
 

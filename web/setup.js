@@ -15,7 +15,7 @@ const token = new URLSearchParams(location.search).get('token') || '';
 
 async function check() {
   if (!token) {
-    say($('setup-state'), 'err', 'This page needs the set-up link the server printed at its first start (…/setup?token=…).');
+    say($('setup-state'), 'err', 'This page needs the set-up link the server printed at its start (…/setup?token=…); a link is valid for an hour, and only the last one printed works.');
   }
   const r = await api('GET', '/api/setup');
   if (r.ok && r.data && r.data.needs_setup === false) {
@@ -52,8 +52,16 @@ async function submit(ev) {
     location.replace('/');
     return;
   }
-  $('setup-submit').disabled = false;
   say($('setup-error'), 'err', (r.data && r.data.error) || `Set-up failed (HTTP ${r.status})`);
+  if (r.status === 409) {
+    // An account exists (made with this link, or another): set-up cannot be done again.
+    const a = document.createElement('a');
+    a.href = '/';
+    a.textContent = ' Go to the log-in page.';
+    $('setup-error').append(a);
+    return;
+  }
+  $('setup-submit').disabled = false;
 }
 
 $('setup-form').addEventListener('submit', submit);

@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 
 use crate::config::{DbConfig, ServeConfig};
 use crate::engine::export::ExportKind;
+use crate::engine::login_limiter::LoginLimiter;
 use crate::engine::{accounts, controller_link, export, filing, pilot};
 use crate::store;
 use bdft_protocol::link_auth::LinkKey;
@@ -220,10 +221,11 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     );
     let mut state = crate::state::AppState::new(pool, link);
     state.web_dir = config.web_dir;
+    state.login = std::sync::Arc::new(LoginLimiter::new(config.login.limits()));
     println!("bdft-lab server on http://{addr}");
     use std::io::Write;
     let _ = std::io::stdout().flush();
-    crate::run(state, listener, shutdown_signal()).await?;
+    crate::run(state, listener, &config.connections, shutdown_signal()).await?;
     Ok(())
 }
 

@@ -3,6 +3,9 @@
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::time::Duration;
+
+use crate::engine::login_limiter::LoginLimits;
 
 /// Where the data live.
 #[derive(Debug, Clone, clap::Args)]
@@ -49,4 +52,48 @@ pub struct ServeConfig {
     /// (for developing them).
     #[arg(long, env = "BDFT_WEB_DIR")]
     pub web_dir: Option<PathBuf>,
+    #[command(flatten)]
+    pub connections: ConnectionConfig,
+    #[command(flatten)]
+    pub login: LoginConfig,
+}
+
+/// What one client may hold of the server's connections.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ConnectionConfig {
+    /// A connection that has not sent a whole request head within this long (ms) is closed:
+    /// slow or idle clients (also idle keep-alive connections) cannot hold it.
+    #[arg(long, env = "BDFT_HEADER_TIMEOUT_MS", default_value_t = 10_000, value_parser = clap::value_parser!(u64).range(100..=600_000))]
+    pub header_timeout_ms: u64,
+    /// Connections served at once (open WebSockets included); further clients wait to be
+    /// accepted.
+    #[arg(long, env = "BDFT_MAX_CONNECTIONS", default_value_t = 512, value_parser = clap::value_parser!(u64).range(8..=65_536))]
+    pub max_connections: u64,
+}
+
+impl ConnectionConfig {
+    pub fn header_timeout(&self) -> Duration {
+        Duration::from_millis(self.header_timeout_ms)
+    }
+}
+
+/// The login rate limit.
+#[derive(Debug, Clone, clap::Args)]
+pub struct LoginConfig {
+    /// Failed logins allowed per minute for one username from one client address.
+    #[arg(long, env = "BDFT_LOGIN_ATTEMPTS", default_value_t = LoginLimits::default().per_user_address as u32, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    pub login_attempts: u32,
+    /// Failed logins allowed per minute from one client address, whatever the usernames.
+    #[arg(long, env = "BDFT_LOGIN_ADDRESS_ATTEMPTS", default_value_t = LoginLimits::default().per_address as u32, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    pub login_address_attempts: u32,
+}
+
+impl LoginConfig {
+    pub fn limits(&self) -> LoginLimits {
+        LoginLimits {
+            per_user_address: self.login_attempts as usize,
+            per_address: self.login_address_attempts as usize,
+            ..LoginLimits::default()
+        }
+    }
 }

@@ -4,18 +4,17 @@
 //!
 //! Three layers, each importing only the ones below it: [`http`] (routes, extractors, the
 //! OpenAPI document) → [`engine`] (the protocol's rules, no HTTP) → [`store`] (the only SQL).
-//! [`http::app`] is the whole HTTP surface; [`run`] serves it on a listener until shutdown,
-//! so tests bind port 0.
+//! [`http::app`] is the whole HTTP surface; [`run`] serves it on a listener until shutdown
+//! (with the connection bounds of [`serve`]), so tests bind port 0.
 
 pub mod cli;
 pub mod config;
 pub mod engine;
 pub mod error;
 pub mod http;
+pub mod serve;
 pub mod state;
 pub mod store;
-
-use std::net::SocketAddr;
 
 pub use http::app;
 use state::AppState;
@@ -24,12 +23,8 @@ use state::AppState;
 pub async fn run(
     state: AppState,
     listener: tokio::net::TcpListener,
+    limits: &config::ConnectionConfig,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    axum::serve(
-        listener,
-        app(state).into_make_service_with_connect_info::<SocketAddr>(),
-    )
-    .with_graceful_shutdown(shutdown)
-    .await
+    serve::serve(app(state), listener, limits, shutdown).await
 }

@@ -5,8 +5,8 @@ use std::sync::Arc;
 
 use sqlx::SqlitePool;
 
-use crate::engine::accounts::LoginLimiter;
 use crate::engine::controller_link::ControllerLink;
+use crate::engine::login_limiter::LoginLimiter;
 use crate::engine::pilot::PilotJob;
 use crate::engine::stability::StabilityCache;
 use crate::engine::stations::Pairing;

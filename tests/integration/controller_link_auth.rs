@@ -14,7 +14,7 @@ use bdft_protocol::params::{CompensatorKind, Seat};
 use bdft_protocol::server_to_controller::ServerToController;
 use bdft_protocol::trial::{FaultKind, Outcome};
 use bdft_tests::controller_link::{Link, PATIENCE, Proc, TrialLog};
-use bdft_tests::server::{Server, eventually};
+use bdft_tests::server::{ADMIN_PASSWORD, Server, eventually};
 
 use super::controller_serve::{server_input_trial, synthetic_trial};
 

@@ -4,5 +4,6 @@ mod browser;
 mod controller_cli;
 mod controller_link_auth;
 mod controller_serve;
+mod hardening;
 mod server_api;
 mod server_layers;

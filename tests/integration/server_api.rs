@@ -72,7 +72,7 @@ fn a_subject_goes_through_the_whole_protocol_via_the_api() {
     let (code, _) = api.call(
         "PUT",
         &format!("/api/studies/{study}"),
-        Some(json!({ "name": "changed", "params": st["params"] })),
+        Some(json!({ "name": "changed", "params": st["params"], "version": st["version"] })),
     );
     assert_eq!(code, 409);
 

@@ -158,7 +158,7 @@ fn racing_changes_are_serialized_or_refused_never_a_500() {
         c.call(
             "PUT",
             &format!("/api/studies/{study}"),
-            Some(json!({ "name": "renamed", "params": current["params"] })),
+            Some(json!({ "name": "renamed", "params": current["params"], "version": current["version"] })),
         )
     });
     for (code, body) in &edits {

@@ -26,6 +26,8 @@ pub struct Proc {
     /// Addresses the process printed ("listening on …", "input udp on …").
     pub addr: SocketAddr,
     pub input_udp: Option<SocketAddr>,
+    /// What the process printed before its address line.
+    pub banner: Vec<String>,
 }
 
 impl Proc {
@@ -50,6 +52,7 @@ impl Proc {
             key,
             addr: SocketAddr::from(([0, 0, 0, 0], 0)),
             input_udp: None,
+            banner: Vec::new(),
         };
         let mut lines = BufReader::new(proc.child.stdout.take().expect("stdout")).lines();
         loop {
@@ -66,6 +69,7 @@ impl Proc {
                 std::thread::spawn(move || for _ in lines {});
                 return proc;
             }
+            proc.banner.push(line);
         }
     }
 

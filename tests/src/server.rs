@@ -18,27 +18,28 @@ pub struct Server {
     pub base: String,
     pub db: PathBuf,
     pub dir: TempDir,
-    /// Options beyond the test defaults, kept for a restart.
-    extra: Vec<String>,
+    /// Its arguments after `serve --db … --listen …`.
+    args: Vec<String>,
 }
 
 impl Server {
+    /// A server with the account "admin" ([`ADMIN_PASSWORD`]).
     pub fn start(tag: &str) -> Self {
-        Self::start_with(tag, &[])
+        Self::start_with(tag, &["--admin-password", ADMIN_PASSWORD])
     }
 
-    /// A server with more options (e.g. `--controller ADDR --controller-key-file F`).
-    pub fn start_with(tag: &str, extra: &[&str]) -> Self {
+    /// A server started with `args` (no account unless they make one).
+    pub fn start_with(tag: &str, args: &[&str]) -> Self {
         let dir = TempDir::new(tag);
         let db = dir.path().join("bdft-lab.db");
-        let extra: Vec<String> = extra.iter().map(|s| s.to_string()).collect();
-        let proc = Self::spawn(&db, &extra);
+        let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
+        let proc = Self::spawn(&db, &args);
         Self {
             base: format!("http://{}", proc.addr),
             proc,
             db,
             dir,
-            extra,
+            args,
         }
     }
 
@@ -49,8 +50,6 @@ impl Server {
             db.to_str().unwrap(),
             "--listen",
             "127.0.0.1:0",
-            "--admin-password",
-            ADMIN_PASSWORD,
         ];
         args.extend(extra.iter().map(String::as_str));
         Proc::spawn("bdft-server", &args, "bdft-lab server on http://")
@@ -60,7 +59,7 @@ impl Server {
     /// database.
     pub fn crash_and_restart(&mut self) {
         self.proc.kill();
-        self.proc = Self::spawn(&self.db, &self.extra);
+        self.proc = Self::spawn(&self.db, &self.args);
         self.base = format!("http://{}", self.proc.addr);
     }
 

@@ -1,75 +1,53 @@
-//! Experimenter accounts: credentials rules, argon2id hashing, rate-limited login, the
-//! one-time set-up token and sessions. No HTTP here: `http::session` carries cookies.
+//! Experimenter accounts: credentials rules, rate-limited login (`login_limiter`, with
+//! argon2id in bounded memory from `passwords`), the one-time set-up link and sessions. No
+//! HTTP here: `http::session` carries cookies.
 
-use std::collections::HashMap;
 use std::net::IpAddr;
-use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-use argon2::Argon2;
-use argon2::password_hash::{PasswordHash, PasswordHasher, PasswordVerifier, SaltString};
 use serde_json::json;
 use sqlx::SqlitePool;
 
+use super::login_limiter::LoginLimiter;
+use super::passwords;
 use crate::error::{AppError, Result};
 use crate::store::tokens::random_token;
 use crate::store::{self, Change};
 
 const MIN_PASSWORD: usize = 10;
-/// Failed logins allowed per user and address per minute.
-const LOGIN_ATTEMPTS: usize = 5;
+const MAX_PASSWORD_BYTES: usize = 200;
+/// Longest username (bytes): the rule for new accounts, and what a login may send.
+const MAX_USERNAME: usize = 40;
 /// How long a session lasts.
 pub const SESSION_HOURS: i64 = 12;
-
-fn hash_password(password: &str) -> anyhow::Result<String> {
-    let mut salt = [0u8; 16];
-    getrandom::fill(&mut salt).map_err(|e| anyhow::anyhow!("random salt: {e}"))?;
-    let salt = SaltString::encode_b64(&salt).map_err(|e| anyhow::anyhow!("{e}"))?;
-    Ok(Argon2::default()
-        .hash_password(password.as_bytes(), &salt)
-        .map_err(|e| anyhow::anyhow!("{e}"))?
-        .to_string())
-}
+/// How long a set-up link is valid.
+pub const SETUP_LINK_LIFETIME: Duration = Duration::from_secs(3600);
 
 /// A real hash of a random password, so that unknown usernames cost the same verification.
-fn dummy_hash() -> String {
-    static DUMMY: std::sync::OnceLock<String> = std::sync::OnceLock::new();
-    DUMMY
-        .get_or_init(|| hash_password(&random_token()).unwrap_or_default())
-        .clone()
-}
-
-fn verify_password(password: &str, phc: &str) -> bool {
-    PasswordHash::new(phc).is_ok_and(|h| {
-        Argon2::default()
-            .verify_password(password.as_bytes(), &h)
-            .is_ok()
-    })
+async fn dummy_hash() -> Result<String> {
+    static DUMMY: tokio::sync::OnceCell<String> = tokio::sync::OnceCell::const_new();
+    Ok(DUMMY
+        .get_or_try_init(|| async { passwords::hash(&random_token()).await })
+        .await?
+        .clone())
 }
 
 fn check_new_credentials(username: &str, password: &str) -> Result<()> {
-    let ok_name = (3..=40).contains(&username.len())
+    let ok_name = (3..=MAX_USERNAME).contains(&username.len())
         && username
             .chars()
             .all(|c| c.is_ascii_alphanumeric() || "._-".contains(c));
     if !ok_name {
-        return Err(AppError::BadRequest(
-            "username: 3 to 40 letters, digits, '.', '_' or '-'".into(),
-        ));
-    }
-    if password.chars().count() < MIN_PASSWORD || password.len() > 200 {
         return Err(AppError::BadRequest(format!(
-            "password: at least {MIN_PASSWORD} characters (at most 200 bytes)"
+            "username: 3 to {MAX_USERNAME} letters, digits, '.', '_' or '-'"
+        )));
+    }
+    if password.chars().count() < MIN_PASSWORD || password.len() > MAX_PASSWORD_BYTES {
+        return Err(AppError::BadRequest(format!(
+            "password: at least {MIN_PASSWORD} characters (at most {MAX_PASSWORD_BYTES} bytes)"
         )));
     }
     Ok(())
-}
-
-async fn hashed(password: &str) -> Result<String> {
-    let pw = password.to_string();
-    Ok(tokio::task::spawn_blocking(move || hash_password(&pw))
-        .await
-        .map_err(anyhow::Error::from)??)
 }
 
 /// Creates an experimenter account on behalf of `actor`; returns its id.
@@ -80,7 +58,7 @@ pub async fn create_experimenter(
     password: &str,
 ) -> Result<i64> {
     check_new_credentials(username, password)?;
-    let hash = hashed(password).await?;
+    let hash = passwords::hash(password).await?;
     let mut change = Change::begin(pool, actor).await?;
     let id = store::accounts::insert_experimenter(change.db(), username, &hash).await?;
     change
@@ -93,38 +71,64 @@ pub async fn create_experimenter(
     Ok(id)
 }
 
-/// A one-time set-up token (printed at first start); only its hash is stored.
+/// A one-time set-up token (printed at a start with no account); only its hash is stored.
+/// It replaces any earlier unused one, so at most one set-up link is ever valid.
 pub async fn new_setup_token(pool: &SqlitePool) -> Result<String> {
     let token = random_token();
     let mut change = Change::begin(pool, "system").await?;
-    store::accounts::insert_setup_token(change.db(), &token).await?;
-    change.commit("setup.link", None, json!({})).await?;
+    let replaced = store::accounts::replace_setup_token(change.db(), &token).await?;
+    change
+        .commit("setup.link", None, json!({ "replaced_unused": replaced }))
+        .await?;
     Ok(token)
 }
 
+fn setup_done() -> AppError {
+    AppError::Conflict("set-up is done: an experimenter account exists; log in instead".into())
+}
+
+/// Why a set-up token cannot be used, if it cannot.
+async fn check_setup_token<'c>(db: impl sqlx::SqliteExecutor<'c>, token: &str) -> Result<()> {
+    let lifetime_ms = SETUP_LINK_LIFETIME.as_millis() as i64;
+    match store::accounts::setup_token(db, token).await? {
+        None => Err(AppError::Forbidden(
+            "the set-up link is not valid: mistyped, or replaced by a newer one (only the link printed at the server's last start works)".into(),
+        )),
+        Some(t) if t.used_at.is_some() => Err(AppError::Conflict(
+            "the set-up link was used already: log in with the account it created".into(),
+        )),
+        Some(t) if store::db::now_ms() - t.created_at >= lifetime_ms => Err(AppError::Forbidden(
+            format!(
+                "the set-up link expired (it is valid for {} minutes): restart the server for a new one",
+                lifetime_ms / 60_000
+            ),
+        )),
+        Some(_) => Ok(()),
+    }
+}
+
 /// Creates the first experimenter with the one-time set-up token: the token is used and the
-/// account made in one transaction.
+/// account made in one immediate transaction, so of two concurrent uses exactly one makes
+/// an account.
 pub async fn first_account(
     pool: &SqlitePool,
     token: &str,
     username: &str,
     password: &str,
 ) -> Result<i64> {
-    let taken = || AppError::Conflict("set-up is done: an experimenter account exists".into());
     if store::accounts::experimenter_count(pool).await? > 0 {
-        return Err(taken());
+        return Err(setup_done());
     }
     check_new_credentials(username, password)?;
-    let hash = hashed(password).await?;
+    // Checked before hashing too, so that wrong links cost no argon2 work.
+    check_setup_token(pool, token).await?;
+    let hash = passwords::hash(password).await?;
     let mut change = Change::begin(pool, username).await?;
     if store::accounts::experimenter_count(change.db()).await? > 0 {
-        return Err(taken());
+        return Err(setup_done());
     }
-    if !store::accounts::use_setup_token(change.db(), token).await? {
-        return Err(AppError::Forbidden(
-            "the set-up link is not valid (already used, or mistyped)".into(),
-        ));
-    }
+    check_setup_token(change.db(), token).await?;
+    store::accounts::use_setup_token(change.db(), token).await?;
     let id = store::accounts::insert_experimenter(change.db(), username, &hash).await?;
     change
         .commit(
@@ -166,20 +170,9 @@ pub async fn end_session(pool: &SqlitePool, username: &str, token: Option<&str>)
     change.commit("logout", None, json!({})).await
 }
 
-/// Failed logins per (username, client address), for rate limiting.
-#[derive(Debug, Default)]
-pub struct LoginLimiter {
-    failures: Mutex<HashMap<String, Vec<Instant>>>,
-}
-
-impl LoginLimiter {
-    fn failures(&self) -> std::sync::MutexGuard<'_, HashMap<String, Vec<Instant>>> {
-        self.failures.lock().unwrap_or_else(|p| p.into_inner())
-    }
-}
-
-/// Checks a password (rate-limited per username and address); returns the session
-/// (cookie token, CSRF token).
+/// Checks a password, rate-limited per username and client address and per address (the
+/// attempt is counted before the check); returns the session (cookie token, CSRF token).
+/// Every failure is in the audit log.
 pub async fn login(
     pool: &SqlitePool,
     limiter: &LoginLimiter,
@@ -187,26 +180,29 @@ pub async fn login(
     password: &str,
     peer: IpAddr,
 ) -> Result<(String, String)> {
-    let key = format!("{username}|{peer}");
-    {
-        let mut failures = limiter.failures();
-        let recent = failures.entry(key.clone()).or_default();
-        recent.retain(|t| t.elapsed() < Duration::from_secs(60));
-        if recent.len() >= LOGIN_ATTEMPTS {
-            return Err(AppError::TooManyRequests);
-        }
+    if username.len() > MAX_USERNAME {
+        return Err(AppError::BadRequest(format!(
+            "username: at most {MAX_USERNAME} bytes"
+        )));
     }
+    if password.len() > MAX_PASSWORD_BYTES {
+        return Err(AppError::BadRequest(format!(
+            "password: at most {MAX_PASSWORD_BYTES} bytes"
+        )));
+    }
+    let reservation = limiter
+        .reserve(username, peer, Instant::now())
+        .ok_or(AppError::TooManyRequests)?;
     let row = store::accounts::credentials(pool, username).await?;
-    let pw = password.to_string();
     // Verify against a dummy hash for unknown users too, so timing does not reveal names.
-    let phc = row.as_ref().map(|r| r.1.clone());
-    let ok =
-        tokio::task::spawn_blocking(move || verify_password(&pw, &phc.unwrap_or_else(dummy_hash)))
-            .await
-            .map_err(anyhow::Error::from)?;
+    let phc = match &row {
+        Some((_, phc)) => phc.clone(),
+        None => dummy_hash().await?,
+    };
+    let ok = passwords::verify(password, &phc).await?;
     match (row, ok) {
         (Some((id, _)), true) => {
-            limiter.failures().remove(&key);
+            limiter.succeeded(reservation);
             new_session(
                 pool,
                 id,
@@ -216,12 +212,15 @@ pub async fn login(
             )
             .await
         }
-        _ => {
-            limiter
-                .failures()
-                .entry(key)
-                .or_default()
-                .push(Instant::now());
+        (row, _) => {
+            let change = Change::begin(pool, "anonymous").await?;
+            change
+                .commit(
+                    "login.failed",
+                    row.map(|(id, _)| format!("experimenter:{id}")),
+                    json!({ "username": username, "from": peer.to_string() }),
+                )
+                .await?;
             Err(AppError::Forbidden("wrong username or password".into()))
         }
     }

@@ -8,6 +8,7 @@ use sqlx::SqlitePool;
 use super::check_name;
 use super::stability::{StabilityCache, StabilityReport};
 use crate::error::{AppError, Result};
+use crate::store::studies::Edit;
 use crate::store::{self, Change};
 
 /// Seeds are kept below 2^53 so they survive JSON and JavaScript unchanged.
@@ -41,25 +42,31 @@ pub async fn create(
     Ok(id)
 }
 
-/// Replaces the name and parameters of a study that has not started.
+/// Replaces the name and parameters of a study that has not started, if nobody changed it
+/// since `version` (the version the edit was based on).
 pub async fn update(
     pool: &SqlitePool,
     actor: &str,
     id: i64,
+    version: i64,
     name: &str,
     params: &StudyParams,
-) -> Result<()> {
+) -> Result<Edit> {
     check_name(name)?;
     params.validate()?;
     let mut change = Change::begin(pool, actor).await?;
-    store::studies::update(change.db(), id, name, params).await?;
+    let edit = store::studies::update(change.db(), id, version, name, params).await?;
+    if let Edit::Stale(_) = edit {
+        return Ok(edit);
+    }
     change
         .commit(
             "study.update",
             Some(format!("study:{id}")),
-            json!({ "name": name, "params": params }),
+            json!({ "name": name, "params": params, "version": version + 1 }),
         )
-        .await
+        .await?;
+    Ok(edit)
 }
 
 /// Records that `actor` knows the study's design is unstable on the machine and wants it run

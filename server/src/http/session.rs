@@ -80,9 +80,12 @@ fn started(username: &str, (token, csrf): (String, String)) -> Response {
         .into_response()
 }
 
-/// Log in: sets an HttpOnly session cookie and returns the CSRF token.
+/// Log in: sets an HttpOnly session cookie and returns the CSRF token. Failed attempts are
+/// limited per username and client address and per address (a minute's window); each is
+/// in the audit log.
 #[utoipa::path(post, path = "/api/login", tag = "session", request_body = Credentials,
-    responses((status = 200, body = SessionStarted), (status = 429, description = "too many failed attempts")))]
+    responses((status = 200, body = SessionStarted), (status = 403, body = super::error::ErrorBody, description = "wrong username or password"),
+        (status = 429, body = super::error::ErrorBody, description = "too many failed attempts: wait a minute")))]
 async fn login(
     State(state): State<AppState>,
     ConnectInfo(peer): ConnectInfo<SocketAddr>,
@@ -111,9 +114,11 @@ async fn logout(
     Ok(([(header::SET_COOKIE, session_cookie("", 0))], Done::ok()).into_response())
 }
 
-/// Create the first experimenter with the one-time set-up token.
+/// Create the first experimenter with the one-time set-up token (valid for an hour; only
+/// the link printed at the server's last start works, and only once).
 #[utoipa::path(post, path = "/api/setup", tag = "session", request_body = SetupRequest,
-    responses((status = 200, body = SessionStarted)))]
+    responses((status = 200, body = SessionStarted), (status = 403, body = super::error::ErrorBody, description = "the set-up link is mistyped, replaced by a newer one, or expired"),
+        (status = 409, body = super::error::ErrorBody, description = "set-up is done: an account exists (or the link was used)")))]
 async fn setup(
     State(state): State<AppState>,
     AppJson(req): AppJson<SetupRequest>,

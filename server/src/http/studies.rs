@@ -1,8 +1,10 @@
 //! Studies: the published protocol's defaults, creating, reading and editing a study.
 
 use axum::extract::{Path, State};
+use axum::http::StatusCode;
+use axum::response::{IntoResponse, Response};
 use bdft_protocol::study::StudyParams;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
@@ -15,7 +17,7 @@ use crate::engine::stability::StabilityReport;
 use crate::engine::studies;
 use crate::state::AppState;
 use crate::store;
-use crate::store::studies::Study;
+use crate::store::studies::{Edit, Study};
 
 pub fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -36,6 +38,20 @@ pub struct StudyBody {
     /// Seed of every random draw (schedules, targets); default random. Below 2^53; fixed
     /// at creation.
     seed: Option<u64>,
+    /// When editing (required): the `version` of the study the edit is based on. An edit
+    /// based on an older version is refused with 409 and the current study.
+    version: Option<i64>,
+}
+
+/// The answer to an edit based on an older version of the study: nothing was saved.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct StaleEdit {
+    /// What happened and what to do, in words for the experimenter.
+    error: String,
+    /// The study's version now.
+    current_version: i64,
+    /// The study as it is now (with the other change).
+    current: Study,
 }
 
 /// Default study parameters (the published protocol).
@@ -58,6 +74,11 @@ async fn create_study(
     who: Experimenter,
     AppJson(b): AppJson<StudyBody>,
 ) -> ApiResult<Study> {
+    if b.version.is_some() {
+        return Err(AppError::BadRequest(
+            "version: only when editing (a new study is version 1)".into(),
+        ));
+    }
     let params = b.params.unwrap_or_else(default_params);
     let id = studies::create(&s.pool, &who.username, &b.name, &params, b.seed).await?;
     s.stability.prefetch(&params);
@@ -76,26 +97,48 @@ async fn get_study(
 }
 
 /// Edit a study's name and parameters (until its protocol is locked by the first
-/// enrolment).
+/// enrolment). The body names the version it was based on; if the study changed since, the
+/// edit is refused with 409 and the current study, so no change is silently lost.
 #[utoipa::path(put, path = "/api/studies/{id}", tag = "studies", params(("id" = i64, Path)),
-    request_body = StudyBody, responses((status = 200, body = Study)))]
+    request_body = StudyBody, responses((status = 200, body = Study),
+        (status = 409, body = StaleEdit, description = "the study changed since `version` (the answer has the current study), or its protocol is locked (an ErrorBody)")))]
 async fn update_study(
     State(s): State<AppState>,
     who: Experimenter,
     Path(id): Path<i64>,
     AppJson(b): AppJson<StudyBody>,
-) -> ApiResult<Study> {
+) -> Result<Response, AppError> {
     let params = b
         .params
         .ok_or_else(|| AppError::BadRequest("params: required".into()))?;
+    let version = b.version.ok_or_else(|| {
+        AppError::BadRequest(
+            "version: required, the version of the study this edit is based on (as GET /api/studies/{id} gave it)".into(),
+        )
+    })?;
     if b.seed.is_some() {
         return Err(AppError::BadRequest(
             "seed: fixed when the study is created".into(),
         ));
     }
-    studies::update(&s.pool, &who.username, id, &b.name, &params).await?;
-    s.stability.prefetch(&params);
-    Ok(AppJson(store::studies::get(&s.pool, id).await?))
+    match studies::update(&s.pool, &who.username, id, version, &b.name, &params).await? {
+        Edit::Saved => {
+            s.stability.prefetch(&params);
+            Ok(AppJson(store::studies::get(&s.pool, id).await?).into_response())
+        }
+        Edit::Stale(current) => Ok((
+            StatusCode::CONFLICT,
+            AppJson(StaleEdit {
+                error: format!(
+                    "study #{id} was changed by someone else since version {version} (it is at version {}): nothing was saved; look at the current study and make the edit again",
+                    current.version
+                ),
+                current_version: current.version,
+                current: *current,
+            }),
+        )
+            .into_response()),
+    }
 }
 
 /// Every compensator of the study analysed at its K_BF with its plant and body, on and off

@@ -89,22 +89,46 @@ pub async fn experimenter_count<'c>(db: impl SqliteExecutor<'c>) -> Result<i64> 
     Ok(n)
 }
 
-pub async fn insert_setup_token(db: &mut SqliteConnection, token: &str) -> Result<()> {
+/// Stores a new set-up token and deletes every unused earlier one (at most one set-up link
+/// is valid); returns how many were deleted.
+pub async fn replace_setup_token(db: &mut SqliteConnection, token: &str) -> Result<u64> {
+    let replaced = sqlx::query("DELETE FROM setup_tokens WHERE used_at IS NULL")
+        .execute(&mut *db)
+        .await?
+        .rows_affected();
     sqlx::query("INSERT INTO setup_tokens (token_hash, created_at) VALUES (?, ?)")
         .bind(token_hash(token))
         .bind(now_ms())
         .execute(db)
         .await?;
-    Ok(())
+    Ok(replaced)
 }
 
-/// Marks a set-up token used; `false` if it was unknown or used already.
-pub async fn use_setup_token(db: &mut SqliteConnection, token: &str) -> Result<bool> {
-    let used =
-        sqlx::query("UPDATE setup_tokens SET used_at = ? WHERE token_hash = ? AND used_at IS NULL")
-            .bind(now_ms())
+/// A stored set-up token: when it was made and used.
+#[derive(Debug, sqlx::FromRow)]
+pub struct SetupToken {
+    pub created_at: i64,
+    pub used_at: Option<i64>,
+}
+
+pub async fn setup_token<'c>(
+    db: impl SqliteExecutor<'c>,
+    token: &str,
+) -> Result<Option<SetupToken>> {
+    Ok(
+        sqlx::query_as("SELECT created_at, used_at FROM setup_tokens WHERE token_hash = ?")
             .bind(token_hash(token))
-            .execute(db)
-            .await?;
-    Ok(used.rows_affected() == 1)
+            .fetch_optional(db)
+            .await?,
+    )
+}
+
+/// Marks a set-up token used (the caller checked it is unused, inside its transaction).
+pub async fn use_setup_token(db: &mut SqliteConnection, token: &str) -> Result<()> {
+    sqlx::query("UPDATE setup_tokens SET used_at = ? WHERE token_hash = ? AND used_at IS NULL")
+        .bind(now_ms())
+        .bind(token_hash(token))
+        .execute(db)
+        .await?;
+    Ok(())
 }

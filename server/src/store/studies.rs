@@ -14,6 +14,9 @@ pub struct Study {
     pub name: String,
     pub params: StudyParams,
     pub seed: u64,
+    /// 1 at creation, one more at every edit of the name or parameters: an edit names the
+    /// version it was based on.
+    pub version: i64,
     pub locked_at: Option<i64>,
     /// SHA-256 of the canonical parameters, set when the protocol is locked.
     pub protocol_hash: Option<String>,
@@ -30,6 +33,7 @@ struct StudyRow {
     name: String,
     params_json: String,
     seed: i64,
+    version: i64,
     locked_at: Option<i64>,
     protocol_hash: Option<String>,
     created_at: i64,
@@ -46,6 +50,7 @@ impl TryFrom<StudyRow> for Study {
                 AppError::Internal(anyhow::anyhow!("stored parameters of study {}: {e}", r.id))
             })?,
             seed: r.seed as u64,
+            version: r.version,
             locked_at: r.locked_at,
             protocol_hash: r.protocol_hash,
             created_at: r.created_at,
@@ -96,22 +101,40 @@ pub async fn all<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<Study>> {
     rows.into_iter().map(Study::try_from).collect()
 }
 
-/// Replaces the name and parameters of a study whose protocol is not locked.
+/// What became of an edit.
+#[derive(Debug)]
+pub enum Edit {
+    Saved,
+    /// The study had changed since the version the edit was based on: here it is now.
+    Stale(Box<Study>),
+}
+
+/// Replaces the name and parameters of a study whose protocol is not locked, if it is still
+/// at `version` (then it goes to the next version).
 pub async fn update(
     db: &mut SqliteConnection,
     id: i64,
+    version: i64,
     name: &str,
     params: &StudyParams,
-) -> Result<()> {
+) -> Result<Edit> {
     let done = sqlx::query(
-        "UPDATE studies SET name = ?, params_json = ?, instability_ack_json = NULL WHERE id = ? AND locked_at IS NULL",
+        "UPDATE studies SET name = ?, params_json = ?, instability_ack_json = NULL, version = version + 1 WHERE id = ? AND locked_at IS NULL AND version = ?",
     )
     .bind(name)
     .bind(params_json(params))
     .bind(id)
+    .bind(version)
     .execute(&mut *db)
     .await?;
-    unless_locked(db, id, done.rows_affected()).await
+    if done.rows_affected() == 1 {
+        return Ok(Edit::Saved);
+    }
+    let current = get(&mut *db, id).await?;
+    if current.locked_at.is_some() {
+        return Err(locked());
+    }
+    Ok(Edit::Stale(Box::new(current)))
 }
 
 /// The answer to an UPDATE guarded by `locked_at IS NULL`: 404 for no such study, 409 when
@@ -119,11 +142,13 @@ pub async fn update(
 async fn unless_locked(db: &mut SqliteConnection, id: i64, rows: u64) -> Result<()> {
     if rows == 0 {
         get(&mut *db, id).await?;
-        return Err(AppError::Conflict(
-            "the study's protocol is locked: a subject has been enrolled".into(),
-        ));
+        return Err(locked());
     }
     Ok(())
+}
+
+fn locked() -> AppError {
+    AppError::Conflict("the study's protocol is locked: a subject has been enrolled".into())
 }
 
 /// Locks the protocol with its hash (the first enrolment does this).
