@@ -5,3 +5,4 @@ mod controller_cli;
 mod controller_serve;
 mod server_api;
 mod server_layers;
+mod station_safety;
