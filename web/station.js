@@ -272,8 +272,8 @@ function show(s) {
   const phase = PHASES.includes(s.phase) ? s.phase : 'waiting';
   const paired = phase !== 'loading' && phase !== 'unpaired';
   // What the page shows: the phase, unless it is stopped or inactive.
-  const shown = paired && replaced ? 'replaced' : paired && latched ? 'stopped' : phase;
-  const active = shown === phase;
+  const displayed = paired && replaced ? 'replaced' : paired && latched ? 'stopped' : phase;
+  const active = displayed === phase;
   $('station-name').textContent = s.station && s.station.name ? `Station ${s.station.name}` : '';
 
   // Leaving a running test (or a different test now running, or stopped): report the
@@ -293,11 +293,11 @@ function show(s) {
   }
   if (active && phase === 'running' && !run) startRun(s.test);
 
-  if (document.body.dataset.phase !== shown) {
-    document.body.dataset.phase = shown;
-    for (const sec of document.querySelectorAll('section.phase')) sec.hidden = sec.dataset.for !== shown;
+  if (document.body.dataset.phase !== displayed) {
+    document.body.dataset.phase = displayed;
+    for (const sec of document.querySelectorAll('section.phase')) sec.hidden = sec.dataset.for !== displayed;
     // Move the focus to the new content so that a keyboard or screen reader follows it.
-    const target = document.querySelector(`section[data-for="${shown}"] h1`);
+    const target = document.querySelector(`section[data-for="${displayed}"] h1`);
     if (target) {
       target.tabIndex = -1;
       target.focus({ preventScroll: true });
