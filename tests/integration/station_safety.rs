@@ -202,6 +202,9 @@ fn a_flooding_station_is_throttled_then_cut_off_while_another_runs_normally() {
         let t = trial_row(&api, calm_subject);
         (t["status"] != "running").then_some(t)
     });
+    let calm_view = socket_view(&api, calm);
+    assert_eq!(calm_view["dropped"], 0, "{calm_view}");
+    assert_eq!(calm_view["connected"], true, "{calm_view}");
     done.store(true, Ordering::Relaxed);
     let (calm_sent, echoed) = calm_thread.join().unwrap();
     assert_eq!(calm_row["status"], "complete", "{calm_row}");
@@ -209,9 +212,6 @@ fn a_flooding_station_is_throttled_then_cut_off_while_another_runs_normally() {
         echoed > 0 && echoed <= calm_sent,
         "echo {echoed} of {calm_sent}"
     );
-    let calm_view = socket_view(&api, calm);
-    assert_eq!(calm_view["dropped"], 0, "{calm_view}");
-    assert_eq!(calm_view["connected"], true, "{calm_view}");
     // The flooder's own test lost its input when it was cut off.
     let flood_row = eventually(Duration::from_secs(30), || {
         let t = trial_row(&api, flood_subject);
@@ -376,12 +376,13 @@ fn pairing_codes_are_bounded_and_a_waiting_station_learns_of_its_pairing_at_once
         "{body}"
     );
     // The codes shown at once are bounded; the refusal says why and what to do.
+    // (Each from its own client, as each station is its own browser.)
     let shown = (0..300)
-        .map(|_| anyone.post("/api/station/register", json!({})))
+        .map(|_| Api::anonymous(&server.base).post("/api/station/register", json!({})))
         .take_while(|(status, _)| *status == 200)
         .count();
     assert_eq!(shown, 256);
-    let (status, body) = anyone.post("/api/station/register", json!({}));
+    let (status, body) = Api::anonymous(&server.base).post("/api/station/register", json!({}));
     assert_eq!(status, 503, "{body}");
     assert!(body["error"].as_str().unwrap().contains("expire"), "{body}");
 }
