@@ -1,5 +1,6 @@
 // The live monitor: one panel per paired station, fed by GET /api/stations/{id}/state (every
-// second) and the /api/live WebSocket (live samples, trial changes, controller link).
+// second) and the /api/live WebSocket (live samples, trial changes, controller link, the
+// E-stop latch: Start stays disabled while it is latched).
 
 import { wsUrl } from './common.js';
 import {
@@ -24,6 +25,10 @@ let socketRetry = null;
 let socketDelay = 1000;
 let raf = null;
 let lastTextUpdate = 0;
+/** The E-stop latch: from GET /api/controller when the feed connects, then its `estop` messages. */
+let estopLatched = false;
+
+const LATCH_TEXT = 'E-STOP LATCHED: tests cannot start. Press “Reset e-stop” (top right) once it is safe.';
 
 export function init() {
   on('study', () => syncPanels());
@@ -93,6 +98,7 @@ function connect() {
   ws.onopen = () => {
     socketDelay = 1000;
     showLive('ok', 'Live feed: connected');
+    readLatch();
     pollAll();
   };
   ws.onmessage = (ev) => {
@@ -104,8 +110,13 @@ function connect() {
     }
     if (m.type === 'live' && m.sample) addSample(m.sample);
     else if (m.type === 'trial') onTrialChanged(m.trial_id);
-    else if (m.type === 'controller') emit('live-controller', !!m.connected);
-    else if (m.type === 'estop') emit('live-estop', !!m.latched);
+    else if (m.type === 'controller') {
+      emit('live-controller', !!m.connected);
+      readLatch();
+    } else if (m.type === 'estop') {
+      setLatch(!!m.latched);
+      emit('live-estop', !!m.latched);
+    }
   };
   ws.onclose = () => {
     socket = null;
@@ -115,6 +126,18 @@ function connect() {
     socketRetry = setTimeout(connect, socketDelay);
     socketDelay = Math.min(socketDelay * 2, 15000);
   };
+}
+
+/** The latch as the server holds it now (missed while the feed was down). */
+async function readLatch() {
+  const r = await get('/api/controller');
+  if (r.ok && r.data) setLatch(!!r.data.estop_latched);
+}
+
+function setLatch(latched) {
+  if (latched === estopLatched) return;
+  estopLatched = latched;
+  for (const p of panels.values()) renderPanel(p);
 }
 
 function addSample(s) {
@@ -210,12 +233,14 @@ function makePanel(st) {
     label: fact('Subject sees'),
     where: fact('Where'),
     time: fact('Time left', 'big'),
+    page: fact('Station page'),
     mse: fact('MSE (live)'),
     cab: fact('Cab MS (live)'),
   };
   const title = el('h3');
   const phase = el('span', { class: 'phase' });
   const hint = el('p', { class: 'mon-hint' });
+  const latch = el('p', { class: 'mon-latch status err', role: 'alert', hidden: true });
   const timeBar = el('progress', { class: 'time-bar', max: 1, value: 0 });
   const posCanvas = el('canvas', { class: 'chart chart-pos', 'aria-label': 'Target and cylinder position, last 10 s' });
   const accCanvas = el('canvas', { class: 'chart chart-acc', 'aria-label': 'Cab acceleration, last 10 s' });
@@ -236,6 +261,7 @@ function makePanel(st) {
     { class: 'monitor phase-unknown', 'data-station-id': st.id },
     el('header', { class: 'mon-head' }, title, phase),
     hint,
+    latch,
     el(
       'div',
       { class: 'mon-grid' },
@@ -268,6 +294,7 @@ function makePanel(st) {
     title,
     phase,
     hint,
+    latch,
     f,
     timeBar,
     startBtn,
@@ -427,10 +454,16 @@ function renderPanel(p) {
   p.f.where.v.textContent = test ? `${SEAT_NAME[test.station] || test.station}, ${mmss(test.duration_s)} long` : '—';
   updateLiveText(p);
 
+  p.f.page.v.textContent = pageText(st && st.station ? st.station.socket : undefined);
+
   const ready = phase === 'ready' && test;
-  p.startBtn.disabled = !ready || p.busy;
+  p.startBtn.disabled = !ready || p.busy || estopLatched;
   p.startBtn.textContent = ready ? (test.practice ? 'Start practice' : `Start test ${test.number}`) : 'Start test';
-  p.startBtn.title = ready ? `Start trial ${test.trial_id} (${controllerName(test.controller)})` : 'Only when the station is ready';
+  p.startBtn.title = estopLatched
+    ? 'The E-stop is latched: reset it first'
+    : ready ? `Start trial ${test.trial_id} (${controllerName(test.controller)})` : 'Only when the station is ready';
+  p.latch.textContent = estopLatched ? LATCH_TEXT : '';
+  p.latch.hidden = !estopLatched;
   p.abortBtn.disabled = phase !== 'running' || p.busy;
   p.abortReason.disabled = phase !== 'running';
   if (ready && S.controller.connected === false) {
@@ -446,6 +479,15 @@ function renderPanel(p) {
 
   renderLast(p);
   p.dirtyChart = true;
+}
+
+/** The station page's live socket: open or not, its input, why the server closed it. */
+function pageText(socket) {
+  if (socket === undefined) return '—';
+  if (socket === null) return 'not connected since the server started';
+  const input = `${socket.accepted} messages${socket.dropped ? `, ${socket.dropped} dropped over the rate limit` : ''}`;
+  if (socket.connected) return `connected · ${input}`;
+  return `disconnected${socket.closed_by_server ? ` by the server (${socket.closed_by_server})` : ''} · ${input}`;
 }
 
 /** The result of the panel's last run; an aborted or incomplete test can be redone from here. */

@@ -1,6 +1,7 @@
 // The operator station: what the subject sees and touches. Pairing, consent, the pursuit
-// display with operator input, the survey after each test. Talks only to /api/station/*
-// with the station's bearer token, and to /api/station/ws for input and live samples.
+// display with operator input, the survey after each test, "Stopped" while the E-stop is
+// latched. Talks only to /api/station/* with the station's bearer token, and to
+// /api/station/ws for input, live samples, changes and the E-stop latch.
 
 import { api, el, wsUrl } from './common.js';
 
@@ -11,6 +12,13 @@ const PAIRED_KEY = 'bdft-station-paired';
 /** The server forgets an unused pairing code after an hour; ask for a new one a bit sooner. */
 const CODE_LIFETIME_MS = 55 * 60 * 1000;
 const POLL_MS = 1000;
+/** After a failed registration, ask again this much later (not every poll). */
+const REGISTER_RETRY_MS = 10000;
+/** At most 250 input messages a second (the server allows 500). */
+const MIN_SEND_MS = 4;
+/** Close codes of the station socket (protocol: server_to_browser::station_close). */
+const CLOSE_REPLACED = 4001;
+const CLOSE_FLOOD = 1008;
 const WINDOW_S = 5;          // the strip chart shows the last 5 s
 const LONG_FRAME_MS = 25;
 const SHAKE_OMEGA = 2 * Math.PI * 4; // the cab's 4 Hz mode (rad/s)
@@ -49,13 +57,17 @@ function describe(res) {
 
 let token = localStorage.getItem(TOKEN_KEY);
 let registering = false;
+let registerAgainAt = 0;
+/** Waiting to be paired: the state is not polled (it would answer 401 every second). */
+let unpaired = false;
 
 async function register() {
-  if (registering) return;
+  if (registering || Date.now() < registerAgainAt) return;
   registering = true;
   try {
     const res = await api('POST', '/api/station/register', {});
     if (!res.ok || !res.data || !res.data.token) {
+      registerAgainAt = Date.now() + REGISTER_RETRY_MS;
       setError('register', `Could not get a pairing code: ${describe(res)}`);
       return;
     }
@@ -73,8 +85,44 @@ async function register() {
 
 function showUnpaired() {
   closeSocket();
+  unpaired = true;
   $('pairing-code').textContent = localStorage.getItem(CODE_KEY) || '';
   show({ phase: 'unpaired' });
+  waitForPairing();
+}
+
+let pairingWait = 0;
+
+/**
+ * Waits for the experimenter to pair this station: the server answers as soon as it is
+ * paired (or "not yet" after 25 s: ask again), 404 when the code expired (register again).
+ * A newer wait (a new code) ends the older.
+ */
+async function waitForPairing() {
+  const mine = ++pairingWait;
+  const asked = token;
+  while (mine === pairingWait) {
+    const res = await api('POST', '/api/station/pairing', { token: asked });
+    if (mine !== pairingWait) return;
+    if (res.ok && res.data && res.data.paired) {
+      setError('pairing', null);
+      pairingWait++;
+      unpaired = false;
+      refresh();
+      return;
+    }
+    if (res.ok) {
+      setError('pairing', null);
+      continue;
+    }
+    if (res.status === 404) {
+      pairingWait++;
+      register();
+      return;
+    }
+    setError('pairing', `Waiting for the pairing failed: ${describe(res)}`);
+    await new Promise((r) => setTimeout(r, REGISTER_RETRY_MS));
+  }
 }
 
 /** 401 from the state: not paired (yet), or no longer (the station was removed). */
@@ -100,6 +148,7 @@ let again = false;
 let pollTimer = null;
 
 async function refresh() {
+  if (replaced) return;
   if (inflight) {
     again = true;
     return;
@@ -111,6 +160,7 @@ async function refresh() {
       await register();
       return;
     }
+    if (unpaired) return;
     const res = await api('GET', '/api/station/state', undefined, { bearer: token });
     if (res.status === 401) {
       setError('poll', null);
@@ -123,6 +173,7 @@ async function refresh() {
     }
     setError('poll', null);
     setError('register', null);
+    unpaired = false;
     localStorage.setItem(PAIRED_KEY, '1');
     ensureSocket();
     show(res.data);
@@ -131,18 +182,22 @@ async function refresh() {
     if (again) {
       again = false;
       refresh();
-    } else {
+    } else if (!unpaired && !replaced) {
       pollTimer = setTimeout(refresh, POLL_MS);
     }
   }
 }
 
 // ---------------------------------------------------------------------------------------
-// The socket: live samples in, operator input out.
+// The socket: live samples, changes and the E-stop latch in, operator input out.
 
 let socket = null;
 let socketWanted = false;
 let reconnectTimer = null;
+/** The E-stop latch as the socket last said (it says so when it opens and on changes). */
+let latched = false;
+/** Another page of this station took over the socket: this one stays inactive. */
+let replaced = false;
 
 function ensureSocket() {
   socketWanted = true;
@@ -161,23 +216,43 @@ function ensureSocket() {
     }
     if (msg.type === 'changed') refresh();
     else if (msg.type === 'live' && msg.sample) onSample(msg.sample);
+    else if (msg.type === 'estop') onLatch(!!msg.latched);
   });
-  ws.addEventListener('close', () => {
+  ws.addEventListener('close', (ev) => {
     if (socket !== ws) return;
     socket = null;
     if (!socketWanted) return;
+    if (ev.code === CLOSE_REPLACED) {
+      // Reconnecting would take the station back from the other page, and it would do
+      // the same: the two would take turns feeding the test.
+      replaced = true;
+      socketWanted = false;
+      clearTimeout(pollTimer);
+      setError('socket', null);
+      if (state) show(state);
+      return;
+    }
     if (state && (state.phase === 'ready' || state.phase === 'running')) {
       setError('socket', 'The connection to the server was interrupted; reconnecting…');
     }
     reconnectTimer = setTimeout(() => {
       reconnectTimer = null;
       if (socketWanted) ensureSocket();
-    }, 1000);
+    }, ev.code === CLOSE_FLOOD ? 5 * 1000 : 1000);
   });
+}
+
+/** The E-stop was pressed or reset: "Stopped" at once, or back to what the state says. */
+function onLatch(now) {
+  if (now === latched) return;
+  latched = now;
+  if (state) show(state);
+  if (!now) refresh();
 }
 
 function closeSocket() {
   socketWanted = false;
+  latched = false;
   clearTimeout(reconnectTimer);
   reconnectTimer = null;
   if (socket) {
@@ -195,12 +270,17 @@ function show(s) {
   const prev = state;
   state = s;
   const phase = PHASES.includes(s.phase) ? s.phase : 'waiting';
+  const paired = phase !== 'loading' && phase !== 'unpaired';
+  // What the page shows: the phase, unless it is stopped or inactive.
+  const displayed = paired && replaced ? 'replaced' : paired && latched ? 'stopped' : phase;
+  const active = displayed === phase;
   $('station-name').textContent = s.station && s.station.name ? `Station ${s.station.name}` : '';
 
-  // Leaving a running test (or a different test now running): report the page's timing.
-  if (run && (phase !== 'running' || s.test.trial_id !== run.trialId)) finishRun();
+  // Leaving a running test (or a different test now running, or stopped): report the
+  // page's timing.
+  if (run && (!active || phase !== 'running' || s.test.trial_id !== run.trialId)) finishRun();
   // Input is streamed during ready and running, for the test shown.
-  input.trialId = (phase === 'ready' || phase === 'running') && s.test ? s.test.trial_id : null;
+  input.trialId = active && (phase === 'ready' || phase === 'running') && s.test ? s.test.trial_id : null;
 
   // Rebuild a phase's content only when what it shows changed (a poll every second must
   // not wipe a half-filled survey or move the focus).
@@ -211,13 +291,13 @@ function show(s) {
     const render = renderers[phase];
     if (render) render(s);
   }
-  if (phase === 'running' && !run) startRun(s.test);
+  if (active && phase === 'running' && !run) startRun(s.test);
 
-  if (document.body.dataset.phase !== phase) {
-    document.body.dataset.phase = phase;
-    for (const sec of document.querySelectorAll('section.phase')) sec.hidden = sec.dataset.for !== phase;
+  if (document.body.dataset.phase !== displayed) {
+    document.body.dataset.phase = displayed;
+    for (const sec of document.querySelectorAll('section.phase')) sec.hidden = sec.dataset.for !== displayed;
     // Move the focus to the new content so that a keyboard or screen reader follows it.
-    const target = document.querySelector(`section[data-for="${phase}"] h1`);
+    const target = document.querySelector(`section[data-for="${displayed}"] h1`);
     if (target) {
       target.tabIndex = -1;
       target.focus({ preventScroll: true });
@@ -436,6 +516,8 @@ function clampMm(mm) {
 function sendInput() {
   const t = currentTest();
   if (!t || !socket || socket.readyState !== WebSocket.OPEN) return;
+  const now = performance.now();
+  if (now - input.lastSend < MIN_SEND_MS) return;
   // Latest wins: never queue input behind a congested socket.
   if (socket.bufferedAmount > 4096) return;
   if (input.seqTrial !== t.trial_id) {
@@ -447,7 +529,6 @@ function sendInput() {
   let pos = input.wantedMm / kbf;
   pos = Math.max(-MAX_INPUT_MM, Math.min(MAX_INPUT_MM, pos));
   const seq = ++input.seq;
-  const now = performance.now();
   socket.send(JSON.stringify({ type: 'input', trial_id: t.trial_id, seq, position_mm: pos }));
   input.lastSend = now;
   input.sentAt.set(seq, now);
@@ -765,6 +846,7 @@ function init() {
   $('consent-agree').addEventListener('click', () => decide('agreed'));
   $('consent-decline').addEventListener('click', () => decide('declined'));
   $('survey').addEventListener('submit', submitSurvey);
+  $('use-here').addEventListener('click', () => location.reload());
   $('new-code').addEventListener('click', () => {
     localStorage.removeItem(CODE_KEY);
     token = null;

@@ -9,7 +9,7 @@ use crate::params::{CompensatorKind, Seat};
 use crate::records::{ConsentDecision, DoneReason, StationRole};
 use crate::server_to_browser::{
     MonitorEvent, MonitorStation, MonitorTest, MonitorView, Phase, StationEvent, StationInfo,
-    StationView, TestView,
+    StationSocket, StationView, TestView,
 };
 use crate::study::SurveyAnswer;
 
@@ -165,9 +165,15 @@ fn what_the_experimenter_sees_of_a_station_names_the_compensator() {
                 name: "Desk".into(),
                 role: StationRole::Both,
                 subject_id: Some(9),
+                socket: Some(StationSocket {
+                    connected: false,
+                    accepted: 1200,
+                    dropped: 98000,
+                    closed_by_server: Some("input flood".into()),
+                }),
             },
         },
-        r#"{"phase":"running","subject":"S02","test":{"trial_id":12,"label":"Controller 3","practice":false,"number":4,"of":10,"duration_s":140.0,"station":"on","shake_gain":1.0,"target_range_mm":40.0,"k_bf":0.78,"started_at":null,"controller":"pid-notch"},"station":{"id":3,"name":"Desk","role":"both","subject_id":9}}"#,
+        r#"{"phase":"running","subject":"S02","test":{"trial_id":12,"label":"Controller 3","practice":false,"number":4,"of":10,"duration_s":140.0,"station":"on","shake_gain":1.0,"target_range_mm":40.0,"k_bf":0.78,"started_at":null,"controller":"pid-notch"},"station":{"id":3,"name":"Desk","role":"both","subject_id":9,"socket":{"connected":false,"accepted":1200,"dropped":98000,"closed_by_server":"input flood"}}}"#,
     );
 }
 
@@ -185,6 +191,14 @@ fn live_socket_events() {
     };
     let sample_text = r#"{"trial_id":7,"t":0.5,"target_mm":10.0,"device_mm":16.0,"cylinder_mm":9.5,"cab_accel_mm_s2":-120.0,"input_seq":41,"stamp_us":123456}"#;
     assert_golden(&StationEvent::Changed, r#"{"type":"changed"}"#);
+    assert_golden(
+        &StationEvent::EStop { latched: true },
+        r#"{"type":"estop","latched":true}"#,
+    );
+    assert_golden(
+        &StationEvent::EStop { latched: false },
+        r#"{"type":"estop","latched":false}"#,
+    );
     assert_golden(
         &StationEvent::Live { sample },
         &format!(r#"{{"type":"live","sample":{sample_text}}}"#),

@@ -103,6 +103,24 @@ pub struct MonitorStation {
     pub name: String,
     pub role: StationRole,
     pub subject_id: Option<i64>,
+    /// The station page's live socket; `None` when it has not connected since the server
+    /// started.
+    pub socket: Option<StationSocket>,
+}
+
+/// The station page's live socket (its newest one), for the experimenter: whether it is
+/// open, how much operator input it sent, and why the server closed it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct StationSocket {
+    pub connected: bool,
+    /// Messages within the station's rate limit (operator input is forwarded from these).
+    pub accepted: u64,
+    /// Messages over the rate limit, dropped unread.
+    pub dropped: u64,
+    /// Why the server closed it (a flood, a newer socket of the station, a too-large
+    /// message); `None` while open or when the page closed it.
+    pub closed_by_server: Option<String>,
 }
 
 /// A test as the experimenter sees it: the subject's view and the compensator it runs.
@@ -124,6 +142,24 @@ pub enum StationEvent {
     Changed,
     /// A live sample of the station's running test.
     Live { sample: LiveSample },
+    /// The E-stop latch: sent when the socket opens and whenever it changes. While latched
+    /// the page shows "Stopped" and sends no input.
+    #[serde(rename = "estop")]
+    EStop { latched: bool },
+}
+
+/// Close codes of the station's WebSocket, so that the page can tell why it was closed.
+pub mod station_close {
+    /// A newer socket of the same station replaced this one (the page was opened again
+    /// elsewhere): the old page must not reconnect, or the two would take turns.
+    pub const REPLACED: u16 = 4001;
+    /// The station kept sending far more input than its rate limit (RFC 6455: policy
+    /// violation).
+    pub const FLOOD: u16 = 1008;
+    /// A message larger than the limit (RFC 6455: message too big).
+    pub const TOO_BIG: u16 = 1009;
+    /// Nothing (not even a pong) heard for too long: the peer is gone.
+    pub const IDLE: u16 = 1001;
 }
 
 /// A message on the dashboard's live feed.

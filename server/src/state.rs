@@ -9,6 +9,7 @@ use crate::engine::controller_link::ControllerLink;
 use crate::engine::login_limiter::LoginLimiter;
 use crate::engine::pilot::PilotJob;
 use crate::engine::stability::StabilityCache;
+use crate::engine::station_sockets::StationSockets;
 use crate::engine::stations::Pairing;
 
 #[derive(Clone, Debug)]
@@ -17,6 +18,8 @@ pub struct AppState {
     pub controller: ControllerLink,
     pub login: Arc<LoginLimiter>,
     pub pairing: Arc<Pairing>,
+    /// Each station's one live socket.
+    pub sockets: Arc<StationSockets>,
     pub pilot: Arc<PilotJob>,
     pub stability: Arc<StabilityCache>,
     /// Serve the pages from this directory instead of the embedded copy (development).
@@ -30,6 +33,7 @@ impl AppState {
             controller,
             login: Arc::default(),
             pairing: Arc::default(),
+            sockets: Arc::default(),
             pilot: Arc::default(),
             stability: Arc::default(),
             web_dir: None,

@@ -7,3 +7,4 @@ mod controller_serve;
 mod hardening;
 mod server_api;
 mod server_layers;
+mod station_safety;

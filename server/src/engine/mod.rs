@@ -19,6 +19,7 @@ pub mod plots;
 pub mod results;
 pub mod schedule;
 pub mod stability;
+pub mod station_sockets;
 pub mod stations;
 pub mod stats;
 pub mod studies;

@@ -13,6 +13,7 @@ use bdft_protocol::server_to_browser::{
 use serde_json::json;
 use sqlx::SqlitePool;
 
+use super::station_sockets::StationSockets;
 use crate::error::{AppError, Result};
 use crate::store::stations::Station;
 use crate::store::trials::{Trial, latest_attempts};
@@ -22,40 +23,152 @@ use crate::store::{self, Change};
 const CODE_ALPHABET: &[u8] = b"ABCDEFGHJKLMNPQRSTUVWXYZ23456789";
 /// How long a shown pairing code stays valid.
 const CODE_LIFETIME: Duration = Duration::from_secs(3600);
+/// Codes shown at once, at most: far more stations than a lab pairs in an hour, and a
+/// bound on what anonymous callers of the register endpoint can make the server keep.
+pub const MAX_PENDING: usize = 256;
+/// How long a station's wait for its pairing is held open before it is answered "not
+/// yet" (the page asks again): below the usual 30 to 60 s proxy timeouts.
+pub const PAIRING_WAIT: Duration = Duration::from_secs(25);
 
-/// Stations that showed a pairing code and wait for the experimenter: code → (token,
-/// created). Kept in memory: a code is good for an hour or until the server restarts.
+/// A station that shows a code and waits for the experimenter.
+#[derive(Debug)]
+struct Pending {
+    token: String,
+    shown_at: Instant,
+}
+
+/// Stations that showed a pairing code and wait for the experimenter: code → token.
+/// Kept in memory: a code is good for an hour or until the server restarts. Bounded by
+/// [`MAX_PENDING`]; waiters for a pairing are bounded by the same number.
 #[derive(Debug, Default)]
 pub struct Pairing {
-    pending: Mutex<HashMap<String, (String, Instant)>>,
+    pending: Mutex<HashMap<String, Pending>>,
+    /// Woken at every pairing: the stations waiting look whether it was theirs.
+    paired: tokio::sync::Notify,
+    waiting: std::sync::atomic::AtomicUsize,
+}
+
+/// Where a station that registered stands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PairingState {
+    /// Its code is shown and still valid.
+    Pending,
+    /// The experimenter paired it: its token now works.
+    Paired,
+    /// The token is neither pending nor paired (expired, never registered, server
+    /// restarted): register again.
+    Unknown,
 }
 
 impl Pairing {
-    fn pending(&self) -> std::sync::MutexGuard<'_, HashMap<String, (String, Instant)>> {
+    fn pending(&self) -> std::sync::MutexGuard<'_, HashMap<String, Pending>> {
         self.pending.lock().unwrap_or_else(|p| p.into_inner())
     }
 
-    /// A new station's (bearer token, pairing code).
-    pub fn register(&self) -> (String, String) {
+    /// A new station's (bearer token, pairing code); refused while [`MAX_PENDING`] codes
+    /// are shown.
+    pub fn register(&self) -> Result<(String, String)> {
         let token = store::tokens::random_token();
-        let mut bytes = [0u8; 6];
-        getrandom::fill(&mut bytes).expect("the OS random source works");
-        // 32 symbols divide 256, so every symbol is equally likely.
-        let code: String = bytes
-            .iter()
-            .map(|b| CODE_ALPHABET[usize::from(*b) % CODE_ALPHABET.len()] as char)
-            .collect();
-        self.pending()
-            .insert(code.clone(), (token.clone(), Instant::now()));
-        (token, code)
+        let mut pending = self.pending();
+        pending.retain(|_, p| p.shown_at.elapsed() < CODE_LIFETIME);
+        if pending.len() >= MAX_PENDING {
+            return Err(AppError::Unavailable(format!(
+                "{MAX_PENDING} stations already show a pairing code: pair them, or wait until \
+                 their codes expire (an hour after they were shown)"
+            )));
+        }
+        let code = loop {
+            let code = new_code();
+            if !pending.contains_key(&code) {
+                break code;
+            }
+        };
+        pending.insert(
+            code.clone(),
+            Pending {
+                token: token.clone(),
+                shown_at: Instant::now(),
+            },
+        );
+        Ok((token, code))
     }
 
-    /// The token of the station showing `code`, which is used up.
+    /// The token of the station showing `code`, which is used up; the stations waiting
+    /// are woken to look.
     fn take(&self, code: &str) -> Option<String> {
         let mut pending = self.pending();
-        pending.retain(|_, (_, at)| at.elapsed() < CODE_LIFETIME);
-        pending.remove(code).map(|(t, _)| t)
+        pending.retain(|_, p| p.shown_at.elapsed() < CODE_LIFETIME);
+        pending.remove(code).map(|p| p.token)
     }
+
+    fn is_pending(&self, token: &str) -> bool {
+        self.pending()
+            .values()
+            .any(|p| p.token == token && p.shown_at.elapsed() < CODE_LIFETIME)
+    }
+
+    /// Waits until the station of `token` is paired, for at most `limit`: a page that shows
+    /// its code asks this instead of polling (and logging a 401 every second).
+    pub async fn wait(
+        &self,
+        pool: &SqlitePool,
+        token: &str,
+        limit: Duration,
+    ) -> Result<PairingState> {
+        let _waiting = Waiter::enter(&self.waiting)?;
+        let deadline = tokio::time::Instant::now() + limit;
+        loop {
+            // Registered before looking, so that a pairing in between is not missed.
+            let woken = self.paired.notified();
+            tokio::pin!(woken);
+            woken.as_mut().enable();
+            if !self.is_pending(token) {
+                let paired = store::stations::by_token(pool, token).await?.is_some();
+                return Ok(if paired {
+                    PairingState::Paired
+                } else {
+                    PairingState::Unknown
+                });
+            }
+            if tokio::time::timeout_at(deadline, woken).await.is_err() {
+                return Ok(PairingState::Pending);
+            }
+        }
+    }
+}
+
+/// One of at most [`MAX_PENDING`] waits for a pairing; leaving (also by a dropped
+/// request) frees its place.
+struct Waiter<'a>(&'a std::sync::atomic::AtomicUsize);
+
+impl<'a> Waiter<'a> {
+    fn enter(count: &'a std::sync::atomic::AtomicUsize) -> Result<Self> {
+        use std::sync::atomic::Ordering;
+        if count.fetch_add(1, Ordering::SeqCst) >= MAX_PENDING {
+            count.fetch_sub(1, Ordering::SeqCst);
+            return Err(AppError::Unavailable(
+                "too many stations are waiting to be paired; try again in a few seconds".into(),
+            ));
+        }
+        Ok(Self(count))
+    }
+}
+
+impl Drop for Waiter<'_> {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, std::sync::atomic::Ordering::SeqCst);
+    }
+}
+
+/// Six symbols of [`CODE_ALPHABET`] from the OS random source.
+fn new_code() -> String {
+    let mut bytes = [0u8; 6];
+    getrandom::fill(&mut bytes).expect("the OS random source works");
+    // 32 symbols divide 256, so every symbol is equally likely.
+    bytes
+        .iter()
+        .map(|b| CODE_ALPHABET[usize::from(*b) % CODE_ALPHABET.len()] as char)
+        .collect()
 }
 
 /// Pairs the station showing `pairing_code` with a study; returns its id.
@@ -85,6 +198,7 @@ pub async fn pair(
             json!({ "name": name, "role": role }),
         )
         .await?;
+    pairing.paired.notify_waiters();
     Ok(id)
 }
 
@@ -242,7 +356,11 @@ pub async fn station_view(pool: &SqlitePool, station: &Station) -> Result<Statio
 
 /// What a station shows, for the experimenter's live monitor (with the compensator of the
 /// test at hand).
-pub async fn monitor_view(pool: &SqlitePool, station_id: i64) -> Result<MonitorView> {
+pub async fn monitor_view(
+    pool: &SqlitePool,
+    sockets: &StationSockets,
+    station_id: i64,
+) -> Result<MonitorView> {
     let station = store::stations::get(pool, station_id).await?;
     Ok(MonitorView {
         phase: phase(pool, &station, |test, t| MonitorTest {
@@ -255,6 +373,7 @@ pub async fn monitor_view(pool: &SqlitePool, station_id: i64) -> Result<MonitorV
             name: station.name,
             role: station.role,
             subject_id: station.subject_id,
+            socket: sockets.view(station.id),
         },
     })
 }

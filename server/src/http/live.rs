@@ -1,14 +1,28 @@
-//! The live sockets: the station's (operator input in, live samples of its own running test
-//! out) and the dashboard's monitor feed (every live sample and every change).
+//! The live sockets: the station's (operator input in; live samples of its running test,
+//! changes and the E-stop latch out) and the dashboard's monitor feed (every live sample
+//! and every change).
+//!
+//! Both are bounded. A station has one socket at a time, the newest (see
+//! `engine::station_sockets`, which also holds the input rate limit); its messages are
+//! size-capped. Every socket reads its peer all the time, pings it, and ends when the peer
+//! closes, goes silent or stops reading, so a closed or vanished browser leaves no task and
+//! no file descriptor behind.
 
-use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Query, State};
 use axum::http::HeaderMap;
 use axum::response::Response;
 use bdft_protocol::browser_to_server::StationMessage;
-use bdft_protocol::server_to_browser::{MonitorEvent, StationEvent};
+use bdft_protocol::server_to_browser::{MonitorEvent, StationEvent, station_close};
+use futures_util::stream::{SplitSink, SplitStream};
+use futures_util::{SinkExt, StreamExt};
 use serde::Deserialize;
 use tokio::sync::broadcast::error::RecvError;
+use tokio::sync::{Notify, mpsc, oneshot, watch};
 use utoipa::IntoParams;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
@@ -16,6 +30,9 @@ use utoipa_axum::routes;
 use super::error::AppError;
 use super::extract::Experimenter;
 use crate::engine::controller_link::ControllerEvent;
+use crate::engine::station_sockets::{
+    Admit, FLOOD_PER_SECOND, FLOOD_SECONDS, INPUT_RATE, InputLimit, Opened,
+};
 use crate::engine::stations::running_trial;
 use crate::state::AppState;
 use crate::store;
@@ -37,9 +54,30 @@ struct TokenQuery {
 
 /// Largest operator position accepted (mm of device travel).
 const MAX_POSITION_MM: f64 = 1000.0;
+/// Largest message a station may send: an input message is under 100 bytes. A larger one
+/// closes the socket with `station_close::TOO_BIG`.
+const MAX_MESSAGE_BYTES: usize = 1024;
+/// What the WebSocket layer itself buffers of one message at most (anything larger fails
+/// the socket before it is read); above [`MAX_MESSAGE_BYTES`] so that the usual too-large
+/// message is refused with its reason.
+const TRANSPORT_LIMIT: usize = 16 * 1024;
+/// How often a socket pings its browser (which answers by itself).
+const PING_EVERY: Duration = Duration::from_secs(15);
+/// A peer heard from for this long (not even a pong) is gone.
+const SILENCE_LIMIT: Duration = Duration::from_secs(45);
+/// A browser that does not take a message within this has stopped reading.
+const SEND_LIMIT: Duration = Duration::from_secs(10);
+/// Live samples waiting for a slow station browser (dropped beyond: only the newest matter).
+const LIVE_QUEUE: usize = 256;
+/// How long a closed station's browser has to answer the close frame.
+const CLOSE_GRACE: Duration = Duration::from_secs(2);
+/// How often a station socket looks for a test the experimenter started and for a latch
+/// set without the controller (it hears both at once from the controller otherwise).
+const LOOK_EVERY: Duration = Duration::from_millis(500);
 
-/// WebSocket of a paired station: `input` messages in, `live` samples of its running test
-/// and `changed` notices out.
+/// WebSocket of a paired station: `input` messages in; `live` samples of its running test,
+/// `changed` notices and the `estop` latch out. A newer socket of the station replaces
+/// this one.
 #[utoipa::path(get, path = "/api/station/ws", tag = "station", params(TokenQuery),
     responses((status = 101, description = "WebSocket: StationMessage in, StationEvent out")))]
 async fn station_ws(
@@ -50,37 +88,150 @@ async fn station_ws(
     let station = store::stations::by_token(&s.pool, &q.token)
         .await?
         .ok_or(AppError::Unauthorized)?;
-    Ok(ws.on_upgrade(move |socket| station_socket(s, station.id, socket)))
+    Ok(ws
+        .max_message_size(TRANSPORT_LIMIT)
+        .max_frame_size(TRANSPORT_LIMIT)
+        .on_upgrade(move |socket| station_socket(s, station.id, socket)))
 }
 
-fn text(event: &impl serde::Serialize) -> String {
-    serde_json::to_string(event).expect("browser messages serialize")
+fn text(event: &impl serde::Serialize) -> Message {
+    Message::Text(
+        serde_json::to_string(event)
+            .expect("browser messages serialize")
+            .into(),
+    )
+}
+
+/// Sends `msg` unless the browser has stopped taking messages.
+async fn send(sink: &mut SplitSink<WebSocket, Message>, msg: Message) -> bool {
+    matches!(
+        tokio::time::timeout(SEND_LIMIT, sink.send(msg)).await,
+        Ok(Ok(()))
+    )
+}
+
+/// Why the server closes a socket: the close code and the reason the page is told.
+type Closing = (u16, String);
+
+/// What the station's reader hands its writer: live samples (dropped when the browser is
+/// behind), a coalescing "changed", the latest latch, and the close frame.
+struct Outbox {
+    live: mpsc::Sender<Message>,
+    changed: Arc<Notify>,
+    latch: watch::Sender<bool>,
+    close: Option<oneshot::Sender<Closing>>,
 }
 
 async fn station_socket(s: AppState, station_id: i64, socket: WebSocket) {
-    use futures_util::{SinkExt, StreamExt};
-    let (mut sink, mut stream) = socket.split();
-    // Sending runs in its own task behind a small queue: a slow browser must never delay
-    // the operator input read below (stale input stops the machine after 100 ms).
-    let (out, mut outgoing) = tokio::sync::mpsc::channel::<String>(256);
-    let writer = tokio::spawn(async move {
-        while let Some(text) = outgoing.recv().await {
-            if sink.send(Message::Text(text.into())).await.is_err() {
-                return;
-            }
+    let mut opened = s.sockets.open(station_id);
+    let (sink, mut stream) = socket.split();
+    let (live, live_rx) = mpsc::channel(LIVE_QUEUE);
+    let changed = Arc::new(Notify::new());
+    let (latch, latch_rx) = watch::channel(latched(&s).await);
+    let (close, close_rx) = oneshot::channel();
+    let mut out = Outbox {
+        live,
+        changed: Arc::clone(&changed),
+        latch,
+        close: Some(close),
+    };
+    // Sending runs in its own task: a slow browser must never delay the operator input
+    // read here (stale input stops the machine after 100 ms).
+    let mut writer = tokio::spawn(station_writer(sink, live_rx, changed, latch_rx, close_rx));
+    let closing = station_reader(
+        &s,
+        station_id,
+        &mut stream,
+        &mut out,
+        &mut opened,
+        &mut writer,
+    )
+    .await;
+    if let Some(closing) = &closing {
+        tracing::info!(
+            station = station_id,
+            code = closing.0,
+            reason = closing.1,
+            "station socket closed by the server"
+        );
+        if let Some(close) = out.close.take() {
+            let _ = close.send(closing.clone());
         }
-    });
+        // The closing handshake: what the browser still sends is read and dropped until it
+        // answers the close frame, so that it reads the reason before the connection ends.
+        let _ = tokio::time::timeout(CLOSE_GRACE, async {
+            while let Some(Ok(msg)) = stream.next().await {
+                if matches!(msg, Message::Close(_)) {
+                    break;
+                }
+            }
+        })
+        .await;
+    }
+    drop(out);
+    // The writer sends the close frame (or notices the channels closed) and ends.
+    if !writer.is_finished() && tokio::time::timeout(SEND_LIMIT, &mut writer).await.is_err() {
+        writer.abort();
+    }
+    s.sockets.closed(&opened, closing.map(|(_, why)| why));
+}
+
+/// The E-stop latch as the station shows it: set when the server's latch or the
+/// controller's is (a controller latch is known at once; the server's is written after the
+/// controller confirms, or without it when it is not connected). A database that cannot
+/// say counts as latched.
+async fn latched(s: &AppState) -> bool {
+    s.controller.estop_latched() || store::latch::latched(&s.pool).await.unwrap_or(true)
+}
+
+/// Reads the station until it closes or must be closed; returns why the server closes it.
+async fn station_reader(
+    s: &AppState,
+    station_id: i64,
+    stream: &mut SplitStream<WebSocket>,
+    out: &mut Outbox,
+    opened: &mut Opened,
+    writer: &mut tokio::task::JoinHandle<()>,
+) -> Option<Closing> {
     let mut events = s.controller.subscribe();
     // The trial this station may feed: its subject's running test at a seat it serves.
-    let current =
-        |s: AppState| async move { running_trial(&s.pool, station_id).await.ok().flatten() };
-    let changed = text(&StationEvent::Changed);
-    let mut running = current(s.clone()).await;
+    let current = || async { running_trial(&s.pool, station_id).await.ok().flatten() };
+    let mut running = current().await;
+    let mut limit = InputLimit::new(Instant::now());
+    let mut look = tokio::time::interval(LOOK_EVERY);
     loop {
         tokio::select! {
-            msg = stream.next() => {
-                let Some(Ok(msg)) = msg else { break };
+            _ = &mut opened.replaced => {
+                return Some((station_close::REPLACED, "this station was opened again elsewhere; that page is the live one now".into()));
+            }
+            // The writer ended: the browser stopped reading.
+            _ = &mut *writer => return None,
+            msg = tokio::time::timeout(SILENCE_LIMIT, stream.next()) => {
+                let msg = match msg {
+                    Err(_) => return Some((station_close::IDLE, format!("nothing heard for {} s", SILENCE_LIMIT.as_secs()))),
+                    Ok(None | Some(Err(_)) | Some(Ok(Message::Close(_)))) => return None,
+                    Ok(Some(Ok(msg))) => msg,
+                };
+                let counts = &opened.counts;
+                match limit.admit(Instant::now()) {
+                    Admit::Accept => counts.accepted.fetch_add(1, Ordering::Relaxed),
+                    Admit::Drop => {
+                        counts.dropped.fetch_add(1, Ordering::Relaxed);
+                        continue;
+                    }
+                    Admit::Disconnect => {
+                        counts.dropped.fetch_add(1, Ordering::Relaxed);
+                        return Some((station_close::FLOOD, format!(
+                            "input flood: more than {FLOOD_PER_SECOND} messages a second for {FLOOD_SECONDS} s (the limit is {INPUT_RATE} a second)"
+                        )));
+                    }
+                };
                 let Message::Text(body) = msg else { continue };
+                if body.len() > MAX_MESSAGE_BYTES {
+                    return Some((station_close::TOO_BIG, format!(
+                        "a message of {} bytes (at most {MAX_MESSAGE_BYTES})", body.len()
+                    )));
+                }
                 match serde_json::from_str::<StationMessage>(&body) {
                     Ok(StationMessage::Input { trial_id, seq, position_mm })
                         if Some(trial_id) == running
@@ -96,26 +247,67 @@ async fn station_socket(s: AppState, station_id: i64, socket: WebSocket) {
             ev = events.recv() => match ev {
                 Ok(ControllerEvent::Live(sample)) if Some(sample.trial_id as i64) == running => {
                     // A live sample that cannot be queued is dropped, never waited for.
-                    let _ = out.try_send(text(&StationEvent::Live { sample }));
-                }
-                Ok(ControllerEvent::TrialChanged { .. } | ControllerEvent::Link { .. } | ControllerEvent::EStop { .. }) | Err(RecvError::Lagged(_)) => {
-                    running = current(s.clone()).await;
-                    if out.send(changed.clone()).await.is_err() { break; }
+                    let _ = out.live.try_send(text(&StationEvent::Live { sample }));
                 }
                 Ok(ControllerEvent::Live(_)) => {}
-                Err(_) => break,
+                Ok(ControllerEvent::EStop { latched: true }) => {
+                    // At once: the page shows "Stopped" before anything is read again.
+                    out.latch.send_if_modified(|l| !std::mem::replace(l, true));
+                    running = current().await;
+                    out.changed.notify_one();
+                }
+                Ok(ControllerEvent::TrialChanged { .. } | ControllerEvent::Link { .. } | ControllerEvent::EStop { .. }) | Err(RecvError::Lagged(_)) => {
+                    let now = latched(s).await;
+                    out.latch.send_if_modified(|l| std::mem::replace(l, now) != now);
+                    running = current().await;
+                    out.changed.notify_one();
+                }
+                Err(RecvError::Closed) => return None,
             },
-            // A trial started by the experimenter: look again every half second.
-            _ = tokio::time::sleep(std::time::Duration::from_millis(500)), if running.is_none() => {
-                let now = current(s.clone()).await;
-                if now != running {
-                    running = now;
-                    if out.send(changed.clone()).await.is_err() { break; }
+            // A trial started by the experimenter, a latch set while the controller was away.
+            _ = look.tick() => {
+                let now = latched(s).await;
+                out.latch.send_if_modified(|l| std::mem::replace(l, now) != now);
+                if running.is_none() {
+                    let now = current().await;
+                    if now != running {
+                        running = now;
+                        out.changed.notify_one();
+                    }
                 }
             }
         }
     }
-    writer.abort();
+}
+
+/// Sends the station its messages, the E-stop latch first; ends with the close frame.
+async fn station_writer(
+    mut sink: SplitSink<WebSocket, Message>,
+    mut live: mpsc::Receiver<Message>,
+    changed: Arc<Notify>,
+    mut latch: watch::Receiver<bool>,
+    mut close: oneshot::Receiver<Closing>,
+) {
+    // The page learns the latch as soon as it connects.
+    latch.mark_changed();
+    let mut ping = tokio::time::interval_at(tokio::time::Instant::now() + PING_EVERY, PING_EVERY);
+    loop {
+        let msg = tokio::select! {
+            biased;
+            closing = &mut close => {
+                let frame = closing.ok().map(|(code, reason)| CloseFrame { code, reason: reason.into() });
+                let _ = send(&mut sink, Message::Close(frame)).await;
+                return;
+            }
+            Ok(()) = latch.changed() => text(&StationEvent::EStop { latched: *latch.borrow_and_update() }),
+            () = changed.notified() => text(&StationEvent::Changed),
+            Some(msg) = live.recv() => msg,
+            _ = ping.tick() => Message::Ping(Default::default()),
+        };
+        if !send(&mut sink, msg).await {
+            return;
+        }
+    }
 }
 
 /// The dashboard's live feed: every live sample and every change (MonitorEvent messages).
@@ -136,24 +328,37 @@ async fn live_ws(
             return Err(AppError::Forbidden("cross-origin WebSocket refused".into()));
         }
     }
-    Ok(ws.on_upgrade(move |mut socket| async move {
-        let mut events = s.controller.subscribe();
-        loop {
-            let event = match events.recv().await {
+    Ok(ws
+        .max_message_size(MAX_MESSAGE_BYTES)
+        .max_frame_size(MAX_MESSAGE_BYTES)
+        .on_upgrade(move |socket| dashboard_socket(s, socket)))
+}
+
+/// Feeds one dashboard until it closes, goes silent or stops reading. The browser sends
+/// nothing but pongs and the close; reading them is how a closed dashboard is noticed even
+/// when nothing happens to send.
+async fn dashboard_socket(s: AppState, socket: WebSocket) {
+    let (mut sink, mut stream) = socket.split();
+    let mut events = s.controller.subscribe();
+    let mut ping = tokio::time::interval_at(tokio::time::Instant::now() + PING_EVERY, PING_EVERY);
+    loop {
+        let event = tokio::select! {
+            msg = tokio::time::timeout(SILENCE_LIMIT, stream.next()) => match msg {
+                Ok(Some(Ok(Message::Close(_)) | Err(_)) | None) | Err(_) => return,
+                Ok(Some(Ok(_))) => continue,
+            },
+            _ = ping.tick() => Message::Ping(Default::default()),
+            ev = events.recv() => text(&match ev {
                 Ok(ControllerEvent::Live(sample)) => MonitorEvent::Live { sample },
                 Ok(ControllerEvent::TrialChanged { trial_id }) => MonitorEvent::Trial { trial_id },
                 Ok(ControllerEvent::Link { connected }) => MonitorEvent::Controller { connected },
                 Ok(ControllerEvent::EStop { latched }) => MonitorEvent::EStop { latched },
                 Err(RecvError::Lagged(_)) => continue,
-                Err(_) => return,
-            };
-            if socket
-                .send(Message::Text(text(&event).into()))
-                .await
-                .is_err()
-            {
-                return;
-            }
+                Err(RecvError::Closed) => return,
+            }),
+        };
+        if !send(&mut sink, event).await {
+            return;
         }
-    }))
+    }
 }

@@ -1,23 +1,26 @@
 //! The station's own API (bearer token of a paired station, acting for the subject assigned
-//! to it): registering for a pairing code, what to show now, consent, surveys and the
-//! display's timing figures.
+//! to it): registering for a pairing code and waiting to be paired, what to show now,
+//! consent, surveys and the display's timing figures.
 
 use axum::extract::State;
 use bdft_protocol::browser_to_server::{ConsentRequest, SurveySubmission, TimingReport};
 use bdft_protocol::server_to_browser::StationView;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::error::{ApiResult, AppJson, Done};
+use super::error::{ApiResult, AppError, AppJson, Done};
 use super::extract::StationAuth;
+use crate::engine::stations::{PAIRING_WAIT, PairingState};
 use crate::engine::{stations, subjects};
 use crate::state::AppState;
 
 /// Anyone may register a browser as a station (it is useless until paired).
 pub fn public() -> OpenApiRouter<AppState> {
-    OpenApiRouter::new().routes(routes!(register))
+    OpenApiRouter::new()
+        .routes(routes!(register))
+        .routes(routes!(pairing))
 }
 
 /// Routes of a paired station.
@@ -37,14 +40,46 @@ pub struct Registered {
     pub pairing_code: String,
 }
 
-/// Register this browser as a station: a token and a pairing code to show.
+/// Register this browser as a station: a token and a pairing code to show (503 while too
+/// many codes are shown).
 #[utoipa::path(post, path = "/api/station/register", tag = "station", responses((status = 200, body = Registered)))]
-async fn register(State(s): State<AppState>) -> AppJson<Registered> {
-    let (token, pairing_code) = s.pairing.register();
-    AppJson(Registered {
+async fn register(State(s): State<AppState>) -> ApiResult<Registered> {
+    let (token, pairing_code) = s.pairing.register()?;
+    Ok(AppJson(Registered {
         token,
         pairing_code,
-    })
+    }))
+}
+
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PairingQuery {
+    /// The token `register` gave.
+    token: String,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct PairingAnswer {
+    /// The experimenter paired the station: its token now works.
+    pub paired: bool,
+}
+
+/// Wait for the experimenter to pair this station: answers as soon as it is paired, or
+/// `paired: false` after 25 s (ask again); 404 when the code expired or is unknown
+/// (register again). The page waits here instead of polling its state.
+#[utoipa::path(post, path = "/api/station/pairing", tag = "station", request_body = PairingQuery,
+    responses((status = 200, body = PairingAnswer)))]
+async fn pairing(
+    State(s): State<AppState>,
+    AppJson(q): AppJson<PairingQuery>,
+) -> ApiResult<PairingAnswer> {
+    match s.pairing.wait(&s.pool, &q.token, PAIRING_WAIT).await? {
+        PairingState::Paired => Ok(AppJson(PairingAnswer { paired: true })),
+        PairingState::Pending => Ok(AppJson(PairingAnswer { paired: false })),
+        PairingState::Unknown => Err(AppError::NotFound(
+            "pairing code (it expired or the server restarted; register again)",
+        )),
+    }
 }
 
 /// What the station shows now (never a compensator's name).

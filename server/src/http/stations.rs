@@ -106,5 +106,7 @@ async fn monitor_view(
     _who: Experimenter,
     Path(id): Path<i64>,
 ) -> ApiResult<MonitorView> {
-    Ok(AppJson(stations::monitor_view(&s.pool, id).await?))
+    Ok(AppJson(
+        stations::monitor_view(&s.pool, &s.sockets, id).await?,
+    ))
 }
