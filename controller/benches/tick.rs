@@ -3,7 +3,10 @@
 //! - cost of one closed-loop tick (plant + accelerometer + body + compensator) per compensator;
 //! - one 140 s protocol trial (140,000 ticks with the synthetic operator) end to end;
 //! - the same discrete PID-notch loop as `tools/bench/forced_response.py`, timed here and
-//!   there (python-control's `forced_response`) in the same run, with the ratio.
+//!   there (python-control's `forced_response`) in the same run, with the ratio;
+//! - the real-time loop's work for the 8 trials of `bench-rt` in one tick, with warm caches
+//!   and with caches evicted between ticks as the other processes of a busy machine do
+//!   (`cargo bench -p bdft-controller --bench tick -- loop` runs only this part).
 //!
 //! Medians over repeated runs: the machines are shared and noisy.
 
@@ -15,6 +18,9 @@ use bdft_controller::closed_loop::{ClosedLoop, Drive, LoopSetup};
 use bdft_controller::compensator::{CompensatorKind, default_spec};
 use bdft_controller::operator::OperatorParams;
 use bdft_controller::params::{BodyModel, LoopParams, PlantParams, Seat};
+use bdft_controller::runtime::histogram::Histogram;
+use bdft_controller::runtime::rt_loop::Event;
+use bdft_controller::runtime::slot::SlotTick;
 use bdft_controller::signals::StepParams;
 use bdft_controller::simulate::{SignalKind, SimConfig, simulate};
 
@@ -56,8 +62,75 @@ fn time_ticks(lp: &mut ClosedLoop, ticks: usize) -> f64 {
     median(runs)
 }
 
+/// Bytes written between cold ticks: more than the L2 cache and the TLBs' reach.
+const EVICT_BYTES: usize = 8 << 20;
+
+/// One loop tick's work for the 8 trials of `bench-rt` (slot ticks and live samples into an
+/// event queue), p50 and p99 in µs over 4,000 ticks, with or without evicting the caches
+/// between ticks.
+fn loop_tick_us(cold: bool) -> (f64, f64) {
+    let dt = 1e-3;
+    let mut slots: Vec<_> = (0..8)
+        .map(|i| {
+            let st = bdft_controller::runtime::bench_trial(i, 140.0).expect("trial");
+            let mut slot = bdft_controller::runtime::setup::build_slot(&st, dt, false)
+                .expect("build")
+                .slot;
+            // As the loop installs trials.
+            slot.live_phase = i as u64 % slot.live_every;
+            slot
+        })
+        .collect();
+    let (mut tx, mut rx) = rtrb::RingBuffer::new(1 << 16);
+    // Pages touched once, as the loop does, so that page faults are not counted.
+    while tx.push(Event::Stepped { tick: 0 }).is_ok() {}
+    while rx.pop().is_ok() {}
+    let mut evict = vec![0u8; EVICT_BYTES];
+    let mut h = Histogram::default();
+    for now in 0..4000u64 {
+        if cold {
+            // What the other processes on this CPU do while the loop sleeps.
+            for b in evict.iter_mut().step_by(64) {
+                *b = b.wrapping_add(1);
+            }
+            black_box(&evict);
+        }
+        while rx.pop().is_ok() {}
+        let start = Instant::now();
+        for slot in slots.iter_mut() {
+            if let SlotTick::Live(s) = slot.tick(now, now * 1_000_000, 10.0) {
+                let _ = tx.push(Event::Live(s));
+            }
+        }
+        h.record(start.elapsed().as_nanos() as u64);
+    }
+    let p = h.percentiles_us();
+    (p.p50, p.p99)
+}
+
+fn loop_cost(report: &mut serde_json::Map<String, serde_json::Value>) {
+    println!("one loop tick of bench-rt's 8 trials, 4,000 ticks, median of {RUNS} runs");
+    for cold in [false, true] {
+        let runs: Vec<_> = (0..RUNS).map(|_| loop_tick_us(cold)).collect();
+        let p50 = median(runs.iter().map(|r| r.0).collect());
+        let p99 = median(runs.iter().map(|r| r.1).collect());
+        let name = if cold { "cold" } else { "warm" };
+        println!("  {name}: p50 {p50:6.2} µs, p99 {p99:6.2} µs");
+        report.insert(
+            format!("loop_tick_8_trials_{name}_us"),
+            serde_json::json!({ "p50": p50, "p99": p99 }),
+        );
+    }
+}
+
 fn main() {
     let mut report = serde_json::Map::new();
+    if std::env::args().skip(1).any(|a| a == "loop") {
+        loop_cost(&mut report);
+        println!("{}", serde_json::Value::Object(report));
+        return;
+    }
+    loop_cost(&mut report);
     println!(
         "tick cost (plant + accelerometer noise + body + compensator), median of {RUNS} × 200,000 ticks"
     );

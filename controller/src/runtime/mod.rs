@@ -30,7 +30,7 @@ use bdft_protocol::server_to_controller::StartTrial;
 use bdft_protocol::trial::{InputSource, TargetSpec, TimingSummary};
 use serde::Serialize;
 
-use crate::compensator::default_spec;
+use crate::compensator::study_spec;
 use crate::operator::OperatorParams;
 use crate::signals::{StepParams, StepTarget};
 use rt_loop::{Command, Event, LoopConfig};
@@ -268,6 +268,37 @@ pub struct BenchReport {
     pub realtime: RealtimeStatus,
 }
 
+/// Trial `i` of `bench-rt`: the five study compensators in turn with their designs for people
+/// (`study_spec`: the bench PID limit-cycles on the machine, the interlock stops it within
+/// 3 s, and the loop would be timed with fewer trials than asked), a synthetic operator,
+/// station on, random steps; each trial its own seeds.
+pub fn bench_trial(i: usize, duration_s: f64) -> anyhow::Result<StartTrial> {
+    let plant = PlantParams::default();
+    let kind = CompensatorKind::STUDY[i % CompensatorKind::STUDY.len()];
+    let target = StepTarget::generate(&StepParams::default(), duration_s.max(4.0), i as u64)?;
+    Ok(StartTrial {
+        trial_id: i as u64 + 1,
+        compensator: study_spec(kind, &plant),
+        station: Seat::On,
+        k_bf: 0.6,
+        target: TargetSpec::Steps {
+            interval_s: target.interval_s,
+            levels_mm: target.levels_mm,
+        },
+        duration_s,
+        input: InputSource::Synthetic {
+            operator: OperatorParams::default(),
+            seed: i as u64,
+        },
+        plant,
+        body: Default::default(),
+        noise_seed: i as u64,
+        live_rate_hz: 100.0,
+        stale_input_ms: 100.0,
+        max_cab_rms_mm_s2: bdft_protocol::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
+    })
+}
+
 /// Runs `trials` simulated trials (the five study compensators in turn, synthetic
 /// operators, station on) in real time for `duration_s` and reports the loop's timing.
 pub fn bench_rt(
@@ -278,31 +309,8 @@ pub fn bench_rt(
 ) -> anyhow::Result<BenchReport> {
     let dt = 1e-3;
     let mut rt = rt_loop::spawn(loop_config(dt, false, trials.max(1), priority, cpu));
-    let plant = PlantParams::default();
     for i in 0..trials {
-        let kind = CompensatorKind::STUDY[i % CompensatorKind::STUDY.len()];
-        let target = StepTarget::generate(&StepParams::default(), duration_s.max(4.0), i as u64)?;
-        let st = StartTrial {
-            trial_id: i as u64 + 1,
-            compensator: default_spec(kind, &plant),
-            station: Seat::On,
-            k_bf: 0.6,
-            target: TargetSpec::Steps {
-                interval_s: target.interval_s,
-                levels_mm: target.levels_mm,
-            },
-            duration_s,
-            input: InputSource::Synthetic {
-                operator: OperatorParams::default(),
-                seed: i as u64,
-            },
-            plant,
-            body: Default::default(),
-            noise_seed: i as u64,
-            live_rate_hz: 100.0,
-            stale_input_ms: 100.0,
-            max_cab_rms_mm_s2: bdft_protocol::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
-        };
+        let st = bench_trial(i, duration_s)?;
         let built = setup::build_slot(&st, dt, false).map_err(anyhow::Error::msg)?;
         rt.send(Command::Start(built.slot))
             .map_err(|_| anyhow::anyhow!("command queue full"))?;

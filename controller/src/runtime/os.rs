@@ -92,6 +92,17 @@ pub fn make_realtime(priority: i32, cpu: Option<usize>) -> (RealtimeStatus, Vec<
     (status, refused)
 }
 
+/// Minor page faults the calling thread has taken so far.
+#[cfg(test)]
+pub fn minor_faults() -> u64 {
+    // SAFETY: getrusage fills the struct it is given; zeroed is a valid rusage.
+    unsafe {
+        let mut usage: libc::rusage = std::mem::zeroed();
+        libc::getrusage(libc::RUSAGE_THREAD, &mut usage);
+        usage.ru_minflt as u64
+    }
+}
+
 /// Number of CPUs this process may run on.
 pub fn cpu_count() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())
