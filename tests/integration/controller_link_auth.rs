@@ -331,6 +331,8 @@ fn a_remote_controller_serves_only_the_server_with_its_key_file() {
     let impostor = Server::start_with(
         "remote-impostor",
         &[
+            "--admin-password",
+            ADMIN_PASSWORD,
             "--controller",
             &addr,
             "--controller-key-file",
@@ -352,6 +354,8 @@ fn a_remote_controller_serves_only_the_server_with_its_key_file() {
     let server = Server::start_with(
         "remote-key",
         &[
+            "--admin-password",
+            ADMIN_PASSWORD,
             "--controller",
             &addr,
             "--controller-key-file",

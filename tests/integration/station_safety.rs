@@ -159,7 +159,7 @@ fn a_flooding_station_is_throttled_then_cut_off_while_another_runs_normally() {
         if flood_ws.send(input(flood_trial, seq)).is_err() {
             break close_frame(&mut flood_ws);
         }
-        if seq % 500 == 0 {
+        if seq.is_multiple_of(500) {
             match flood_ws.read() {
                 Ok(Message::Close(Some(f))) => break (f.code.into(), f.reason.to_string()),
                 Ok(Message::Close(None)) => panic!("closed without a code"),
