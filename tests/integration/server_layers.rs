@@ -536,7 +536,7 @@ fn the_estop_is_confirmed_while_a_station_floods_input() {
 fn a_pilot_never_writes_into_a_study_with_people() {
     let server = Server::start("layers-dry-run");
     let api = server.experimenter();
-    let study = short_study(&api, 0.5, 0.3);
+    let study = short_study(&api, 1.0, 0.3);
     let person = api.ok(&format!("/api/studies/{study}/subjects"), json!({}));
     // A synthetic subject cannot join a study for people, nor a person a dry run.
     let (code, body) = api.post(
