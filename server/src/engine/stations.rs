@@ -95,10 +95,17 @@ impl Pairing {
 
     /// The token of the station showing `code`, which is used up; the stations waiting
     /// are woken to look.
-    fn take(&self, code: &str) -> Option<String> {
+    /// The token of the station showing `code`. The code stays pending until the pairing
+    /// is committed ([`Self::forget`]): a station waiting meanwhile sees it pending or
+    /// paired, never unknown, and a failed pairing loses no code.
+    fn token_of(&self, code: &str) -> Option<String> {
         let mut pending = self.pending();
         pending.retain(|_, p| p.shown_at.elapsed() < CODE_LIFETIME);
-        pending.remove(code).map(|p| p.token)
+        pending.get(code).map(|p| p.token.clone())
+    }
+
+    fn forget(&self, code: &str) {
+        self.pending().remove(code);
     }
 
     fn is_pending(&self, token: &str) -> bool {
@@ -184,7 +191,7 @@ pub async fn pair(
     store::studies::get(pool, study_id).await?;
     super::check_name(name)?;
     let code = pairing_code.trim().to_uppercase();
-    let token = pairing.take(&code).ok_or_else(|| {
+    let token = pairing.token_of(&code).ok_or_else(|| {
         AppError::BadRequest(format!(
             "pairing code {code:?} is not shown by any station (codes expire after an hour)"
         ))
@@ -198,6 +205,7 @@ pub async fn pair(
             json!({ "name": name, "role": role }),
         )
         .await?;
+    pairing.forget(&code);
     pairing.paired.notify_waiters();
     Ok(id)
 }
