@@ -506,11 +506,28 @@ fn a_person_drives_a_test_through_the_station_socket() {
         api.post(&format!("/api/trials/{trial}/start"), json!({})).0,
         200
     );
-    // Stream input at about 200 Hz as a page does, collecting live samples meanwhile.
+    // Stream input at about 200 Hz as a page does, collecting live samples meanwhile; the
+    // test's end is watched from another thread, so a slow API answer never pauses the
+    // input (the controller stops a test whose input pauses for 100 ms).
+    let ended = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let poller = {
+        let (ended, watcher) = (std::sync::Arc::clone(&ended), server.experimenter());
+        std::thread::spawn(move || {
+            let started = Instant::now();
+            while started.elapsed() < Duration::from_secs(60) {
+                let (code, s) = watcher.get(&format!("/api/subjects/{subject}"));
+                if code == 200 && s["trials"][0]["trial"]["status"] != "running" {
+                    ended.store(true, std::sync::atomic::Ordering::Relaxed);
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        })
+    };
     let start = Instant::now();
     let mut seq = 0u64;
     let mut live = Vec::new();
-    while start.elapsed() < Duration::from_secs(6) {
+    while start.elapsed() < Duration::from_secs(60) {
         seq += 1;
         let msg = json!({ "type": "input", "trial_id": trial, "seq": seq, "position_mm": 12.5 })
             .to_string();
@@ -529,12 +546,12 @@ fn a_person_drives_a_test_through_the_station_socket() {
                 live.push(v["sample"].clone());
             }
         }
-        let (_, s) = api.get(&format!("/api/subjects/{subject}"));
-        if s["trials"][0]["trial"]["status"] != "running" && live.len() > 10 {
+        if ended.load(std::sync::atomic::Ordering::Relaxed) && live.len() > 10 {
             break;
         }
         std::thread::sleep(Duration::from_millis(5));
     }
+    poller.join().unwrap();
     let (_, s) = api.get(&format!("/api/subjects/{subject}"));
     assert_eq!(
         s["trials"][0]["trial"]["status"], "complete",
