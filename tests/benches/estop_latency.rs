@@ -6,8 +6,9 @@
 //! `cargo build --release -p bdft-controller && cargo bench -p bdft-tests --bench estop_latency`
 
 use std::io::Write;
-use std::sync::Arc;
+use std::net::TcpStream;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use bdft_protocol::controller_to_server::ControllerToServer;
@@ -17,9 +18,19 @@ use bdft_protocol::server_to_controller::ServerToController;
 use bdft_protocol::trial::FaultKind;
 use bdft_tests::controller_link::{Link, Proc};
 
-fn press(on: &mut Link) -> Duration {
+/// Presses on `on`, writing through `writer` when the connection is shared with a flood
+/// (frames must not interleave: the press waits for the batch being written, as an E-stop
+/// behind queued input would).
+fn press(on: &mut Link, writer: Option<&Mutex<TcpStream>>) -> Duration {
     let pressed = Instant::now();
-    on.send(&ServerToController::EStop {});
+    match writer {
+        Some(w) => w
+            .lock()
+            .unwrap()
+            .write_all(&encode(&ServerToController::EStop {}).unwrap())
+            .unwrap(),
+        None => on.send(&ServerToController::EStop {}),
+    }
     loop {
         if let ControllerToServer::Fault {
             kind: FaultKind::EStop,
@@ -32,9 +43,17 @@ fn press(on: &mut Link) -> Duration {
     }
 }
 
-/// Floods `link`'s socket with operator input until the returned flag is set.
-fn flood(link: &Link) -> (Arc<AtomicBool>, std::thread::JoinHandle<u64>) {
-    let mut to = link.stream_clone();
+type Flood = (
+    Arc<AtomicBool>,
+    Arc<Mutex<TcpStream>>,
+    std::thread::JoinHandle<u64>,
+);
+
+/// Floods `link`'s socket with operator input until the returned flag is set; the socket's
+/// writer is shared behind the mutex.
+fn flood(link: &Link) -> Flood {
+    let to = Arc::new(Mutex::new(link.stream_clone()));
+    let writer = Arc::clone(&to);
     let stop = Arc::new(AtomicBool::new(false));
     let flag = Arc::clone(&stop);
     let frame = encode(&ServerToController::OperatorInput {
@@ -51,12 +70,12 @@ fn flood(link: &Link) -> (Arc<AtomicBool>, std::thread::JoinHandle<u64>) {
         .collect();
     let t = std::thread::spawn(move || {
         let mut sent = 0;
-        while !flag.load(Ordering::Relaxed) && to.write_all(&batch).is_ok() {
+        while !flag.load(Ordering::Relaxed) && to.lock().unwrap().write_all(&batch).is_ok() {
             sent += 1000;
         }
         sent
     });
-    (stop, t)
+    (stop, writer, t)
 }
 
 fn report(name: &str, mut took: Vec<Duration>) {
@@ -80,9 +99,13 @@ fn scenario(name: &str, presses: usize, own_path: bool, flooded: bool) {
         // Let the socket buffers fill.
         std::thread::sleep(Duration::from_millis(500));
     }
+    let writer = flooding
+        .as_ref()
+        .filter(|_| !own_path)
+        .map(|f| Arc::clone(&f.1));
     let on = if own_path { &mut path } else { &mut control };
-    let took: Vec<Duration> = (0..presses).map(|_| press(on)).collect();
-    if let Some((stop, t)) = flooding {
+    let took: Vec<Duration> = (0..presses).map(|_| press(on, writer.as_deref())).collect();
+    if let Some((stop, _, t)) = flooding {
         stop.store(true, Ordering::Relaxed);
         drop(ctl);
         let sent = t.join().unwrap();
