@@ -70,6 +70,7 @@ pub struct ControllerStatus {
     pub pid: Option<u32>,
     /// "sim" or "udp".
     pub rig: Option<String>,
+    /// The E-stop latch as starts see it: the controller's or the server's stored one.
     pub estop_latched: bool,
     /// Whether the E-stop's own connection is up (the control connection carries every
     /// E-stop too).
@@ -83,13 +84,16 @@ pub struct ControllerStatus {
 async fn controller_status(
     State(s): State<AppState>,
     _who: Experimenter,
-) -> AppJson<ControllerStatus> {
-    AppJson(ControllerStatus {
+) -> ApiResult<ControllerStatus> {
+    // Latched if either end holds it: starts are refused on the server's own latch too, so
+    // the dashboard must not offer Start while the controller is away and the latch is set.
+    let stored = crate::store::latch::latched(&s.pool).await?;
+    Ok(AppJson(ControllerStatus {
         connected: s.controller.is_connected(),
         pid: s.controller.pid(),
         rig: s.controller.rig(),
-        estop_latched: s.controller.estop_latched(),
+        estop_latched: s.controller.estop_latched() || stored,
         estop_path: s.controller.estop_path_up(),
         down_because: s.controller.down_because(),
-    })
+    }))
 }
