@@ -485,7 +485,20 @@ fn controller_death_is_detected_within_100_ms_and_the_controller_restarts() {
 fn a_person_drives_a_test_through_the_station_socket() {
     let server = Server::start("person");
     let api = server.experimenter();
-    let study = short_study(&api, 1.5, 0.0);
+    // The stale-input limit (its own tests are in controller_serve) is widened here: this
+    // test drives input from a test thread, which a loaded 2-core machine can stall for
+    // longer than 100 ms while browsers and other servers run beside it.
+    let (_, mut params) = api.get("/api/defaults");
+    params["trial_s"] = json!(1.5);
+    params["practice_s"] = json!(0.0);
+    params["step_interval_s"] = json!(0.5);
+    params["stale_input_ms"] = json!(2000.0);
+    let study = api.ok(
+        "/api/studies",
+        json!({ "name": "person", "params": params, "seed": 42 }),
+    )["id"]
+        .as_i64()
+        .unwrap();
     let (subject, station) = ready_subject(&api, study, false);
     station.ok("/api/station/consent", json!({ "decision": "agreed" }));
     let (_, state) = station.get("/api/station/state");

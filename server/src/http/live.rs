@@ -74,6 +74,9 @@ const CLOSE_GRACE: Duration = Duration::from_secs(2);
 /// How often a station socket looks for a test the experimenter started and for a latch
 /// set without the controller (it hears both at once from the controller otherwise).
 const LOOK_EVERY: Duration = Duration::from_millis(500);
+/// Input for a test not known to be running looks the station's running test up again at
+/// most this often.
+const RECHECK_EVERY: Duration = Duration::from_millis(10);
 
 /// WebSocket of a paired station: `input` messages in; `live` samples of its running test,
 /// `changed` notices and the `estop` latch out. A newer socket of the station replaces
@@ -199,6 +202,7 @@ async fn station_reader(
     let mut running = current().await;
     let mut limit = InputLimit::new(Instant::now());
     let mut look = tokio::time::interval(LOOK_EVERY);
+    let mut last_recheck = Instant::now();
     loop {
         tokio::select! {
             _ = &mut opened.replaced => {
@@ -232,7 +236,23 @@ async fn station_reader(
                         "a message of {} bytes (at most {MAX_MESSAGE_BYTES})", body.len()
                     )));
                 }
-                match serde_json::from_str::<StationMessage>(&body) {
+                let input = serde_json::from_str::<StationMessage>(&body);
+                // Input for a test this socket does not know to be running: the test may have
+                // just started (its first input must reach the controller within the
+                // stale-input limit, not at the next look), so look again, at most every
+                // RECHECK_EVERY so that stray input cannot turn into a query each.
+                if let Ok(StationMessage::Input { trial_id, .. }) = &input
+                    && Some(*trial_id) != running
+                    && last_recheck.elapsed() >= RECHECK_EVERY
+                {
+                    last_recheck = Instant::now();
+                    let now = current().await;
+                    if now != running {
+                        running = now;
+                        out.changed.notify_one();
+                    }
+                }
+                match input {
                     Ok(StationMessage::Input { trial_id, seq, position_mm })
                         if Some(trial_id) == running
                             && position_mm.is_finite()
