@@ -16,7 +16,7 @@ use bdft_protocol::framing::encode;
 use bdft_protocol::link_auth::LinkRole;
 use bdft_protocol::server_to_controller::ServerToController;
 use bdft_protocol::trial::FaultKind;
-use bdft_tests::controller_link::{Link, Proc};
+use bdft_tests::controller_link::{Link, Proc, input_flood_batch};
 
 /// Presses on `on`, writing through `writer` when the connection is shared with a flood
 /// (frames must not interleave: the press waits for the batch being written, as an E-stop
@@ -56,18 +56,7 @@ fn flood(link: &Link) -> Flood {
     let writer = Arc::clone(&to);
     let stop = Arc::new(AtomicBool::new(false));
     let flag = Arc::clone(&stop);
-    let frame = encode(&ServerToController::OperatorInput {
-        trial_id: 1,
-        seq: 1,
-        position_mm: 3.0,
-    })
-    .unwrap();
-    let batch: Vec<u8> = frame
-        .iter()
-        .copied()
-        .cycle()
-        .take(frame.len() * 1000)
-        .collect();
+    let batch = input_flood_batch(1, 1000);
     let t = std::thread::spawn(move || {
         let mut sent = 0;
         while !flag.load(Ordering::Relaxed) && to.lock().unwrap().write_all(&batch).is_ok() {

@@ -8,12 +8,11 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use bdft_protocol::controller_to_server::ControllerToServer;
-use bdft_protocol::framing::encode;
 use bdft_protocol::link_auth::{Bytes32, LinkKey, LinkRole};
 use bdft_protocol::params::{CompensatorKind, Seat};
 use bdft_protocol::server_to_controller::ServerToController;
 use bdft_protocol::trial::{FaultKind, Outcome};
-use bdft_tests::controller_link::{Link, PATIENCE, Proc, TrialLog};
+use bdft_tests::controller_link::{Link, PATIENCE, Proc, TrialLog, input_flood_batch};
 use bdft_tests::server::{ADMIN_PASSWORD, Server, eventually};
 
 use super::controller_serve::{server_input_trial, synthetic_trial};
@@ -227,18 +226,7 @@ fn an_estop_overtakes_a_flood_on_the_control_connection() {
     let flood = {
         let (stop, sent) = (Arc::clone(&stop), Arc::clone(&sent));
         std::thread::spawn(move || {
-            let frame = encode(&ServerToController::OperatorInput {
-                trial_id: 1,
-                seq: 1,
-                position_mm: 3.0,
-            })
-            .unwrap();
-            let batch: Vec<u8> = frame
-                .iter()
-                .copied()
-                .cycle()
-                .take(frame.len() * 1000)
-                .collect();
+            let batch = input_flood_batch(1, 1000);
             while !stop.load(Ordering::Relaxed) {
                 if flood_to.write_all(&batch).is_err() {
                     break;

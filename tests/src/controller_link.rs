@@ -99,6 +99,18 @@ impl Drop for Proc {
     }
 }
 
+/// `frames` copies of one operator-input frame for `trial_id`, back to back: what a flood
+/// writes to a control connection in one go.
+pub fn input_flood_batch(trial_id: u64, frames: usize) -> Vec<u8> {
+    let frame = bdft_protocol::framing::encode(&ServerToController::OperatorInput {
+        trial_id,
+        seq: 1,
+        position_mm: 3.0,
+    })
+    .expect("an input frame");
+    frame.repeat(frames)
+}
+
 /// How long a test waits for any one message before failing (generous for debug builds on
 /// a loaded 2-core machine; a healthy exchange takes milliseconds).
 pub const PATIENCE: Duration = Duration::from_secs(60);
