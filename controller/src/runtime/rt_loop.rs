@@ -491,6 +491,65 @@ mod tests {
     }
 
     #[test]
+    fn new_input_is_echoed_by_a_live_sample_at_the_tick_that_uses_it() {
+        let (mut rt, mut commands, mut events) = test_loop();
+        let built = build_slot(
+            &start(1, CompensatorKind::Pid, InputSource::Server),
+            1e-3,
+            false,
+        )
+        .unwrap();
+        let cell = built.input.unwrap();
+        commands.push(Command::Start(built.slot)).unwrap();
+        rt.drain_commands();
+        // Input at ~60 Hz (every 17 ticks): each one echoed on the tick it arrives.
+        let mut live = Vec::new();
+        for k in 0..1_000u64 {
+            if k % 17 == 0 {
+                cell.write(InputSample {
+                    position_mm: 1.0,
+                    seq: k / 17 + 1,
+                    arrival_tick: rt.tick,
+                });
+            }
+            rt.one_tick(k * 1_000_000, 1_000);
+            while let Ok(ev) = events.pop() {
+                if let Event::Live(s) = ev {
+                    live.push((k, s.input_seq));
+                }
+            }
+        }
+        for k in (17..1_000u64).step_by(17) {
+            assert!(
+                live.contains(&(k, k / 17 + 1)),
+                "input {} (tick {k}) not echoed at once: {live:?}",
+                k / 17 + 1
+            );
+        }
+        // Input every tick: the echoes are spaced, the live rate stays bounded.
+        let before = live.len();
+        for k in 1_000..1_400u64 {
+            cell.write(InputSample {
+                position_mm: 1.0,
+                seq: k,
+                arrival_tick: rt.tick,
+            });
+            rt.one_tick(k * 1_000_000, 1_000);
+            while let Ok(ev) = events.pop() {
+                if let Event::Live(s) = ev {
+                    live.push((k, s.input_seq));
+                }
+            }
+        }
+        let n = live.len() - before;
+        // 100 echoes (one per 4 ticks) and 40 regular samples, some on the same tick.
+        assert!(
+            (100..=140).contains(&n),
+            "{n} live samples in 400 ticks of 1 kHz input"
+        );
+    }
+
+    #[test]
     fn the_loop_tick_takes_no_page_fault_once_every_trial_has_run_a_second() {
         // Memory is not locked in a test, as in a controller without the privilege: a page
         // touched for the first time in the tick is a page fault there. The record and the

@@ -121,6 +121,10 @@ pub struct TrialSlot {
     /// not all on one tick in `live_every`, which would be the slowest tick of the loop.
     pub live_phase: u64,
     pub last_input_seq: u64,
+    /// Trial tick of the last live sample sent for new input (`u64::MAX` before the first).
+    pub last_echo: u64,
+    /// `seq` of the newest input a live sample has carried back.
+    pub echoed_seq: u64,
     pub overruns_at_start: u64,
     pub overruns: u64,
     /// What was wrong with the rig reading that ended the trial.
@@ -138,6 +142,11 @@ fn prefaulted(rows: usize) -> Vec<RecordRow> {
     v.clear();
     v
 }
+
+/// Fewest ticks between two live samples sent for new input: 4 ms, so input up to 250 Hz
+/// is echoed at once, and the live samples of a trial stay below 350 a second (these and
+/// the regular 100 Hz) whatever the input rate.
+const ECHO_SPACING: u64 = 4;
 
 /// What one tick of a slot produced.
 #[derive(Debug)]
@@ -165,6 +174,8 @@ impl TrialSlot {
             live_phase: 0,
             start_tick: None,
             last_input_seq: 0,
+            last_echo: u64::MAX,
+            echoed_seq: 0,
             record: prefaulted(total as usize),
             wake: Histogram::default(),
             compute: Histogram::default(),
@@ -226,7 +237,18 @@ impl TrialSlot {
             self.end(EndReason::Complete);
             return SlotTick::Ended;
         }
-        if (k + self.live_phase) % self.live_every == 0 {
+        // Besides the regular live samples, one as soon as a tick has used input no live
+        // sample has carried back yet: the station sees its input's effect within a tick
+        // instead of up to a live period later (input → display within one frame). At most
+        // one per ECHO_SPACING ticks, so a 1 kHz input source cannot turn every tick into a
+        // live sample; input that arrives sooner is echoed when the spacing allows.
+        let echo = self.last_input_seq != self.echoed_seq
+            && k.wrapping_sub(self.last_echo) >= ECHO_SPACING;
+        if echo {
+            self.last_echo = k;
+        }
+        if echo || (k + self.live_phase) % self.live_every == 0 {
+            self.echoed_seq = self.last_input_seq;
             return SlotTick::Live(LiveSample {
                 trial_id: self.trial_id,
                 t: s.t,
