@@ -11,6 +11,7 @@ pub mod dry_run;
 pub mod enrolment;
 pub mod export;
 pub mod filing;
+pub mod inference;
 pub mod login_limiter;
 pub mod orchestrator;
 pub mod passwords;
