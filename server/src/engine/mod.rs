@@ -12,6 +12,7 @@ pub mod enrolment;
 pub mod export;
 pub mod filing;
 pub mod inference;
+pub mod inference_table;
 pub mod login_limiter;
 pub mod orchestrator;
 pub mod passwords;

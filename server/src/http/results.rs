@@ -13,6 +13,7 @@ use utoipa_axum::routes;
 use super::error::{ApiResult, AppError, AppJson};
 use super::extract::Experimenter;
 use crate::engine::export::{self, ExportKind};
+use crate::engine::inference_table::{StatsRow, study_table};
 use crate::engine::results::{box_plot, parse_file};
 use crate::engine::stats::{Stats, summary_stats};
 use crate::state::AppState;
@@ -22,6 +23,7 @@ use crate::store::{self, Change};
 pub fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(summary))
+        .routes(routes!(inference))
         .routes(routes!(plot))
         .routes(routes!(download))
         .routes(routes!(audit_log))
@@ -37,6 +39,19 @@ async fn summary(
 ) -> ApiResult<Vec<Stats>> {
     store::studies::get(&s.pool, id).await?;
     Ok(AppJson(summary_stats(&s.pool, id).await?))
+}
+
+/// The study's inferential statistics (Friedman, pairwise exact Wilcoxon with Holm,
+/// on against off, RM-ANOVA), with a statement on every comparison that cannot reach
+/// significance at this n.
+#[utoipa::path(get, path = "/api/studies/{id}/stats", tag = "results", params(("id" = i64, Path)),
+    responses((status = 200, body = Vec<StatsRow>)))]
+async fn inference(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<Vec<StatsRow>> {
+    Ok(AppJson(study_table(&s.pool, id).await?))
 }
 
 /// A box plot of one variable by compensator and seat: `{variable}.svg` or `.png`.
