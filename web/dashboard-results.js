@@ -24,11 +24,15 @@ const TWINS = [
 ];
 
 let lastSummary = '';
+let statsRows = [];
 let stamp = Date.now();
 
 export function init() {
   downloads.init();
   $('results-refresh').addEventListener('click', () => refresh(true));
+  const pick = $('stats-metric');
+  pick.replaceChildren(...VARIABLES.map(([v, , short]) => el('option', { value: v }, short)));
+  pick.addEventListener('change', () => renderStatistics());
   const later = debounce(() => refresh(false), 3000);
   on('trial', later);
   on('subjects', later);
@@ -38,6 +42,9 @@ export function init() {
     setLinks();
     $('averages').replaceChildren();
     $('comparisons').replaceChildren();
+    $('statistics').replaceChildren();
+    $('stats-reach').replaceChildren();
+    statsRows = [];
     $('plots').replaceChildren();
     refresh(true);
   });
@@ -81,6 +88,7 @@ export async function refresh(force) {
   if (changed || force) {
     renderAverages(r.data);
     renderComparisons(r.data);
+    loadStatistics(id);
     stamp = Date.now();
     renderPlots();
   }
@@ -175,6 +183,64 @@ function renderComparisons(stats) {
           el('tbody', {}, ...rows),
         )
       : el('p', { class: 'muted' }, 'Needs completed tests on the machine of a compensator and its uncompensated twin.'),
+  );
+}
+
+async function loadStatistics(id) {
+  const r = await get(`/api/studies/${id}/stats`);
+  if (id !== S.studyId) return;
+  if (!r.ok) {
+    setStatus($('stats-reach'), 'err', `Could not load the statistics: ${errText(r)}`);
+    return;
+  }
+  statsRows = r.data;
+  renderStatistics();
+}
+
+const TEST_NAME = {
+  friedman: 'Friedman',
+  wilcoxon: 'Wilcoxon (exact)',
+  wilcoxon_on_off: 'Wilcoxon on vs off',
+  rm_anova: 'RM-ANOVA (GG)',
+};
+
+const fmtP = (p) => (p === null || p === undefined ? '—' : p < 0.001 ? p.toExponential(2) : p.toFixed(4));
+
+function renderStatistics() {
+  const metric = $('stats-metric').value;
+  const rows = statsRows.filter((r) => r.metric === metric || r.metric === `log_${metric}`);
+  // One plain statement per family that cannot reach significance at this n.
+  const unreachable = [...new Set(rows.filter((r) => !r.reachable).map((r) => `${TEST_NAME[r.test]} at ${r.station}: ${r.note}`))];
+  $('stats-reach').replaceChildren(
+    ...unreachable.map((t) => el('p', { class: 'status warn' }, `No planned comparison can be significant here — ${t}. More subjects are needed (see the power planner).`)),
+  );
+  if (!rows.length) {
+    $('statistics').replaceChildren(el('p', { class: 'muted' }, 'Needs at least two subjects with complete tests.'));
+    return;
+  }
+  const body = rows.map((r) =>
+    el(
+      'tr',
+      { 'data-test': r.test, class: r.reachable ? '' : 'unreachable' },
+      el('td', {}, TEST_NAME[r.test] || r.test),
+      el('td', {}, r.station),
+      el('td', {}, r.test === 'rm_anova' ? r.a : r.b && r.a !== r.b ? `${controllerName(r.a)} vs ${controllerName(r.b)}` : controllerName(r.a) || 'all'),
+      el('td', { class: 'num' }, String(r.n)),
+      el('td', { class: 'num' }, num(r.statistic)),
+      el('td', { class: 'num' }, fmtP(r.p_value)),
+      el('td', { class: 'num' }, fmtP(r.p_adjusted)),
+      el('td', { class: 'num', title: r.effect }, `${num(r.effect_size)} (${r.effect})`),
+      el('td', { class: 'num' }, r.median_diff === null ? '—' : `${num(r.median_diff)} [${num(r.ci_low)}, ${num(r.ci_high)}]`),
+      el('td', { class: 'small' }, r.note),
+    ),
+  );
+  $('statistics').replaceChildren(
+    el(
+      'table',
+      { class: 'grid numeric' },
+      el('thead', {}, el('tr', {}, ...['Test', 'Seat', 'Comparison', 'n', 'Statistic', 'p', 'p (Holm)', 'Effect size', 'Median a − b [95 % CI]', 'Note'].map((h) => el('th', {}, h)))),
+      el('tbody', {}, ...body),
+    ),
   );
 }
 

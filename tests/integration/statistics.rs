@@ -1,0 +1,91 @@
+//! The study's statistics over HTTP, on a pilot's data: the table has every analysis, its
+//! Friedman statistic agrees with one computed here from the trials export, and at a
+//! pilot's small n every pairwise comparison says it cannot reach significance.
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use bdft_tests::server::{Server, eventually, short_study};
+use serde_json::{Value, json};
+
+#[test]
+fn a_pilots_statistics_agree_with_its_export_and_state_the_small_n_floor() {
+    let server = Server::start("statistics");
+    let api = server.experimenter();
+    let study = short_study(&api, 1.0, 0.3);
+    api.ok(
+        &format!("/api/studies/{study}/pilot"),
+        json!({ "subjects": 3 }),
+    );
+    let status = eventually(Duration::from_secs(300), || {
+        let (_, s) = api.get("/api/pilot");
+        (s["running"] == false && (s["report"].is_object() || s["error"].is_string())).then_some(s)
+    });
+    let copy = status["report"]["study_id"]
+        .as_i64()
+        .expect("the pilot ran");
+    let (code, table) = api.get(&format!("/api/studies/{copy}/stats"));
+    assert_eq!(code, 200, "{table}");
+    let rows = table.as_array().unwrap();
+    let find = |test: &str, metric: &str, station: &str| -> Vec<&Value> {
+        rows.iter()
+            .filter(|r| r["test"] == test && r["metric"] == metric && r["station"] == station)
+            .collect()
+    };
+    // Friedman of tracking error on the machine, recomputed from the export: ranks within
+    // each subject (continuous values: no ties).
+    let (_, csv) = api.get_text(&format!("/api/studies/{copy}/export/trials"));
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    // subject → compensator → value (the export is in each subject's own random order).
+    let mut by_subject: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
+    for line in lines {
+        let r: Vec<&str> = line.split(',').collect();
+        if r[col("practice")] == "1" || r[col("station")] != "on" || r[col("status")] != "complete"
+        {
+            continue;
+        }
+        by_subject
+            .entry(r[col("subject_code")].to_string())
+            .or_default()
+            .insert(
+                r[col("controller")].to_string(),
+                r[col("mse_tracking_mm2")].parse().unwrap(),
+            );
+    }
+    assert_eq!(by_subject.len(), 3, "{by_subject:?}");
+    let k = by_subject.values().next().unwrap().len();
+    assert_eq!(k, 5);
+    let mut rank_sums = vec![0.0; k];
+    for values in by_subject.values() {
+        let values: Vec<f64> = values.values().copied().collect();
+        for (i, v) in values.iter().enumerate() {
+            rank_sums[i] += 1.0 + values.iter().filter(|w| *w < v).count() as f64;
+        }
+    }
+    let (n, kf) = (3.0, k as f64);
+    let chi2 = 12.0 / (n * kf * (kf + 1.0)) * rank_sums.iter().map(|r| r * r).sum::<f64>()
+        - 3.0 * n * (kf + 1.0);
+    let f = find("friedman", "mse_tracking_mm2", "on");
+    assert_eq!(f.len(), 1, "{table}");
+    assert_eq!(f[0]["n"], 3);
+    assert!(
+        (f[0]["statistic"].as_f64().unwrap() - chi2).abs() < 1e-9,
+        "{} vs {chi2}",
+        f[0]
+    );
+    // Ten pairs per seat, none able to reach significance with 3 subjects, and saying so.
+    for seat in ["on", "off"] {
+        let pairs = find("wilcoxon", "mse_tracking_mm2", seat);
+        assert_eq!(pairs.len(), 10, "{seat}");
+        for p in pairs {
+            assert_eq!(p["reachable"], false, "{p}");
+            assert!(p["note"].as_str().unwrap().contains("cannot reach"), "{p}");
+            assert!(p["p_adjusted"].as_f64().unwrap() >= p["p_value"].as_f64().unwrap());
+        }
+    }
+    assert_eq!(find("wilcoxon_on_off", "ms_cab_accel", "on-off").len(), 5);
+    let aov = find("rm_anova", "log_mse_tracking_mm2", "both");
+    assert_eq!(aov.len(), 3, "{table}");
+}
