@@ -88,4 +88,51 @@ fn a_pilots_statistics_agree_with_its_export_and_state_the_small_n_floor() {
     assert_eq!(find("wilcoxon_on_off", "ms_cab_accel", "on-off").len(), 5);
     let aov = find("rm_anova", "log_mse_tracking_mm2", "both");
     assert_eq!(aov.len(), 3, "{table}");
+    // The planner on the pilot's spread: 8 subjects cannot make any of the 10 pairs
+    // significant (2/2^8 × 10 > 0.05), 12 can be simulated; bad requests (422) name the field.
+    let (code, plan) = api.post(
+        &format!("/api/studies/{copy}/plan"),
+        json!({ "subjects": [8, 12], "metric": "mse_tracking_mm2", "station": "on", "draws": 200, "seed": 7 }),
+    );
+    assert_eq!(code, 200, "{plan}");
+    let plans = plan["plans"].as_array().unwrap();
+    assert_eq!(plans[0]["subjects"], 8);
+    assert!(
+        plans[0]["note"].as_str().unwrap().contains("0.078"),
+        "{plan}"
+    );
+    assert!(
+        plans[0]["pairs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|p| p["possible"] == false && p["power"] == 0.0)
+    );
+    assert_eq!(plans[1]["draws"], 200);
+    assert!(
+        plans[1]["pairs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|p| p["possible"] == true)
+    );
+    assert_eq!(plan["model"]["pilot_n"], 3);
+    for (body, field) in [
+        (
+            json!({ "subjects": [1], "metric": "mse_tracking_mm2", "station": "on" }),
+            "subjects",
+        ),
+        (
+            json!({ "subjects": [8], "metric": "rating_speed", "station": "on" }),
+            "metric",
+        ),
+        (
+            json!({ "subjects": [8], "metric": "ms_cab_accel", "station": "roof" }),
+            "station",
+        ),
+    ] {
+        let (code, e) = api.post(&format!("/api/studies/{copy}/plan"), body);
+        assert_eq!(code, 422, "{e}");
+        assert!(e["error"].as_str().unwrap().starts_with(field), "{e}");
+    }
 }

@@ -63,64 +63,91 @@ pub struct StatsRow {
 }
 
 /// One subject's values of the summary variables per (compensator, seat).
-type Cells = BTreeMap<(String, String), [Option<f64>; 6]>;
+pub type Cells = BTreeMap<(String, String), [Option<f64>; 6]>;
+
+/// A study's analysable data: its compensators and seats (names, in the study's order) and
+/// each subject's cells from the latest attempt of every test when it is complete.
+pub struct StudyData {
+    pub compensators: Vec<String>,
+    pub seats: Vec<String>,
+    pub subjects: Vec<Cells>,
+}
+
+impl StudyData {
+    pub async fn load(pool: &SqlitePool, study_id: i64) -> Result<Self> {
+        let study = store::studies::get(pool, study_id).await?;
+        let rows = store::exports::trial_rows(pool, study_id).await?;
+        let mut subjects: BTreeMap<i64, Cells> = BTreeMap::new();
+        for r in &rows {
+            let latest = !rows
+                .iter()
+                .any(|u| u.code == r.code && u.slot == r.slot && u.attempt > r.attempt);
+            if r.practice || !latest || r.status != TrialStatus::Complete {
+                continue;
+            }
+            let f = |v: Option<i64>| v.map(|x| x as f64);
+            subjects.entry(r.enrol_index).or_default().insert(
+                (r.controller.name().into(), r.station.as_str().into()),
+                [
+                    r.mse_tracking_mm2,
+                    r.ms_cab_accel,
+                    f(r.accuracy),
+                    f(r.speed),
+                    f(r.smoothness),
+                    f(r.controllability),
+                ],
+            );
+        }
+        Ok(Self {
+            compensators: study
+                .params
+                .controllers
+                .iter()
+                .map(|c| c.kind().name().to_string())
+                .collect(),
+            seats: study
+                .params
+                .stations
+                .iter()
+                .map(|s| s.as_str().to_string())
+                .collect(),
+            subjects: subjects.into_values().collect(),
+        })
+    }
+
+    /// One row per subject with every compensator at `seat`: the values of `metric` (an
+    /// index into `SUMMARY_VARIABLES`).
+    pub fn complete_rows(&self, metric: usize, seat: &str) -> Vec<Vec<f64>> {
+        self.subjects
+            .iter()
+            .filter_map(|s| {
+                self.compensators
+                    .iter()
+                    .map(|c| s.get(&(c.clone(), seat.to_string()))?[metric])
+                    .collect()
+            })
+            .collect()
+    }
+}
 
 /// The study's table.
 pub async fn study_table(pool: &SqlitePool, study_id: i64) -> Result<Vec<StatsRow>> {
-    let study = store::studies::get(pool, study_id).await?;
-    let compensators: Vec<String> = study
-        .params
-        .controllers
-        .iter()
-        .map(|c| c.kind().name().to_string())
-        .collect();
-    let rows = store::exports::trial_rows(pool, study_id).await?;
-    let mut subjects: BTreeMap<i64, Cells> = BTreeMap::new();
-    for r in &rows {
-        let latest = !rows
-            .iter()
-            .any(|u| u.code == r.code && u.slot == r.slot && u.attempt > r.attempt);
-        if r.practice || !latest || r.status != TrialStatus::Complete {
-            continue;
-        }
-        let f = |v: Option<i64>| v.map(|x| x as f64);
-        subjects.entry(r.enrol_index).or_default().insert(
-            (r.controller.name().into(), r.station.as_str().into()),
-            [
-                r.mse_tracking_mm2,
-                r.ms_cab_accel,
-                f(r.accuracy),
-                f(r.speed),
-                f(r.smoothness),
-                f(r.controllability),
-            ],
-        );
-    }
-    let seats: Vec<String> = study
-        .params
-        .stations
-        .iter()
-        .map(|s| s.as_str().to_string())
-        .collect();
+    let data = StudyData::load(pool, study_id).await?;
     // Ten thousand resamples for each of some 150 comparisons: off the async threads.
-    let subjects: Vec<Cells> = subjects.into_values().collect();
-    tokio::task::spawn_blocking(move || table(&subjects, &compensators, &seats))
+    tokio::task::spawn_blocking(move || table(&data))
         .await
         .map_err(|e| anyhow::anyhow!("statistics task: {e}").into())
 }
 
 /// The table from each subject's cells.
-pub fn table(subjects: &[Cells], compensators: &[String], seats: &[String]) -> Vec<StatsRow> {
+pub fn table(data: &StudyData) -> Vec<StatsRow> {
+    let (subjects, compensators, seats) = (&data.subjects, &data.compensators, &data.seats);
     let mut out = Vec::new();
     for (m, metric) in SUMMARY_VARIABLES.iter().enumerate() {
         let value = |s: &Cells, c: &str, seat: &str| s.get(&(c.into(), seat.into()))?[m];
         for seat in seats {
             // Subjects with every compensator at this seat.
-            let rows: Vec<Vec<f64>> = subjects
-                .iter()
-                .filter_map(|s| compensators.iter().map(|c| value(s, c, seat)).collect())
-                .collect();
-            if let Some(f) = friedman(&rows) {
+            if let Some(f) = friedman(&data.complete_rows(m, seat)) {
                 out.push(row(
                     "friedman",
                     metric,
@@ -356,7 +383,11 @@ mod tests {
                 cells(&v)
             })
             .collect();
-        let t = table(&subjects, &comps, &seats);
+        let t = table(&StudyData {
+            compensators: comps,
+            seats,
+            subjects,
+        });
         let pairs: Vec<&StatsRow> = t
             .iter()
             .filter(|r| r.test == "wilcoxon" && r.metric == "mse_tracking_mm2" && r.station == "on")

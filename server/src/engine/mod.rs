@@ -18,6 +18,7 @@ pub mod orchestrator;
 pub mod passwords;
 pub mod pilot;
 pub mod plots;
+pub mod power;
 pub mod results;
 pub mod schedule;
 pub mod stability;

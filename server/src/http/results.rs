@@ -14,6 +14,7 @@ use super::error::{ApiResult, AppError, AppJson};
 use super::extract::Experimenter;
 use crate::engine::export::{self, ExportKind};
 use crate::engine::inference_table::{StatsRow, study_table};
+use crate::engine::power::{PlanReport, PlanRequest, plan_study};
 use crate::engine::results::{box_plot, parse_file};
 use crate::engine::stats::{Stats, summary_stats};
 use crate::state::AppState;
@@ -24,6 +25,7 @@ pub fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(summary))
         .routes(routes!(inference))
+        .routes(routes!(plan))
         .routes(routes!(plot))
         .routes(routes!(download))
         .routes(routes!(audit_log))
@@ -52,6 +54,21 @@ async fn inference(
     Path(id): Path<i64>,
 ) -> ApiResult<Vec<StatsRow>> {
     Ok(AppJson(study_table(&s.pool, id).await?))
+}
+
+/// The power planner: for candidate numbers of subjects, the chance that each pair of
+/// compensators differs significantly (exact Wilcoxon, Holm), simulated with the spread of
+/// this study's data (a pilot's dry-run copy); pairs the small-n floor rules out are said
+/// to be impossible.
+#[utoipa::path(post, path = "/api/studies/{id}/plan", tag = "results", params(("id" = i64, Path)),
+    request_body = PlanRequest, responses((status = 200, body = PlanReport)))]
+async fn plan(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+    AppJson(req): AppJson<PlanRequest>,
+) -> ApiResult<PlanReport> {
+    Ok(AppJson(plan_study(&s.pool, id, req).await?))
 }
 
 /// A box plot of one variable by compensator and seat: `{variable}.svg` or `.png`.
