@@ -4,7 +4,9 @@
 
 use std::time::Duration;
 
-use bdft_tests::server::{Api, Server, dry_run, eventually, pair_station, run_trial, short_study};
+use bdft_tests::server::{
+    Api, Server, dry_run, eventually, pair_station, run_pilot, run_trial, short_study,
+};
 use serde_json::{Value, json};
 
 /// Runs `n` copies of `call` at once (each with its own logged-in client); returns the
@@ -549,14 +551,7 @@ fn a_pilot_never_writes_into_a_study_with_people() {
         "{body}"
     );
     // The dashboard's pilot of the study runs in its dry-run copy.
-    api.ok(
-        &format!("/api/studies/{study}/pilot"),
-        json!({ "subjects": 2 }),
-    );
-    let status = eventually(Duration::from_secs(300), || {
-        let (_, s) = api.get("/api/pilot");
-        (s["running"] == false && (s["report"].is_object() || s["error"].is_string())).then_some(s)
-    });
+    let status = run_pilot(&api, study, 2);
     let copy = status["report"]["study_id"]
         .as_i64()
         .expect("the pilot ran");

@@ -3,9 +3,8 @@
 //! pilot's small n every pairwise comparison says it cannot reach significance.
 
 use std::collections::BTreeMap;
-use std::time::Duration;
 
-use bdft_tests::server::{Server, eventually, short_study};
+use bdft_tests::server::{Server, run_pilot, short_study};
 use serde_json::{Value, json};
 
 #[test]
@@ -13,14 +12,7 @@ fn a_pilots_statistics_agree_with_its_export_and_state_the_small_n_floor() {
     let server = Server::start("statistics");
     let api = server.experimenter();
     let study = short_study(&api, 1.0, 0.3);
-    api.ok(
-        &format!("/api/studies/{study}/pilot"),
-        json!({ "subjects": 3 }),
-    );
-    let status = eventually(Duration::from_secs(300), || {
-        let (_, s) = api.get("/api/pilot");
-        (s["running"] == false && (s["report"].is_object() || s["error"].is_string())).then_some(s)
-    });
+    let status = run_pilot(&api, study, 3);
     let copy = status["report"]["study_id"]
         .as_i64()
         .expect("the pilot ran");

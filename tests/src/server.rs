@@ -202,6 +202,19 @@ pub fn dry_run(api: &Api, study: i64) -> i64 {
 }
 
 /// Pairs a new station with `role` to `study`; returns (station id, station token).
+/// Runs the dashboard's pilot of `study` with `subjects` synthetic subjects and waits for
+/// it to end; returns the pilot's final status (its report names the dry-run copy it ran in).
+pub fn run_pilot(api: &Api, study: i64, subjects: u32) -> Value {
+    api.ok(
+        &format!("/api/studies/{study}/pilot"),
+        json!({ "subjects": subjects }),
+    );
+    eventually(Duration::from_secs(300), || {
+        let (_, s) = api.get("/api/pilot");
+        (s["running"] == false && (s["report"].is_object() || s["error"].is_string())).then_some(s)
+    })
+}
+
 pub fn pair_station(api: &Api, study: i64, role: &str) -> (i64, String) {
     let reg = Api::anonymous(&api.base).ok("/api/station/register", json!({}));
     let token = reg["token"].as_str().unwrap().to_string();

@@ -67,6 +67,7 @@ pub type Cells = BTreeMap<(String, String), [Option<f64>; 6]>;
 
 /// A study's analysable data: its compensators and seats (names, in the study's order) and
 /// each subject's cells from the latest attempt of every test when it is complete.
+#[derive(Debug)]
 pub struct StudyData {
     pub compensators: Vec<String>,
     pub seats: Vec<String>,
