@@ -16,6 +16,7 @@ pub mod orchestrator;
 pub mod passwords;
 pub mod pilot;
 pub mod plots;
+pub mod queue;
 pub mod results;
 pub mod schedule;
 pub mod stability;
@@ -25,6 +26,7 @@ pub mod stats;
 pub mod studies;
 pub mod subjects;
 pub mod trials;
+pub mod validity;
 
 use crate::error::{AppError, Result};
 
