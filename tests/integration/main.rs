@@ -8,3 +8,4 @@ mod hardening;
 mod server_api;
 mod server_layers;
 mod station_safety;
+mod validity;

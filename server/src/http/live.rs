@@ -358,9 +358,8 @@ impl Display {
     /// Beyond a limit: the test is stopped and filed invalid, once (it stays followed, so
     /// it is not watched again while the controller stops it).
     async fn judge(&mut self, s: &AppState, verdict: Option<String>) {
-        let (Some(reason), Some(w)) = (verdict, self.watch.take()) else {
-            return;
-        };
+        let Some(reason) = verdict else { return };
+        let Some(w) = self.watch.take() else { return };
         tracing::warn!(trial = w.trial_id, reason, "display beyond the study's limits");
         if let Err(e) =
             validity::invalidate(&s.pool, &s.controller, "server", w.trial_id, &reason).await
