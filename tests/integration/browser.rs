@@ -59,9 +59,13 @@ fn run_from_dashboard(
     for attempt in 1..=3 {
         let trial = eventually(Duration::from_secs(30), || {
             let (_, d) = api.get(&format!("/api/subjects/{subject}"));
-            d["trials"].as_array()?.iter().map(|t| t["trial"].clone()).find(|t| {
-                t["slot"] == slot && t["attempt"] == attempt && t["status"] == "scheduled"
-            })
+            d["trials"]
+                .as_array()?
+                .iter()
+                .map(|t| t["trial"].clone())
+                .find(|t| {
+                    t["slot"] == slot && t["attempt"] == attempt && t["status"] == "scheduled"
+                })
         });
         wait_enabled(dash, start);
         dash.click(start);

@@ -89,7 +89,9 @@ fn state(station: &Api) -> Value {
 /// The (slot, attempt) of the station's next test.
 fn next_test(api: &Api, subject: i64, station: &Api) -> (i64, i64) {
     let s = state(station);
-    let id = s["test"]["trial_id"].as_i64().unwrap_or_else(|| panic!("{s}"));
+    let id = s["test"]["trial_id"]
+        .as_i64()
+        .unwrap_or_else(|| panic!("{s}"));
     let t = row(api, subject, id);
     (t["slot"].as_i64().unwrap(), t["attempt"].as_i64().unwrap())
 }
@@ -125,7 +127,8 @@ fn feed(
         let (mut seq, mut last_report) = (0u64, None::<Instant>);
         while !stop.load(Ordering::Relaxed) && began.elapsed() < Duration::from_secs(120) {
             seq += 1;
-            let input = json!({ "type": "input", "trial_id": trial, "seq": seq, "position_mm": 2.0 });
+            let input =
+                json!({ "type": "input", "trial_id": trial, "seq": seq, "position_mm": 2.0 });
             if ws.send(text(input)).is_err() {
                 break;
             }
@@ -169,13 +172,18 @@ fn a_hidden_or_silent_display_stops_the_test_and_files_it_invalid() {
     stop.store(true, Ordering::Relaxed);
     let mut ws = feeder.join().unwrap();
     let reported = Instant::now();
-    ws.send(text(json!({ "type": "display", "trial_id": practice, "hidden": false,
-        "frames": 30, "longest_gap_ms": 17.0, "hidden_ms": 800.0, "inputs": 50 })))
-        .unwrap();
+    ws.send(text(
+        json!({ "type": "display", "trial_id": practice, "hidden": false,
+        "frames": 30, "longest_gap_ms": 17.0, "hidden_ms": 800.0, "inputs": 50 }),
+    ))
+    .unwrap();
     let filed = ended(&api, subject, practice);
     assert_eq!(filed["status"], "invalid", "{filed}");
     let reason = filed["status_reason"].as_str().unwrap();
-    assert!(reason.contains("hidden for 800 ms (limit 500 ms)"), "{reason}");
+    assert!(
+        reason.contains("hidden for 800 ms (limit 500 ms)"),
+        "{reason}"
+    );
     // Stopped at once: long before the 60 s practice would have ended.
     assert!(
         reported.elapsed() < Duration::from_secs(30),
@@ -216,7 +224,11 @@ fn a_hidden_or_silent_display_stops_the_test_and_files_it_invalid() {
     let (code, csv) = api.get_text(&format!("/api/studies/{study}/export/trials.csv"));
     assert_eq!(code, 200, "{csv}");
     let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
-    for column in ["display_hidden_ms", "controller_overruns", "accepted_reason"] {
+    for column in [
+        "display_hidden_ms",
+        "controller_overruns",
+        "accepted_reason",
+    ] {
         assert!(header.contains(&column), "{header:?}");
     }
 }
@@ -263,7 +275,11 @@ fn a_failed_test_comes_back_at_the_end_of_its_block_and_the_station_never_says_d
         &format!("/api/trials/{}/incomplete", id_of(0, 1)),
         json!({ "reason": "practice skipped: the subject knows the display" }),
     );
-    assert_eq!(accepted["id"], id_of(0, 2), "the latest attempt is accepted");
+    assert_eq!(
+        accepted["id"],
+        id_of(0, 2),
+        "the latest attempt is accepted"
+    );
     assert_eq!(accepted["status"], "incomplete");
     assert!(accepted["accepted_reason"].is_string(), "{accepted}");
     assert_eq!(next_test(&api, subject, &station), (1, 1));
@@ -285,7 +301,11 @@ fn a_failed_test_comes_back_at_the_end_of_its_block_and_the_station_never_says_d
     assert_eq!(next_test(&api, subject, &station), (3, 1));
     let s = state(&station);
     assert_eq!(s["stopped"]["repeated"], false, "{s}");
-    assert!(trials(&api, subject).iter().all(|t| t["attempt"].as_i64() <= Some(3)));
+    assert!(
+        trials(&api, subject)
+            .iter()
+            .all(|t| t["attempt"].as_i64() <= Some(3))
+    );
 
     // The second block accepted as incomplete: nothing left to run, but two tests are
     // missing — the station holds and never says done.

@@ -38,8 +38,7 @@ pub async fn file_result(
     let (status, reason) = filing(&result.outcome);
     let mut change = Change::begin(pool, actor).await?;
     let Some((status, reason)) =
-        store::records::file_result(change.db(), result, status, reason.as_deref(), record)
-            .await?
+        store::records::file_result(change.db(), result, status, reason.as_deref(), record).await?
     else {
         return Ok(false);
     };

@@ -34,7 +34,9 @@ pub async fn requeue_failed(db: &mut SqliteConnection, trial_id: i64) -> Result<
     if latest != t.attempt || latest >= MAX_ATTEMPTS {
         return Ok(None);
     }
-    Ok(Some(store::trials::insert_next_attempt(db, trial_id).await?))
+    Ok(Some(
+        store::trials::insert_next_attempt(db, trial_id).await?,
+    ))
 }
 
 /// Whether some test of the subject is still owed: neither complete nor accepted as

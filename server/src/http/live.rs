@@ -360,7 +360,11 @@ impl Display {
     async fn judge(&mut self, s: &AppState, verdict: Option<String>) {
         let Some(reason) = verdict else { return };
         let Some(w) = self.watch.take() else { return };
-        tracing::warn!(trial = w.trial_id, reason, "display beyond the study's limits");
+        tracing::warn!(
+            trial = w.trial_id,
+            reason,
+            "display beyond the study's limits"
+        );
         if let Err(e) =
             validity::invalidate(&s.pool, &s.controller, "server", w.trial_id, &reason).await
         {
