@@ -370,7 +370,6 @@ fn a_station_tab_hidden_during_a_test_has_it_filed_invalid_in_chromium() {
     let api = server.experimenter();
     let study = person_study(&api, 2, 30.0, 60.0);
     let (subject, station) = person_at_a_station(&server, &api, study);
-    let practice = state(&station)["test"]["trial_id"].as_i64().unwrap();
     let token = station.bearer.clone().unwrap();
 
     let driver = Driver::start();
@@ -383,34 +382,58 @@ fn a_station_tab_hidden_during_a_test_has_it_filed_invalid_in_chromium() {
         json!([token]),
     );
     s.goto(&format!("{}/station", server.base));
-    s.wait_phase("ready");
-    api.ok(&format!("/api/trials/{practice}/start"), json!({}));
-    s.wait_phase("running");
-    // Drawing, visible: the page's display reports keep the test going.
-    s.wait_until(
-        "const c = document.getElementById('track'); const r = c.getBoundingClientRect(); return r.width > 0 && r.height > 0;",
-        json!([]),
-    );
-    assert_eq!(row(&api, subject, practice)["status"], "running");
-    // Another tab in front hides the station's tab (visibilitychange fires).
     let station_tab = s.cmd("GET", "/window", json!(null)).unwrap();
-    let other = s
-        .cmd("POST", "/window/new", json!({ "type": "tab" }))
-        .unwrap();
-    s.cmd("POST", "/window", json!({ "handle": other["handle"] }))
-        .unwrap();
-    s.goto("about:blank");
-    let filed = ended(&api, subject, practice);
+    // On a loaded machine the controller link can drop and fault an attempt before the tab
+    // is hidden (the server repeats it): then the next attempt is tried, at most three.
+    let mut filed = Value::Null;
+    for attempt in 1..=3 {
+        s.wait_phase("ready");
+        let trial = state(&station)["test"]["trial_id"].as_i64().unwrap();
+        api.ok(&format!("/api/trials/{trial}/start"), json!({}));
+        // Drawing, visible: the page's display reports keep the test going.
+        // Until the page draws the test, or the test has ended (faulted) meanwhile.
+        let drawing = eventually(Duration::from_secs(60), || {
+            let laid_out = s.exec(
+                "if (document.body.dataset.phase !== 'running') return false; \
+                 const r = document.getElementById('track').getBoundingClientRect(); return r.width > 0 && r.height > 0;",
+                json!([]),
+            ) == json!(true);
+            let running = row(&api, subject, trial)["status"] == "running";
+            (laid_out || !running).then_some(laid_out && running)
+        });
+        if !drawing {
+            eprintln!("attempt {attempt} ended before the tab was hidden");
+            continue;
+        }
+        // Another tab in front hides the station's tab (visibilitychange fires).
+        let other = s
+            .cmd("POST", "/window/new", json!({ "type": "tab" }))
+            .unwrap();
+        s.cmd("POST", "/window", json!({ "handle": other["handle"] }))
+            .unwrap();
+        s.goto("about:blank");
+        filed = ended(&api, subject, trial);
+        // Closing it brings the station's tab to the front again.
+        let _ = s.cmd("DELETE", "/window", json!(null));
+        s.cmd("POST", "/window", json!({ "handle": station_tab }))
+            .unwrap();
+        if filed["status"] == "invalid" || attempt == 3 {
+            break;
+        }
+        eprintln!("attempt {attempt} faulted otherwise: {filed}");
+    }
     assert_eq!(filed["status"], "invalid", "{filed}");
+    // The page said at once that it was hidden: the hidden time is the reason (before the
+    // silence of its throttled timers would be).
     let reason = filed["status_reason"].as_str().unwrap();
-    assert!(reason.contains("hidden"), "{reason}");
-    // Back to the station: it says what happened, and the test comes back.
-    s.cmd("POST", "/window", json!({ "handle": station_tab }))
-        .unwrap();
+    assert!(reason.contains("the display was hidden for"), "{reason}");
+    // Back at the station: it says what happened, and the test comes back.
     s.wait_phase("ready");
     s.wait_until(
         "const n = document.getElementById('stopped-notice'); return !n.hidden && n.textContent.includes('repeated later');",
         json!([]),
     );
-    assert_eq!(next_test(&api, subject, &station), (0, 2));
+    let (slot, attempt) = next_test(&api, subject, &station);
+    assert_eq!(slot, 0, "the practice again");
+    assert!(attempt > filed["attempt"].as_i64().unwrap());
 }
