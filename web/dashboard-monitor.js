@@ -345,8 +345,17 @@ async function poll(p) {
     return;
   }
   p.stateError = null;
-  const prev = p.state;
+  let prev = p.state;
   p.state = r.data;
+  // Another subject at the station: nothing of the previous one's last run is theirs.
+  const subjectOf = (x) => (x && x.station ? x.station.subject_id : null);
+  if (prev && subjectOf(prev) !== subjectOf(p.state)) {
+    p.lastTrial = null;
+    p.lastTrialInfo = null;
+    p.lastFetchedFor = null;
+    p.dirtyChart = true;
+    prev = null;
+  }
   const prevRunning = prev && prev.phase === 'running' && prev.test ? prev.test.trial_id : null;
   const nowRunning = p.state.phase === 'running' && p.state.test ? p.state.test.trial_id : null;
   const prevTest = prev && prev.test ? prev.test.trial_id : null;
@@ -383,7 +392,15 @@ async function fetchLast(p, subjectId, trialId) {
     return;
   }
   const later = r.data.trials.map((x) => x.trial).filter((x) => x.slot === t.slot && x.attempt > t.attempt);
-  p.lastTrialInfo = { ...t, code: r.data.subject.code, isLatest: later.length === 0, redone: later.length ? later[later.length - 1].id : null };
+  const newest = later.length ? later[later.length - 1] : null;
+  p.lastTrialInfo = {
+    ...t,
+    code: r.data.subject.code,
+    isLatest: !newest,
+    redone: newest ? newest.id : null,
+    redoneScheduled: !!newest && newest.status === 'scheduled',
+    accepted_reason: newest && newest.accepted_reason ? newest.accepted_reason : t.accepted_reason,
+  };
   renderPanel(p);
 }
 
@@ -394,6 +411,7 @@ const PHASE_TEXT = {
   move: 'move',
   ready: 'ready',
   running: 'RUNNING',
+  held: 'held',
   done: 'done',
 };
 
@@ -423,6 +441,8 @@ function hintText(st) {
         : `${who} is ready for the next test. Press Start when they are.`;
     case 'running':
       return `${who} is tracking. Abort only if needed (a reason is recorded); the e-stop is at the top right.`;
+    case 'held':
+      return `${who}'s remaining test failed as often as it is repeated by itself: repeat it (Schedule a redo) or accept it as incomplete with a reason.`;
     case 'done':
       return st.reason === 'finished'
         ? `${who} has finished every test.`
@@ -490,7 +510,30 @@ function pageText(socket) {
   return `disconnected${socket.closed_by_server ? ` by the server (${socket.closed_by_server})` : ''} · ${input}`;
 }
 
-/** The result of the panel's last run; an aborted or incomplete test can be redone from here. */
+const FAILED = ['aborted', 'incomplete', 'invalid'];
+
+/** How the test ran: the station's display and input, the controller's timing. */
+function validityText(t) {
+  const parse = (j) => {
+    try {
+      return j ? JSON.parse(j) : null;
+    } catch {
+      return null;
+    }
+  };
+  const c = parse(t.client_timing_json);
+  const k = parse(t.timing_json);
+  const parts = [];
+  if (c) {
+    parts.push(`display ${c.frames} frames, longest gap ${num(c.longest_gap_ms)} ms, hidden ${num(c.hidden_ms)} ms`);
+    parts.push(`input ${num(c.input_hz)} Hz, round trip p50 ${num(c.rtt_ms.p50)} / p95 ${num(c.rtt_ms.p95)} / max ${num(c.rtt_ms.max)} ms`);
+  } else if (t.started_at) parts.push('no display figures from the station');
+  if (k) parts.push(`controller ${k.overruns} overruns, wake p99 ${num(k.wake_latency_us.p99)} µs`);
+  return parts.join(' · ');
+}
+
+/** The result of the panel's last run; a failed test is re-queued by itself, and can be
+ * redone by hand or accepted as incomplete from here. */
 function renderLast(p) {
   const li = p.lastTrialInfo;
   const b = li ? live.get(li.id) : null;
@@ -510,10 +553,16 @@ function renderLast(p) {
     (li.ms_cab_accel !== null ? ` · cab accel MS ${num(li.ms_cab_accel)} (mm/s²)²` : '') +
     (b && b.n ? ` · live estimate ${num(b.sumE2 / b.n)} mm² from ${b.n} samples` : '') +
     (li.finished_at ? ` · ended ${when(li.finished_at)}` : '');
-  const canRedo = li.isLatest && !li.redone && ['aborted', 'incomplete'].includes(li.status);
+  const failed = FAILED.includes(li.status);
+  const canRedo = li.isLatest && !li.redone && failed && !li.accepted_reason;
+  // Accepting names the failed attempt; the server accepts the test's latest attempt (its
+  // re-queued successor while that has not run).
+  const canAccept = failed && !li.accepted_reason && (li.isLatest || li.redoneScheduled);
+  const validity = validityText(li);
   p.last.replaceChildren(
     ...[
     text,
+    validity ? el('div', { class: 'small mon-validity' }, validity) : null,
     canRedo
       ? el(
           'button',
@@ -521,7 +570,15 @@ function renderLast(p) {
           'Schedule a redo of this test',
         )
       : null,
-    li.redone ? el('span', {}, ` · redone: new attempt is trial ${li.redone}`) : null,
+    li.redone ? el('span', {}, ` · ${li.redoneScheduled ? 're-queued at the end of its block' : 'redone'}: new attempt is trial ${li.redone}`) : null,
+    li.accepted_reason ? el('span', {}, ` · accepted as incomplete (${li.accepted_reason})`) : null,
+    canAccept
+      ? el('span', { class: 'accept-last' },
+          ' ',
+          el('input', { 'data-accept-reason': p.id, placeholder: 'reason (required)', maxlength: 500, 'aria-label': 'Reason for accepting the test as incomplete' }),
+          el('button', { type: 'button', class: 'small', 'data-action': 'accept-last', 'data-station-id': p.id, 'data-trial-id': li.id, disabled: p.busy },
+            'Accept as incomplete (no repeat)'))
+      : null,
     ].filter(Boolean),
   );
 }
@@ -595,6 +652,28 @@ async function onClick(e) {
   if (btn.dataset.action === 'start') await startTest(p);
   else if (btn.dataset.action === 'abort') await abortTest(p);
   else if (btn.dataset.action === 'redo-last') await redoLast(p, Number(btn.dataset.trialId));
+  else if (btn.dataset.action === 'accept-last') await acceptLast(p, Number(btn.dataset.trialId));
+}
+
+async function acceptLast(p, trialId) {
+  const input = p.last.querySelector(`input[data-accept-reason="${p.id}"]`);
+  const reason = input ? input.value.trim() : '';
+  if (!reason) {
+    p.actionError = 'Accepting a test as incomplete needs a reason.';
+    renderPanel(p);
+    return;
+  }
+  p.busy = true;
+  renderPanel(p);
+  const r = await act(`Accept trial ${trialId}'s test as incomplete`, p.result, () => post(`/api/trials/${trialId}/incomplete`, { reason }), () =>
+    'accepted as incomplete: it will not be repeated',
+  );
+  p.busy = false;
+  p.actionError = r.ok ? null : `Accept refused: ${errText(r)}`;
+  p.lastFetchedFor = null;
+  await poll(p);
+  renderPanel(p);
+  emit('trial', null);
 }
 
 async function redoLast(p, trialId) {

@@ -23,7 +23,10 @@ const WINDOW_S = 5;          // the strip chart shows the last 5 s
 const LONG_FRAME_MS = 25;
 const SHAKE_OMEGA = 2 * Math.PI * 4; // the cab's 4 Hz mode (rad/s)
 const MAX_INPUT_MM = 1000;   // the server drops anything larger
-const PHASES = ['loading', 'unpaired', 'waiting', 'consent', 'ready', 'running', 'survey', 'move', 'done'];
+const PHASES = ['loading', 'unpaired', 'waiting', 'consent', 'ready', 'running', 'survey', 'move', 'held', 'done'];
+/** While a test runs, the display's health goes to the server this often (and at once when
+ * the page is hidden or shown): the server stops a test whose display is hidden or stalled. */
+const DISPLAY_EVERY_MS = 250;
 
 const $ = (id) => document.getElementById(id);
 
@@ -292,6 +295,7 @@ function show(s) {
     if (render) render(s);
   }
   if (active && phase === 'running' && !run) startRun(s.test);
+  showStopped(active && ['ready', 'move', 'held'].includes(phase) ? s.stopped : null);
 
   if (document.body.dataset.phase !== displayed) {
     document.body.dataset.phase = displayed;
@@ -304,6 +308,24 @@ function show(s) {
     }
     window.scrollTo(0, 0);
   }
+}
+
+/** What the subject is told about a test that was stopped (never a controller's name). */
+function showStopped(stopped) {
+  const box = $('stopped-notice');
+  if (!stopped) {
+    box.hidden = true;
+    return;
+  }
+  const why = {
+    invalid: 'the display was hidden or stopped updating',
+    aborted: 'it was stopped by the experimenter',
+    incomplete: 'of a technical problem',
+  }[stopped.status] || 'of a problem';
+  const then = stopped.repeated ? 'It will be repeated later.' : 'The experimenter will decide how to go on.';
+  const text = `${stopped.label} was stopped because ${why}. ${then}`;
+  if (box.textContent !== text) box.textContent = text;
+  box.hidden = false;
 }
 
 const renderers = {
@@ -341,6 +363,7 @@ const renderers = {
   survey(s) {
     renderSurvey(s);
   },
+  held() {},
   move(s) {
     $('move-to').textContent = s.to === 'on'
       ? 'Please move to the seat on the machine'
@@ -530,6 +553,7 @@ function sendInput() {
   pos = Math.max(-MAX_INPUT_MM, Math.min(MAX_INPUT_MM, pos));
   const seq = ++input.seq;
   socket.send(JSON.stringify({ type: 'input', trial_id: t.trial_id, seq, position_mm: pos }));
+  if (run && run.trialId === t.trial_id) run.inputs++;
   input.lastSend = now;
   input.sentAt.set(seq, now);
   // Forget send times older than 10 s (a sample never answers that late).
@@ -630,10 +654,48 @@ function startRun(test) {
     frames: 0,
     longFrames: 0,
     lastFrame: null,
+    longestGap: 0,        // ms between two frames, or since the start before the first
+    startedAt: performance.now(),
+    hiddenMs: 0,          // hidden time before the current hidden spell
+    hiddenSince: document.hidden ? performance.now() : null,
+    inputs: 0,            // input messages sent for this test
     rtts: [],
     seenSeq: new Set(),
   };
   resizeCanvas();
+  sendDisplay();
+}
+
+/** The display's figures so far; the gap still open and the hidden spell still running
+ * count (a stalled or hidden page draws no frame that would close them). */
+function displayFigures(r, now) {
+  const gap = now - (r.lastFrame === null ? r.startedAt : r.lastFrame);
+  return {
+    hidden: document.hidden,
+    frames: r.frames,
+    longest_gap_ms: Math.round(Math.max(r.longestGap, gap) * 10) / 10,
+    hidden_ms: Math.round((r.hiddenMs + (r.hiddenSince === null ? 0 : now - r.hiddenSince)) * 10) / 10,
+    inputs: r.inputs,
+  };
+}
+
+function sendDisplay() {
+  const r = run;
+  if (!r || !socket || socket.readyState !== WebSocket.OPEN) return;
+  socket.send(JSON.stringify({ type: 'display', trial_id: r.trialId, ...displayFigures(r, performance.now()) }));
+}
+
+function onVisibility() {
+  const r = run;
+  if (r) {
+    const now = performance.now();
+    if (document.hidden && r.hiddenSince === null) r.hiddenSince = now;
+    if (!document.hidden && r.hiddenSince !== null) {
+      r.hiddenMs += now - r.hiddenSince;
+      r.hiddenSince = null;
+    }
+  }
+  sendDisplay();
 }
 
 function onSample(sample) {
@@ -675,10 +737,16 @@ async function finishRun() {
   canvas.style.transform = '';
   const sorted = [...r.rtts].sort((a, b) => a - b);
   const round = (x) => Math.round(Math.min(600000, Math.max(0, x)) * 100) / 100;
+  const now = performance.now();
+  const figures = displayFigures(r, now);
+  const secs = Math.max(1e-3, (now - r.startedAt) / 1000);
   const body = {
     trial_id: r.trialId,
     frames: r.frames,
     long_frames: Math.min(r.longFrames, r.frames),
+    longest_gap_ms: round(figures.longest_gap_ms),
+    hidden_ms: round(figures.hidden_ms),
+    input_hz: Math.round(Math.min(1000, r.inputs / secs) * 10) / 10,
     rtt_ms: {
       p50: round(percentile(sorted, 0.5)),
       p95: round(percentile(sorted, 0.95)),
@@ -818,7 +886,9 @@ function draw(now) {
 function frame(now) {
   requestAnimationFrame(frame);
   if (run) {
-    if (run.lastFrame !== null && now - run.lastFrame > LONG_FRAME_MS) run.longFrames++;
+    const gap = now - (run.lastFrame === null ? run.startedAt : run.lastFrame);
+    if (run.lastFrame !== null && gap > LONG_FRAME_MS) run.longFrames++;
+    if (gap > run.longestGap) run.longestGap = gap;
     run.lastFrame = now;
     run.frames++;
     draw(now);
@@ -834,6 +904,8 @@ function frame(now) {
 setInterval(() => {
   if (input.trialId !== null && performance.now() - input.lastSend > 40) sendInput();
 }, 20);
+
+setInterval(sendDisplay, DISPLAY_EVERY_MS);
 
 // ---------------------------------------------------------------------------------------
 // Start.
@@ -855,6 +927,7 @@ function init() {
   });
   setupPointer();
   window.addEventListener('resize', resizeCanvas);
+  document.addEventListener('visibilitychange', onVisibility);
   window.addEventListener('gamepadconnected', (ev) => {
     delete input.pad.rest[ev.gamepad.index];
   });

@@ -6,10 +6,10 @@ use crate::browser_to_server::{
 };
 use crate::controller_to_server::LiveSample;
 use crate::params::{CompensatorKind, Seat};
-use crate::records::{ConsentDecision, DoneReason, StationRole};
+use crate::records::{ConsentDecision, DoneReason, StationRole, TrialStatus};
 use crate::server_to_browser::{
     MonitorEvent, MonitorStation, MonitorTest, MonitorView, Phase, StationEvent, StationInfo,
-    StationSocket, StationView, TestView,
+    StationSocket, StationView, StopNotice, TestView,
 };
 use crate::study::SurveyAnswer;
 
@@ -56,6 +56,20 @@ fn station_input_consent_survey_and_timing() {
     );
     refused::<StationMessage>(r#"{"type":"input","trial_id":7,"seq":3,"position_mm":1.0,"x":1}"#);
     assert_golden(
+        &StationMessage::Display {
+            trial_id: 7,
+            hidden: true,
+            frames: 240,
+            longest_gap_ms: 16.5,
+            hidden_ms: 0.0,
+            inputs: 300,
+        },
+        r#"{"type":"display","trial_id":7,"hidden":true,"frames":240,"longest_gap_ms":16.5,"hidden_ms":0.0,"inputs":300}"#,
+    );
+    refused::<StationMessage>(
+        r#"{"type":"display","trial_id":7,"hidden":true,"frames":240,"longest_gap_ms":16.5,"hidden_ms":0.0}"#,
+    );
+    assert_golden(
         &ConsentRequest {
             decision: ConsentDecision::Agreed,
         },
@@ -82,6 +96,9 @@ fn station_input_consent_survey_and_timing() {
         trial_id: 5,
         frames: 8400,
         long_frames: 3,
+        longest_gap_ms: 40.5,
+        hidden_ms: 0.0,
+        input_hz: 249.5,
         rtt_ms: RttPercentiles {
             p50: 6.5,
             p95: 9.0,
@@ -90,7 +107,7 @@ fn station_input_consent_survey_and_timing() {
     };
     assert_golden(
         &report,
-        r#"{"trial_id":5,"frames":8400,"long_frames":3,"rtt_ms":{"p50":6.5,"p95":9.0,"max":31.0}}"#,
+        r#"{"trial_id":5,"frames":8400,"long_frames":3,"longest_gap_ms":40.5,"hidden_ms":0.0,"input_hz":249.5,"rtt_ms":{"p50":6.5,"p95":9.0,"max":31.0}}"#,
     );
     assert_eq!(report.validate(), Ok(()));
     let mut bad = report.clone();
@@ -99,6 +116,9 @@ fn station_input_consent_survey_and_timing() {
         bad.validate(),
         Err("long_frames cannot exceed frames".into())
     );
+    bad = report.clone();
+    bad.hidden_ms = -1.0;
+    assert!(bad.validate().unwrap_err().starts_with("hidden_ms:"));
     bad = report;
     bad.rtt_ms.p95 = f64::INFINITY;
     assert!(bad.validate().unwrap_err().starts_with("rtt_ms.p95:"));
@@ -114,6 +134,7 @@ fn what_a_station_shows() {
         &StationView {
             phase: Phase::Waiting,
             station: station.clone(),
+            stopped: None,
         },
         r#"{"phase":"waiting","station":{"name":"Cab seat","role":"on"}}"#,
     );
@@ -124,6 +145,7 @@ fn what_a_station_shows() {
                 to: Seat::Off,
             },
             station: station.clone(),
+            stopped: None,
         },
         r#"{"phase":"move","subject":"S01","to":"off","station":{"name":"Cab seat","role":"on"}}"#,
     );
@@ -134,6 +156,7 @@ fn what_a_station_shows() {
                 reason: DoneReason::Finished,
             },
             station: station.clone(),
+            stopped: None,
         },
         r#"{"phase":"done","subject":"S01","reason":"finished","station":{"name":"Cab seat","role":"on"}}"#,
     );
@@ -143,9 +166,37 @@ fn what_a_station_shows() {
                 subject: "S01".into(),
                 test: test_view(),
             },
-            station,
+            station: station.clone(),
+            stopped: None,
         },
         r#"{"phase":"ready","subject":"S01","test":{"trial_id":12,"label":"Controller 3","practice":false,"number":4,"of":10,"duration_s":140.0,"station":"on","shake_gain":1.0,"target_range_mm":40.0,"k_bf":0.78,"started_at":null},"station":{"name":"Cab seat","role":"on"}}"#,
+    );
+    // After a stopped test the next one is shown with what happened; with nothing left to
+    // run but a test that failed too often, the station holds (never "done").
+    assert_golden(
+        &StationView {
+            phase: Phase::Ready {
+                subject: "S01".into(),
+                test: test_view(),
+            },
+            station: station.clone(),
+            stopped: Some(StopNotice {
+                label: "Controller 2".into(),
+                status: TrialStatus::Invalid,
+                repeated: true,
+            }),
+        },
+        r#"{"phase":"ready","subject":"S01","test":{"trial_id":12,"label":"Controller 3","practice":false,"number":4,"of":10,"duration_s":140.0,"station":"on","shake_gain":1.0,"target_range_mm":40.0,"k_bf":0.78,"started_at":null},"station":{"name":"Cab seat","role":"on"},"stopped":{"label":"Controller 2","status":"invalid","repeated":true}}"#,
+    );
+    assert_golden(
+        &StationView {
+            phase: Phase::Held {
+                subject: "S01".into(),
+            },
+            station,
+            stopped: None,
+        },
+        r#"{"phase":"held","subject":"S01","station":{"name":"Cab seat","role":"on"}}"#,
     );
 }
 

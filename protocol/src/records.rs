@@ -65,6 +65,9 @@ wire_enum!(
         Aborted = "aborted",
         /// Stopped by a fault, a lost link or a restart, or filed so by the experimenter.
         Incomplete = "incomplete",
+        /// Stopped because the subject could not see the display (hidden or stalled beyond
+        /// the study's limits): never counts.
+        Invalid = "invalid",
     }
 );
 
@@ -91,10 +94,18 @@ wire_enum!(
     DoneReason, "reason" {
         Withdrawn = "withdrawn",
         Declined = "declined",
-        /// Every test is done.
+        /// Every test is complete or accepted as incomplete by the experimenter.
         Finished = "finished",
     }
 );
+
+impl TrialStatus {
+    /// Whether the attempt ended without counting: stopped, faulted or invalid (it is
+    /// repeated unless the experimenter accepts it as incomplete).
+    pub fn failed(self) -> bool {
+        matches!(self, Self::Aborted | Self::Incomplete | Self::Invalid)
+    }
+}
 
 impl StationRole {
     /// Whether a station of this role runs the tests of `seat`.
@@ -120,7 +131,7 @@ mod tests {
         }
         assert_eq!(
             "done".parse::<TrialStatus>(),
-            Err("unknown trial status \"done\"; allowed: scheduled, running, complete, aborted, incomplete".into())
+            Err("unknown trial status \"done\"; allowed: scheduled, running, complete, aborted, incomplete, invalid".into())
         );
         assert_eq!(
             ConsentDecision::try_from("maybe".to_string()),

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::controller_to_server::LiveSample;
 use crate::params::{CompensatorKind, Seat};
-use crate::records::{DoneReason, StationRole};
+use crate::records::{DoneReason, StationRole, TrialStatus};
 use crate::study::{ConsentForm, SurveyParams};
 
 /// What a station shows its subject now.
@@ -18,6 +18,21 @@ pub struct StationView {
     #[serde(flatten)]
     pub phase: Phase<TestView>,
     pub station: StationInfo,
+    /// The subject's last test stopped without counting; absent once a test ran after it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stopped: Option<StopNotice>,
+}
+
+/// What the subject is told about a test that was stopped: which one (blinded), how it ended
+/// (`aborted`: by the experimenter or the E-stop; `incomplete`: a technical fault;
+/// `invalid`: the display was hidden or stalled), and whether it will be repeated later
+/// (otherwise the experimenter decides).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct StopNotice {
+    pub label: String,
+    pub status: TrialStatus,
+    pub repeated: bool,
 }
 
 /// The station itself, as its page shows it.
@@ -58,6 +73,11 @@ pub enum Phase<T> {
     Running {
         subject: String,
         test: T,
+    },
+    /// A test failed as often as it may be repeated: the experimenter decides (repeat it
+    /// or accept it as incomplete) before anything else runs. Never "done" meanwhile.
+    Held {
+        subject: String,
     },
     Done {
         subject: String,

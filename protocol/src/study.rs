@@ -140,6 +140,23 @@ pub struct StudyParams {
     /// this stops a test (mm/s²).
     #[serde(default = "default_max_cab_rms")]
     pub max_cab_rms_mm_s2: f64,
+    /// Display limits of a person's test (ms): a station page hidden (Page Visibility) for
+    /// longer than `max_hidden_ms` in all, or drawing no frame for longer than
+    /// `max_frame_gap_ms`, or sending no display report for longer than that, stops the test
+    /// and files it invalid. Half a second hidden is a glance at another window; a second
+    /// without a frame is a display the subject cannot track on.
+    #[serde(default = "default_max_hidden_ms")]
+    pub max_hidden_ms: f64,
+    #[serde(default = "default_max_frame_gap_ms")]
+    pub max_frame_gap_ms: f64,
+}
+
+fn default_max_hidden_ms() -> f64 {
+    500.0
+}
+
+fn default_max_frame_gap_ms() -> f64 {
+    1000.0
 }
 
 fn default_stale_input_ms() -> f64 {
@@ -193,6 +210,8 @@ impl StudyParams {
         check("display_shake_gain", self.display_shake_gain, 0.0, 10.0)?;
         check("stale_input_ms", self.stale_input_ms, 5.0, 10_000.0)?;
         check("max_cab_rms_mm_s2", self.max_cab_rms_mm_s2, 10.0, 1e6)?;
+        check("max_hidden_ms", self.max_hidden_ms, 0.0, 60_000.0)?;
+        check("max_frame_gap_ms", self.max_frame_gap_ms, 250.0, 60_000.0)?;
         let s = &self.survey;
         if !(2..=11).contains(&s.scale_points) {
             return invalid(

@@ -22,6 +22,73 @@ fn choose(s: &Session, css: &str, value: &str) {
     );
 }
 
+/// Waits until the station page shows one of `phases`; returns it. A short test may start
+/// and end between two looks, so a wait for "running" alone would depend on timing.
+fn wait_phase_of(s: &Session, phases: &[&str]) -> String {
+    s.wait_until(
+        "const p = document.body.dataset.phase || ''; return arguments[0].includes(p) ? p : null;",
+        json!([phases]),
+    )
+    .as_str()
+    .unwrap()
+    .to_string()
+}
+
+/// Whether the running test's display is laid out (a canvas with a size): the condition
+/// for taking its picture or moving the pointer over it.
+fn display_laid_out(s: &Session) -> bool {
+    s.exec(
+        "const c = document.querySelector('#track'); if (!c || document.body.dataset.phase !== 'running') return false; \
+         const r = c.getBoundingClientRect(); return r.width > 0 && r.height > 0;",
+        json!([]),
+    ) == json!(true)
+}
+
+/// Runs the subject's test in `slot` from the dashboard's Start button until an attempt
+/// completes; `while_running` is called when the station is seen running it. An attempt
+/// that fails (on a loaded machine the controller link can drop) is re-queued by the
+/// server, and started again here, at most three times in all.
+fn run_from_dashboard(
+    api: &bdft_tests::server::Api,
+    dash: &Session,
+    station: &Session,
+    (subject, slot): (i64, i64),
+    start: &str,
+    while_running: &dyn Fn(),
+) {
+    for attempt in 1..=3 {
+        let trial = eventually(Duration::from_secs(30), || {
+            let (_, d) = api.get(&format!("/api/subjects/{subject}"));
+            d["trials"]
+                .as_array()?
+                .iter()
+                .map(|t| t["trial"].clone())
+                .find(|t| {
+                    t["slot"] == slot && t["attempt"] == attempt && t["status"] == "scheduled"
+                })
+        });
+        wait_enabled(dash, start);
+        dash.click(start);
+        if wait_phase_of(station, &["running", "move", "survey", "ready"]) == "running" {
+            while_running();
+        }
+        let filed = eventually(Duration::from_secs(60), || {
+            let (_, d) = api.get(&format!("/api/subjects/{subject}"));
+            d["trials"]
+                .as_array()?
+                .iter()
+                .map(|t| t["trial"].clone())
+                .find(|t| t["id"] == trial["id"])
+                .filter(|t| t["status"] != "scheduled" && t["status"] != "running")
+        });
+        if filed["status"] == "complete" {
+            return;
+        }
+        eprintln!("attempt {attempt} of slot {slot} failed, repeated: {filed}");
+    }
+    panic!("slot {slot} failed three times");
+}
+
 fn wait_enabled(s: &Session, css: &str) {
     s.wait_until(
         "const b = document.querySelector(arguments[0]); return b && !b.disabled;",
@@ -39,12 +106,7 @@ fn track(s: &Session, seconds: f64) {
         .map(|i| (0, (200.0 * (i as f64 * 0.15).sin()) as i64))
         .collect();
     for stroke in points.chunks(5) {
-        let shown = s.exec(
-            "const c = document.querySelector(arguments[0]); if (!c || document.body.dataset.phase !== 'running') return false; \
-             const r = c.getBoundingClientRect(); return r.width > 0 && r.height > 0;",
-            json!(["#track"]),
-        );
-        if shown != json!(true) {
+        if !display_laid_out(s) {
             return;
         }
         if s.pointer_path("#track", stroke, 50).is_err() {
@@ -78,8 +140,19 @@ fn a_short_study_runs_end_to_end_in_a_real_browser() {
     let study = eventually(Duration::from_secs(20), || {
         api.get("/api/studies").1.as_array()?.first()?["id"].as_i64()
     });
-    let (_, st) = api.get(&format!("/api/studies/{study}"));
+    let (_, mut st) = api.get(&format!("/api/studies/{study}"));
     assert_eq!(st["params"]["trial_s"], 2.0, "the form's values were used");
+    // This test is of the pages and the flow, not of the display limits (tests of their
+    // own in validity.rs): a display that stalls on a loaded machine must not change the
+    // flow, so the limits are the widest allowed.
+    st["params"]["max_hidden_ms"] = json!(60_000.0);
+    st["params"]["max_frame_gap_ms"] = json!(60_000.0);
+    let (code, body) = api.call(
+        "PUT",
+        &format!("/api/studies/{study}"),
+        Some(json!({ "name": st["name"], "params": st["params"], "version": st["version"] })),
+    );
+    assert_eq!(code, 200, "{body}");
     shot(&dash, "02-dashboard-study");
 
     // Enrols a subject.
@@ -128,10 +201,12 @@ fn a_short_study_runs_end_to_end_in_a_real_browser() {
     desk.wait_phase("ready");
     shot(&desk, "05-station-ready");
     let start_desk = format!("button[data-action='start'][data-station-id='{desk_id}']");
-    wait_enabled(&dash, &start_desk);
-    dash.click(&start_desk);
-    desk.wait_phase("running");
-    shot(&desk, "06-station-practice");
+    // The practice lasts a second: its display is pictured if it is seen running.
+    run_from_dashboard(&api, &dash, &desk, (subject, 0), &start_desk, &|| {
+        if display_laid_out(&desk) {
+            shot(&desk, "06-station-practice");
+        }
+    });
     // The first test is on the machine: the desk says where to go.
     desk.wait_phase("move");
     assert!(
@@ -148,14 +223,16 @@ fn a_short_study_runs_end_to_end_in_a_real_browser() {
         "blinded label"
     );
     let start_machine = format!("button[data-action='start'][data-station-id='{machine_id}']");
-    wait_enabled(&dash, &start_machine);
-    dash.click(&start_machine);
-    machine.wait_phase("running");
-    shot(&dash, "08-dashboard-live-monitor");
-    let began = Instant::now();
-    track(&machine, 1.0);
-    shot(&machine, "09-station-test");
-    assert!(began.elapsed() < Duration::from_secs(60));
+    // A 2 s test: tracked (and pictured) while it is seen running, whatever the load.
+    run_from_dashboard(&api, &dash, &machine, (subject, 1), &start_machine, &|| {
+        shot(&dash, "08-dashboard-live-monitor");
+        let began = Instant::now();
+        if display_laid_out(&machine) {
+            shot(&machine, "09-station-test");
+        }
+        track(&machine, 1.0);
+        assert!(began.elapsed() < Duration::from_secs(60));
+    });
 
     // The survey: a missing rating is refused next to its field, then fixed.
     machine.wait_phase("survey");
@@ -202,7 +279,8 @@ fn a_short_study_runs_end_to_end_in_a_real_browser() {
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();
     let col = |n: &str| header.iter().position(|h| *h == n).unwrap();
     let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
-    assert_eq!(rows.len(), 11, "practice + 10 tests");
+    let first_attempts = rows.iter().filter(|r| r[col("attempt")] == "1").count();
+    assert_eq!(first_attempts, 11, "practice + 10 tests (and any repeats)");
     let done: Vec<&Vec<&str>> = rows
         .iter()
         .filter(|r| r[col("status")] == "complete")

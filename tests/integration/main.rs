@@ -9,3 +9,4 @@ mod server_api;
 mod server_layers;
 mod station_safety;
 mod statistics;
+mod validity;

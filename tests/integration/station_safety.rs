@@ -108,6 +108,16 @@ fn input(trial: i64, seq: u64) -> Message {
     )
 }
 
+/// A visible display's report: `inputs` sent, a frame every 16 ms.
+fn display(trial: i64, inputs: u64) -> Message {
+    Message::Text(
+        json!({ "type": "display", "trial_id": trial, "hidden": false, "frames": inputs,
+                "longest_gap_ms": 17.0, "hidden_ms": 0.0, "inputs": inputs })
+        .to_string()
+        .into(),
+    )
+}
+
 #[test]
 fn a_flooding_station_is_throttled_then_cut_off_while_another_runs_normally() {
     let server = Server::start("station-flood");
@@ -131,7 +141,16 @@ fn a_flooding_station_is_throttled_then_cut_off_while_another_runs_normally() {
         std::thread::spawn(move || {
             read_timeout(&mut calm_ws, Duration::from_millis(10));
             let (mut seq, mut echoed, mut last_send) = (0u64, 0u64, Instant::now());
+            let mut last_display: Option<Instant> = None;
             while !done.load(Ordering::Relaxed) {
+                // Its display is healthy, as a visible page reports it (the server stops a
+                // test whose station goes silent).
+                if last_display.is_none_or(|t| t.elapsed() >= Duration::from_millis(250)) {
+                    last_display = Some(Instant::now());
+                    if calm_ws.send(display(calm_trial, seq)).is_err() {
+                        break;
+                    }
+                }
                 if seq == 0 || last_send.elapsed() >= Duration::from_millis(10) {
                     seq += 1;
                     last_send = Instant::now();

@@ -54,7 +54,7 @@ fn num(v: Option<f64>) -> String {
     v.map(|x| x.to_string()).unwrap_or_default()
 }
 
-pub const TRIAL_COLUMNS: [&str; 32] = [
+pub const TRIAL_COLUMNS: [&str; 42] = [
     "study_id",
     "trial_id",
     "subject_code",
@@ -87,7 +87,46 @@ pub const TRIAL_COLUMNS: [&str; 32] = [
     "started_at",
     "finished_at",
     "consent_version",
+    // How the test ran (validity): the station's display and input, the controller's
+    // timing, and the experimenter's acceptance of a failed test as incomplete.
+    "display_frames",
+    "display_longest_gap_ms",
+    "display_hidden_ms",
+    "input_hz",
+    "rtt_p50_ms",
+    "rtt_p95_ms",
+    "rtt_max_ms",
+    "controller_overruns",
+    "controller_wake_p99_us",
+    "accepted_reason",
 ];
+
+/// The validity cells of a trial row, in `TRIAL_COLUMNS` order: empty where a figure is
+/// missing (a test that never ran, a station that sent none).
+fn validity_cells(r: &store::exports::TrialExportRow) -> [String; 10] {
+    let parse = |j: &Option<String>| {
+        j.as_deref()
+            .and_then(|j| serde_json::from_str::<serde_json::Value>(j).ok())
+            .unwrap_or_default()
+    };
+    let (station, controller) = (parse(&r.client_timing_json), parse(&r.timing_json));
+    let cell = |v: &serde_json::Value| match v {
+        serde_json::Value::Number(n) => n.to_string(),
+        _ => String::new(),
+    };
+    [
+        cell(&station["frames"]),
+        cell(&station["longest_gap_ms"]),
+        cell(&station["hidden_ms"]),
+        cell(&station["input_hz"]),
+        cell(&station["rtt_ms"]["p50"]),
+        cell(&station["rtt_ms"]["p95"]),
+        cell(&station["rtt_ms"]["max"]),
+        cell(&controller["overruns"]),
+        cell(&controller["wake_latency_us"]["p99"]),
+        text_cell(r.accepted_reason.as_deref().unwrap_or("")),
+    ]
+}
 
 /// Writes the export of `kind` for `study_id` to `out`.
 pub async fn write(
@@ -130,6 +169,7 @@ async fn trials(
         .await?;
     for r in store::exports::trial_rows(pool, study_id).await? {
         let rating = |v: Option<i64>| v.map(|x| x.to_string()).unwrap_or_default();
+        let validity = validity_cells(&r);
         let cells = [
             r.study_id.to_string(),
             r.trial_id.to_string(),
@@ -165,6 +205,8 @@ async fn trials(
             text_cell(r.consent_version.as_deref().unwrap_or("")),
         ];
         w.write_all(cells.join(",").as_bytes()).await?;
+        w.write_all(b",").await?;
+        w.write_all(validity.join(",").as_bytes()).await?;
         w.write_all(b"\n").await?;
     }
     Ok(())

@@ -1,5 +1,6 @@
-//! How a trial's end is filed: the outcome decides the status; the result, the record and
-//! the audit row are committed together.
+//! How a trial's end is filed: the outcome decides the status (a trial found invalid while
+//! it ran stays invalid); the result, the record, the re-queue of a failed test and the
+//! audit row are committed together.
 
 use bdft_protocol::controller_to_server::TrialResult;
 use bdft_protocol::records::TrialStatus;
@@ -7,6 +8,7 @@ use bdft_protocol::trial::{FaultKind, Outcome};
 use serde_json::json;
 use sqlx::SqlitePool;
 
+use super::queue::requeue_failed;
 use crate::error::Result;
 use crate::store::records::Record;
 use crate::store::{self, Change};
@@ -35,14 +37,17 @@ pub async fn file_result(
 ) -> Result<bool> {
     let (status, reason) = filing(&result.outcome);
     let mut change = Change::begin(pool, actor).await?;
-    if !store::records::file_result(change.db(), result, status, reason.as_deref(), record).await? {
+    let Some((status, reason)) =
+        store::records::file_result(change.db(), result, status, reason.as_deref(), record).await?
+    else {
         return Ok(false);
-    }
+    };
+    let requeued = requeue_failed(change.db(), result.trial_id as i64).await?;
     change
         .commit(
             "trial.finish",
             Some(format!("trial:{}", result.trial_id)),
-            json!({ "status": status, "reason": reason, "metrics": result.metrics }),
+            json!({ "status": status, "reason": reason, "metrics": result.metrics, "requeued": requeued }),
         )
         .await?;
     Ok(true)
@@ -54,11 +59,15 @@ pub async fn interrupt_running(pool: &SqlitePool, reason: &str) -> Result<Vec<i6
     let mut change = Change::begin(pool, "system").await?;
     let ids = store::trials::interrupt_running(change.db(), reason).await?;
     if !ids.is_empty() {
+        let mut requeued = Vec::new();
+        for &id in &ids {
+            requeued.extend(requeue_failed(change.db(), id).await?);
+        }
         change
             .commit(
                 "trial.interrupt",
                 None,
-                json!({ "trials": ids, "reason": reason }),
+                json!({ "trials": ids, "reason": reason, "requeued": requeued }),
             )
             .await?;
     }

@@ -19,6 +19,7 @@ pub mod passwords;
 pub mod pilot;
 pub mod plots;
 pub mod power;
+pub mod queue;
 pub mod results;
 pub mod schedule;
 pub mod stability;
@@ -28,6 +29,7 @@ pub mod stats;
 pub mod studies;
 pub mod subjects;
 pub mod trials;
+pub mod validity;
 
 use crate::error::{AppError, Result};
 

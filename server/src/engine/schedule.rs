@@ -39,6 +39,8 @@ pub fn default_params() -> StudyParams {
         display_shake_gain: 1.0,
         stale_input_ms: 100.0,
         max_cab_rms_mm_s2: bdft_protocol::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
+        max_hidden_ms: 500.0,
+        max_frame_gap_ms: 1000.0,
     }
 }
 

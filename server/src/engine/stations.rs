@@ -13,6 +13,7 @@ use bdft_protocol::server_to_browser::{
 use serde_json::json;
 use sqlx::SqlitePool;
 
+use super::queue;
 use super::station_sockets::StationSockets;
 use crate::error::{AppError, Result};
 use crate::store::stations::Station;
@@ -309,9 +310,15 @@ async fn phase<T>(
     let trials = store::trials::of_subject(pool, subject_id).await?;
     let total = latest_attempts(&trials).filter(|t| !t.practice).count();
     let Some(t) = store::trials::next(pool, subject_id).await? else {
-        return Ok(Phase::Done {
-            subject: code,
-            reason: DoneReason::Finished,
+        // Never "done" while a test is missing: one that failed too often waits for the
+        // experimenter.
+        return Ok(if queue::anything_missing(&trials) {
+            Phase::Held { subject: code }
+        } else {
+            Phase::Done {
+                subject: code,
+                reason: DoneReason::Finished,
+            }
         });
     };
     if !station.role.serves(t.seat) {
@@ -351,14 +358,23 @@ async fn phase<T>(
     })
 }
 
-/// What the station shows its subject now (never a compensator's name).
+/// What the station shows its subject now (never a compensator's name), with what
+/// happened to the last test when it was stopped.
 pub async fn station_view(pool: &SqlitePool, station: &Station) -> Result<StationView> {
+    let phase = phase(pool, station, |view, _| view).await?;
+    let stopped = match (&phase, station.subject_id) {
+        (Phase::Ready { .. } | Phase::Move { .. } | Phase::Held { .. }, Some(subject_id)) => {
+            queue::stop_notice(&store::trials::of_subject(pool, subject_id).await?)
+        }
+        _ => None,
+    };
     Ok(StationView {
         station: StationInfo {
             name: station.name.clone(),
             role: station.role,
         },
-        phase: phase(pool, station, |view, _| view).await?,
+        phase,
+        stopped,
     })
 }
 

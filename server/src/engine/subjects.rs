@@ -72,7 +72,14 @@ pub async fn report_timing(
     report: &TimingReport,
 ) -> Result<()> {
     report.validate().map_err(AppError::BadRequest)?;
-    let json = json!({ "frames": report.frames, "long_frames": report.long_frames, "rtt_ms": report.rtt_ms });
+    let json = json!({
+        "frames": report.frames,
+        "long_frames": report.long_frames,
+        "longest_gap_ms": report.longest_gap_ms,
+        "hidden_ms": report.hidden_ms,
+        "input_hz": report.input_hz,
+        "rtt_ms": report.rtt_ms,
+    });
     let mut change = Change::begin(pool, format!("station:{station_name}")).await?;
     store::trials::set_client_timing(change.db(), report.trial_id, &json.to_string()).await?;
     change

@@ -1,5 +1,6 @@
 //! The rules of a test's life: when it may start (consent, order, surveys, the right rig),
-//! when it may be redone, aborted or filed incomplete, and the E-stop. Every change is committed with its audit row.
+//! when it may be redone (queued again by hand: `queue` re-queues failed tests by itself),
+//! aborted or accepted as incomplete, and the E-stop. Every change is committed with its audit row.
 
 use bdft_protocol::records::{ConsentDecision, TrialStatus};
 use bdft_protocol::server_to_controller::ServerToController;
@@ -145,7 +146,9 @@ pub async fn abort(
         .await
 }
 
-/// Adds the next attempt of a finished test (the latest attempt only); returns it.
+/// Adds the next attempt of a finished test (the latest attempt only), queued at the end of
+/// its block like a failed test's; returns it. The experimenter may repeat a test that
+/// failed more often than the server repeats it by itself.
 pub async fn redo(pool: &SqlitePool, actor: &str, trial_id: i64, reason: &str) -> Result<Trial> {
     if reason.chars().count() > 500 {
         return Err(AppError::BadRequest(
@@ -173,8 +176,10 @@ pub async fn redo(pool: &SqlitePool, actor: &str, trial_id: i64, reason: &str) -
     Ok(new)
 }
 
-/// The experimenter files a scheduled or complete test as incomplete.
-pub async fn mark_incomplete(
+/// The experimenter accepts a test as incomplete with a reason: it is not run (again) and
+/// counts as missing with the reason. `trial_id` may be any attempt of the test; the latest
+/// is the one accepted (a failed attempt, its re-queued successor, or a complete one).
+pub async fn accept_incomplete(
     pool: &SqlitePool,
     actor: &str,
     trial_id: i64,
@@ -182,11 +187,18 @@ pub async fn mark_incomplete(
 ) -> Result<Trial> {
     super::check_reason(reason)?;
     let mut change = Change::begin(pool, actor).await?;
-    store::trials::mark_incomplete(change.db(), trial_id, reason).await?;
+    let given = store::trials::get(change.db(), trial_id).await?;
+    let trial_id = store::trials::of_subject(change.db(), given.subject_id)
+        .await?
+        .into_iter()
+        .filter(|t| t.slot == given.slot)
+        .max_by_key(|t| t.attempt)
+        .map_or(trial_id, |t| t.id);
+    store::trials::accept_incomplete(change.db(), trial_id, reason).await?;
     let t = store::trials::get(change.db(), trial_id).await?;
     change
         .commit(
-            "trial.mark_incomplete",
+            "trial.accept_incomplete",
             Some(format!("trial:{trial_id}")),
             json!({ "reason": reason }),
         )

@@ -34,6 +34,7 @@ use crate::engine::station_sockets::{
     Admit, FLOOD_PER_SECOND, FLOOD_SECONDS, INPUT_RATE, InputLimit, Opened,
 };
 use crate::engine::stations::running_trial;
+use crate::engine::validity::{self, DisplayReport, DisplayWatch};
 use crate::state::AppState;
 use crate::store;
 
@@ -77,6 +78,9 @@ const LOOK_EVERY: Duration = Duration::from_millis(500);
 /// Input for a test not known to be running looks the station's running test up again at
 /// most this often.
 const RECHECK_EVERY: Duration = Duration::from_millis(10);
+/// How often the display watch of a running person's test looks at the time (hidden for
+/// too long, or silent): well inside the display limits (at least 250 ms).
+const WATCH_EVERY: Duration = Duration::from_millis(50);
 
 /// WebSocket of a paired station: `input` messages in; `live` samples of its running test,
 /// `changed` notices and the `estop` latch out. A newer socket of the station replaces
@@ -200,10 +204,14 @@ async fn station_reader(
     // The trial this station may feed: its subject's running test at a seat it serves.
     let current = || async { running_trial(&s.pool, station_id).await.ok().flatten() };
     let mut running = current().await;
+    let mut display = Display::default();
+    display.follow(s, running).await;
     let mut limit = InputLimit::new(Instant::now());
     let mut look = tokio::time::interval(LOOK_EVERY);
+    let mut guard = tokio::time::interval(WATCH_EVERY);
     let mut last_recheck = Instant::now();
     loop {
+        display.follow(s, running).await;
         tokio::select! {
             _ = &mut opened.replaced => {
                 return Some((station_close::REPLACED, "this station was opened again elsewhere; that page is the live one now".into()));
@@ -260,6 +268,14 @@ async fn station_reader(
                     {
                         s.controller.send_input(trial_id as u64, seq, position_mm);
                     }
+                    Ok(StationMessage::Display { trial_id, hidden, longest_gap_ms, hidden_ms, .. })
+                        if Some(trial_id) == running
+                            && longest_gap_ms.is_finite()
+                            && hidden_ms.is_finite() =>
+                    {
+                        let report = DisplayReport { hidden, longest_gap_ms, hidden_ms };
+                        display.report(s, Instant::now(), report).await;
+                    }
                     // Input for a trial that is not this station's running one, or garbage: dropped.
                     _ => {}
                 }
@@ -284,6 +300,8 @@ async fn station_reader(
                 }
                 Err(RecvError::Closed) => return None,
             },
+            // A person's display hidden for too long, or silent.
+            _ = guard.tick() => display.check(s, Instant::now()).await,
             // A trial started by the experimenter, a latch set while the controller was away.
             _ = look.tick() => {
                 let now = latched(s).await;
@@ -296,6 +314,61 @@ async fn station_reader(
                     }
                 }
             }
+        }
+    }
+}
+
+/// The display watch of the station's running test, when it is a person's.
+#[derive(Default)]
+struct Display {
+    /// The running test it follows (watched or not).
+    trial: Option<i64>,
+    watch: Option<DisplayWatch>,
+}
+
+impl Display {
+    /// Follows the station's running test: a new test is watched from now (a synthetic
+    /// subject's is not).
+    async fn follow(&mut self, s: &AppState, running: Option<i64>) {
+        if running == self.trial {
+            return;
+        }
+        self.trial = running;
+        self.watch = None;
+        if let Some(id) = running {
+            match validity::limits_of(&s.pool, id).await {
+                Ok(limits) => {
+                    self.watch = limits.map(|l| DisplayWatch::new(id, l, Instant::now()));
+                }
+                Err(e) => tracing::error!(trial = id, "display limits: {e}"),
+            }
+        }
+    }
+
+    async fn report(&mut self, s: &AppState, now: Instant, report: DisplayReport) {
+        let verdict = self.watch.as_mut().and_then(|w| w.report(now, report));
+        self.judge(s, verdict).await;
+    }
+
+    async fn check(&mut self, s: &AppState, now: Instant) {
+        let verdict = self.watch.as_ref().and_then(|w| w.check(now));
+        self.judge(s, verdict).await;
+    }
+
+    /// Beyond a limit: the test is stopped and filed invalid, once (it stays followed, so
+    /// it is not watched again while the controller stops it).
+    async fn judge(&mut self, s: &AppState, verdict: Option<String>) {
+        let Some(reason) = verdict else { return };
+        let Some(w) = self.watch.take() else { return };
+        tracing::warn!(
+            trial = w.trial_id,
+            reason,
+            "display beyond the study's limits"
+        );
+        if let Err(e) =
+            validity::invalidate(&s.pool, &s.controller, "server", w.trial_id, &reason).await
+        {
+            tracing::error!(trial = w.trial_id, "filing an invalid trial: {e}");
         }
     }
 }

@@ -1,4 +1,4 @@
-//! Tests: start, abort, redo, file incomplete, and notes.
+//! Tests: start, abort, redo, accept as incomplete, and notes.
 
 use axum::extract::{Path, State};
 use serde::{Deserialize, Serialize};
@@ -18,7 +18,7 @@ pub fn routes() -> OpenApiRouter<AppState> {
         .routes(routes!(start_trial))
         .routes(routes!(abort_trial))
         .routes(routes!(redo_trial))
-        .routes(routes!(mark_incomplete))
+        .routes(routes!(accept_incomplete))
         .routes(routes!(add_note))
 }
 
@@ -72,17 +72,18 @@ async fn redo_trial(
     ))
 }
 
-/// File a scheduled or complete test as incomplete.
+/// Accept a test as incomplete with a reason (any of its attempts may be named; the latest
+/// is accepted): it is not run again and counts as missing with the reason.
 #[utoipa::path(post, path = "/api/trials/{id}/incomplete", tag = "trials", params(("id" = i64, Path)),
     request_body = ReasonBody, responses((status = 200, body = Trial)))]
-async fn mark_incomplete(
+async fn accept_incomplete(
     State(s): State<AppState>,
     who: Experimenter,
     Path(id): Path<i64>,
     AppJson(b): AppJson<ReasonBody>,
 ) -> ApiResult<Trial> {
     Ok(AppJson(
-        trials::mark_incomplete(&s.pool, &who.username, id, &b.reason).await?,
+        trials::accept_incomplete(&s.pool, &who.username, id, &b.reason).await?,
     ))
 }
 

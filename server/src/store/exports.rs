@@ -46,11 +46,17 @@ pub struct TrialExportRow {
     pub started_at: Option<i64>,
     pub finished_at: Option<i64>,
     pub consent_version: Option<String>,
+    /// How the test ran: the station's figures (`TimingReport` without the id) and the
+    /// controller's (`TimingSummary`), as JSON; and the experimenter's acceptance.
+    pub client_timing_json: Option<String>,
+    pub timing_json: Option<String>,
+    pub accepted_reason: Option<String>,
 }
 
 const TRIALS_SQL: &str = "SELECT s.study_id, t.id AS trial_id, s.code, s.enrol_index, s.synthetic, s.starting_station, t.station, t.block, t.position, t.slot, t.attempt, \
      t.controller, t.blinded_label, t.practice, t.status, t.status_reason, t.target_seed, t.target_mean_mm, t.target_std_mm, t.k_bf, t.duration_s, \
-     t.mse_tracking_mm2, t.ms_cab_accel, v.accuracy, v.speed, v.smoothness, v.controllability, v.comment, t.protocol_hash, t.started_at, t.finished_at, s.consent_version \
+     t.mse_tracking_mm2, t.ms_cab_accel, v.accuracy, v.speed, v.smoothness, v.controllability, v.comment, t.protocol_hash, t.started_at, t.finished_at, s.consent_version, \
+     t.client_timing_json, t.timing_json, t.accepted_reason \
      FROM trials t JOIN subjects s ON s.id = t.subject_id LEFT JOIN surveys v ON v.trial_id = t.id \
      WHERE s.study_id = ? AND s.withdrawn_at IS NULL ORDER BY s.enrol_index, t.slot, t.attempt";
 

@@ -28,17 +28,21 @@ fn unblob(bytes: &[u8]) -> Vec<f32> {
 }
 
 /// Files a finished trial — status, metrics, timing and the full record — on `db` (the
-/// caller's transaction). Only a running trial takes a result: `false` when it was no longer
-/// running (a result arriving after a restart marked it incomplete is dropped).
+/// caller's transaction); returns the status and reason filed. A trial the server found
+/// invalid while it ran is filed invalid with that reason, whatever the outcome. Only a
+/// running trial takes a result: `None` when it was no longer running (a result arriving
+/// after a restart marked it incomplete is dropped).
 pub async fn file_result(
     db: &mut SqliteConnection,
     result: &TrialResult,
     status: TrialStatus,
     reason: Option<&str>,
     record: &Record,
-) -> Result<bool> {
-    let done = sqlx::query(
-        "UPDATE trials SET status = ?, status_reason = ?, finished_at = MAX(?, COALESCE(started_at, 0)), mse_tracking_mm2 = ?, ms_cab_accel = ?, timing_json = ? WHERE id = ? AND status = 'running'",
+) -> Result<Option<(TrialStatus, Option<String>)>> {
+    let filed: Option<(String, Option<String>)> = sqlx::query_as(
+        "UPDATE trials SET status = CASE WHEN invalid_reason IS NULL THEN ?1 ELSE 'invalid' END, status_reason = COALESCE(invalid_reason, ?2), \
+         finished_at = MAX(?3, COALESCE(started_at, 0)), mse_tracking_mm2 = ?4, ms_cab_accel = ?5, timing_json = ?6 WHERE id = ?7 AND status = 'running' \
+         RETURNING status, status_reason",
     )
     .bind(status.as_str())
     .bind(reason)
@@ -47,11 +51,14 @@ pub async fn file_result(
     .bind(result.metrics.ms_cab_accel)
     .bind(serde_json::to_string(&result.timing).expect("timing serializes"))
     .bind(result.trial_id as i64)
-    .execute(&mut *db)
+    .fetch_optional(&mut *db)
     .await?;
-    if done.rows_affected() == 0 {
-        return Ok(false);
-    }
+    let Some((status, reason)) = filed else {
+        return Ok(None);
+    };
+    let status: TrialStatus = status
+        .parse()
+        .map_err(|e: String| crate::error::AppError::Internal(anyhow::anyhow!(e)))?;
     if record.channels.len() == RECORD_CHANNELS.len() && !record.channels[0].is_empty() {
         let mut q = sqlx::query(
             "INSERT OR REPLACE INTO trial_records (trial_id, dt, samples, target_mm, hand_mm, feedthrough_mm, cyl_ref_mm, valve_cmd, cyl_pos_mm, cab_accel_mm_s2, device_mm, tick_latency_us) \
@@ -65,7 +72,7 @@ pub async fn file_result(
         }
         q.execute(db).await?;
     }
-    Ok(true)
+    Ok(Some((status, reason)))
 }
 
 /// The record of one trial (about 5 MB for 140 s), channels in `RECORD_CHANNELS` order.

@@ -50,15 +50,24 @@ pub struct Trial {
     pub ms_cab_accel: Option<f64>,
     pub timing_json: Option<String>,
     pub client_timing_json: Option<String>,
+    /// Where the attempt stands in its block's queue (a re-queued test goes to the end).
+    pub queue_order: i64,
+    /// Why the server found a running test invalid (its result is filed so).
+    pub invalid_reason: Option<String>,
+    /// The experimenter accepted this attempt's test as incomplete, for this reason.
+    pub accepted_reason: Option<String>,
 }
 
 impl Trial {
     /// Whether the test has ended one way or another (it can be redone).
     pub fn finished(&self) -> bool {
-        matches!(
-            self.status,
-            TrialStatus::Complete | TrialStatus::Aborted | TrialStatus::Incomplete
-        )
+        self.status == TrialStatus::Complete || self.status.failed()
+    }
+
+    /// Whether nothing more is owed for this attempt's test: it counts, or the experimenter
+    /// accepted it as incomplete.
+    pub fn settled(&self) -> bool {
+        self.status == TrialStatus::Complete || self.accepted_reason.is_some()
     }
 }
 
@@ -89,12 +98,13 @@ pub async fn of_subject<'c>(db: impl SqliteExecutor<'c>, subject_id: i64) -> Res
     )
 }
 
-/// The subject's next test: the first slot whose latest attempt is scheduled or running.
+/// The subject's next test: the first in the queue (block by block, the practice's first,
+/// then in queue order) whose latest attempt is scheduled or running.
 pub async fn next<'c>(db: impl SqliteExecutor<'c>, subject_id: i64) -> Result<Option<Trial>> {
     Ok(sqlx::query_as(
         "SELECT t.* FROM trials t WHERE t.subject_id = ? AND t.status IN ('scheduled', 'running') \
          AND t.attempt = (SELECT MAX(attempt) FROM trials u WHERE u.subject_id = t.subject_id AND u.slot = t.slot) \
-         ORDER BY t.slot LIMIT 1",
+         ORDER BY t.block, t.queue_order LIMIT 1",
     )
     .bind(subject_id)
     .fetch_optional(db)
@@ -137,10 +147,11 @@ pub struct NewTrial<'a> {
     pub protocol_hash: &'a str,
 }
 
+/// Stores a scheduled test; it is queued in schedule order.
 pub async fn insert(db: &mut SqliteConnection, t: &NewTrial<'_>) -> Result<i64> {
     Ok(sqlx::query(
-        "INSERT INTO trials (subject_id, slot, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, protocol_hash) \
-         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+        "INSERT INTO trials (subject_id, slot, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, protocol_hash, queue_order) \
+         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
     )
     .bind(t.subject_id)
     .bind(i64::from(t.slot))
@@ -158,6 +169,7 @@ pub async fn insert(db: &mut SqliteConnection, t: &NewTrial<'_>) -> Result<i64> 
     .bind(t.target_mean_mm)
     .bind(t.target_std_mm)
     .bind(t.protocol_hash)
+    .bind(i64::from(t.slot))
     .execute(db)
     .await?
     .last_insert_rowid())
@@ -174,12 +186,14 @@ pub async fn latest_attempt<'c>(db: impl SqliteExecutor<'c>, trial: &Trial) -> R
     Ok(latest)
 }
 
-/// A new scheduled attempt of `trial_id`'s test, with the same design and target; returns
-/// its id. (The unique (subject, slot, attempt) makes a racing second redo fail.)
+/// A new scheduled attempt of `trial_id`'s test, with the same design and target, queued at
+/// the end of its block; returns its id. (The unique (subject, slot, attempt) makes a racing
+/// second re-queue fail.)
 pub async fn insert_next_attempt(db: &mut SqliteConnection, trial_id: i64) -> Result<i64> {
     Ok(sqlx::query(
-        "INSERT INTO trials (subject_id, slot, attempt, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, protocol_hash) \
-         SELECT subject_id, slot, attempt + 1, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, protocol_hash FROM trials WHERE id = ?",
+        "INSERT INTO trials (subject_id, slot, attempt, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, protocol_hash, queue_order) \
+         SELECT subject_id, slot, attempt + 1, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, protocol_hash, \
+         (SELECT MAX(queue_order) + 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.block = t.block) FROM trials t WHERE id = ?",
     )
     .bind(trial_id)
     .execute(db)
@@ -213,26 +227,55 @@ pub async fn unmark_running(db: &mut SqliteConnection, trial_id: i64) -> Result<
     Ok(())
 }
 
-/// The experimenter files a scheduled or complete test as incomplete.
-pub async fn mark_incomplete(db: &mut SqliteConnection, trial_id: i64, reason: &str) -> Result<()> {
-    let done = sqlx::query("UPDATE trials SET status = 'incomplete', status_reason = ? WHERE id = ? AND status IN ('complete', 'scheduled')")
-        .bind(reason)
-        .bind(trial_id)
-        .execute(&mut *db)
-        .await?;
+/// The experimenter accepts an attempt as incomplete with `reason`: a scheduled or
+/// complete one is filed incomplete, a failed one keeps its status. Refused while it runs
+/// or when it is not the latest attempt of its test.
+pub async fn accept_incomplete(
+    db: &mut SqliteConnection,
+    trial_id: i64,
+    reason: &str,
+) -> Result<()> {
+    let done = sqlx::query(
+        "UPDATE trials SET accepted_reason = ?1, \
+         status = CASE WHEN status IN ('scheduled', 'complete') THEN 'incomplete' ELSE status END, \
+         status_reason = CASE WHEN status IN ('scheduled', 'complete') THEN ?1 ELSE status_reason END \
+         WHERE id = ?2 AND status != 'running' AND accepted_reason IS NULL \
+         AND attempt = (SELECT MAX(attempt) FROM trials u WHERE u.subject_id = trials.subject_id AND u.slot = trials.slot)",
+    )
+    .bind(reason)
+    .bind(trial_id)
+    .execute(&mut *db)
+    .await?;
     if done.rows_affected() == 0 {
-        get(&mut *db, trial_id).await?;
-        return Err(AppError::Conflict(
-            "only a scheduled or complete test can be marked incomplete".into(),
-        ));
+        let t = get(&mut *db, trial_id).await?;
+        return Err(AppError::Conflict(if t.status == TrialStatus::Running {
+            format!("trial {trial_id} is running: abort it first")
+        } else if t.accepted_reason.is_some() {
+            format!("trial {trial_id} is already accepted as incomplete")
+        } else {
+            format!("trial {trial_id} is not the latest attempt of its test")
+        }));
     }
     Ok(())
 }
 
-/// Marks every running trial incomplete (after a server restart or a controller death);
-/// returns their ids.
+/// The server found a running trial invalid: its result will be filed so. `false` when
+/// it was not running or already found invalid.
+pub async fn mark_invalid(db: &mut SqliteConnection, trial_id: i64, reason: &str) -> Result<bool> {
+    let done = sqlx::query(
+        "UPDATE trials SET invalid_reason = ? WHERE id = ? AND status = 'running' AND invalid_reason IS NULL",
+    )
+    .bind(reason)
+    .bind(trial_id)
+    .execute(db)
+    .await?;
+    Ok(done.rows_affected() == 1)
+}
+
+/// Marks every running trial incomplete (after a server restart or a controller death),
+/// or invalid when it was found so; returns their ids.
 pub async fn interrupt_running(db: &mut SqliteConnection, reason: &str) -> Result<Vec<i64>> {
-    let ids: Vec<(i64,)> = sqlx::query_as("UPDATE trials SET status = 'incomplete', status_reason = ?, finished_at = MAX(?, COALESCE(started_at, 0)) WHERE status = 'running' RETURNING id")
+    let ids: Vec<(i64,)> = sqlx::query_as("UPDATE trials SET status = CASE WHEN invalid_reason IS NULL THEN 'incomplete' ELSE 'invalid' END, status_reason = COALESCE(invalid_reason, ?), finished_at = MAX(?, COALESCE(started_at, 0)) WHERE status = 'running' RETURNING id")
         .bind(reason)
         .bind(now_ms())
         .fetch_all(db)
