@@ -1,5 +1,6 @@
 //! End-to-end tests, one binary: each module drives real processes of the product.
 
+mod accounts;
 mod browser;
 mod controller_cli;
 mod controller_link_auth;
@@ -8,3 +9,4 @@ mod hardening;
 mod server_api;
 mod server_layers;
 mod station_safety;
+mod subject_page;
