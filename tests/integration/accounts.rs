@@ -2,11 +2,15 @@
 //! state-changing route of the OpenAPI document's experimenter group is tried, so a new route
 //! is covered without editing this test) but reads everything and may press the E-stop; only
 //! an admin manages accounts; the last active admin stays; disabling ends an account's
-//! sessions; and every audit row names the account that acted, or says what else did.
+//! sessions; every audit row names the account that acted, or says what else did; and in
+//! Chromium the dashboard asks before withdrawing a subject or disabling an account, and
+//! shows an analyst no control they may not use.
 
 use std::time::Duration;
 
+use bdft_tests::TempDir;
 use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, eventually, short_study};
+use bdft_tests::webdriver::{Driver, Session};
 use serde_json::{Value, json};
 
 /// (method, path) of every operation the document says needs the experimenter's session.
@@ -52,7 +56,10 @@ fn call_alone(api: &Api, method: &str, path: &str) -> (u16, Value) {
     };
     let code = resp.status();
     let text = resp.into_string().unwrap_or_default();
-    (code, serde_json::from_str(&text).unwrap_or(Value::String(text)))
+    (
+        code,
+        serde_json::from_str(&text).unwrap_or(Value::String(text)),
+    )
 }
 
 /// `path` with its parameters filled in: ids with `id`, and a valid export kind.
@@ -102,8 +109,20 @@ fn an_analyst_changes_nothing_but_reads_everything_and_may_press_the_estop() {
     }
     assert!(refused >= 15, "state-changing routes tried: {refused}");
     // Nothing changed: the study is as it was, and resetting the E-stop is the admin's.
-    assert_eq!(admin.get(&format!("/api/studies/{study}/subjects")).1.as_array().unwrap().len(), 1);
-    for path in ["/api/studies", "/api/audit", &format!("/api/studies/{study}/summary")] {
+    assert_eq!(
+        admin
+            .get(&format!("/api/studies/{study}/subjects"))
+            .1
+            .as_array()
+            .unwrap()
+            .len(),
+        1
+    );
+    for path in [
+        "/api/studies",
+        "/api/audit",
+        &format!("/api/studies/{study}/summary"),
+    ] {
         let (code, body) = analyst.get(path);
         assert_eq!(code, 200, "{path}: {body}");
     }
@@ -142,27 +161,54 @@ fn accounts_are_checked_the_last_admin_stays_and_disabling_ends_sessions() {
 
     // The rules of a new account, each named.
     for (body, field) in [
-        (json!({ "username": "a b", "password": ADMIN_PASSWORD, "role": "analyst" }), "username"),
-        (json!({ "username": "x".repeat(41), "password": ADMIN_PASSWORD, "role": "analyst" }), "username"),
-        (json!({ "username": "carol", "password": "short", "role": "analyst" }), "password"),
-        (json!({ "username": "carol", "password": ADMIN_PASSWORD, "role": "boss" }), "role"),
+        (
+            json!({ "username": "a b", "password": ADMIN_PASSWORD, "role": "analyst" }),
+            "username",
+        ),
+        (
+            json!({ "username": "x".repeat(41), "password": ADMIN_PASSWORD, "role": "analyst" }),
+            "username",
+        ),
+        (
+            json!({ "username": "carol", "password": "short", "role": "analyst" }),
+            "password",
+        ),
+        (
+            json!({ "username": "carol", "password": ADMIN_PASSWORD, "role": "boss" }),
+            "role",
+        ),
     ] {
         let (code, err) = admin.post("/api/accounts", body);
         assert_eq!(code, 422, "{err}");
         assert!(err["error"].as_str().unwrap().contains(field), "{err}");
     }
-    let (code, err) = admin.post(&format!("/api/accounts/{admin_id}/role"), json!({ "role": "boss" }));
+    let (code, err) = admin.post(
+        &format!("/api/accounts/{admin_id}/role"),
+        json!({ "role": "boss" }),
+    );
     assert_eq!(code, 422, "{err}");
-    assert!(err["error"].as_str().unwrap().contains("admin, experimenter, analyst"), "{err}");
+    assert!(
+        err["error"]
+            .as_str()
+            .unwrap()
+            .contains("admin, experimenter, analyst"),
+        "{err}"
+    );
 
     // The only admin can neither be demoted nor disabled.
     for (path, body) in [
-        (format!("/api/accounts/{admin_id}/role"), json!({ "role": "experimenter" })),
+        (
+            format!("/api/accounts/{admin_id}/role"),
+            json!({ "role": "experimenter" }),
+        ),
         (format!("/api/accounts/{admin_id}/disable"), json!({})),
     ] {
         let (code, err) = admin.post(&path, body);
         assert_eq!(code, 409, "{path}: {err}");
-        assert!(err["error"].as_str().unwrap().contains("last active admin"), "{err}");
+        assert!(
+            err["error"].as_str().unwrap().contains("last active admin"),
+            "{err}"
+        );
     }
 
     // Disabling ends the account's session at once, and it cannot log in again.
@@ -188,9 +234,16 @@ fn accounts_are_checked_the_last_admin_stays_and_disabling_ends_sessions() {
 
     // With a second admin, the first may be demoted; then the second is the last one.
     let (bob_id, bob) = server.account(&admin, "bob", "admin");
-    let demoted = bob.ok(&format!("/api/accounts/{admin_id}/role"), json!({ "role": "analyst" }));
+    let demoted = bob.ok(
+        &format!("/api/accounts/{admin_id}/role"),
+        json!({ "role": "analyst" }),
+    );
     assert_eq!(demoted["role"], "analyst");
-    assert_eq!(admin.get("/api/accounts").0, 403, "the role applies at once");
+    assert_eq!(
+        admin.get("/api/accounts").0,
+        403,
+        "the role applies at once"
+    );
     let (code, _) = bob.post(&format!("/api/accounts/{bob_id}/disable"), json!({}));
     assert_eq!(code, 409);
     let list = bob.get("/api/accounts").1;
@@ -206,11 +259,22 @@ fn accounts_are_checked_the_last_admin_stays_and_disabling_ends_sessions() {
     let by = |action: &str| -> Vec<(String, Value)> {
         rows.iter()
             .filter(|r| r["action"] == action)
-            .map(|r| (r["actor"].as_str().unwrap().to_string(), r["actor_id"].clone()))
+            .map(|r| {
+                (
+                    r["actor"].as_str().unwrap().to_string(),
+                    r["actor_id"].clone(),
+                )
+            })
             .collect()
     };
-    assert_eq!(by("experimenter.disable"), [("admin".into(), json!(admin_id))]);
-    assert_eq!(by("experimenter.enable"), [("admin".into(), json!(admin_id))]);
+    assert_eq!(
+        by("experimenter.disable"),
+        [("admin".into(), json!(admin_id))]
+    );
+    assert_eq!(
+        by("experimenter.enable"),
+        [("admin".into(), json!(admin_id))]
+    );
     assert_eq!(by("experimenter.role"), [("bob".into(), json!(bob_id))]);
     assert_eq!(
         by("experimenter.create").len(),
@@ -230,11 +294,13 @@ fn every_audit_row_names_the_acting_account_or_says_what_acted() {
         json!({ "username": "alice", "password": "wrong password" }),
     );
     assert_eq!(code, 403);
-    alice.ok(&format!("/api/studies/{study}/pilot"), json!({ "subjects": 1 }));
+    alice.ok(
+        &format!("/api/studies/{study}/pilot"),
+        json!({ "subjects": 1 }),
+    );
     let status = eventually(Duration::from_secs(300), || {
         let (_, p) = alice.get("/api/pilot");
-        (p["running"] == false && (p["report"].is_object() || p["error"].is_string()))
-            .then_some(p)
+        (p["running"] == false && (p["report"].is_object() || p["error"].is_string())).then_some(p)
     });
     assert!(status["report"].is_object(), "{status}");
 
@@ -264,4 +330,98 @@ fn every_audit_row_names_the_acting_account_or_says_what_acted() {
             "{r}"
         );
     }
+}
+
+/// A dashboard in Chromium, logged in as `username` (password [`ADMIN_PASSWORD`]).
+fn dashboard(driver: &Driver, downloads: &TempDir, base: &str, username: &str) -> Session {
+    let dash = driver.session(downloads.path());
+    dash.goto(&format!("{base}/"));
+    dash.type_into("#login-username", username);
+    dash.type_into("#login-password", ADMIN_PASSWORD);
+    dash.click("#login-submit");
+    dash.find("#estop");
+    dash
+}
+
+/// Whether the element `css` is displayed.
+fn shown(dash: &Session, css: &str) -> bool {
+    dash.exec(
+        "const n = document.querySelector(arguments[0]); return !!n && n.offsetParent !== null;",
+        json!([css]),
+    ) == true
+}
+
+#[test]
+fn in_chromium_the_dashboard_asks_before_withdrawing_or_disabling_and_follows_the_role() {
+    let server = Server::start("accounts-browser");
+    let admin = server.experimenter();
+    let study = short_study(&admin, 60.0, 60.0);
+    let enrolled = admin.ok(&format!("/api/studies/{study}/subjects"), json!({}));
+    let subject = enrolled["subject"]["id"].as_i64().unwrap();
+    let code = enrolled["subject"]["code"].as_str().unwrap();
+    server.account(&admin, "ana", "analyst");
+    let downloads = TempDir::new("accounts-browser-downloads");
+    let driver = Driver::start();
+
+    let dash = dashboard(&driver, &downloads, &server.base, "admin");
+    assert!(shown(&dash, "#sec-accounts"), "an admin sees the accounts");
+    dash.find("#accounts tr[data-account-id]");
+    // Withdrawing asks first, naming the subject; Cancel changes nothing.
+    let withdrawn =
+        || admin.get(&format!("/api/subjects/{subject}")).1["subject"]["withdrawn_at"].is_i64();
+    let row = format!("#subjects tr[data-subject-id='{subject}']");
+    dash.find(&row);
+    dash.click(&row);
+    dash.find("#schedule tbody tr");
+    dash.type_into(
+        &format!("input[data-withdraw-reason='{subject}']"),
+        "felt unwell",
+    );
+    let button = format!("button[data-action='withdraw'][data-subject-id='{subject}']");
+    dash.click(&button);
+    dash.find("#confirm-dialog");
+    assert!(
+        dash.text("#confirm-title").contains(code),
+        "{}",
+        dash.text("#confirm-title")
+    );
+    dash.click("#confirm-cancel");
+    dash.wait_until(
+        "return document.querySelector('#confirm-dialog').open ? null : true",
+        json!([]),
+    );
+    assert!(!withdrawn(), "Cancel does not withdraw");
+    dash.click(&button);
+    dash.find("#confirm-dialog");
+    dash.click("#confirm-ok");
+    eventually(Duration::from_secs(20), || withdrawn().then_some(()));
+    // The withdrawn subject's schedule, with its data, leaves the screen.
+    dash.wait_until(
+        "return document.querySelector('#schedule tbody') ? null : document.querySelector('#schedule').textContent",
+        json!([]),
+    );
+    // Disabling an account asks too.
+    let disable = "#accounts button[data-action='disable'][data-account-id='2']";
+    dash.click(disable);
+    dash.find("#confirm-dialog");
+    assert!(dash.text("#confirm-title").contains("ana"));
+    dash.click("#confirm-ok");
+    dash.find("#accounts button[data-action='enable'][data-account-id='2']");
+    admin.ok("/api/accounts/2/enable", json!({}));
+
+    // An analyst sees no control it may not use, but the E-stop.
+    let ana = dashboard(&driver, &downloads, &server.base, "ana");
+    ana.find(&row);
+    for css in [
+        "#enrol",
+        "#pair-form",
+        "#study-create",
+        "#estop-reset",
+        "#sec-accounts",
+        button.as_str(),
+    ] {
+        assert!(!shown(&ana, css), "an analyst sees {css}");
+    }
+    assert!(shown(&ana, "#estop"));
+    assert!(ana.text("#whoami").contains("analyst"));
 }

@@ -30,7 +30,10 @@ fn assert_blinded(text: &str) {
         assert!(!lower.contains(w), "{w:?} on the subject's page: {text}");
     }
     for w in ["mse", "accel", "metric"] {
-        assert!(!lower.contains(w), "a metric ({w}) on the subject's page: {text}");
+        assert!(
+            !lower.contains(w),
+            "a metric ({w}) on the subject's page: {text}"
+        );
     }
 }
 
@@ -47,18 +50,36 @@ fn the_subject_reads_blinded_progress_and_withdraws_which_stops_their_running_te
     let page = Api::with_bearer(&server.base, &token);
 
     assert_eq!(Api::anonymous(&server.base).get("/api/subject").0, 401);
-    assert_eq!(Api::with_bearer(&server.base, "0123abcd").get("/api/subject").0, 401);
-    assert_eq!(Api::anonymous(&server.base).get_text("/subject").0, 200, "the page exists");
+    assert_eq!(
+        Api::with_bearer(&server.base, "0123abcd")
+            .get("/api/subject")
+            .0,
+        401
+    );
+    assert_eq!(
+        Api::anonymous(&server.base).get_text("/subject").0,
+        200,
+        "the page exists"
+    );
     let (status, own) = page.get("/api/subject");
     assert_eq!(status, 200, "{own}");
     assert_eq!(own["code"], code.as_str());
-    assert_eq!((own["tests_complete"].as_u64(), own["tests_total"].as_u64()), (Some(0), Some(10)));
-    assert!(own["consent"].is_null() && own["withdrawn"] == false, "{own}");
+    assert_eq!(
+        (own["tests_complete"].as_u64(), own["tests_total"].as_u64()),
+        (Some(0), Some(10))
+    );
+    assert!(
+        own["consent"].is_null() && own["withdrawn"] == false,
+        "{own}"
+    );
     assert_blinded(&own.to_string());
 
     // A running test of theirs, at a station.
     let (station, station_token) = pair_station(&api, study, "both");
-    api.ok(&format!("/api/stations/{station}/assign"), json!({ "subject_id": subject }));
+    api.ok(
+        &format!("/api/stations/{station}/assign"),
+        json!({ "subject_id": subject }),
+    );
     Api::with_bearer(&server.base, &station_token)
         .ok("/api/station/consent", json!({ "decision": "agreed" }));
     eventually(Duration::from_secs(30), || {
@@ -71,7 +92,11 @@ fn the_subject_reads_blinded_progress_and_withdraws_which_stops_their_running_te
     assert_eq!(page.get("/api/subject").1["consent"], "agreed");
 
     // Bad bodies are named; nothing is withdrawn by them.
-    for body in [json!({ "reason": 5 }), json!({ "reason": "x".repeat(501) }), json!({ "why": "x" })] {
+    for body in [
+        json!({ "reason": 5 }),
+        json!({ "reason": "x".repeat(501) }),
+        json!({ "why": "x" }),
+    ] {
         let (status, err) = page.post("/api/subject/withdraw", body);
         assert_eq!(status, 422, "{err}");
     }
@@ -86,9 +111,20 @@ fn the_subject_reads_blinded_progress_and_withdraws_which_stops_their_running_te
         (t["status"] != "running").then_some(t)
     });
     assert_eq!(stopped["status"], "aborted", "{stopped}");
-    assert!(stopped["status_reason"].as_str().unwrap().contains("withdrew"), "{stopped}");
+    assert!(
+        stopped["status_reason"]
+            .as_str()
+            .unwrap()
+            .contains("withdrew"),
+        "{stopped}"
+    );
     let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
-    assert!(detail["subject"]["withdraw_reason"].as_str().unwrap().contains("no reason given"));
+    assert!(
+        detail["subject"]["withdraw_reason"]
+            .as_str()
+            .unwrap()
+            .contains("no reason given")
+    );
     let audit = api.get("/api/audit").1;
     let row = audit
         .as_array()
@@ -101,7 +137,10 @@ fn the_subject_reads_blinded_progress_and_withdraws_which_stops_their_running_te
     assert_eq!(row["detail"]["running_trial"], practice, "{row}");
     // Once only, whoever tries again.
     assert_eq!(page.post("/api/subject/withdraw", json!({})).0, 409);
-    let (status, _) = api.post(&format!("/api/subjects/{subject}/withdraw"), json!({ "reason": "again" }));
+    let (status, _) = api.post(
+        &format!("/api/subjects/{subject}/withdraw"),
+        json!({ "reason": "again" }),
+    );
     assert_eq!(status, 409);
 }
 
@@ -120,24 +159,38 @@ fn in_chromium_the_page_shows_progress_without_names_and_withdraws_after_confirm
     assert_eq!(page.text("#done"), "0 of 10 tests done");
     assert!(page.text("#code").contains(&code));
     let address = page.exec("return location.href", json!([]));
-    assert!(!address.as_str().unwrap().contains(&token), "the token left the address: {address}");
+    assert!(
+        !address.as_str().unwrap().contains(&token),
+        "the token left the address: {address}"
+    );
     assert_blinded(&page.body_text());
-    assert!(page.body_text().contains("Controller 1"), "{}", page.body_text());
+    assert!(
+        page.body_text().contains("Controller 1"),
+        "{}",
+        page.body_text()
+    );
 
-    let withdrawn = || api.get(&format!("/api/subjects/{subject}")).1["subject"]["withdrawn_at"].is_i64();
+    let withdrawn =
+        || api.get(&format!("/api/subjects/{subject}")).1["subject"]["withdrawn_at"].is_i64();
     // The first click only asks; "No" leaves everything as it was.
     page.click("#withdraw");
     page.find("#withdraw-confirm");
     assert!(!withdrawn(), "one click does not withdraw");
     page.click("#withdraw-no");
-    page.wait_until("return document.querySelector('#withdraw-confirm').hidden || null", json!([]));
+    page.wait_until(
+        "return document.querySelector('#withdraw-confirm').hidden || null",
+        json!([]),
+    );
     assert!(!withdrawn());
     // Confirmed, with a reason.
     page.click("#withdraw");
     page.type_into("#withdraw-reason", "too tired today");
     page.click("#withdraw-yes");
     page.find("#withdrawn");
-    assert!(page.text("#withdrawn").contains("left out of every analysis"));
+    assert!(
+        page.text("#withdrawn")
+            .contains("left out of every analysis")
+    );
     assert!(withdrawn());
     let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
     assert_eq!(detail["subject"]["withdraw_reason"], "too tired today");

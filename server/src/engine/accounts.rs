@@ -125,7 +125,10 @@ pub async fn set_disabled(
         )
     } else {
         store::accounts::enable(change.db(), id).await?;
-        ("experimenter.enable", json!({ "username": before.username }))
+        (
+            "experimenter.enable",
+            json!({ "username": before.username }),
+        )
     };
     let after = store::accounts::account(change.db(), id).await?;
     change
@@ -192,7 +195,8 @@ pub async fn first_account(
     }
     check_setup_token(change.db(), token).await?;
     store::accounts::use_setup_token(change.db(), token).await?;
-    let id = store::accounts::insert_experimenter(change.db(), username, &hash, Role::Admin).await?;
+    let id =
+        store::accounts::insert_experimenter(change.db(), username, &hash, Role::Admin).await?;
     change
         .commit(
             "setup.first_account",

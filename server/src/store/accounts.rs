@@ -58,10 +58,7 @@ pub struct SessionOwner {
     pub csrf: String,
 }
 
-pub async fn session<'c>(
-    db: impl SqliteExecutor<'c>,
-    token: &str,
-) -> Result<Option<SessionOwner>> {
+pub async fn session<'c>(db: impl SqliteExecutor<'c>, token: &str) -> Result<Option<SessionOwner>> {
     let row: Option<(i64, String, String, String)> = sqlx::query_as(
         "SELECT e.id, e.username, e.role, s.csrf FROM sessions s JOIN experimenters e ON e.id = s.experimenter_id WHERE s.token_hash = ? AND s.expires_at > ? AND e.disabled_at IS NULL",
     )
@@ -241,11 +238,13 @@ pub async fn disable(db: &mut SqliteConnection, id: i64) -> Result<u64> {
         .bind(id)
         .execute(&mut *db)
         .await?;
-    Ok(sqlx::query("DELETE FROM sessions WHERE experimenter_id = ?")
-        .bind(id)
-        .execute(db)
-        .await?
-        .rows_affected())
+    Ok(
+        sqlx::query("DELETE FROM sessions WHERE experimenter_id = ?")
+            .bind(id)
+            .execute(db)
+            .await?
+            .rows_affected(),
+    )
 }
 
 pub async fn enable(db: &mut SqliteConnection, id: i64) -> Result<()> {

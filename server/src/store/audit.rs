@@ -72,14 +72,16 @@ pub async fn newest<'c>(db: impl SqliteExecutor<'c>, limit: i64) -> Result<Vec<A
     .await?;
     Ok(rows
         .into_iter()
-        .map(|(id, at, actor, actor_id, action, target, detail)| AuditEntry {
-            id,
-            at: rfc3339(at),
-            actor,
-            actor_id,
-            action,
-            target,
-            detail: detail.and_then(|d| serde_json::from_str(&d).ok()),
-        })
+        .map(
+            |(id, at, actor, actor_id, action, target, detail)| AuditEntry {
+                id,
+                at: rfc3339(at),
+                actor,
+                actor_id,
+                action,
+                target,
+                detail: detail.and_then(|d| serde_json::from_str(&d).ok()),
+            },
+        )
         .collect())
 }
