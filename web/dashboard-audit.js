@@ -55,7 +55,7 @@ function render() {
         { 'data-audit-id': e.id, class: `audit-${e.action.replace(/[^a-z0-9]+/gi, '-')}` },
         el('td', { class: 'num' }, e.id),
         el('td', { class: 'nowrap', title: e.at }, when(Date.parse(e.at))),
-        el('td', {}, e.actor),
+        el('td', { class: 'actor', title: e.actor_id ? `account #${e.actor_id}` : 'not a logged-in account' }, e.actor),
         el('td', { class: 'action' }, e.action),
         el('td', {}, e.target || ''),
         el(

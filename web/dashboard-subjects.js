@@ -5,6 +5,8 @@ import {
   S, act, CONTROLLER_NAME, el, emit, get, num, on, post, setStatus, syncRows, when, SEAT_NAME,
 } from './dashboard-core.js';
 import { reloadSelected } from './dashboard-study.js';
+import { mayChange } from './dashboard-accounts.js';
+import { confirmAction } from './dashboard-confirm.js';
 
 const $ = (id) => document.getElementById(id);
 
@@ -112,7 +114,7 @@ function consentText(s) {
 
 function renderList() {
   const tbody = $('subjects').tBodies[0];
-  const note = (text) => () => el('tr', {}, el('td', { colspan: 8, class: 'muted' }, text));
+  const note = (text) => () => el('tr', {}, el('td', { colspan: mayChange() ? 8 : 7, class: 'muted' }, text));
   if (!S.studyId) {
     syncRows(tbody, [], { empty: note('Select or create a study first.') });
     return;
@@ -123,6 +125,7 @@ function renderList() {
       JSON.stringify([
         x,
         x.subject.id === selectedSubject,
+        mayChange(),
         rowStatus.get(`withdraw-${x.subject.id}`),
         S.stations.filter((st) => st.subject_id === x.subject.id).map((st) => st.name),
       ]),
@@ -145,7 +148,9 @@ function renderList() {
         el('td', { class: 'progress-cell' }, `${tests_complete} / ${tests}`, el('progress', { max: tests || 1, value: tests_complete })),
         el('td', {}, stations.join(', ') || el('span', { class: 'muted' }, '—')),
         el('td', {}, withdrawn ? `${when(s.withdrawn_at)}: ${s.withdraw_reason || ''}` : el('span', { class: 'muted' }, '—')),
-        el(
+        // An analyst changes nothing: no withdraw column (the server would refuse it).
+        mayChange()
+          ? el(
           'td',
           { class: 'actions' },
           el('input', {
@@ -162,7 +167,8 @@ function renderList() {
             'Withdraw',
           ),
           st ? el('div', { class: `status ${st[0]}` }, st[1]) : null,
-        ),
+        )
+          : null,
       ];
     },
     empty: note('No subject enrolled yet.'),
@@ -192,16 +198,32 @@ async function withdraw(id, btn) {
     if (again) again.focus();
     return;
   }
+  const yes = await confirmAction({
+    title: `Withdraw ${code} from the study?`,
+    text: `A test of ${code} that is running stops at once, no further test is run, and ${code}'s data leave every result and export. This cannot be undone. Reason: “${reason}”.`,
+    ok: `Withdraw ${code}`,
+  });
+  if (!yes) return;
   btn.disabled = true;
   const out = el('span');
   const r = await act(`Withdraw ${code}`, out, () => post(`/api/subjects/${id}/withdraw`, { reason }), () =>
-    'withdrawn (left out of every export)',
+    'withdrawn (left out of every result and export)',
   );
   rowStatus.set(key, [r.ok ? 'ok' : 'err', out.textContent]);
   if (r.ok && input) input.value = '';
   btn.disabled = false;
+  if (r.ok && selectedSubject === id) {
+    // The withdrawn subject's tests, metrics and surveys leave the screen with them;
+    // clicking their row shows the record again.
+    selectedSubject = null;
+    lastScheduleJson = '';
+    delete $('schedule').dataset.subjectId;
+    $('schedule').replaceChildren(el('p', { class: 'muted' }, `${code} withdrew: their data are left out of every result and export.`));
+  }
   renderList();
   await refresh();
+  // Results, stations and the monitor drop the subject's data now, not at their next poll.
+  emit('subjects', S.subjects);
   emit('trial', null);
 }
 

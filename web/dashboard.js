@@ -10,6 +10,7 @@ import * as monitor from './dashboard-monitor.js';
 import * as results from './dashboard-results.js';
 import * as audit from './dashboard-audit.js';
 import * as pilot from './dashboard-pilot.js';
+import * as accounts from './dashboard-accounts.js';
 
 const $ = (id) => document.getElementById(id);
 
@@ -38,7 +39,7 @@ async function showApp(me) {
   S.csrf = me.csrf;
   S.user = me.username;
   S.loggedIn = true;
-  $('whoami').textContent = `logged in as ${me.username}`;
+  $('whoami').textContent = `logged in as ${me.username} (${me.role})`;
   if (!started) {
     started = true;
     study.init();
@@ -48,7 +49,9 @@ async function showApp(me) {
     results.init();
     audit.init();
     pilot.init();
+    accounts.init();
   }
+  accounts.applyRole(me.role);
   // The page shows once the study list and the form are filled, so that nothing typed
   // into it is overwritten by data still on its way.
   await study.loadStudies();
@@ -82,7 +85,7 @@ async function login(ev) {
   }
   setStatus($('login-info'), 'busy', 'Loading the dashboard…');
   // The login answer carries {username, csrf}; keep the token in memory only.
-  await showApp({ username: r.data.username || username, csrf: r.data.csrf });
+  await showApp({ username: r.data.username || username, csrf: r.data.csrf, role: r.data.role });
 }
 
 async function logout() {

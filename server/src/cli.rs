@@ -11,6 +11,7 @@ use crate::engine::export::ExportKind;
 use crate::engine::login_limiter::LoginLimiter;
 use crate::engine::{accounts, controller_link, export, filing, pilot};
 use crate::store;
+use crate::store::accounts::Role;
 use bdft_protocol::link_auth::LinkKey;
 
 #[derive(Debug, Parser)]
@@ -177,10 +178,10 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     if store::accounts::experimenter_count(&pool).await? == 0 {
         match &config.admin_password {
             Some(pw) => {
-                accounts::create_experimenter(&pool, "system", "admin", pw)
+                accounts::create_experimenter(&pool, "system:startup", "admin", pw, Role::Admin)
                     .await
                     .map_err(|e| anyhow::anyhow!("--admin-password: {e}"))?;
-                println!("Created the experimenter account \"admin\".");
+                println!("Created the admin account \"admin\".");
             }
             None => {
                 let token = accounts::new_setup_token(&pool).await?;

@@ -1,5 +1,6 @@
 //! End-to-end tests, one binary: each module drives real processes of the product.
 
+mod accounts;
 mod browser;
 mod controller_cli;
 mod controller_link_auth;
@@ -9,4 +10,5 @@ mod server_api;
 mod server_layers;
 mod station_safety;
 mod statistics;
+mod subject_page;
 mod validity;

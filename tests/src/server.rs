@@ -65,14 +65,32 @@ impl Server {
 
     /// A client logged in as the admin experimenter.
     pub fn experimenter(&self) -> Api {
+        self.login("admin", ADMIN_PASSWORD)
+    }
+
+    /// A client logged in as `username`.
+    pub fn login(&self, username: &str, password: &str) -> Api {
         let mut api = Api::anonymous(&self.base);
         let (code, body) = api.post(
             "/api/login",
-            json!({ "username": "admin", "password": ADMIN_PASSWORD }),
+            json!({ "username": username, "password": password }),
         );
-        assert_eq!(code, 200, "{body}");
+        assert_eq!(code, 200, "log-in of {username}: {body}");
         api.csrf = body["csrf"].as_str().map(str::to_string);
         api
+    }
+
+    /// A new account `username` with `role` (password [`ADMIN_PASSWORD`]), made by the
+    /// admin client `admin`: its id and a client logged in as it.
+    pub fn account(&self, admin: &Api, username: &str, role: &str) -> (i64, Api) {
+        let made = admin.ok(
+            "/api/accounts",
+            json!({ "username": username, "password": ADMIN_PASSWORD, "role": role }),
+        );
+        (
+            made["id"].as_i64().unwrap(),
+            self.login(username, ADMIN_PASSWORD),
+        )
     }
 }
 

@@ -1,6 +1,7 @@
-//! Experimenter accounts: credentials rules, rate-limited login (`login_limiter`, with
-//! argon2id in bounded memory from `passwords`), the one-time set-up link and sessions. No
-//! HTTP here: `http::session` carries cookies.
+//! Experimenter accounts: credentials rules, roles and their management by an admin (never
+//! deleted, only disabled; the last active admin stays), rate-limited login
+//! (`login_limiter`, with argon2id in bounded memory from `passwords`), the one-time set-up
+//! link and sessions. No HTTP here: `http::session` carries cookies.
 
 use std::net::IpAddr;
 use std::time::{Duration, Instant};
@@ -11,6 +12,7 @@ use sqlx::SqlitePool;
 use super::login_limiter::LoginLimiter;
 use super::passwords;
 use crate::error::{AppError, Result};
+use crate::store::accounts::{Account, Role};
 use crate::store::tokens::random_token;
 use crate::store::{self, Change};
 
@@ -50,32 +52,96 @@ fn check_new_credentials(username: &str, password: &str) -> Result<()> {
     Ok(())
 }
 
-/// Creates an experimenter account on behalf of `actor`; returns its id.
+/// Creates an account with `role` on behalf of `actor` (an admin, or `system:startup` for
+/// `--admin-password`); returns it.
 pub async fn create_experimenter(
     pool: &SqlitePool,
     actor: &str,
     username: &str,
     password: &str,
-) -> Result<i64> {
+    role: Role,
+) -> Result<Account> {
     check_new_credentials(username, password)?;
     let hash = passwords::hash(password).await?;
     let mut change = Change::begin(pool, actor).await?;
-    let id = store::accounts::insert_experimenter(change.db(), username, &hash).await?;
+    let id = store::accounts::insert_experimenter(change.db(), username, &hash, role).await?;
+    let account = store::accounts::account(change.db(), id).await?;
     change
         .commit(
             "experimenter.create",
             Some(format!("experimenter:{id}")),
-            json!({ "username": username }),
+            json!({ "username": username, "role": role }),
         )
         .await?;
-    Ok(id)
+    Ok(account)
+}
+
+/// Refuses a change that would leave no active admin (nobody could manage accounts then).
+async fn keep_an_admin(db: &mut sqlx::SqliteConnection, account: &Account) -> Result<()> {
+    let active_admin = account.role == Role::Admin && account.disabled_at.is_none();
+    if active_admin && store::accounts::other_active_admins(&mut *db, account.id).await? == 0 {
+        return Err(AppError::Conflict(format!(
+            "{} is the last active admin: make another account admin first",
+            account.username
+        )));
+    }
+    Ok(())
+}
+
+/// Gives an account another role (`admin` is the admin making the change).
+pub async fn set_role(pool: &SqlitePool, admin: &str, id: i64, role: Role) -> Result<Account> {
+    let mut change = Change::begin(pool, admin).await?;
+    let before = store::accounts::account(change.db(), id).await?;
+    if role != Role::Admin {
+        keep_an_admin(change.db(), &before).await?;
+    }
+    store::accounts::set_role(change.db(), id, role).await?;
+    let after = store::accounts::account(change.db(), id).await?;
+    change
+        .commit(
+            "experimenter.role",
+            Some(format!("experimenter:{id}")),
+            json!({ "username": before.username, "from": before.role, "to": role }),
+        )
+        .await?;
+    Ok(after)
+}
+
+/// Disables an account (it cannot log in; its sessions end at once) or enables it again.
+pub async fn set_disabled(
+    pool: &SqlitePool,
+    admin: &str,
+    id: i64,
+    disabled: bool,
+) -> Result<Account> {
+    let mut change = Change::begin(pool, admin).await?;
+    let before = store::accounts::account(change.db(), id).await?;
+    let (action, detail) = if disabled {
+        keep_an_admin(change.db(), &before).await?;
+        let ended = store::accounts::disable(change.db(), id).await?;
+        (
+            "experimenter.disable",
+            json!({ "username": before.username, "sessions_ended": ended }),
+        )
+    } else {
+        store::accounts::enable(change.db(), id).await?;
+        (
+            "experimenter.enable",
+            json!({ "username": before.username }),
+        )
+    };
+    let after = store::accounts::account(change.db(), id).await?;
+    change
+        .commit(action, Some(format!("experimenter:{id}")), detail)
+        .await?;
+    Ok(after)
 }
 
 /// A one-time set-up token (printed at a start with no account); only its hash is stored.
 /// It replaces any earlier unused one, so at most one set-up link is ever valid.
 pub async fn new_setup_token(pool: &SqlitePool) -> Result<String> {
     let token = random_token();
-    let mut change = Change::begin(pool, "system").await?;
+    let mut change = Change::begin(pool, "system:startup").await?;
     let replaced = store::accounts::replace_setup_token(change.db(), &token).await?;
     change
         .commit("setup.link", None, json!({ "replaced_unused": replaced }))
@@ -107,7 +173,7 @@ async fn check_setup_token<'c>(db: impl sqlx::SqliteExecutor<'c>, token: &str) -
     }
 }
 
-/// Creates the first experimenter with the one-time set-up token: the token is used and the
+/// Creates the first experimenter, an admin, with the one-time set-up token: the token is used and the
 /// account made in one immediate transaction, so of two concurrent uses exactly one makes
 /// an account.
 pub async fn first_account(
@@ -129,7 +195,8 @@ pub async fn first_account(
     }
     check_setup_token(change.db(), token).await?;
     store::accounts::use_setup_token(change.db(), token).await?;
-    let id = store::accounts::insert_experimenter(change.db(), username, &hash).await?;
+    let id =
+        store::accounts::insert_experimenter(change.db(), username, &hash, Role::Admin).await?;
     change
         .commit(
             "setup.first_account",
@@ -140,14 +207,24 @@ pub async fn first_account(
     Ok(id)
 }
 
-/// A new session: (cookie token, CSRF token).
+/// A new session of an account.
+#[derive(Debug)]
+pub struct NewSession {
+    /// The cookie's token.
+    pub token: String,
+    /// The token state-changing requests echo in a header.
+    pub csrf: String,
+    pub role: Role,
+}
+
 pub async fn new_session(
     pool: &SqlitePool,
     experimenter_id: i64,
     username: &str,
+    role: Role,
     action: &str,
     detail: serde_json::Value,
-) -> Result<(String, String)> {
+) -> Result<NewSession> {
     let (token, csrf) = (random_token(), random_token());
     let mut change = Change::begin(pool, username).await?;
     store::accounts::insert_session(
@@ -159,7 +236,7 @@ pub async fn new_session(
     )
     .await?;
     change.commit(action, None, detail).await?;
-    Ok((token, csrf))
+    Ok(NewSession { token, csrf, role })
 }
 
 pub async fn end_session(pool: &SqlitePool, username: &str, token: Option<&str>) -> Result<()> {
@@ -171,15 +248,14 @@ pub async fn end_session(pool: &SqlitePool, username: &str, token: Option<&str>)
 }
 
 /// Checks a password, rate-limited per username and client address and per address (the
-/// attempt is counted before the check); returns the session (cookie token, CSRF token).
-/// Every failure is in the audit log.
+/// attempt is counted before the check); returns the new session. A disabled account is refused. Every failure is in the audit log.
 pub async fn login(
     pool: &SqlitePool,
     limiter: &LoginLimiter,
     username: &str,
     password: &str,
     peer: IpAddr,
-) -> Result<(String, String)> {
+) -> Result<NewSession> {
     if username.len() > MAX_USERNAME {
         return Err(AppError::BadRequest(format!(
             "username: at most {MAX_USERNAME} bytes"
@@ -196,32 +272,44 @@ pub async fn login(
     let row = store::accounts::credentials(pool, username).await?;
     // Verify against a dummy hash for unknown users too, so timing does not reveal names.
     let phc = match &row {
-        Some((_, phc)) => phc.clone(),
+        Some(c) => c.password_hash.clone(),
         None => dummy_hash().await?,
     };
     let ok = passwords::verify(password, &phc).await?;
     match (row, ok) {
-        (Some((id, _)), true) => {
+        (Some(c), true) if !c.disabled => {
             limiter.succeeded(reservation);
             new_session(
                 pool,
-                id,
+                c.id,
                 username,
+                c.role,
                 "login",
                 json!({ "from": peer.to_string() }),
             )
             .await
         }
-        (row, _) => {
-            let change = Change::begin(pool, "anonymous").await?;
+        (row, ok) => {
+            // Only someone who knows the password learns that the account is disabled.
+            let disabled = ok && row.as_ref().is_some_and(|c| c.disabled);
+            let change = Change::begin(pool, "anonymous:login").await?;
             change
                 .commit(
                     "login.failed",
-                    row.map(|(id, _)| format!("experimenter:{id}")),
-                    json!({ "username": username, "from": peer.to_string() }),
+                    row.map(|c| format!("experimenter:{}", c.id)),
+                    json!({ "username": username, "from": peer.to_string(), "disabled": disabled }),
                 )
                 .await?;
-            Err(AppError::Forbidden("wrong username or password".into()))
+            Err(AppError::Forbidden(if disabled {
+                "this account is disabled: ask an admin".into()
+            } else {
+                "wrong username or password".into()
+            }))
         }
     }
+}
+
+/// Every account, for the admin.
+pub async fn list(pool: &SqlitePool) -> Result<Vec<Account>> {
+    store::accounts::accounts(pool).await
 }

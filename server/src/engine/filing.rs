@@ -56,7 +56,7 @@ pub async fn file_result(
 /// Marks every running trial incomplete with `reason` (server restart, controller lost);
 /// returns their ids.
 pub async fn interrupt_running(pool: &SqlitePool, reason: &str) -> Result<Vec<i64>> {
-    let mut change = Change::begin(pool, "system").await?;
+    let mut change = Change::begin(pool, "system:trial-filing").await?;
     let ids = store::trials::interrupt_running(change.db(), reason).await?;
     if !ids.is_empty() {
         let mut requeued = Vec::new();

@@ -17,8 +17,8 @@ use super::schedule::default_params;
 use crate::store::records::Record;
 use crate::store::{self, Change};
 
-/// Who the audit log names for a pilot's actions.
-const ACTOR: &str = "pilot";
+/// Who the audit log names for starting a pilot from the command line.
+const COMMAND_LINE: &str = "system:pilot-command";
 
 #[derive(Debug, Clone, serde::Serialize, utoipa::ToSchema)]
 pub struct PilotReport {
@@ -49,7 +49,7 @@ pub async fn run(
 ) -> anyhow::Result<PilotReport> {
     run_with_progress(
         pool,
-        ACTOR,
+        COMMAND_LINE,
         study_id,
         subjects,
         seed,
@@ -68,6 +68,8 @@ pub async fn run_with_progress(
     seed: Option<u64>,
     progress: Arc<Progress>,
 ) -> anyhow::Result<PilotReport> {
+    // The audit log names the pilot's own actions with who started it.
+    let actor = format!("pilot (by {requested_by})");
     // A pilot never writes into a study with people: it runs in the study's dry-run copy.
     let study_id = match study_id {
         Some(id) => super::dry_run::for_pilot(pool, requested_by, id)
@@ -75,7 +77,7 @@ pub async fn run_with_progress(
             .with_context(|| format!("study {id}"))?,
         None => match store::studies::all(pool).await?.last() {
             Some(s) => super::dry_run::for_pilot(pool, requested_by, s.id).await?,
-            None => super::dry_run::create(pool, ACTOR, &default_params(), seed).await?,
+            None => super::dry_run::create(pool, &actor, &default_params(), seed).await?,
         },
     };
     let study = Arc::new(store::studies::get(pool, study_id).await?);
@@ -96,8 +98,8 @@ pub async fn run_with_progress(
     };
     let mut work = Vec::new();
     for _ in 0..subjects {
-        let (subject, _) = enrol(pool, &stability, ACTOR, study_id, true).await?;
-        let mut change = Change::begin(pool, ACTOR).await?;
+        let (subject, _) = enrol(pool, &stability, &actor, study_id, true).await?;
+        let mut change = Change::begin(pool, actor.as_str()).await?;
         store::subjects::record_consent(
             change.db(),
             subject.id,
@@ -127,11 +129,12 @@ pub async fn run_with_progress(
         .max(1);
     let mut tasks = tokio::task::JoinSet::new();
     for _ in 0..workers {
-        let (pool, study, queue, progress) = (
+        let (pool, study, queue, progress, actor) = (
             pool.clone(),
             Arc::clone(&study),
             Arc::clone(&queue),
             Arc::clone(&progress),
+            actor.clone(),
         );
         tasks.spawn(async move {
             let mut done = (0, 0);
@@ -140,7 +143,7 @@ pub async fn run_with_progress(
                     return anyhow::Ok(done);
                 };
                 while let Some(trial) = store::trials::next(&pool, subject_id).await? {
-                    let mut change = Change::begin(&pool, ACTOR).await?;
+                    let mut change = Change::begin(&pool, actor.as_str()).await?;
                     store::trials::mark_running(change.db(), trial.id).await?;
                     change
                         .commit(
@@ -155,7 +158,7 @@ pub async fn run_with_progress(
                     })
                     .await?
                     .map_err(anyhow::Error::msg)?;
-                    file_result(&pool, ACTOR, &result, &Record { dt: DT, channels }).await?;
+                    file_result(&pool, &actor, &result, &Record { dt: DT, channels }).await?;
                     done.0 += 1;
                     progress
                         .done
@@ -172,7 +175,7 @@ pub async fn run_with_progress(
         report.trials += t;
         report.complete += c;
     }
-    Change::begin(pool, ACTOR)
+    Change::begin(pool, actor)
         .await?
         .commit(
             "pilot.finish",

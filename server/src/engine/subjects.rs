@@ -125,6 +125,25 @@ pub async fn withdraw(
     Ok(running)
 }
 
+/// What the audit log and the experimenter see when a subject withdrew on their own page
+/// without saying why (they owe no reason).
+const NO_REASON: &str = "withdrawn by the subject on their own page (no reason given)";
+
+/// The subject withdraws on their own page; the reason is optional.
+pub async fn withdraw_own(
+    pool: &SqlitePool,
+    link: &ControllerLink,
+    subject: &Subject,
+    reason: Option<&str>,
+) -> Result<Option<i64>> {
+    let reason = match reason.map(str::trim) {
+        Some(r) if !r.is_empty() => r,
+        _ => NO_REASON,
+    };
+    let actor = format!("subject:{}", subject.code);
+    withdraw(pool, link, &actor, subject.id, reason).await
+}
+
 /// A subject in the experimenter's list, with how far they are.
 #[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct SubjectProgress {
@@ -197,18 +216,27 @@ pub struct OwnTest {
     pub practice: bool,
 }
 
-/// The subject's own page: their progress, with no compensator names.
+/// The subject's own page: their progress, blinded (no compensator names, no metrics).
 #[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct OwnProgress {
     pub code: String,
     pub consent: Option<ConsentDecision>,
     pub withdrawn: bool,
+    /// Scored tests whose latest attempt is complete.
+    pub tests_complete: usize,
+    /// Scored tests in the schedule.
+    pub tests_total: usize,
     pub tests: Vec<OwnTest>,
 }
 
 pub async fn own_progress(pool: &SqlitePool, subject: Subject) -> Result<OwnProgress> {
     let trials = store::trials::of_subject(pool, subject.id).await?;
+    let scored = || latest_attempts(&trials).filter(|t| !t.practice);
     Ok(OwnProgress {
+        tests_complete: scored()
+            .filter(|t| t.status == TrialStatus::Complete)
+            .count(),
+        tests_total: scored().count(),
         tests: latest_attempts(&trials)
             .map(|t| OwnTest {
                 label: t.blinded_label.clone(),

@@ -1,9 +1,11 @@
 //! Who is asking. Experimenters by session cookie (HttpOnly, SameSite=Strict) with a CSRF
-//! header on every state-changing request, checked by [`require_experimenter`], the layer
-//! on the whole experimenter router: a route added there is protected by default. Stations
-//! and subjects by unguessable bearer tokens scoped to one station or one subject.
+//! header on every state-changing request and the account's role, checked by
+//! [`require_experimenter`], the layer on the whole experimenter router: a route added there
+//! is protected by default, and a new state-changing route is refused to analysts by
+//! default. Stations and subjects by unguessable bearer tokens scoped to one station or one
+//! subject.
 
-use axum::extract::{FromRequestParts, Request, State};
+use axum::extract::{FromRequestParts, MatchedPath, Request, State};
 use axum::http::request::Parts;
 use axum::http::{HeaderMap, Method, header};
 use axum::middleware::Next;
@@ -13,6 +15,7 @@ use serde::Serialize;
 use super::error::AppError;
 use crate::state::AppState;
 use crate::store;
+use crate::store::accounts::Role;
 use crate::store::stations::Station;
 use crate::store::subjects::Subject;
 
@@ -24,6 +27,7 @@ pub const CSRF_HEADER: &str = "x-csrf-token";
 pub struct Experimenter {
     pub id: i64,
     pub username: String,
+    pub role: Role,
     pub csrf: String,
 }
 
@@ -53,15 +57,43 @@ fn same(a: &str, b: &str) -> bool {
             == 0
 }
 
-/// The layer of the experimenter router: a valid session, and the CSRF token on anything
-/// but a read; the experimenter goes into the request for the handler.
+/// The routes only admins may call (account management), by path prefix.
+const ADMIN_ONLY: &str = "/api/accounts";
+
+/// The state-changing routes an analyst may call. The E-stop is among them on purpose: in a
+/// lab anyone logged in who sees a person in danger must be able to stop the machine, the
+/// read-only analyst too. Resetting it is not: that lets the machine move again.
+const ANALYST_MAY_CHANGE: &[&str] = &["/api/estop", "/api/logout"];
+
+/// What `role` may do on the route `path` (as registered) with `method`: anything not
+/// listed for it is refused, so a new route fails closed.
+fn role_allows(role: Role, method: &Method, path: &str) -> Result<(), AppError> {
+    let admin_only = path == ADMIN_ONLY || path.starts_with("/api/accounts/");
+    if admin_only && role != Role::Admin {
+        return Err(AppError::Forbidden(format!(
+            "your role is {}: only an admin manages accounts",
+            role.name()
+        )));
+    }
+    let reads = matches!(*method, Method::GET | Method::HEAD | Method::OPTIONS);
+    if role == Role::Analyst && !reads && !ANALYST_MAY_CHANGE.contains(&path) {
+        return Err(AppError::Forbidden(
+            "your role is analyst: it may read studies, subjects, results, exports and the audit log, and press the E-stop, but change nothing".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// The layer of the experimenter router: a valid session of an active account, the CSRF
+/// token on anything but a read, and the account's role allowing the route; the
+/// experimenter goes into the request for the handler.
 pub async fn require_experimenter(
     State(state): State<AppState>,
     mut req: Request,
     next: Next,
 ) -> Result<Response, AppError> {
     let token = cookie(req.headers(), SESSION_COOKIE).ok_or(AppError::Unauthorized)?;
-    let (id, username, csrf) = store::accounts::session(&state.pool, &token)
+    let owner = store::accounts::session(&state.pool, &token)
         .await?
         .ok_or(AppError::Unauthorized)?;
     if !matches!(*req.method(), Method::GET | Method::HEAD | Method::OPTIONS) {
@@ -70,14 +102,25 @@ pub async fn require_experimenter(
             .get(CSRF_HEADER)
             .and_then(|v| v.to_str().ok())
             .unwrap_or("");
-        if !same(sent, &csrf) {
+        if !same(sent, &owner.csrf) {
             return Err(AppError::Forbidden(
                 "missing or wrong CSRF token (header X-CSRF-Token)".into(),
             ));
         }
     }
-    req.extensions_mut()
-        .insert(Experimenter { id, username, csrf });
+    // A route layer runs after routing, so the registered path is known; without one
+    // (never, on this router) nothing is allowed but reads.
+    let path = req
+        .extensions()
+        .get::<MatchedPath>()
+        .map_or("", MatchedPath::as_str);
+    role_allows(owner.role, req.method(), path)?;
+    req.extensions_mut().insert(Experimenter {
+        id: owner.id,
+        username: owner.username,
+        role: owner.role,
+        csrf: owner.csrf,
+    });
     Ok(next.run(req).await)
 }
 
@@ -121,5 +164,30 @@ impl FromRequestParts<AppState> for SubjectAuth {
             .await?
             .map(Self)
             .ok_or(AppError::Unauthorized)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_analyst_only_reads_and_stops() {
+        let a = Role::Analyst;
+        assert!(role_allows(a, &Method::GET, "/api/studies/{id}/export/{kind}").is_ok());
+        assert!(role_allows(a, &Method::POST, "/api/estop").is_ok());
+        assert!(role_allows(a, &Method::POST, "/api/estop/reset").is_err());
+        assert!(role_allows(a, &Method::POST, "/api/some-new-route").is_err());
+        assert!(role_allows(a, &Method::POST, "").is_err());
+    }
+
+    #[test]
+    fn only_an_admin_manages_accounts() {
+        for role in [Role::Experimenter, Role::Analyst] {
+            assert!(role_allows(role, &Method::GET, "/api/accounts").is_err());
+            assert!(role_allows(role, &Method::POST, "/api/accounts/{id}/role").is_err());
+        }
+        assert!(role_allows(Role::Admin, &Method::POST, "/api/accounts/{id}/role").is_ok());
+        assert!(role_allows(Role::Experimenter, &Method::POST, "/api/studies").is_ok());
     }
 }

@@ -11,6 +11,7 @@ pub mod bodies;
 pub mod error;
 pub mod extract;
 
+mod accounts;
 mod controller;
 mod live;
 mod pages;
@@ -63,6 +64,7 @@ struct ApiDoc;
 pub fn app(state: AppState) -> Router {
     let experimenter = OpenApiRouter::new()
         .merge(session::experimenter())
+        .merge(accounts::routes())
         .merge(studies::routes())
         .merge(subjects::experimenter())
         .merge(stations::routes())
@@ -126,7 +128,7 @@ fn describe(api: &mut utoipa::openapi::OpenApi, caller: Caller) {
         ("401", "not logged in, or no valid token"),
         (
             "403",
-            "forbidden: wrong CSRF token or another subject's data",
+            "forbidden: wrong CSRF token, the account's role may not do it, or another subject's data",
         ),
         ("404", "not found"),
         (

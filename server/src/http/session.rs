@@ -12,9 +12,10 @@ use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppError, AppJson, Done};
 use super::extract::{Experimenter, SESSION_COOKIE, cookie};
-use crate::engine::accounts::{self, SESSION_HOURS};
+use crate::engine::accounts::{self, NewSession, SESSION_HOURS};
 use crate::state::AppState;
 use crate::store;
+use crate::store::accounts::Role;
 
 /// Routes anyone may call.
 pub fn public() -> OpenApiRouter<AppState> {
@@ -51,6 +52,8 @@ pub struct SetupRequest {
 pub struct SessionStarted {
     pub username: String,
     pub csrf: String,
+    /// What the account may do (the dashboard hides the rest; the server refuses it).
+    pub role: Role,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
@@ -66,15 +69,16 @@ fn session_cookie(token: &str, max_age_s: i64) -> HeaderValue {
     .expect("tokens are hex")
 }
 
-fn started(username: &str, (token, csrf): (String, String)) -> Response {
+fn started(username: &str, session: NewSession) -> Response {
     (
         [(
             header::SET_COOKIE,
-            session_cookie(&token, SESSION_HOURS * 3600),
+            session_cookie(&session.token, SESSION_HOURS * 3600),
         )],
         AppJson(SessionStarted {
             username: username.to_string(),
-            csrf,
+            csrf: session.csrf,
+            role: session.role,
         }),
     )
         .into_response()
@@ -82,7 +86,7 @@ fn started(username: &str, (token, csrf): (String, String)) -> Response {
 
 /// Log in: sets an HttpOnly session cookie and returns the CSRF token. Failed attempts are
 /// limited per username and client address and per address (a minute's window); each is
-/// in the audit log.
+/// in the audit log. A disabled account cannot log in.
 #[utoipa::path(post, path = "/api/login", tag = "session", request_body = Credentials,
     responses((status = 200, body = SessionStarted), (status = 403, body = super::error::ErrorBody, description = "wrong username or password"),
         (status = 429, body = super::error::ErrorBody, description = "too many failed attempts: wait a minute")))]
@@ -128,6 +132,7 @@ async fn setup(
         &state.pool,
         id,
         &req.username,
+        Role::Admin,
         "login",
         serde_json::json!({ "after": "setup" }),
     )
@@ -143,7 +148,7 @@ async fn setup_status(State(state): State<AppState>) -> ApiResult<SetupStatus> {
     }))
 }
 
-/// The logged-in experimenter and the CSRF token.
+/// The logged-in experimenter, their role and the CSRF token.
 #[utoipa::path(get, path = "/api/me", tag = "session", responses((status = 200, body = Experimenter)))]
 async fn me(who: Experimenter) -> AppJson<Experimenter> {
     AppJson(who)

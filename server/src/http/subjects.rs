@@ -25,7 +25,9 @@ pub fn experimenter() -> OpenApiRouter<AppState> {
 
 /// The routes of a subject's own page (bearer token of the subject).
 pub fn subject() -> OpenApiRouter<AppState> {
-    OpenApiRouter::new().routes(routes!(own_progress))
+    OpenApiRouter::new()
+        .routes(routes!(own_progress))
+        .routes(routes!(withdraw_own))
 }
 
 /// The study's subjects with their progress.
@@ -107,5 +109,30 @@ async fn own_progress(
     State(s): State<AppState>,
     SubjectAuth(me): SubjectAuth,
 ) -> ApiResult<OwnProgress> {
+    Ok(AppJson(subjects::own_progress(&s.pool, me).await?))
+}
+
+#[derive(Debug, Default, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct OwnWithdrawal {
+    /// Optional, at most 500 characters: a subject owes no reason.
+    #[serde(default)]
+    reason: Option<String>,
+}
+
+/// The subject withdraws (bearer token of the subject's page): a running test of theirs
+/// stops at once, nothing more is run, and their data leave every export and result. An
+/// empty body is a withdrawal without a reason.
+#[utoipa::path(post, path = "/api/subject/withdraw", tag = "subjects",
+    request_body(content = Option<OwnWithdrawal>, description = "optional"),
+    responses((status = 200, body = OwnProgress), (status = 409, body = super::error::ErrorBody, description = "already withdrawn")))]
+async fn withdraw_own(
+    State(s): State<AppState>,
+    SubjectAuth(me): SubjectAuth,
+    body: axum::body::Bytes,
+) -> ApiResult<OwnProgress> {
+    let b: OwnWithdrawal = optional_json(&body, "withdrawal")?;
+    subjects::withdraw_own(&s.pool, &s.controller, &me, b.reason.as_deref()).await?;
+    let me = store::subjects::get(&s.pool, me.id).await?;
     Ok(AppJson(subjects::own_progress(&s.pool, me).await?))
 }

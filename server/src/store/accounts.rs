@@ -1,23 +1,80 @@
-//! Experimenter accounts (argon2id hashes), their sessions, and the one-time set-up tokens.
+//! Experimenter accounts (argon2id hashes, a role, disabled rather than deleted), their
+//! sessions, and the one-time set-up tokens.
 
+use serde::{Deserialize, Serialize};
 use sqlx::{SqliteConnection, SqliteExecutor};
 
-use super::db::now_ms;
+use super::db::{now_ms, rfc3339};
 use super::tokens::token_hash;
 use crate::error::{AppError, Result};
 
-/// Who a valid session cookie belongs to: (experimenter id, username, CSRF token).
-pub async fn session<'c>(
-    db: impl SqliteExecutor<'c>,
-    token: &str,
-) -> Result<Option<(i64, String, String)>> {
-    Ok(sqlx::query_as(
-        "SELECT e.id, e.username, s.csrf FROM sessions s JOIN experimenters e ON e.id = s.experimenter_id WHERE s.token_hash = ? AND s.expires_at > ?",
+/// What an account may do. The server enforces it (`http::extract`); the dashboard only
+/// hides what a role may not do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum Role {
+    /// Everything an experimenter does, and managing accounts.
+    Admin,
+    /// Runs studies: every route but account management.
+    Experimenter,
+    /// Reads only (studies, subjects, results, exports, the audit log) and may press the
+    /// E-stop.
+    Analyst,
+}
+
+impl Role {
+    pub const ALL: [Role; 3] = [Role::Admin, Role::Experimenter, Role::Analyst];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Role::Admin => "admin",
+            Role::Experimenter => "experimenter",
+            Role::Analyst => "analyst",
+        }
+    }
+}
+
+impl std::str::FromStr for Role {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Role::ALL
+            .into_iter()
+            .find(|r| r.name() == s)
+            .ok_or_else(|| format!("role: one of admin, experimenter, analyst (not {s:?})"))
+    }
+}
+
+fn stored_role(id: i64, role: &str) -> Result<Role> {
+    role.parse()
+        .map_err(|e| AppError::Internal(anyhow::anyhow!("stored account {id}: {e}")))
+}
+
+/// The account a valid session cookie belongs to (never a disabled one).
+#[derive(Debug, Clone)]
+pub struct SessionOwner {
+    pub id: i64,
+    pub username: String,
+    pub role: Role,
+    pub csrf: String,
+}
+
+pub async fn session<'c>(db: impl SqliteExecutor<'c>, token: &str) -> Result<Option<SessionOwner>> {
+    let row: Option<(i64, String, String, String)> = sqlx::query_as(
+        "SELECT e.id, e.username, e.role, s.csrf FROM sessions s JOIN experimenters e ON e.id = s.experimenter_id WHERE s.token_hash = ? AND s.expires_at > ? AND e.disabled_at IS NULL",
     )
     .bind(token_hash(token))
     .bind(now_ms())
     .fetch_optional(db)
-    .await?)
+    .await?;
+    row.map(|(id, username, role, csrf)| {
+        Ok(SessionOwner {
+            role: stored_role(id, &role)?,
+            id,
+            username,
+            csrf,
+        })
+    })
+    .transpose()
 }
 
 pub async fn insert_session(
@@ -47,29 +104,48 @@ pub async fn delete_session(db: &mut SqliteConnection, token: &str) -> Result<()
     Ok(())
 }
 
-/// The id and password hash of a username.
+/// What a login checks: the account's id, password hash, role and whether it is disabled.
+#[derive(Debug)]
+pub struct Credentials {
+    pub id: i64,
+    pub password_hash: String,
+    pub role: Role,
+    pub disabled: bool,
+}
+
 pub async fn credentials<'c>(
     db: impl SqliteExecutor<'c>,
     username: &str,
-) -> Result<Option<(i64, String)>> {
-    Ok(
-        sqlx::query_as("SELECT id, password_hash FROM experimenters WHERE username = ?")
-            .bind(username)
-            .fetch_optional(db)
-            .await?,
+) -> Result<Option<Credentials>> {
+    let row: Option<(i64, String, String, bool)> = sqlx::query_as(
+        "SELECT id, password_hash, role, disabled_at IS NOT NULL FROM experimenters WHERE username = ?",
     )
+    .bind(username)
+    .fetch_optional(db)
+    .await?;
+    row.map(|(id, password_hash, role, disabled)| {
+        Ok(Credentials {
+            role: stored_role(id, &role)?,
+            id,
+            password_hash,
+            disabled,
+        })
+    })
+    .transpose()
 }
 
 pub async fn insert_experimenter(
     db: &mut SqliteConnection,
     username: &str,
     password_hash: &str,
+    role: Role,
 ) -> Result<i64> {
     let r = sqlx::query(
-        "INSERT INTO experimenters (username, password_hash, created_at) VALUES (?, ?, ?)",
+        "INSERT INTO experimenters (username, password_hash, role, created_at) VALUES (?, ?, ?, ?)",
     )
     .bind(username)
     .bind(password_hash)
+    .bind(role.name())
     .bind(now_ms())
     .execute(db)
     .await;
@@ -87,6 +163,96 @@ pub async fn experimenter_count<'c>(db: impl SqliteExecutor<'c>) -> Result<i64> 
         .fetch_one(db)
         .await?;
     Ok(n)
+}
+
+/// An account as the admin's list shows it (no hash).
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct Account {
+    pub id: i64,
+    pub username: String,
+    pub role: Role,
+    /// RFC 3339 UTC; absent while the account is active.
+    pub disabled_at: Option<String>,
+    /// RFC 3339 UTC.
+    pub created_at: String,
+}
+
+/// id, username, role, disabled_at, created_at
+type AccountRow = (i64, String, String, Option<i64>, i64);
+
+fn account_of((id, username, role, disabled_at, created_at): AccountRow) -> Result<Account> {
+    Ok(Account {
+        role: stored_role(id, &role)?,
+        id,
+        username,
+        disabled_at: disabled_at.map(rfc3339),
+        created_at: rfc3339(created_at),
+    })
+}
+
+const ACCOUNT_COLUMNS: &str = "id, username, role, disabled_at, created_at";
+
+pub async fn accounts<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<Account>> {
+    let rows: Vec<AccountRow> = sqlx::query_as(&format!(
+        "SELECT {ACCOUNT_COLUMNS} FROM experimenters ORDER BY id"
+    ))
+    .fetch_all(db)
+    .await?;
+    rows.into_iter().map(account_of).collect()
+}
+
+pub async fn account<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Account> {
+    let row: Option<AccountRow> = sqlx::query_as(&format!(
+        "SELECT {ACCOUNT_COLUMNS} FROM experimenters WHERE id = ?"
+    ))
+    .bind(id)
+    .fetch_optional(db)
+    .await?;
+    account_of(row.ok_or(AppError::NotFound("account"))?)
+}
+
+/// Active admins other than `id` (the last-admin rule counts them inside its change).
+pub async fn other_active_admins<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<i64> {
+    let (n,): (i64,) = sqlx::query_as(
+        "SELECT COUNT(*) FROM experimenters WHERE role = 'admin' AND disabled_at IS NULL AND id <> ?",
+    )
+    .bind(id)
+    .fetch_one(db)
+    .await?;
+    Ok(n)
+}
+
+pub async fn set_role(db: &mut SqliteConnection, id: i64, role: Role) -> Result<()> {
+    sqlx::query("UPDATE experimenters SET role = ? WHERE id = ?")
+        .bind(role.name())
+        .bind(id)
+        .execute(db)
+        .await?;
+    Ok(())
+}
+
+/// Disables an account and ends its sessions; returns how many sessions ended.
+pub async fn disable(db: &mut SqliteConnection, id: i64) -> Result<u64> {
+    sqlx::query("UPDATE experimenters SET disabled_at = ? WHERE id = ? AND disabled_at IS NULL")
+        .bind(now_ms())
+        .bind(id)
+        .execute(&mut *db)
+        .await?;
+    Ok(
+        sqlx::query("DELETE FROM sessions WHERE experimenter_id = ?")
+            .bind(id)
+            .execute(db)
+            .await?
+            .rows_affected(),
+    )
+}
+
+pub async fn enable(db: &mut SqliteConnection, id: i64) -> Result<()> {
+    sqlx::query("UPDATE experimenters SET disabled_at = NULL WHERE id = ?")
+        .bind(id)
+        .execute(db)
+        .await?;
+    Ok(())
 }
 
 /// Stores a new set-up token and deletes every unused earlier one (at most one set-up link

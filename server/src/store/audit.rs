@@ -1,5 +1,12 @@
 //! The audit log: append-only (SQL triggers refuse UPDATE and DELETE). Rows are written by
 //! [`super::Change::commit`], inside the transaction of the change they record.
+//!
+//! Every row names who made it. A logged-in account is named by its username, and the row
+//! keeps the account's id (`actor_id`). The other actors say what they are, and each has a
+//! ':' or a space, which usernames never have (a trigger refuses a row that is neither):
+//! `subject:S01` (the subject, at a station or on their own page), `station:NAME`,
+//! `system:WHAT` (the server itself: `system:startup`, `system:controller`, …),
+//! `pilot (by NAME)` (a pilot run someone started), `anonymous:login` (a failed log-in).
 
 use serde::Serialize;
 use serde_json::Value;
@@ -16,9 +23,10 @@ pub(super) async fn append(
     detail: &Value,
 ) -> Result<()> {
     sqlx::query(
-        "INSERT INTO audit_log (at, actor, action, target, detail_json) VALUES (?, ?, ?, ?, ?)",
+        "INSERT INTO audit_log (at, actor, actor_id, action, target, detail_json) VALUES (?, ?, (SELECT id FROM experimenters WHERE username = ?), ?, ?, ?)",
     )
     .bind(now_ms())
+    .bind(actor)
     .bind(actor)
     .bind(action)
     .bind(target)
@@ -35,32 +43,45 @@ pub struct AuditEntry {
     /// RFC 3339 UTC with milliseconds.
     pub at: String,
     pub actor: String,
+    /// The account that made the change; absent for the non-person actors.
+    pub actor_id: Option<i64>,
     pub action: String,
     pub target: Option<String>,
     #[schema(value_type = Object)]
     pub detail: Option<Value>,
 }
 
-/// id, at, actor, action, target, detail_json
-type AuditRow = (i64, i64, String, String, Option<String>, Option<String>);
+/// id, at, actor, actor_id, action, target, detail_json
+type AuditRow = (
+    i64,
+    i64,
+    String,
+    Option<i64>,
+    String,
+    Option<String>,
+    Option<String>,
+);
 
 /// The newest `limit` rows, newest first.
 pub async fn newest<'c>(db: impl SqliteExecutor<'c>, limit: i64) -> Result<Vec<AuditEntry>> {
     let rows: Vec<AuditRow> = sqlx::query_as(
-        "SELECT id, at, actor, action, target, detail_json FROM audit_log ORDER BY id DESC LIMIT ?",
+        "SELECT id, at, actor, actor_id, action, target, detail_json FROM audit_log ORDER BY id DESC LIMIT ?",
     )
     .bind(limit)
     .fetch_all(db)
     .await?;
     Ok(rows
         .into_iter()
-        .map(|(id, at, actor, action, target, detail)| AuditEntry {
-            id,
-            at: rfc3339(at),
-            actor,
-            action,
-            target,
-            detail: detail.and_then(|d| serde_json::from_str(&d).ok()),
-        })
+        .map(
+            |(id, at, actor, actor_id, action, target, detail)| AuditEntry {
+                id,
+                at: rfc3339(at),
+                actor,
+                actor_id,
+                action,
+                target,
+                detail: detail.and_then(|d| serde_json::from_str(&d).ok()),
+            },
+        )
         .collect())
 }

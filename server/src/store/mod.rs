@@ -35,7 +35,8 @@ pub struct Change {
 }
 
 impl Change {
-    /// Starts a change made by `actor` (a username, `subject:S01`, `pilot`, `system`).
+    /// Starts a change made by `actor`: a username, or a non-person actor as `audit` lists
+    /// them (`subject:S01`, `station:NAME`, `system:WHAT`, `pilot (by NAME)`).
     pub async fn begin(pool: &SqlitePool, actor: impl Into<String>) -> Result<Self> {
         Ok(Self {
             tx: pool.begin_with("BEGIN IMMEDIATE").await?,

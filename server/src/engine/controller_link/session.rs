@@ -247,7 +247,7 @@ async fn handle(
         ControllerToServer::TrialResult(r) => {
             let channels = partial.remove(&r.trial_id).unwrap_or_default();
             let record = Record { dt: r.dt, channels };
-            match filing::file_result(pool, "controller", &r, &record).await {
+            match filing::file_result(pool, "system:controller", &r, &record).await {
                 Ok(true) => {
                     tracing::info!(trial = r.trial_id, outcome = ?r.outcome, "trial result stored")
                 }
