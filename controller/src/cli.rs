@@ -9,7 +9,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use bdft_controller::analysis::{AnalysisReport, analyze};
+use bdft_controller::analysis::AnalysisReport;
+use bdft_controller::analysis::design_view::{Model, compare};
 use bdft_controller::compensator::CompensatorKind;
 use bdft_controller::interlock::DEFAULT_LIMIT_MM_S2;
 use bdft_controller::param_set::ParamSet;
@@ -39,6 +40,11 @@ enum Command {
         /// Device-to-cylinder gain K_BF at which to close the feedthrough loop.
         #[arg(long, default_value_t = NOMINAL_KBF, value_parser = parse_kbf)]
         kbf: f64,
+        /// The loop the table reports: design (the textbook structure, ideal measurements,
+        /// continuous time) or implemented (the sampled loop as it runs). Both are shown
+        /// side by side after it.
+        #[arg(long, default_value = "implemented")]
+        model: Model,
         /// Print JSON instead of a table.
         #[arg(long)]
         json: bool,
@@ -253,16 +259,33 @@ fn execute(command: Command) -> anyhow::Result<()> {
             serde_json::to_writer_pretty(&mut out, &ParamSet::default())?;
             writeln!(out)?;
         }
-        Command::Analyze { params, kbf, json } => {
+        Command::Analyze {
+            params,
+            kbf,
+            model,
+            json,
+        } => {
             let params = load_params(params.as_ref())?;
-            let compensators = CompensatorKind::ALL
+            let comparison = CompensatorKind::ALL
                 .into_iter()
                 .map(|k| {
-                    analyze(&params.setup(k, Seat::On, kbf))
+                    compare(&params.setup(k, Seat::On, kbf))
                         .with_context(|| format!("analysing {k}"))
                 })
                 .collect::<anyhow::Result<Vec<_>>>()?;
-            let report = AnalysisReport { kbf, compensators };
+            let compensators = comparison
+                .iter()
+                .map(|c| match model {
+                    Model::Design => c.design.clone(),
+                    Model::Implemented => c.implemented.clone(),
+                })
+                .collect();
+            let report = AnalysisReport {
+                kbf,
+                model,
+                compensators,
+                comparison,
+            };
             if json {
                 serde_json::to_writer(&mut out, &report)?;
                 writeln!(out)?;
@@ -384,9 +407,10 @@ fn write_record(
 fn print_analysis(out: &mut impl Write, r: &AnalysisReport) -> std::io::Result<()> {
     writeln!(
         out,
-        "Feedthrough loop closed at K_BF = {} (station on), loop rate {:.0} Hz",
+        "Feedthrough loop closed at K_BF = {} (station on), loop rate {:.0} Hz, {} model",
         r.kbf,
-        1.0 / LoopParams::default().dt
+        1.0 / LoopParams::default().dt,
+        r.model.name()
     )?;
     writeln!(
         out,
@@ -416,6 +440,47 @@ fn print_analysis(out: &mut impl Write, r: &AnalysisReport) -> std::io::Result<(
             c.spectral_radius,
             pole
         )?;
+    }
+    print_comparison(out, r)
+}
+
+fn print_comparison(out: &mut impl Write, r: &AnalysisReport) -> std::io::Result<()> {
+    let pole = |p: Option<[f64; 2]>| match p {
+        Some([re, im]) if im.abs() > 1e-9 => format!("{re:.3} ± {:.3}j", im.abs()),
+        Some([re, _]) => format!("{re:.3}"),
+        None => "—".into(),
+    };
+    writeln!(out)?;
+    writeln!(out, "Design model beside the implemented loop")?;
+    writeln!(
+        out,
+        "{:<12} {:>18} {:>18}",
+        "compensator", "design max K_BF", "implemented max K_BF"
+    )?;
+    let kbf = |k: Option<f64>| k.map_or_else(|| format!("> {MAX_KBF}"), |k| format!("{k:.4}"));
+    for c in &r.comparison {
+        writeln!(
+            out,
+            "{:<12} {:>18} {:>18}   {}",
+            c.name,
+            kbf(c.design.max_stable_kbf),
+            kbf(c.implemented.max_stable_kbf),
+            c.note
+        )?;
+        // A conjugate pair moves together: list its upper member only.
+        for d in c
+            .differences
+            .iter()
+            .filter(|d| d.design.or(d.implemented).is_some_and(|p| p[1] >= 0.0))
+        {
+            writeln!(
+                out,
+                "    {:>22} → {:<22} {}",
+                pole(d.design),
+                pole(d.implemented),
+                d.cause
+            )?;
+        }
     }
     Ok(())
 }

@@ -87,6 +87,7 @@ impl LqrDesign {
 #[derive(Debug, Clone)]
 pub struct Lqr {
     design: LqrDesign,
+    params: LqrParams,
     k: RowSVector<f64, 7>,
     nx: SVector<f64, 7>,
     /// Observer x̂[k+1] = Φx̂[k] + Γ_u u[k] + Γ_z z[k]: the continuous observer
@@ -127,12 +128,22 @@ impl Lqr {
             },
             k_p: p.inner_loop_gain / plant.k_vc,
             v_max: plant.v_max,
+            params: *p,
             design,
         })
     }
 
     pub fn design(&self) -> &LqrDesign {
         &self.design
+    }
+
+    pub fn params(&self) -> &LqrParams {
+        &self.params
+    }
+
+    /// K_P of the inner velocity loop V = K_P(u − ẏ).
+    pub fn inner_gain(&self) -> f64 {
+        self.k_p
     }
 
     #[inline]

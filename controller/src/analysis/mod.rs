@@ -19,6 +19,8 @@ use crate::linalg::{eigenvalues, spectral_radius};
 use crate::params::{MAX_KBF, Seat, check};
 use crate::state::LinearState;
 
+pub mod design_view;
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CompensatorAnalysis {
     pub name: String,
@@ -37,15 +39,28 @@ pub struct CompensatorAnalysis {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AnalysisReport {
     pub kbf: f64,
+    /// The view `compensators` reports.
+    pub model: design_view::Model,
     pub compensators: Vec<CompensatorAnalysis>,
+    /// Both views of each compensator side by side, each difference with its cause.
+    pub comparison: Vec<design_view::ModelComparison>,
 }
 
-/// The one-tick map of a closed loop, affine in K_BF.
+/// Which time the loop's matrix maps: one tick of the sampled loop (the implemented view), or
+/// the state derivative of a continuous-time loop (the design view, [`design_view`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Domain {
+    Sampled,
+    Continuous,
+}
+
+/// The linear map of a closed loop, affine in K_BF.
 #[derive(Debug, Clone)]
 pub struct LinearizedLoop {
     a0: DMatrix<f64>,
     a1: DMatrix<f64>,
     dt: f64,
+    domain: Domain,
     has_delays: bool,
 }
 
@@ -63,16 +78,42 @@ impl LinearizedLoop {
             a1: a1 - &a0,
             a0,
             dt: setup.loop_params.dt,
+            domain: Domain::Sampled,
             has_delays: lp.compensator().has_delays(),
         })
+    }
+
+    /// A continuous-time loop ẋ = (A₀ + K_BF·A₁)x; `dt` is the loop period its spectral
+    /// radius is reported at.
+    pub fn continuous(a0: DMatrix<f64>, a1: DMatrix<f64>, dt: f64) -> Self {
+        Self {
+            a0,
+            a1,
+            dt,
+            domain: Domain::Continuous,
+            has_delays: false,
+        }
+    }
+
+    pub fn domain(&self) -> Domain {
+        self.domain
     }
 
     pub fn matrix(&self, k_bf: f64) -> DMatrix<f64> {
         &self.a0 + &self.a1 * k_bf
     }
 
+    /// Largest eigenvalue magnitude over one loop period: for a continuous loop that of its
+    /// exact discretization, e^{max Re(s)·dt}, so both views read the same way.
     pub fn spectral_radius(&self, k_bf: f64) -> Result<f64, DesignError> {
-        spectral_radius(&self.matrix(k_bf))
+        let m = self.matrix(k_bf);
+        match self.domain {
+            Domain::Sampled => spectral_radius(&m),
+            Domain::Continuous => Ok(eigenvalues(&m)?
+                .iter()
+                .map(|s| (s.re * self.dt).exp())
+                .fold(0.0, f64::max)),
+        }
     }
 
     pub fn is_stable(&self, k_bf: f64) -> Result<bool, DesignError> {
@@ -83,11 +124,11 @@ impl LinearizedLoop {
     pub fn poles(&self, k_bf: f64) -> Result<Vec<[f64; 2]>, DesignError> {
         let mut poles: Vec<[f64; 2]> = eigenvalues(&self.matrix(k_bf))?
             .into_iter()
-            .filter(|z| z.norm() > 1e-9)
-            .map(|z| {
-                let s = z.ln() / self.dt;
-                [s.re, s.im]
+            .filter_map(|z| match self.domain {
+                Domain::Sampled => (z.norm() > 1e-9).then(|| z.ln() / self.dt),
+                Domain::Continuous => Some(z),
             })
+            .map(|s| [s.re, s.im])
             .collect();
         poles.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
         Ok(poles)
@@ -150,11 +191,19 @@ fn probe(lp: &mut ClosedLoop, k_bf: f64) -> DMatrix<f64> {
     a
 }
 
-/// Analyses one compensator at the setup's K_BF.
+/// Analyses one compensator at the setup's K_BF, as implemented (the sampled loop).
 pub fn analyze(setup: &LoopSetup) -> Result<CompensatorAnalysis, DesignError> {
+    check("kbf", setup.loop_params.k_bf, 0.0, MAX_KBF)?;
+    analyze_loop(setup, &LinearizedLoop::new(setup)?)
+}
+
+/// Verdict, margin and poles of one linearized loop at the setup's K_BF.
+pub fn analyze_loop(
+    setup: &LoopSetup,
+    lin: &LinearizedLoop,
+) -> Result<CompensatorAnalysis, DesignError> {
     let k_bf = setup.loop_params.k_bf;
     check("kbf", k_bf, 0.0, MAX_KBF)?;
-    let lin = LinearizedLoop::new(setup)?;
     let rho = lin.spectral_radius(k_bf)?;
     Ok(CompensatorAnalysis {
         name: setup.compensator.kind().name().to_string(),
