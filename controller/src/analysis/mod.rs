@@ -34,6 +34,10 @@ pub struct CompensatorAnalysis {
     /// Closed-loop poles [re, im] in rad/s; empty for loops with pure delays (the shaper),
     /// whose delay-line eigenvalues are not poles of a rational system.
     pub poles: Vec<[f64; 2]>,
+    /// The delay the compensator's input shaper adds to the reference (its last impulse,
+    /// s); absent for designs without one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub added_delay_s: Option<f64>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -62,6 +66,7 @@ pub struct LinearizedLoop {
     dt: f64,
     domain: Domain,
     has_delays: bool,
+    added_delay_s: Option<f64>,
 }
 
 impl LinearizedLoop {
@@ -80,6 +85,7 @@ impl LinearizedLoop {
             dt: setup.loop_params.dt,
             domain: Domain::Sampled,
             has_delays: lp.compensator().has_delays(),
+            added_delay_s: lp.compensator().shaper_duration(setup.loop_params.dt),
         })
     }
 
@@ -92,6 +98,7 @@ impl LinearizedLoop {
             dt,
             domain: Domain::Continuous,
             has_delays: false,
+            added_delay_s: None,
         }
     }
 
@@ -215,5 +222,6 @@ pub fn analyze_loop(
         } else {
             lin.poles(k_bf)?
         },
+        added_delay_s: lin.added_delay_s,
     })
 }

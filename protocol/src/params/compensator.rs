@@ -195,12 +195,50 @@ impl Mode {
     }
 }
 
-/// The shaper's design modes (default: the two identified structure modes).
+/// The impulse sequence shaped for each mode. `zv` cancels the mode exactly and is the
+/// shortest; the robust ones trade delay for insensitivity to the mode's frequency: `zvd`
+/// (three impulses over one damped period, zero slope of the residual at the mode), `ei`
+/// (extra-insensitive: residual `tolerance` at the mode, zero on both sides, one period) and
+/// `two-hump-ei` (four impulses over 1.5 periods, the widest band within `tolerance`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(rename_all = "kebab-case")]
+pub enum ShaperMethod {
+    #[default]
+    Zv,
+    Zvd,
+    Ei,
+    TwoHumpEi,
+}
+
+impl ShaperMethod {
+    fn is_zv(&self) -> bool {
+        *self == Self::Zv
+    }
+}
+
+/// EI shapers' residual vibration allowed at the mode, relative to no shaping.
+pub const DEFAULT_SHAPER_TOLERANCE: f64 = 0.05;
+
+fn is_default_tolerance(v: &f64) -> bool {
+    *v == DEFAULT_SHAPER_TOLERANCE
+}
+
+/// The shaper: its method and the modes it is designed for (default: the two identified
+/// structure modes, one shaper each, convolved). One mode between the two structure modes
+/// gives a single robust shaper for both. `method` and `tolerance` are left out of the JSON
+/// at their defaults, so a ZV shaper reads as it always did.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct ShaperParams {
     pub modes: Vec<Mode>,
+    #[serde(skip_serializing_if = "ShaperMethod::is_zv")]
+    pub method: ShaperMethod,
+    /// Residual vibration allowed by the EI methods (fraction, default 0.05); unused by zv
+    /// and zvd.
+    #[serde(skip_serializing_if = "is_default_tolerance")]
+    pub tolerance: f64,
 }
 
 impl Default for ShaperParams {
@@ -216,11 +254,26 @@ impl Default for ShaperParams {
                     zeta: 0.04,
                 },
             ],
+            method: ShaperMethod::Zv,
+            tolerance: DEFAULT_SHAPER_TOLERANCE,
         }
     }
 }
 
 impl ShaperParams {
+    /// A `method` shaper at one mode midway between the two structure modes (5.1 Hz, the
+    /// notch's centre; damping the modes' mean, 0.05): the robust shaper's band covers both.
+    pub fn between_modes(method: ShaperMethod) -> Self {
+        Self {
+            modes: vec![Mode {
+                f_hz: 5.1,
+                zeta: 0.05,
+            }],
+            method,
+            tolerance: DEFAULT_SHAPER_TOLERANCE,
+        }
+    }
+
     pub fn validate(&self) -> Result<(), ParamError> {
         if self.modes.is_empty() || self.modes.len() > 4 {
             return Err(ParamError::Invalid {
@@ -232,7 +285,7 @@ impl ShaperParams {
             check("shaper.modes.f_hz", m.f_hz, 0.1, 100.0)?;
             check("shaper.modes.zeta", m.zeta, 0.0, 0.7)?;
         }
-        Ok(())
+        check("shaper.tolerance", self.tolerance, 1e-3, 0.3)
     }
 }
 
