@@ -70,7 +70,7 @@ mod tests {
                 },
             ] {
                 let setup = LoopSetup {
-                    compensator: variants::variant(&name, &plant).unwrap(),
+                    compensator: variants::variant(&name, &plant, 1e-3).unwrap(),
                     plant,
                     body,
                     loop_params: LoopParams::default(),

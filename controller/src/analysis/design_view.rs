@@ -153,7 +153,7 @@ pub fn compare(setup: &LoopSetup) -> Result<ModelComparison, DesignError> {
         design,
         implemented,
         note: "design view: ideal measurements of y, ẏ and the cab state, so the estimation \
-               error is ė = (A − LC)e and the observer poles are the placed ones (separation)"
+               error is ė = (A − LC)e and the observer poles are those designed (separation)"
             .into(),
         differences: differences(&pole_sets, &causes),
     })

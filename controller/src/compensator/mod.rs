@@ -10,7 +10,7 @@ mod pid;
 pub mod variants;
 
 pub use bdft_protocol::params::{CompensatorKind, CompensatorSpec};
-pub use lqr::{CabOutput, Lqr, LqrDesign, LqrParams};
+pub use lqr::{CabOutput, Lqr, LqrDesign, LqrParams, ObserverDesign, kalman_gain};
 pub use pid::{NotchParams, Pid, PidParams, notch_filter, tyreus_luyben_pi, ziegler_nichols};
 
 use crate::error::DesignError;
