@@ -20,6 +20,7 @@ use crate::params::{MAX_KBF, Seat, check};
 use crate::state::LinearState;
 
 pub mod design_view;
+pub mod robustness;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CompensatorAnalysis {
@@ -72,21 +73,22 @@ pub struct LinearizedLoop {
 impl LinearizedLoop {
     /// Reads the loop's map off `tick` at the station "on" (feedthrough closed).
     pub fn new(setup: &LoopSetup) -> Result<Self, DesignError> {
-        let mut setup = setup.clone();
-        setup.station = Seat::On;
-        setup.plant.accel_noise_std = 0.0;
-        setup.plant.dead_band = 0.0;
-        let mut lp = ClosedLoop::new(&setup, 0)?;
-        let a0 = probe(&mut lp, 0.0);
-        let a1 = probe(&mut lp, 1.0);
-        Ok(Self {
+        let mut lp = ClosedLoop::new(&linear_setup(setup), 0)?;
+        Ok(Self::read_off(&mut lp, setup.loop_params.dt))
+    }
+
+    /// Reads the map off a loop built from a [`linear_setup`].
+    pub fn read_off(lp: &mut ClosedLoop, dt: f64) -> Self {
+        let a0 = probe(lp, 0.0);
+        let a1 = probe(lp, 1.0);
+        Self {
             a1: a1 - &a0,
             a0,
-            dt: setup.loop_params.dt,
+            dt,
             domain: Domain::Sampled,
             has_delays: lp.compensator().has_delays(),
-            added_delay_s: lp.compensator().shaper_duration(setup.loop_params.dt),
-        })
+            added_delay_s: lp.compensator().shaper_duration(dt),
+        }
     }
 
     /// A continuous-time loop ẋ = (A₀ + K_BF·A₁)x; `dt` is the loop period its spectral
@@ -143,6 +145,12 @@ impl LinearizedLoop {
 
     /// Largest K with the loop stable on all of [0, K] (see [`CompensatorAnalysis`]).
     pub fn max_stable_kbf(&self) -> Result<Option<f64>, DesignError> {
+        self.max_stable_up_to(MAX_KBF)
+    }
+
+    /// Largest K ≤ `limit` with the loop stable on all of [0, K]; `None` when stable on all
+    /// of [0, limit].
+    pub fn max_stable_up_to(&self, limit: f64) -> Result<Option<f64>, DesignError> {
         if !self.is_stable(0.0)? {
             return Ok(Some(0.0));
         }
@@ -151,8 +159,8 @@ impl LinearizedLoop {
         let grid = 0.05;
         let mut lo = 0.0;
         let mut hi = None;
-        while lo < MAX_KBF {
-            let k = (lo + grid).min(MAX_KBF);
+        while lo < limit {
+            let k = (lo + grid).min(limit);
             if self.is_stable(k)? {
                 lo = k;
             } else {
@@ -173,6 +181,22 @@ impl LinearizedLoop {
         }
         Ok(Some(lo))
     }
+}
+
+/// The setup as the analysis linearizes it: station on (feedthrough closed), no
+/// accelerometer noise, no dead-band.
+pub fn linear_setup(setup: &LoopSetup) -> LoopSetup {
+    let mut setup = setup.clone();
+    setup.station = Seat::On;
+    setup.plant = linear_rig(setup.plant);
+    setup
+}
+
+/// A rig without its nonlinear and random parts.
+pub fn linear_rig(mut rig: crate::params::PlantParams) -> crate::params::PlantParams {
+    rig.accel_noise_std = 0.0;
+    rig.dead_band = 0.0;
+    rig
 }
 
 /// Column i of the map is tick(εeᵢ)/ε with no input; ε is small enough that nothing
