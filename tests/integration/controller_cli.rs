@@ -363,3 +363,39 @@ fn analyze_shows_the_design_model_beside_the_implemented_loop() {
     let err = stderr_of_failure(&["analyze", "--model", "textbook"]);
     assert!(err.contains("design, implemented"), "{err}");
 }
+
+#[test]
+fn robustness_maps_the_margin_and_counts_the_passing_draws() {
+    let v = json_of(&[
+        "robustness",
+        "lqr",
+        "pid-notch",
+        "--grid",
+        "3",
+        "--draws",
+        "20",
+        "--json",
+    ]);
+    let reports = v.as_array().unwrap();
+    assert_eq!(reports.len(), 2);
+    let lqr = &reports[0];
+    assert_eq!(lqr["design"], "lqr");
+    assert_eq!(lqr["kh_scales"].as_array().unwrap().len(), 3);
+    let map = lqr["max_stable_kbf"].as_array().unwrap();
+    assert_eq!(map.len(), 3);
+    assert!(map.iter().all(|row| row.as_array().unwrap().len() == 3));
+    // The nominal cell is analyze's margin.
+    let a = json_of(&["analyze", "--json"]);
+    let want = a["compensators"][3]["max_stable_kbf"].as_f64().unwrap();
+    let got = map[1][1].as_f64().unwrap();
+    assert!((got - want).abs() < 2e-5, "{got} vs {want}");
+    // More K_H, less K_BF.
+    assert!(map[2][1].as_f64().unwrap() < got && map[0][1].as_f64().unwrap() > got);
+    let rate = lqr["pass_rate"].as_f64().unwrap();
+    assert!((0.0..=1.0).contains(&rate));
+    assert!(reports[1]["pass_rate"].is_number());
+    let err = stderr_of_failure(&["robustness", "lqr", "--kh-range", "20,-20"]);
+    assert!(err.contains("LO must not exceed HI"), "{err}");
+    let err = stderr_of_failure(&["robustness", "lqr:fast"]);
+    assert!(err.contains("lqr:kalman"), "{err}");
+}
