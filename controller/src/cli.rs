@@ -9,8 +9,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use bdft_controller::analysis::{AnalysisReport, analyze};
+use bdft_controller::analysis::AnalysisReport;
+use bdft_controller::analysis::design_view::{Model, compare};
+use bdft_controller::analysis::robustness::{Range, RobustnessSpec, robustness};
 use bdft_controller::compensator::CompensatorKind;
+use bdft_controller::compensator::variants::variant;
 use bdft_controller::interlock::DEFAULT_LIMIT_MM_S2;
 use bdft_controller::param_set::ParamSet;
 use bdft_controller::params::{LoopParams, MAX_KBF, NOMINAL_KBF, PlantParams, Seat};
@@ -39,7 +42,52 @@ enum Command {
         /// Device-to-cylinder gain K_BF at which to close the feedthrough loop.
         #[arg(long, default_value_t = NOMINAL_KBF, value_parser = parse_kbf)]
         kbf: f64,
+        /// The loop the table reports: design (the textbook structure, ideal measurements,
+        /// continuous time) or implemented (the sampled loop as it runs). Both are shown
+        /// side by side after it.
+        #[arg(long, default_value = "implemented")]
+        model: Model,
         /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Robustness of designs: the largest stable K_BF over a K_H × structure-frequency map,
+    /// and the Monte-Carlo pass rate at the study's K_BF with K_H, both structure
+    /// frequencies and dampings and the valve parameters drawn within the ranges.
+    Robustness {
+        /// Designs: compensator names, optionally with an option after a colon
+        /// (pid-shaper:zvd, pid-shaper:ei, pid-shaper:two-hump-ei, …-per-mode,
+        /// lqr:kalman, …).
+        #[arg(required = true)]
+        designs: Vec<String>,
+        /// JSON file of parameters (as printed by `defaults`); its plant is the nominal one
+        /// the designs are made for.
+        #[arg(long)]
+        params: Option<PathBuf>,
+        /// K_H deviation from nominal, percent: LO,HI.
+        #[arg(long, default_value = "-50,50", value_parser = parse_range, allow_hyphen_values = true)]
+        kh_range: Range,
+        /// Structure-frequency deviation (both modes), percent: LO,HI.
+        #[arg(long, default_value = "-20,20", value_parser = parse_range, allow_hyphen_values = true)]
+        freq_range: Range,
+        /// Structure damping deviation (both modes), percent: LO,HI.
+        #[arg(long, default_value = "-30,30", value_parser = parse_range, allow_hyphen_values = true)]
+        damping_range: Range,
+        /// Valve/cylinder K_VC, ω_VC, ζ_VC deviation, percent: LO,HI.
+        #[arg(long, default_value = "-10,10", value_parser = parse_range, allow_hyphen_values = true)]
+        valve_range: Range,
+        /// Map cells per axis.
+        #[arg(long, default_value_t = 50)]
+        grid: usize,
+        /// Monte-Carlo draws.
+        #[arg(long, default_value_t = 1000)]
+        draws: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// The study's K_BF: a draw passes if the loop is stable there.
+        #[arg(long, default_value_t = 0.78, value_parser = parse_kbf)]
+        kbf: f64,
+        /// Print JSON instead of a summary.
         #[arg(long)]
         json: bool,
     },
@@ -135,6 +183,18 @@ fn parse_kbf(s: &str) -> Result<f64, String> {
         Err(format!(
             "{v} is out of range: K_BF must be in [0, {MAX_KBF}]"
         ))
+    }
+}
+
+fn parse_range(s: &str) -> Result<Range, String> {
+    let (lo, hi) = s
+        .split_once(',')
+        .ok_or_else(|| format!("{s:?} is not a range: write LO,HI in percent, e.g. -20,20"))?;
+    let (lo, hi) = (parse_finite(lo.trim())?, parse_finite(hi.trim())?);
+    if lo <= hi {
+        Ok(Range::pct(lo, hi))
+    } else {
+        Err(format!("{s}: LO must not exceed HI"))
     }
 }
 
@@ -253,21 +313,94 @@ fn execute(command: Command) -> anyhow::Result<()> {
             serde_json::to_writer_pretty(&mut out, &ParamSet::default())?;
             writeln!(out)?;
         }
-        Command::Analyze { params, kbf, json } => {
+        Command::Analyze {
+            params,
+            kbf,
+            model,
+            json,
+        } => {
             let params = load_params(params.as_ref())?;
-            let compensators = CompensatorKind::ALL
+            let comparison = CompensatorKind::ALL
                 .into_iter()
                 .map(|k| {
-                    analyze(&params.setup(k, Seat::On, kbf))
+                    compare(&params.setup(k, Seat::On, kbf))
                         .with_context(|| format!("analysing {k}"))
                 })
                 .collect::<anyhow::Result<Vec<_>>>()?;
-            let report = AnalysisReport { kbf, compensators };
+            let compensators = comparison
+                .iter()
+                .map(|c| match model {
+                    Model::Design => c.design.clone(),
+                    Model::Implemented => c.implemented.clone(),
+                })
+                .collect();
+            let report = AnalysisReport {
+                kbf,
+                model,
+                compensators,
+                comparison,
+            };
             if json {
                 serde_json::to_writer(&mut out, &report)?;
                 writeln!(out)?;
             } else {
                 print_analysis(&mut out, &report)?;
+            }
+        }
+        Command::Robustness {
+            designs,
+            params,
+            kh_range,
+            freq_range,
+            damping_range,
+            valve_range,
+            grid,
+            draws,
+            seed,
+            kbf,
+            json,
+        } => {
+            let params = load_params(params.as_ref())?;
+            let spec = RobustnessSpec {
+                kh: kh_range,
+                freq: freq_range,
+                damping: damping_range,
+                valve: valve_range,
+                grid,
+                draws,
+                seed,
+                kbf,
+            };
+            spec.validate()?;
+            let reports = designs
+                .iter()
+                .map(|name| {
+                    let mut setup = params.setup(CompensatorKind::Pid, Seat::On, kbf);
+                    setup.compensator = variant(name, &params.plant, params.dt)?;
+                    robustness(name, &setup, &spec).with_context(|| format!("analysing {name}"))
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            if json {
+                serde_json::to_writer(&mut out, &reports)?;
+                writeln!(out)?;
+            } else {
+                writeln!(
+                    out,
+                    "{:<26} {:>14} {:>14} {:>10}",
+                    "design", "min max K_BF", "max max K_BF", "pass rate"
+                )?;
+                for r in &reports {
+                    let cells = r.max_stable_kbf.iter().flatten();
+                    let lo = cells
+                        .clone()
+                        .map(|c| c.unwrap_or(MAX_KBF))
+                        .fold(f64::INFINITY, f64::min);
+                    let hi = cells.map(|c| c.unwrap_or(MAX_KBF)).fold(0.0, f64::max);
+                    let rate = r
+                        .pass_rate
+                        .map_or_else(|| "—".into(), |p| format!("{:.1} %", 100.0 * p));
+                    writeln!(out, "{:<26} {lo:>14.4} {hi:>14.4} {rate:>10}", r.design)?;
+                }
             }
         }
         Command::Simulate {
@@ -384,9 +517,10 @@ fn write_record(
 fn print_analysis(out: &mut impl Write, r: &AnalysisReport) -> std::io::Result<()> {
     writeln!(
         out,
-        "Feedthrough loop closed at K_BF = {} (station on), loop rate {:.0} Hz",
+        "Feedthrough loop closed at K_BF = {} (station on), loop rate {:.0} Hz, {} model",
         r.kbf,
-        1.0 / LoopParams::default().dt
+        1.0 / LoopParams::default().dt,
+        r.model.name()
     )?;
     writeln!(
         out,
@@ -416,6 +550,47 @@ fn print_analysis(out: &mut impl Write, r: &AnalysisReport) -> std::io::Result<(
             c.spectral_radius,
             pole
         )?;
+    }
+    print_comparison(out, r)
+}
+
+fn print_comparison(out: &mut impl Write, r: &AnalysisReport) -> std::io::Result<()> {
+    let pole = |p: Option<[f64; 2]>| match p {
+        Some([re, im]) if im.abs() > 1e-9 => format!("{re:.3} ± {:.3}j", im.abs()),
+        Some([re, _]) => format!("{re:.3}"),
+        None => "—".into(),
+    };
+    writeln!(out)?;
+    writeln!(out, "Design model beside the implemented loop")?;
+    writeln!(
+        out,
+        "{:<12} {:>18} {:>18}",
+        "compensator", "design max K_BF", "implemented max K_BF"
+    )?;
+    let kbf = |k: Option<f64>| k.map_or_else(|| format!("> {MAX_KBF}"), |k| format!("{k:.4}"));
+    for c in &r.comparison {
+        writeln!(
+            out,
+            "{:<12} {:>18} {:>18}   {}",
+            c.name,
+            kbf(c.design.max_stable_kbf),
+            kbf(c.implemented.max_stable_kbf),
+            c.note
+        )?;
+        // A conjugate pair moves together: list its upper member only.
+        for d in c
+            .differences
+            .iter()
+            .filter(|d| d.design.or(d.implemented).is_some_and(|p| p[1] >= 0.0))
+        {
+            writeln!(
+                out,
+                "    {:>22} → {:<22} {}",
+                pole(d.design),
+                pole(d.implemented),
+                d.cause
+            )?;
+        }
     }
     Ok(())
 }

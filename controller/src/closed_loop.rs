@@ -72,6 +72,17 @@ impl ClosedLoop {
         })
     }
 
+    /// The same loop on another rig: the compensator stays as designed (for the setup's
+    /// plant), the rig it runs on is `rig` — how a design meets a machine that differs from
+    /// its model.
+    pub fn with_rig(&self, rig: PlantParams, noise_seed: u64) -> Result<Self, DesignError> {
+        let dt = self.plant.dt();
+        Ok(Self {
+            plant: Plant::new(rig, dt, noise_seed)?,
+            ..self.clone()
+        })
+    }
+
     pub fn compensator(&self) -> &Compensator {
         &self.compensator
     }

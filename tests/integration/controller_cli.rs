@@ -309,3 +309,93 @@ fn the_interlock_stops_the_bench_pid_on_the_machine_and_spares_stable_loops() {
     ]);
     assert!(err.contains("max_cab_rms_mm_s2"), "{err}");
 }
+
+#[test]
+fn analyze_shows_the_design_model_beside_the_implemented_loop() {
+    let placed = [-175.0, -176.0, -180.0, -190.0, -191.0, -195.0, -196.0];
+    let near = |poles: &Value, p: f64| {
+        poles
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|q| (q[0].as_f64().unwrap() - p).hypot(q[1].as_f64().unwrap()) / p.abs())
+            .fold(f64::INFINITY, f64::min)
+    };
+    let v = json_of(&["analyze", "--model", "design", "--json"]);
+    assert_eq!(v["model"], "design");
+    let lqr = &v["compensators"][3];
+    assert_eq!(lqr["name"], "lqr");
+    for p in placed {
+        assert!(near(&lqr["poles"], p) < 1e-6, "placed {p}: {lqr}");
+    }
+    let cmp = &v["comparison"][3];
+    assert_eq!(cmp["design"], *lqr);
+    // The implemented loop moves the observer poles, and each move names its cause.
+    assert!(
+        placed
+            .iter()
+            .any(|&p| near(&cmp["implemented"]["poles"], p) > 0.01)
+    );
+    let diffs = cmp["differences"].as_array().unwrap();
+    assert!(!diffs.is_empty());
+    assert!(
+        diffs
+            .iter()
+            .all(|d| d["cause"].as_str().unwrap().len() > 10)
+    );
+    // The PID family has one view.
+    assert!(
+        v["comparison"][0]["differences"]
+            .as_array()
+            .unwrap()
+            .is_empty()
+    );
+    // The default is the implemented loop, and the text output shows both.
+    let v = json_of(&["analyze", "--json"]);
+    assert_eq!(v["model"], "implemented");
+    assert_eq!(v["compensators"][3], v["comparison"][3]["implemented"]);
+    let text = controller(&["analyze", "--model", "design"]);
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(
+        text.contains("design model") && text.contains("rate filter"),
+        "{text}"
+    );
+    let err = stderr_of_failure(&["analyze", "--model", "textbook"]);
+    assert!(err.contains("design, implemented"), "{err}");
+}
+
+#[test]
+fn robustness_maps_the_margin_and_counts_the_passing_draws() {
+    let v = json_of(&[
+        "robustness",
+        "lqr",
+        "pid-notch",
+        "--grid",
+        "3",
+        "--draws",
+        "20",
+        "--json",
+    ]);
+    let reports = v.as_array().unwrap();
+    assert_eq!(reports.len(), 2);
+    let lqr = &reports[0];
+    assert_eq!(lqr["design"], "lqr");
+    assert_eq!(lqr["kh_scales"].as_array().unwrap().len(), 3);
+    let map = lqr["max_stable_kbf"].as_array().unwrap();
+    assert_eq!(map.len(), 3);
+    assert!(map.iter().all(|row| row.as_array().unwrap().len() == 3));
+    // The nominal cell is analyze's margin.
+    let a = json_of(&["analyze", "--json"]);
+    let want = a["compensators"][3]["max_stable_kbf"].as_f64().unwrap();
+    let got = map[1][1].as_f64().unwrap();
+    assert!((got - want).abs() < 2e-5, "{got} vs {want}");
+    // More K_H, less K_BF.
+    assert!(map[2][1].as_f64().unwrap() < got && map[0][1].as_f64().unwrap() > got);
+    let rate = lqr["pass_rate"].as_f64().unwrap();
+    assert!((0.0..=1.0).contains(&rate));
+    assert!(reports[1]["pass_rate"].is_number());
+    let err = stderr_of_failure(&["robustness", "lqr", "--kh-range", "20,-20"]);
+    assert!(err.contains("LO must not exceed HI"), "{err}");
+    let err = stderr_of_failure(&["robustness", "lqr:fast"]);
+    assert!(err.contains("lqr:kalman"), "{err}");
+}

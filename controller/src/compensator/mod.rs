@@ -7,9 +7,10 @@
 
 mod lqr;
 mod pid;
+pub mod variants;
 
 pub use bdft_protocol::params::{CompensatorKind, CompensatorSpec};
-pub use lqr::{CabOutput, Lqr, LqrDesign, LqrParams};
+pub use lqr::{CabOutput, Lqr, LqrDesign, LqrParams, ObserverDesign, kalman_gain};
 pub use pid::{NotchParams, Pid, PidParams, notch_filter, tyreus_luyben_pi, ziegler_nichols};
 
 use crate::error::DesignError;
@@ -142,6 +143,17 @@ impl Compensator {
         )
     }
 
+    /// The delay an input shaper adds (s), if the design has one.
+    pub fn shaper_duration(&self, dt: f64) -> Option<f64> {
+        match self {
+            Self::Pid {
+                pre: Prefilter::Shaper(s),
+                ..
+            } => Some(s.duration(dt)),
+            _ => None,
+        }
+    }
+
     fn prefilter_state(pre: &Prefilter) -> Option<&dyn LinearState> {
         match pre {
             Prefilter::None => None,
@@ -251,6 +263,41 @@ mod tests {
             );
             assert!(v.is_finite() && v.abs() <= plant.v_max, "{kind}: {v}");
         }
+    }
+
+    #[test]
+    fn robust_shaper_options_serialize_and_zv_reads_as_before() {
+        use crate::shaper::ShaperMethod;
+        let plant = PlantParams::default();
+        let zv = serde_json::to_value(default_spec(CompensatorKind::PidShaper, &plant)).unwrap();
+        assert!(zv["shaper"].get("method").is_none() && zv["shaper"].get("tolerance").is_none());
+        let spec = CompensatorSpec::PidShaper {
+            pid: ziegler_nichols(&plant),
+            shaper: ShaperParams {
+                tolerance: 0.08,
+                ..ShaperParams::between_modes(ShaperMethod::TwoHumpEi)
+            },
+        };
+        let json = serde_json::to_value(&spec).unwrap();
+        assert_eq!(json["shaper"]["method"], "two-hump-ei");
+        assert_eq!(json["shaper"]["tolerance"], 0.08);
+        assert_eq!(
+            serde_json::from_value::<CompensatorSpec>(json).unwrap(),
+            spec
+        );
+        let bad: CompensatorSpec = serde_json::from_value(serde_json::json!({
+            "kind": "pid-shaper", "pid": ziegler_nichols(&plant),
+            "shaper": {"method": "ei", "tolerance": 0.9}
+        }))
+        .unwrap();
+        let err = bad.validate().unwrap_err().to_string();
+        assert!(err.contains("shaper.tolerance"), "{err}");
+        let err = serde_json::from_value::<CompensatorSpec>(serde_json::json!({
+            "kind": "pid-shaper", "pid": ziegler_nichols(&plant), "shaper": {"method": "zvdd"}
+        }))
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("zvd") && err.contains("two-hump-ei"), "{err}");
     }
 
     #[test]

@@ -48,10 +48,16 @@ pub fn place_observer(
         v.set_column(i, &(vi / norm));
         h.set_column(i, &(hi / norm));
     }
-    let v_inv = v.try_inverse().ok_or_else(|| {
+    let v_inv = v.clone().try_inverse().ok_or_else(|| {
         DesignError::Placement("the eigenvectors are dependent (is (A, C) observable?)".into())
     })?;
-    let lt = h * v_inv;
+    let mut lt = &h * &v_inv;
+    // V is ill-conditioned for clustered poles, and the poles are as sensitive to L as V is
+    // ill-conditioned: refine the solve LᵀV = H on its residual (two steps reach rounding).
+    for _ in 0..2 {
+        let residual = &h - &lt * &v;
+        lt += residual * &v_inv;
+    }
     Ok(DMatrix::from_diagonal(&d) * lt.transpose())
 }
 

@@ -106,6 +106,7 @@ pub struct Plant {
     bd: PlantVector,
     x: PlantVector,
     params: PlantParams,
+    dt: f64,
     noise: Rng,
 }
 
@@ -123,12 +124,18 @@ impl Plant {
             bd: PlantVector::from_column_slice(bd.as_slice()),
             x: PlantVector::zeros(),
             params,
+            dt,
             noise: Rng::new(noise_seed),
         })
     }
 
     pub fn params(&self) -> &PlantParams {
         &self.params
+    }
+
+    /// The sample period it was discretized at (s).
+    pub fn dt(&self) -> f64 {
+        self.dt
     }
 
     /// The discrete transition matrices (Ad, Bd).

@@ -195,12 +195,50 @@ impl Mode {
     }
 }
 
-/// The shaper's design modes (default: the two identified structure modes).
+/// The impulse sequence shaped for each mode. `zv` cancels the mode exactly and is the
+/// shortest; the robust ones trade delay for insensitivity to the mode's frequency: `zvd`
+/// (three impulses over one damped period, zero slope of the residual at the mode), `ei`
+/// (extra-insensitive: residual `tolerance` at the mode, zero on both sides, one period) and
+/// `two-hump-ei` (four impulses over 1.5 periods, the widest band within `tolerance`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(rename_all = "kebab-case")]
+pub enum ShaperMethod {
+    #[default]
+    Zv,
+    Zvd,
+    Ei,
+    TwoHumpEi,
+}
+
+impl ShaperMethod {
+    fn is_zv(&self) -> bool {
+        *self == Self::Zv
+    }
+}
+
+/// EI shapers' residual vibration allowed at the mode, relative to no shaping.
+pub const DEFAULT_SHAPER_TOLERANCE: f64 = 0.05;
+
+fn is_default_tolerance(v: &f64) -> bool {
+    *v == DEFAULT_SHAPER_TOLERANCE
+}
+
+/// The shaper: its method and the modes it is designed for (default: the two identified
+/// structure modes, one shaper each, convolved). One mode between the two structure modes
+/// gives a single robust shaper for both. `method` and `tolerance` are left out of the JSON
+/// at their defaults, so a ZV shaper reads as it always did.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct ShaperParams {
     pub modes: Vec<Mode>,
+    #[serde(skip_serializing_if = "ShaperMethod::is_zv")]
+    pub method: ShaperMethod,
+    /// Residual vibration allowed by the EI methods (fraction, default 0.05); unused by zv
+    /// and zvd.
+    #[serde(skip_serializing_if = "is_default_tolerance")]
+    pub tolerance: f64,
 }
 
 impl Default for ShaperParams {
@@ -216,11 +254,26 @@ impl Default for ShaperParams {
                     zeta: 0.04,
                 },
             ],
+            method: ShaperMethod::Zv,
+            tolerance: DEFAULT_SHAPER_TOLERANCE,
         }
     }
 }
 
 impl ShaperParams {
+    /// A `method` shaper at one mode midway between the two structure modes (5.1 Hz, the
+    /// notch's centre; damping the modes' mean, 0.05): the robust shaper's band covers both.
+    pub fn between_modes(method: ShaperMethod) -> Self {
+        Self {
+            modes: vec![Mode {
+                f_hz: 5.1,
+                zeta: 0.05,
+            }],
+            method,
+            tolerance: DEFAULT_SHAPER_TOLERANCE,
+        }
+    }
+
     pub fn validate(&self) -> Result<(), ParamError> {
         if self.modes.is_empty() || self.modes.len() > 4 {
             return Err(ParamError::Invalid {
@@ -232,7 +285,7 @@ impl ShaperParams {
             check("shaper.modes.f_hz", m.f_hz, 0.1, 100.0)?;
             check("shaper.modes.zeta", m.zeta, 0.0, 0.7)?;
         }
-        Ok(())
+        check("shaper.tolerance", self.tolerance, 1e-3, 0.3)
     }
 }
 
@@ -247,6 +300,67 @@ pub enum CabOutput {
     Acceleration,
 }
 
+/// How the LQR's observer gain is designed.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum ObserverDesign {
+    /// Luenberger observer with the `observer_poles` placed.
+    #[default]
+    Placed,
+    /// Steady-state Kalman filter: the gain from the dual Riccati equation for white noise
+    /// of these intensities (power spectral densities, two-sided).
+    Kalman {
+        /// Disturbance on the velocity reference u ((mm/s)²·s).
+        input_noise: f64,
+        /// Disturbance on the structure's highest derivative, forcing the cab
+        /// ((mm/s⁴)²·s).
+        structure_noise: f64,
+        /// Noise of the cylinder position measurement (mm²·s).
+        position_noise: f64,
+        /// Noise of the cab measurement (its unit squared · s).
+        cab_noise: f64,
+    },
+}
+
+impl ObserverDesign {
+    fn is_placed(&self) -> bool {
+        *self == Self::Placed
+    }
+
+    /// The Kalman design for a cab measurement `cab` from an accelerometer with white noise
+    /// of `accel_noise_std` per sample at period `dt`: the accelerometer's intensity σ²·dt,
+    /// for cab velocity divided by ω₁² (the leaky integrator at the first mode, `w1`).
+    pub fn kalman_for(cab: CabOutput, accel_noise_std: f64, dt: f64, w1: f64) -> Self {
+        let accel = accel_noise_std * accel_noise_std * dt;
+        Self::Kalman {
+            input_noise: 1.0,
+            structure_noise: 1e6,
+            position_noise: 1e-4,
+            cab_noise: match cab {
+                CabOutput::Acceleration => accel,
+                CabOutput::Velocity => accel / (w1 * w1),
+            },
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), ParamError> {
+        if let Self::Kalman {
+            input_noise,
+            structure_noise,
+            position_noise,
+            cab_noise,
+        } = *self
+        {
+            check("lqr.observer.input_noise", input_noise, 0.0, 1e12)?;
+            check("lqr.observer.structure_noise", structure_noise, 0.0, 1e12)?;
+            check("lqr.observer.position_noise", position_noise, 1e-12, 1e12)?;
+            check("lqr.observer.cab_noise", cab_noise, 1e-12, 1e12)?;
+        }
+        Ok(())
+    }
+}
+
 /// LQR design and implementation parameters.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
@@ -258,8 +372,11 @@ pub struct LqrParams {
     pub alpha: f64,
     pub beta: f64,
     pub cab_output: CabOutput,
-    /// Observer poles (rad/s), real, one per state.
+    /// Observer poles (rad/s), real, one per state (the placed observer's).
     pub observer_poles: [f64; 7],
+    /// Placed poles (default, left out of the JSON) or a Kalman filter.
+    #[serde(default, skip_serializing_if = "ObserverDesign::is_placed")]
+    pub observer: ObserverDesign,
     /// Corner (rad/s) of the low-pass on the differentiated cylinder position giving ẏ.
     pub rate_filter_w: f64,
     /// Corner (rad/s) of the high-pass removing the accelerometer offset.
@@ -277,6 +394,7 @@ impl LqrParams {
             beta,
             cab_output,
             observer_poles: [-175.0, -176.0, -180.0, -190.0, -191.0, -195.0, -196.0],
+            observer: ObserverDesign::Placed,
             rate_filter_w: 2.0 * std::f64::consts::PI * 50.0,
             cab_highpass_w: 0.5,
             cab_leak_w: 0.5,
@@ -290,6 +408,7 @@ impl LqrParams {
         check("lqr.rate_filter_w", self.rate_filter_w, 1.0, 1e4)?;
         check("lqr.cab_highpass_w", self.cab_highpass_w, 1e-3, 100.0)?;
         check("lqr.cab_leak_w", self.cab_leak_w, 1e-3, 100.0)?;
+        self.observer.validate()?;
         for p in self.observer_poles {
             check("lqr.observer_poles", p, -1e4, -1e-3)?;
         }

@@ -19,6 +19,9 @@ use crate::linalg::{eigenvalues, spectral_radius};
 use crate::params::{MAX_KBF, Seat, check};
 use crate::state::LinearState;
 
+pub mod design_view;
+pub mod robustness;
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CompensatorAnalysis {
     pub name: String,
@@ -32,47 +35,94 @@ pub struct CompensatorAnalysis {
     /// Closed-loop poles [re, im] in rad/s; empty for loops with pure delays (the shaper),
     /// whose delay-line eigenvalues are not poles of a rational system.
     pub poles: Vec<[f64; 2]>,
+    /// The delay the compensator's input shaper adds to the reference (its last impulse,
+    /// s); absent for designs without one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub added_delay_s: Option<f64>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AnalysisReport {
     pub kbf: f64,
+    /// The view `compensators` reports.
+    pub model: design_view::Model,
     pub compensators: Vec<CompensatorAnalysis>,
+    /// Both views of each compensator side by side, each difference with its cause.
+    pub comparison: Vec<design_view::ModelComparison>,
 }
 
-/// The one-tick map of a closed loop, affine in K_BF.
+/// Which time the loop's matrix maps: one tick of the sampled loop (the implemented view), or
+/// the state derivative of a continuous-time loop (the design view, [`design_view`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Domain {
+    Sampled,
+    Continuous,
+}
+
+/// The linear map of a closed loop, affine in K_BF.
 #[derive(Debug, Clone)]
 pub struct LinearizedLoop {
     a0: DMatrix<f64>,
     a1: DMatrix<f64>,
     dt: f64,
+    domain: Domain,
     has_delays: bool,
+    added_delay_s: Option<f64>,
 }
 
 impl LinearizedLoop {
     /// Reads the loop's map off `tick` at the station "on" (feedthrough closed).
     pub fn new(setup: &LoopSetup) -> Result<Self, DesignError> {
-        let mut setup = setup.clone();
-        setup.station = Seat::On;
-        setup.plant.accel_noise_std = 0.0;
-        setup.plant.dead_band = 0.0;
-        let mut lp = ClosedLoop::new(&setup, 0)?;
-        let a0 = probe(&mut lp, 0.0);
-        let a1 = probe(&mut lp, 1.0);
-        Ok(Self {
+        let mut lp = ClosedLoop::new(&linear_setup(setup), 0)?;
+        Ok(Self::read_off(&mut lp, setup.loop_params.dt))
+    }
+
+    /// Reads the map off a loop built from a [`linear_setup`].
+    pub fn read_off(lp: &mut ClosedLoop, dt: f64) -> Self {
+        let a0 = probe(lp, 0.0);
+        let a1 = probe(lp, 1.0);
+        Self {
             a1: a1 - &a0,
             a0,
-            dt: setup.loop_params.dt,
+            dt,
+            domain: Domain::Sampled,
             has_delays: lp.compensator().has_delays(),
-        })
+            added_delay_s: lp.compensator().shaper_duration(dt),
+        }
+    }
+
+    /// A continuous-time loop ẋ = (A₀ + K_BF·A₁)x; `dt` is the loop period its spectral
+    /// radius is reported at.
+    pub fn continuous(a0: DMatrix<f64>, a1: DMatrix<f64>, dt: f64) -> Self {
+        Self {
+            a0,
+            a1,
+            dt,
+            domain: Domain::Continuous,
+            has_delays: false,
+            added_delay_s: None,
+        }
+    }
+
+    pub fn domain(&self) -> Domain {
+        self.domain
     }
 
     pub fn matrix(&self, k_bf: f64) -> DMatrix<f64> {
         &self.a0 + &self.a1 * k_bf
     }
 
+    /// Largest eigenvalue magnitude over one loop period: for a continuous loop that of its
+    /// exact discretization, e^{max Re(s)·dt}, so both views read the same way.
     pub fn spectral_radius(&self, k_bf: f64) -> Result<f64, DesignError> {
-        spectral_radius(&self.matrix(k_bf))
+        let m = self.matrix(k_bf);
+        match self.domain {
+            Domain::Sampled => spectral_radius(&m),
+            Domain::Continuous => Ok(eigenvalues(&m)?
+                .iter()
+                .map(|s| (s.re * self.dt).exp())
+                .fold(0.0, f64::max)),
+        }
     }
 
     pub fn is_stable(&self, k_bf: f64) -> Result<bool, DesignError> {
@@ -83,11 +133,11 @@ impl LinearizedLoop {
     pub fn poles(&self, k_bf: f64) -> Result<Vec<[f64; 2]>, DesignError> {
         let mut poles: Vec<[f64; 2]> = eigenvalues(&self.matrix(k_bf))?
             .into_iter()
-            .filter(|z| z.norm() > 1e-9)
-            .map(|z| {
-                let s = z.ln() / self.dt;
-                [s.re, s.im]
+            .filter_map(|z| match self.domain {
+                Domain::Sampled => (z.norm() > 1e-9).then(|| z.ln() / self.dt),
+                Domain::Continuous => Some(z),
             })
+            .map(|s| [s.re, s.im])
             .collect();
         poles.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
         Ok(poles)
@@ -95,6 +145,12 @@ impl LinearizedLoop {
 
     /// Largest K with the loop stable on all of [0, K] (see [`CompensatorAnalysis`]).
     pub fn max_stable_kbf(&self) -> Result<Option<f64>, DesignError> {
+        self.max_stable_up_to(MAX_KBF)
+    }
+
+    /// Largest K ≤ `limit` with the loop stable on all of [0, K]; `None` when stable on all
+    /// of [0, limit].
+    pub fn max_stable_up_to(&self, limit: f64) -> Result<Option<f64>, DesignError> {
         if !self.is_stable(0.0)? {
             return Ok(Some(0.0));
         }
@@ -103,8 +159,8 @@ impl LinearizedLoop {
         let grid = 0.05;
         let mut lo = 0.0;
         let mut hi = None;
-        while lo < MAX_KBF {
-            let k = (lo + grid).min(MAX_KBF);
+        while lo < limit {
+            let k = (lo + grid).min(limit);
             if self.is_stable(k)? {
                 lo = k;
             } else {
@@ -125,6 +181,22 @@ impl LinearizedLoop {
         }
         Ok(Some(lo))
     }
+}
+
+/// The setup as the analysis linearizes it: station on (feedthrough closed), no
+/// accelerometer noise, no dead-band.
+pub fn linear_setup(setup: &LoopSetup) -> LoopSetup {
+    let mut setup = setup.clone();
+    setup.station = Seat::On;
+    setup.plant = linear_rig(setup.plant);
+    setup
+}
+
+/// A rig without its nonlinear and random parts.
+pub fn linear_rig(mut rig: crate::params::PlantParams) -> crate::params::PlantParams {
+    rig.accel_noise_std = 0.0;
+    rig.dead_band = 0.0;
+    rig
 }
 
 /// Column i of the map is tick(εeᵢ)/ε with no input; ε is small enough that nothing
@@ -150,11 +222,19 @@ fn probe(lp: &mut ClosedLoop, k_bf: f64) -> DMatrix<f64> {
     a
 }
 
-/// Analyses one compensator at the setup's K_BF.
+/// Analyses one compensator at the setup's K_BF, as implemented (the sampled loop).
 pub fn analyze(setup: &LoopSetup) -> Result<CompensatorAnalysis, DesignError> {
+    check("kbf", setup.loop_params.k_bf, 0.0, MAX_KBF)?;
+    analyze_loop(setup, &LinearizedLoop::new(setup)?)
+}
+
+/// Verdict, margin and poles of one linearized loop at the setup's K_BF.
+pub fn analyze_loop(
+    setup: &LoopSetup,
+    lin: &LinearizedLoop,
+) -> Result<CompensatorAnalysis, DesignError> {
     let k_bf = setup.loop_params.k_bf;
     check("kbf", k_bf, 0.0, MAX_KBF)?;
-    let lin = LinearizedLoop::new(setup)?;
     let rho = lin.spectral_radius(k_bf)?;
     Ok(CompensatorAnalysis {
         name: setup.compensator.kind().name().to_string(),
@@ -166,5 +246,6 @@ pub fn analyze(setup: &LoopSetup) -> Result<CompensatorAnalysis, DesignError> {
         } else {
             lin.poles(k_bf)?
         },
+        added_delay_s: lin.added_delay_s,
     })
 }
