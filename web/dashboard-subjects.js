@@ -259,7 +259,24 @@ async function loadSchedule(id) {
   renderSchedule(r.data);
 }
 
-const FINISHED = ['complete', 'aborted', 'incomplete'];
+const FINISHED = ['complete', 'aborted', 'incomplete', 'invalid'];
+
+/** The test's validity figures: what the station's display did and how the controller kept time. */
+function validityLine(t) {
+  const parse = (j) => {
+    try {
+      return j ? JSON.parse(j) : null;
+    } catch {
+      return null;
+    }
+  };
+  const d = parse(t.client_timing_json);
+  const c = parse(t.timing_json);
+  const parts = [];
+  if (d) parts.push(`display: ${d.frames} frames, longest gap ${Math.round(d.longest_gap_ms ?? 0)} ms, hidden ${Math.round(d.hidden_ms ?? 0)} ms, input ${Math.round(d.input_hz ?? 0)} Hz, round trip p95 ${num(d.rtt_ms && d.rtt_ms.p95)} ms`);
+  if (c) parts.push(`controller: ${c.overruns} overruns, wake p99 ${num(c.wake_latency_us && c.wake_latency_us.p99)} µs`);
+  return parts.length ? el('div', { class: 'sub validity' }, parts.join(' · ')) : null;
+}
 
 const HEADERS = [
   ['Slot', 'Slot in the schedule (0 = practice), attempt and trial id'],
@@ -346,7 +363,7 @@ function renderSchedule(d) {
       const isLatest = latest.get(t.slot) === t;
       const st = rowStatus.get(`trial-${t.id}`);
       const canRedo = isLatest && FINISHED.includes(t.status);
-      const canIncomplete = t.status === 'complete' || t.status === 'scheduled';
+      const canIncomplete = isLatest && !t.accepted_reason && t.status !== 'running';
       return [
         el('td', { class: 'slot' }, el('strong', {}, t.slot), el('div', { class: 'sub' }, `att. ${t.attempt}`), el('div', { class: 'sub' }, `trial ${t.id}`)),
         el('td', { class: 'where' }, el('strong', {}, t.station), el('div', { class: 'sub' }, `block ${t.block} · pos. ${t.position}`)),
@@ -364,6 +381,8 @@ function renderSchedule(d) {
           next && next.id === t.id && t.status === 'scheduled' ? el('span', { class: 'tag next' }, 'next') : null,
           isLatest ? null : el('span', { class: 'tag' }, 'superseded'),
           t.status_reason ? el('div', { class: 'reason' }, t.status_reason) : null,
+          t.accepted_reason ? el('div', { class: 'reason' }, `accepted as incomplete: ${t.accepted_reason}`) : null,
+          validityLine(t),
         ),
         el('td', { class: 'num', title: t.mse_tracking_mm2 ?? '' }, num(t.mse_tracking_mm2)),
         el('td', { class: 'num', title: t.ms_cab_accel ?? '' }, num(t.ms_cab_accel)),
@@ -400,7 +419,7 @@ function renderSchedule(d) {
           ),
           el(
             'button',
-            { type: 'button', class: 'small', 'data-action': 'incomplete', 'data-trial-id': t.id, disabled: !canIncomplete, title: 'Mark this test incomplete (the typed reason is required)' },
+            { type: 'button', class: 'small', 'data-action': 'incomplete', 'data-trial-id': t.id, disabled: !canIncomplete, title: 'Accept this test as incomplete: it is not repeated (the typed reason is required, kept with the test and in the audit log)' },
             'Mark incomplete',
           ),
           el('button', { type: 'button', class: 'small', 'data-action': 'note', 'data-trial-id': t.id, title: 'Add the typed text as a note on this test' }, 'Add note'),

@@ -62,8 +62,9 @@ const ADMIN_ONLY: &str = "/api/accounts";
 
 /// The state-changing routes an analyst may call. The E-stop is among them on purpose: in a
 /// lab anyone logged in who sees a person in danger must be able to stop the machine, the
-/// read-only analyst too. Resetting it is not: that lets the machine move again.
-const ANALYST_MAY_CHANGE: &[&str] = &["/api/estop", "/api/logout"];
+/// read-only analyst too. Resetting it is not: that lets the machine move again. The power
+/// planner is a POST for its body but changes nothing: planning is an analyst's work.
+const ANALYST_MAY_CHANGE: &[&str] = &["/api/estop", "/api/logout", "/api/studies/{id}/plan"];
 
 /// What `role` may do on the route `path` (as registered) with `method`: anything not
 /// listed for it is refused, so a new route fails closed.
@@ -78,7 +79,7 @@ fn role_allows(role: Role, method: &Method, path: &str) -> Result<(), AppError> 
     let reads = matches!(*method, Method::GET | Method::HEAD | Method::OPTIONS);
     if role == Role::Analyst && !reads && !ANALYST_MAY_CHANGE.contains(&path) {
         return Err(AppError::Forbidden(
-            "your role is analyst: it may read studies, subjects, results, exports and the audit log, and press the E-stop, but change nothing".into(),
+            "your role is analyst: it may read studies, subjects, results, exports and the audit log, plan a study's power, and press the E-stop, but change nothing".into(),
         ));
     }
     Ok(())
