@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::controller_to_server::LiveSample;
 use crate::params::{CompensatorKind, Seat};
 use crate::records::{DoneReason, StationRole};
-use crate::study::{ConsentForm, SurveyParams};
+use crate::study::{ConsentForm, StudyTexts, SurveyParams};
 
 /// What a station shows its subject now.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -18,6 +18,10 @@ pub struct StationView {
     #[serde(flatten)]
     pub phase: Phase<TestView>,
     pub station: StationInfo,
+    /// The study's texts with their placeholders filled in (absent while no subject is
+    /// assigned).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub texts: Option<StudyTexts>,
 }
 
 /// The station itself, as its page shows it.

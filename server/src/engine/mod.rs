@@ -17,6 +17,7 @@ pub mod passwords;
 pub mod pilot;
 pub mod plots;
 pub mod results;
+pub mod runnable;
 pub mod schedule;
 pub mod stability;
 pub mod station_sockets;
