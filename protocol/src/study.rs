@@ -207,7 +207,11 @@ pub const MAX_TEXT_CHARS: usize = 2000;
 /// Fills in the placeholders of the text `name`: `{key}` by its value in `values`, `{{` and
 /// `}}` by a brace. An unknown placeholder or an unclosed brace is an error naming the text,
 /// the placeholder and the allowed ones.
-pub fn render(name: &'static str, text: &str, values: &[(&str, String)]) -> Result<String, ParamError> {
+pub fn render(
+    name: &'static str,
+    text: &str,
+    values: &[(&str, String)],
+) -> Result<String, ParamError> {
     let invalid = |message: String| ParamError::Invalid { name, message };
     let allowed = || {
         values
@@ -224,10 +228,10 @@ pub fn render(name: &'static str, text: &str, values: &[(&str, String)]) -> Resu
         if tail.starts_with("{{") || tail.starts_with("}}") {
             out.push_str(&tail[..1]);
             rest = &tail[2..];
-        } else if tail.starts_with('}') {
+        } else if let Some(after) = tail.strip_prefix('}') {
             // A lone closing brace is just a brace.
             out.push('}');
-            rest = &tail[1..];
+            rest = after;
         } else {
             let Some(end) = tail.find('}') else {
                 return Err(invalid(format!(
@@ -556,10 +560,18 @@ mod tests {
         let err = render("consent.text", "ten {tests_total}", &v)
             .unwrap_err()
             .to_string();
-        assert!(err.starts_with("consent.text: unknown placeholder {tests_total}"), "{err}");
+        assert!(
+            err.starts_with("consent.text: unknown placeholder {tests_total}"),
+            "{err}"
+        );
         assert!(err.contains("allowed: {tests}, {trial_s}"), "{err}");
-        let err = render("texts.ready", "a {tests", &v).unwrap_err().to_string();
-        assert!(err.starts_with("texts.ready:") && err.contains("{{"), "{err}");
+        let err = render("texts.ready", "a {tests", &v)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with("texts.ready:") && err.contains("{{"),
+            "{err}"
+        );
         // Multi-byte text around placeholders.
         assert_eq!(render("t", "é{tests}ü", &v).unwrap(), "é10ü");
     }

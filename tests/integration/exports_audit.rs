@@ -64,14 +64,27 @@ fn notes_and_reasons_are_exported_and_the_audit_log_too() {
     let (_, s) = api.get(&format!("/api/subjects/{subject}"));
     let trial = s["trials"][1]["trial"]["id"].as_i64().unwrap();
     // A note and reasons whose text a spreadsheet would read as formulas.
-    api.ok(&format!("/api/trials/{trial}/note"), json!({ "text": "\u{a0}=HYPERLINK(\"x\")" }));
-    api.ok(&format!("/api/trials/{trial}/incomplete"), json!({ "reason": " =1+1 felt ill" }));
-    api.ok(&format!("/api/trials/{trial}/redo"), json!({ "reason": "\u{3000}+retry later" }));
+    api.ok(
+        &format!("/api/trials/{trial}/note"),
+        json!({ "text": "\u{a0}=HYPERLINK(\"x\")" }),
+    );
+    api.ok(
+        &format!("/api/trials/{trial}/incomplete"),
+        json!({ "reason": " =1+1 felt ill" }),
+    );
+    api.ok(
+        &format!("/api/trials/{trial}/redo"),
+        json!({ "reason": "\u{3000}+retry later" }),
+    );
 
     let (code, text) = api.get_text(&format!("/api/studies/{study}/export/notes"));
     assert_eq!(code, 200, "{text}");
     let rows = parse_csv(&text);
-    let (kind, body, id) = (column(&rows, "kind"), column(&rows, "text"), column(&rows, "trial_id"));
+    let (kind, body, id) = (
+        column(&rows, "kind"),
+        column(&rows, "text"),
+        column(&rows, "trial_id"),
+    );
     let of = |k: &str| {
         rows.iter()
             .find(|r| r[kind] == k && r[id] == trial.to_string())
@@ -90,17 +103,36 @@ fn notes_and_reasons_are_exported_and_the_audit_log_too() {
     let (code, text) = api.get_text("/api/audit/export");
     assert_eq!(code, 200, "{text}");
     let audit = parse_csv(&text);
-    assert_eq!(audit[0], ["id", "at", "actor", "action", "target", "detail"]);
+    assert_eq!(
+        audit[0],
+        ["id", "at", "actor", "action", "target", "detail"]
+    );
     let action = column(&audit, "action");
-    for a in ["study.create", "consent", "trial.note", "trial.mark_incomplete", "trial.redo"] {
-        assert!(audit.iter().any(|r| r[action] == a), "no {a} in the audit export");
+    for a in [
+        "study.create",
+        "consent",
+        "trial.note",
+        "trial.mark_incomplete",
+        "trial.redo",
+    ] {
+        assert!(
+            audit.iter().any(|r| r[action] == a),
+            "no {a} in the audit export"
+        );
     }
     let (code, body) = api.get(&format!("/api/studies/{study}/export/audit"));
     assert_eq!(code, 422, "{body}");
     let dir = TempDir::new("exports-audit-cli");
     let out = dir.path().join("audit.csv");
     let status = Command::new(binary("bdft-server"))
-        .args(["export", "--kind", "audit", "--db", server.db.to_str().unwrap(), "--out"])
+        .args([
+            "export",
+            "--kind",
+            "audit",
+            "--db",
+            server.db.to_str().unwrap(),
+            "--out",
+        ])
         .arg(&out)
         .status()
         .unwrap();
@@ -120,7 +152,10 @@ fn trials_of(api: &Api, study: i64) -> Vec<(i64, String, String)> {
     let (_, subjects) = api.get(&format!("/api/studies/{study}/subjects"));
     let mut out = Vec::new();
     for s in subjects.as_array().unwrap() {
-        let id = s["subject"]["id"].as_i64().or_else(|| s["id"].as_i64()).unwrap();
+        let id = s["subject"]["id"]
+            .as_i64()
+            .or_else(|| s["id"].as_i64())
+            .unwrap();
         let (_, detail) = api.get(&format!("/api/subjects/{id}"));
         for t in detail["trials"].as_array().unwrap() {
             let t = &t["trial"];
@@ -139,7 +174,13 @@ fn a_killed_pilot_process_leaves_no_trial_running() {
     let server = Server::start("exports-killed-pilot");
     let api = server.experimenter();
     let mut pilot = Command::new(binary("bdft-server"))
-        .args(["pilot", "--subjects", "2", "--db", server.db.to_str().unwrap()])
+        .args([
+            "pilot",
+            "--subjects",
+            "2",
+            "--db",
+            server.db.to_str().unwrap(),
+        ])
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
@@ -174,5 +215,10 @@ fn a_killed_pilot_process_leaves_no_trial_running() {
         .filter(|e| e["action"] == "pilot.end")
         .collect();
     assert_eq!(ended.len(), 1, "{audit}");
-    assert!(ended[0]["detail"]["reason"].as_str().unwrap().contains("no heartbeat"));
+    assert!(
+        ended[0]["detail"]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("no heartbeat")
+    );
 }

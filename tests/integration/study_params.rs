@@ -11,7 +11,10 @@ use serde_json::{Value, json};
 
 /// POSTs a study with `params`; returns (status, error message).
 fn create(api: &Api, params: &Value) -> (u16, String) {
-    let (code, body) = api.post("/api/studies", json!({ "name": "checked", "params": params }));
+    let (code, body) = api.post(
+        "/api/studies",
+        json!({ "name": "checked", "params": params }),
+    );
     (code, body["error"].as_str().unwrap_or_default().to_string())
 }
 
@@ -59,11 +62,20 @@ fn a_study_that_cannot_run_is_refused_at_creation_and_edit_naming_the_field() {
     p["consent"]["text"] = json!("You do {tests} tests in {hours} hours.");
     let (code, err) = create(&api, &p);
     assert_eq!(code, 422, "{err}");
-    assert!(err.starts_with("consent.text: unknown placeholder {hours}"), "{err}");
-    assert!(err.contains("{trial_s}") && err.contains("{minutes}"), "{err}");
+    assert!(
+        err.starts_with("consent.text: unknown placeholder {hours}"),
+        "{err}"
+    );
+    assert!(
+        err.contains("{trial_s}") && err.contains("{minutes}"),
+        "{err}"
+    );
 
     // The same checks on an edit: nothing is saved.
-    let st = api.ok("/api/studies", json!({ "name": "ok", "params": defaults(&api) }));
+    let st = api.ok(
+        "/api/studies",
+        json!({ "name": "ok", "params": defaults(&api) }),
+    );
     let id = st["id"].as_i64().unwrap();
     let mut p = defaults(&api);
     p["target_std_mm"] = json!(32.0);
@@ -73,7 +85,12 @@ fn a_study_that_cannot_run_is_refused_at_creation_and_edit_naming_the_field() {
         Some(json!({ "name": "ok", "params": p, "version": st["version"] })),
     );
     assert_eq!(code, 422, "{body}");
-    assert!(body["error"].as_str().unwrap().starts_with("target_std_mm: "));
+    assert!(
+        body["error"]
+            .as_str()
+            .unwrap()
+            .starts_with("target_std_mm: ")
+    );
     let (_, now) = api.get(&format!("/api/studies/{id}"));
     assert_eq!(now["version"], st["version"]);
 }
@@ -118,7 +135,10 @@ fn the_station_gets_its_texts_filled_in_from_the_parameters() {
     );
     assert!(!consent.contains('{'), "{consent}");
     assert_eq!(state["texts"]["language"], "de");
-    assert_eq!(state["texts"]["ready"], "Gleich geht es los: 6 Tests zu je 90 s.");
+    assert_eq!(
+        state["texts"]["ready"],
+        "Gleich geht es los: 6 Tests zu je 90 s."
+    );
     assert_eq!(state["texts"]["before_test"], "The test lasts 90 seconds.");
 
     // The practice runs the study's own design of its practice compensator.
@@ -164,27 +184,40 @@ fn the_station_page_shows_the_texts_confirms_a_decline_fits_and_counts_the_comme
     let downloads = TempDir::new("params-station-downloads");
     let driver = Driver::start();
     let page = driver.session(downloads.path());
-    page.cmd("POST", "/window/rect", json!({ "width": 1280, "height": 800 }))
-        .expect("window size");
+    page.cmd(
+        "POST",
+        "/window/rect",
+        json!({ "width": 1280, "height": 800 }),
+    )
+    .expect("window size");
     page.goto(&format!("{}/station", api.base));
     page.exec(
         "localStorage.setItem('bdft-station-token', arguments[0]); localStorage.setItem('bdft-station-paired', '1'); location.reload();",
         json!([token]),
     );
     page.wait_phase("consent");
-    assert_eq!(page.exec("return document.documentElement.lang", json!([])), "de");
+    assert_eq!(
+        page.exec("return document.documentElement.lang", json!([])),
+        "de"
+    );
     assert!(page.text("#consent-text").contains("6 tests of 1 seconds"));
     // Declining asks once more; going back leaves the decision open.
     page.click("#consent-decline");
     page.find("#decline-confirm");
-    assert!(page.visible("#consent-agree").is_none(), "the choice gives way to the question");
+    assert!(
+        page.visible("#consent-agree").is_none(),
+        "the choice gives way to the question"
+    );
     page.click("#decline-back");
     page.find("#consent-agree");
     page.click("#consent-agree");
     page.wait_phase("ready");
     // At 1280 × 800 the practice's Ready screen (the longest) fits: "the experimenter will
     // start it" is seen without scrolling.
-    page.wait_until("return document.getElementById('ready-note').textContent", json!([]));
+    page.wait_until(
+        "return document.getElementById('ready-note').textContent",
+        json!([]),
+    );
     let note = page.text("#ready-note");
     assert!(note.contains("6 Tests zu je 1 s"), "{note}");
     let fits = page.exec(
@@ -193,14 +226,20 @@ fn the_station_page_shows_the_texts_confirms_a_decline_fits_and_counts_the_comme
         json!([]),
     );
     let (bottom, height) = (fits[0].as_f64().unwrap(), fits[1].as_f64().unwrap());
-    assert!(bottom > 0.0 && bottom <= height, "the ready note ends at {bottom} of {height}: {fits}");
+    assert!(
+        bottom > 0.0 && bottom <= height,
+        "the ready note ends at {bottom} of {height}: {fits}"
+    );
 
     // The practice and the first test; then the survey's comment box counts.
     run_at_page(&api, subject, 0);
     run_at_page(&api, subject, 1);
     page.wait_phase("survey");
     assert_eq!(
-        page.exec("return document.getElementById('comment').maxLength", json!([])),
+        page.exec(
+            "return document.getElementById('comment').maxLength",
+            json!([])
+        ),
         json!(2000)
     );
     assert_eq!(page.text("#comment-count"), "0 / 2000");

@@ -49,11 +49,12 @@ pub async fn file_result(
     Ok(true)
 }
 
-/// Marks every running trial incomplete with `reason` (server restart, controller lost);
-/// returns their ids.
+/// Marks every running trial of this server's controller incomplete with `reason` (server
+/// restart, controller lost); returns their ids. A pilot process's trials run on its own
+/// controller: they end with its heartbeat (`end_lost_pilots`), not with this server's.
 pub async fn interrupt_running(pool: &SqlitePool, reason: &str) -> Result<Vec<i64>> {
     let mut change = Change::begin(pool, "system").await?;
-    let ids = store::trials::interrupt_running(change.db(), reason).await?;
+    let ids = store::pilot_runs::interrupt_server_trials(change.db(), reason).await?;
     if !ids.is_empty() {
         change
             .commit(

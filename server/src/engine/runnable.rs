@@ -28,9 +28,7 @@ pub fn check(params: &StudyParams) -> Result<()> {
 /// design of it, else that compensator's design for people, as enrolment chooses).
 fn designs(params: &StudyParams) -> Vec<CompensatorSpec> {
     let mut specs = params.controllers.clone();
-    if params.practice_s > 0.0
-        && !specs.iter().any(|c| c.kind() == params.practice_controller)
-    {
+    if params.practice_s > 0.0 && !specs.iter().any(|c| c.kind() == params.practice_controller) {
         specs.push(bdft_controller::compensator::study_spec(
             params.practice_controller,
             &params.plant,

@@ -210,12 +210,18 @@ mod tests {
             consent.text
         );
         assert_eq!(texts.before_test, "The test lasts 140 seconds.");
-        assert!(texts.before_practice.starts_with("The test lasts 120 seconds."));
+        assert!(
+            texts
+                .before_practice
+                .starts_with("The test lasts 120 seconds.")
+        );
         p.trial_s = 90.0;
         p.controllers.truncate(3);
         let (consent, _) = p.rendered_texts().unwrap();
         assert!(
-            consent.text.contains("then 6 tests of 90 seconds, 3 of them"),
+            consent
+                .text
+                .contains("then 6 tests of 90 seconds, 3 of them"),
             "{}",
             consent.text
         );
@@ -229,7 +235,12 @@ mod tests {
         );
         p.consent = ConsentForm::default();
         p.texts.language = "not a tag!".into();
-        assert!(p.validate().unwrap_err().to_string().starts_with("texts.language:"));
+        assert!(
+            p.validate()
+                .unwrap_err()
+                .to_string()
+                .starts_with("texts.language:")
+        );
     }
 
     #[test]

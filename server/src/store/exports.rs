@@ -102,7 +102,8 @@ pub struct NoteRow {
 
 /// Audit actions whose detail carries the reason an experimenter gave for a test, and the
 /// kind each is exported as.
-const REASON_ACTIONS: &str = "'trial.redo', 'trial.abort', 'trial.mark_incomplete', 'trial.start_failed'";
+const REASON_ACTIONS: &str =
+    "'trial.redo', 'trial.abort', 'trial.mark_incomplete', 'trial.start_failed'";
 
 /// Every note and reason about the study's subjects who have not withdrawn and their tests,
 /// in schedule order, then time.

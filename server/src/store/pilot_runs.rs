@@ -71,3 +71,18 @@ pub async fn end(db: &mut SqliteConnection, run_id: i64, reason: &str) -> Result
         .await?;
     Ok(ids.into_iter().map(|r| r.0).collect())
 }
+
+/// Marks the running trials of this server's controller incomplete with `reason` (a
+/// restart, the controller lost) — not those a pilot process runs on its own controller,
+/// which this server's losses do not touch; returns their ids.
+pub async fn interrupt_server_trials(db: &mut SqliteConnection, reason: &str) -> Result<Vec<i64>> {
+    let ids: Vec<(i64,)> = sqlx::query_as(
+        "UPDATE trials SET status = 'incomplete', status_reason = ?, finished_at = MAX(?, COALESCE(started_at, 0)) \
+         WHERE status = 'running' AND id NOT IN (SELECT trial_id FROM pilot_trials) RETURNING id",
+    )
+    .bind(reason)
+    .bind(now_ms())
+    .fetch_all(db)
+    .await?;
+    Ok(ids.into_iter().map(|r| r.0).collect())
+}
