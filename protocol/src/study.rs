@@ -356,15 +356,6 @@ impl StudyParams {
                 ),
             );
         }
-        if self.practice_s > 0.0 && self.practice_s < self.step_interval_s {
-            return invalid(
-                "practice_s",
-                format!(
-                    "{} s is shorter than one step of {} s (step_interval_s); use 0 for no practice or at least {} s",
-                    self.practice_s, self.step_interval_s, self.step_interval_s
-                ),
-            );
-        }
         check("target_range_mm", self.target_range_mm, 1.0, 500.0)?;
         check(
             "target_std_mm",
