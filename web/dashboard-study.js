@@ -18,6 +18,50 @@ const FIELDS = [
   { id: 'p-rig', path: ['rig'], text: true },
 ];
 
+/**
+ * The texts the station shows (consent form and instructions), each a field of its own in
+ * "Texts the station shows". `long` ones are text areas.
+ */
+const TEXT_FIELDS = [
+  { key: 'consent.version', label: 'Consent form version' },
+  { key: 'consent.text', label: 'Consent form text', long: 8 },
+  { key: 'texts.language', label: 'Language of the texts (a tag such as en, de, fr-CH)' },
+  { key: 'texts.instructions', label: 'Instructions before every test', long: 4 },
+  { key: 'texts.before_practice', label: 'Before the practice', long: 3 },
+  { key: 'texts.before_test', label: 'Before a scored test', long: 2 },
+  { key: 'texts.ready', label: 'While waiting for the start' },
+  { key: 'texts.move_to_on', label: 'Move to the seat on the machine' },
+  { key: 'texts.move_to_off', label: 'Move to the seat at the desk' },
+  { key: 'texts.move_note', label: 'Under a move' },
+  { key: 'texts.finished_title', label: 'The end, every test done: heading' },
+  { key: 'texts.finished', label: 'The end, every test done', long: 2 },
+  { key: 'texts.declined_title', label: 'Consent declined: heading' },
+  { key: 'texts.declined', label: 'Consent declined', long: 2 },
+  { key: 'texts.withdrawn_title', label: 'Withdrawn: heading' },
+  { key: 'texts.withdrawn', label: 'Withdrawn', long: 2 },
+];
+
+/** The placeholders a text may hold (as the server's `PLACEHOLDERS`). */
+const PLACEHOLDERS = ['{tests}', '{tests_per_station}', '{trial_s}', '{practice_s}', '{minutes}'];
+
+/** Adds the texts' fields to the form (after the numeric fields) and to FIELDS. */
+function addTextFields() {
+  const fields = TEXT_FIELDS.map((t) => {
+    const id = `p-${t.key.replace('.', '-')}`;
+    FIELDS.push({ id, path: t.key.split('.'), text: true, exact: true });
+    const control = t.long
+      ? el('textarea', { id, rows: t.long, 'data-param': t.key })
+      : el('input', { id, 'data-param': t.key, autocomplete: 'off' });
+    return el('label', { class: 'text-field' }, t.label, control);
+  });
+  const box = el('details', { id: 'p-texts' },
+    el('summary', {}, 'Texts the station shows (consent form, instructions) and their language'),
+    el('p', { class: 'muted small' },
+      `Placeholders the server fills in from the parameters: ${PLACEHOLDERS.join(', ')} (tests in all and at each seat, the test's and the practice's seconds, minutes of tracking in all); {{ and }} for a brace. A blank line starts a new paragraph.`),
+    el('div', { class: 'text-fields' }, ...fields));
+  $('p-controllers').before(box);
+}
+
 /** What the form holds: 'draft' (a study not yet created) or 'study' (the selected one). */
 let mode = 'draft';
 /** The study as the form was filled from it: an edit is based on its `version`. */
@@ -27,6 +71,7 @@ let defaults = null;
 const STORE_KEY = 'bdft.dashboard.study';
 
 export function init() {
+  addTextFields();
   $('study-select').addEventListener('change', () => {
     const id = Number($('study-select').value);
     if (id) select(id);
@@ -208,7 +253,7 @@ function fillForm(params) {
   const ctl = Array.isArray(params.controllers) ? params.controllers.map((c) => controllerName(c.kind)) : [];
   $('p-controllers').textContent =
     `Controllers compared (${ctl.length}): ${ctl.join(', ')} · practice: ${controllerName(params.practice_controller)} ` +
-    `· stations: ${(params.stations || []).join(', ')} · consent form v${params.consent && params.consent.version} — edit these in Advanced.`;
+    `· stations: ${(params.stations || []).join(', ')} — edit these in Advanced.`;
 }
 
 function setReadOnly(ro) {
@@ -385,8 +430,9 @@ function ignoredText() {
 function markField(message) {
   for (const f of FIELDS) {
     const key = f.path.join('.');
-    if (message.includes(key) || message.includes(f.path[f.path.length - 1])) {
+    if (message.includes(key) || (!f.exact && message.includes(f.path[f.path.length - 1]))) {
       $(f.id).classList.add('invalid');
+      if (f.exact) $('p-texts').open = true;
     }
   }
 }

@@ -23,6 +23,8 @@ const WINDOW_S = 5;          // the strip chart shows the last 5 s
 const LONG_FRAME_MS = 25;
 const SHAKE_OMEGA = 2 * Math.PI * 4; // the cab's 4 Hz mode (rad/s)
 const MAX_INPUT_MM = 1000;   // the server drops anything larger
+/** Longest survey comment, in characters (protocol: study::MAX_COMMENT_CHARS). */
+const MAX_COMMENT_CHARS = 2000;
 const PHASES = ['loading', 'unpaired', 'waiting', 'consent', 'ready', 'running', 'survey', 'move', 'held', 'done'];
 /** While a test runs, the display's health goes to the server this often (and at once when
  * the page is hidden or shown): the server stops a test whose display is hidden or stalled. */
@@ -278,6 +280,7 @@ function show(s) {
   const displayed = paired && replaced ? 'replaced' : paired && latched ? 'stopped' : phase;
   const active = displayed === phase;
   $('station-name').textContent = s.station && s.station.name ? `Station ${s.station.name}` : '';
+  setLanguage(s);
 
   // Leaving a running test (or a different test now running, or stopped): report the
   // page's timing.
@@ -336,26 +339,22 @@ const renderers = {
   consent(s) {
     const c = s.consent || {};
     $('consent-version').textContent = c.version || '';
-    $('consent-text').textContent = c.text || '';
+    $('consent-text').replaceChildren(...paragraphs(c.text));
     $('consent-text').scrollTop = 0;
+    confirmDecline(false, false);
     setConsentBusy(false);
   },
   ready(s) {
     const t = s.test;
+    const texts = s.texts || {};
     $('ready-label').textContent = t.label;
     $('ready-progress').textContent = t.practice ? 'Practice run' : `Test ${t.number} of ${t.of}`;
-    const secs = Math.round(t.duration_s);
-    const how = [
-      el('p', {}, 'You will see two lines moving from right to left: the ',
-        el('span', { class: 'swatch-word target-word' }, 'yellow target'), ' and the ',
-        el('span', { class: 'swatch-word cylinder-word' }, 'blue machine'), ' line.'),
-      el('p', {}, 'Move the machine so that the blue line follows the yellow line as closely as you can: move the pointer (mouse, pen or finger) up and down over the display, or use the input device.'),
-      el('p', {}, `The test lasts ${secs} seconds.`),
-    ];
-    if (t.practice) {
-      how.push(el('p', { class: 'strong' }, 'This is a practice run to get familiar with the display and the input. It is not scored.'));
-    }
-    $('ready-instructions').replaceChildren(...how);
+    const before = t.practice ? texts.before_practice : texts.before_test;
+    $('ready-instructions').replaceChildren(
+      ...paragraphs(texts.instructions),
+      ...paragraphs(before, t.practice ? 'strong' : undefined),
+    );
+    $('ready-note').textContent = texts.ready || '';
   },
   running(s) {
     $('running-label').textContent = s.test.practice ? 'Practice (not scored)' : `${s.test.label} · test ${s.test.number} of ${s.test.of}`;
@@ -365,32 +364,51 @@ const renderers = {
   },
   held() {},
   move(s) {
-    $('move-to').textContent = s.to === 'on'
-      ? 'Please move to the seat on the machine'
-      : 'Please move to the seat at the desk';
+    const texts = s.texts || {};
+    $('move-to').textContent = (s.to === 'on' ? texts.move_to_on : texts.move_to_off) || '';
+    $('move-note').textContent = texts.move_note || '';
   },
   done(s) {
-    let title = 'Thank you!';
-    let text;
-    if (s.reason === 'finished') {
-      text = 'That was the last test. Thank you very much for taking part. The experimenter will be with you shortly.';
-    } else if (s.reason === 'declined') {
-      title = 'Thank you for your time';
-      text = 'You chose not to take part, and that is completely fine. Nothing more is needed from you. Please let the experimenter know.';
-    } else {
-      title = 'Thank you for your time';
-      text = 'The session has ended. Thank you for the time you gave us. Please let the experimenter know.';
-    }
-    $('done').replaceChildren(el('h1', {}, title), el('p', { class: 'lead' }, text));
+    const texts = s.texts || {};
+    const [title, text] = s.reason === 'finished'
+      ? [texts.finished_title, texts.finished]
+      : s.reason === 'declined'
+        ? [texts.declined_title, texts.declined]
+        : [texts.withdrawn_title, texts.withdrawn];
+    $('done').replaceChildren(el('h1', {}, title || ''), ...paragraphs(text, 'lead'));
   },
 };
+
+/** A study text as paragraphs: a blank line separates them (the server filled it in). */
+function paragraphs(text, cls) {
+  return (text || '')
+    .split(/\n\s*\n/)
+    .map((p) => p.trim())
+    .filter(Boolean)
+    .map((p) => el('p', cls ? { class: cls } : {}, p));
+}
+
+/** The page's language follows the study's texts (screen readers, hyphenation). */
+function setLanguage(s) {
+  const lang = s.texts && s.texts.language;
+  if (lang && document.documentElement.lang !== lang) document.documentElement.lang = lang;
+}
 
 // ---------------------------------------------------------------------------------------
 // Consent.
 
 function setConsentBusy(busy) {
-  $('consent-agree').disabled = busy;
-  $('consent-decline').disabled = busy;
+  for (const id of ['consent-agree', 'consent-decline', 'decline-confirm', 'decline-back']) $(id).disabled = busy;
+}
+
+/**
+ * Declining ends the session for good, so it asks once more: the first press shows the
+ * confirmation (and hides the choice), "Go back" returns to it.
+ */
+function confirmDecline(asking, focus = true) {
+  $('consent-choice').hidden = asking;
+  $('decline-confirmation').hidden = !asking;
+  if (focus) $(asking ? 'decline-confirm' : 'consent-agree').focus({ preventScroll: true });
 }
 
 async function decide(decision) {
@@ -430,9 +448,19 @@ function renderSurvey(s) {
         })),
         el('span', { class: 'anchor high', id: highId }, `${sv.scale_points} = ${item.high_anchor}`)));
   });
+  const box = el('textarea', { id: 'comment', name: 'comment', maxlength: MAX_COMMENT_CHARS, rows: 4, 'aria-describedby': 'comment-count' });
+  const count = el('p', { id: 'comment-count', class: 'counter', 'aria-live': 'polite' });
+  const recount = () => {
+    // Counted as maxlength counts (UTF-16 units): the counter says what the box allows,
+    // and never more than the server's limit in characters.
+    const n = box.value.length;
+    count.textContent = `${n} / ${MAX_COMMENT_CHARS}`;
+    count.classList.toggle('full', n >= MAX_COMMENT_CHARS);
+  };
+  box.addEventListener('input', recount);
+  recount();
   const comment = el('div', { class: 'comment-block', dataset: { field: 'comment' } },
-    el('label', { for: 'comment' }, sv.open_question),
-    el('textarea', { id: 'comment', name: 'comment', maxlength: 2000, rows: 4 }));
+    el('label', { for: 'comment' }, sv.open_question), box, count);
   const submit = el('div', { class: 'survey-actions' },
     el('button', { type: 'submit', id: 'survey-submit', class: 'primary' }, 'Submit answers'));
   form.replaceChildren(...groups, comment, submit);
@@ -916,7 +944,9 @@ function init() {
     setError('register', null);
   });
   $('consent-agree').addEventListener('click', () => decide('agreed'));
-  $('consent-decline').addEventListener('click', () => decide('declined'));
+  $('consent-decline').addEventListener('click', () => confirmDecline(true));
+  $('decline-back').addEventListener('click', () => confirmDecline(false));
+  $('decline-confirm').addEventListener('click', () => decide('declined'));
   $('survey').addEventListener('submit', submitSurvey);
   $('use-here').addEventListener('click', () => location.reload());
   $('new-code').addEventListener('click', () => {

@@ -11,7 +11,7 @@ use crate::server_to_browser::{
     MonitorEvent, MonitorStation, MonitorTest, MonitorView, Phase, StationEvent, StationInfo,
     StationSocket, StationView, StopNotice, TestView,
 };
-use crate::study::SurveyAnswer;
+use crate::study::{StudyTexts, SurveyAnswer};
 
 fn assert_golden<T>(value: &T, text: &str)
 where
@@ -135,6 +135,7 @@ fn what_a_station_shows() {
             phase: Phase::Waiting,
             station: station.clone(),
             stopped: None,
+            texts: None,
         },
         r#"{"phase":"waiting","station":{"name":"Cab seat","role":"on"}}"#,
     );
@@ -146,6 +147,7 @@ fn what_a_station_shows() {
             },
             station: station.clone(),
             stopped: None,
+            texts: None,
         },
         r#"{"phase":"move","subject":"S01","to":"off","station":{"name":"Cab seat","role":"on"}}"#,
     );
@@ -157,8 +159,24 @@ fn what_a_station_shows() {
             },
             station: station.clone(),
             stopped: None,
+            texts: Some(StudyTexts {
+                language: "de".into(),
+                instructions: "i".into(),
+                before_practice: "p".into(),
+                before_test: "t".into(),
+                ready: "r".into(),
+                move_to_on: "on".into(),
+                move_to_off: "off".into(),
+                move_note: "m".into(),
+                finished_title: "Danke!".into(),
+                finished: "f".into(),
+                declined_title: "dt".into(),
+                declined: "d".into(),
+                withdrawn_title: "wt".into(),
+                withdrawn: "w".into(),
+            }),
         },
-        r#"{"phase":"done","subject":"S01","reason":"finished","station":{"name":"Cab seat","role":"on"}}"#,
+        r#"{"phase":"done","subject":"S01","reason":"finished","station":{"name":"Cab seat","role":"on"},"texts":{"language":"de","instructions":"i","before_practice":"p","before_test":"t","ready":"r","move_to_on":"on","move_to_off":"off","move_note":"m","finished_title":"Danke!","finished":"f","declined_title":"dt","declined":"d","withdrawn_title":"wt","withdrawn":"w"}}"#,
     );
     assert_golden(
         &StationView {
@@ -168,6 +186,7 @@ fn what_a_station_shows() {
             },
             station: station.clone(),
             stopped: None,
+            texts: None,
         },
         r#"{"phase":"ready","subject":"S01","test":{"trial_id":12,"label":"Controller 3","practice":false,"number":4,"of":10,"duration_s":140.0,"station":"on","shake_gain":1.0,"target_range_mm":40.0,"k_bf":0.78,"started_at":null},"station":{"name":"Cab seat","role":"on"}}"#,
     );
@@ -185,6 +204,7 @@ fn what_a_station_shows() {
                 status: TrialStatus::Invalid,
                 repeated: true,
             }),
+            texts: None,
         },
         r#"{"phase":"ready","subject":"S01","test":{"trial_id":12,"label":"Controller 3","practice":false,"number":4,"of":10,"duration_s":140.0,"station":"on","shake_gain":1.0,"target_range_mm":40.0,"k_bf":0.78,"started_at":null},"station":{"name":"Cab seat","role":"on"},"stopped":{"label":"Controller 2","status":"invalid","repeated":true}}"#,
     );
@@ -195,6 +215,7 @@ fn what_a_station_shows() {
             },
             station,
             stopped: None,
+            texts: None,
         },
         r#"{"phase":"held","subject":"S01","station":{"name":"Cab seat","role":"on"}}"#,
     );

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::controller_to_server::LiveSample;
 use crate::params::{CompensatorKind, Seat};
 use crate::records::{DoneReason, StationRole, TrialStatus};
-use crate::study::{ConsentForm, SurveyParams};
+use crate::study::{ConsentForm, StudyTexts, SurveyParams};
 
 /// What a station shows its subject now.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -21,6 +21,10 @@ pub struct StationView {
     /// The subject's last test stopped without counting; absent once a test ran after it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stopped: Option<StopNotice>,
+    /// The study's texts with their placeholders filled in (absent while no subject is
+    /// assigned).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub texts: Option<StudyTexts>,
 }
 
 /// What the subject is told about a test that was stopped: which one (blinded), how it ended

@@ -87,15 +87,176 @@ impl Default for ConsentForm {
         Self {
             version: "1.0".into(),
             text: "You will control a machine's boom with a hand-held input device, following a \
-                   moving target on a screen, for about one hour: a short practice, then ten tests \
-                   of 140 seconds, five of them while seated on the machine, which vibrates, and \
-                   five at a desk beside it. After each test you answer a few questions. Risks: \
-                   whole-body vibration comparable to operating construction equipment, and \
-                   fatigue. You may stop at any time without giving a reason, and ask for your \
-                   data to be withdrawn. Your data are stored under a code, never your name."
+                   moving target on a screen, for about one hour: a short practice, then {tests} \
+                   tests of {trial_s} seconds, {tests_per_station} of them while seated on the \
+                   machine, which vibrates, and {tests_per_station} at a desk beside it. After \
+                   each test you answer a few questions. Risks: whole-body vibration comparable \
+                   to operating construction equipment, and fatigue. You may stop at any time \
+                   without giving a reason, and ask for your data to be withdrawn. Your data are \
+                   stored under a code, never your name."
                 .into(),
         }
     }
+}
+
+/// The texts a station shows its subject besides the consent form and the survey, in the
+/// study's language. Each may hold placeholders (`PLACEHOLDERS`, written `{name}`; `{{` and
+/// `}}` for a literal brace) that the server fills in from the study's parameters
+/// (`StudyParams::rendered_texts`), so a text follows the study's durations and counts. In a
+/// `StationView` they arrive filled in. Paragraphs are separated by a blank line.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(default, deny_unknown_fields)]
+pub struct StudyTexts {
+    /// BCP 47 language tag of these texts and of the consent form ("en", "de-CH"): the
+    /// station page's `<html lang>`.
+    pub language: String,
+    /// Before every test, the practice included: how the display works.
+    pub instructions: String,
+    /// Before the practice, after the instructions.
+    pub before_practice: String,
+    /// Before a scored test, after the instructions.
+    pub before_test: String,
+    /// Under the instructions while the test waits for the experimenter.
+    pub ready: String,
+    /// The next test is at the seat on the machine / at the desk.
+    pub move_to_on: String,
+    pub move_to_off: String,
+    /// Under either move heading.
+    pub move_note: String,
+    /// The end: every test done.
+    pub finished_title: String,
+    pub finished: String,
+    /// The end: the subject declined consent.
+    pub declined_title: String,
+    pub declined: String,
+    /// The end: the subject withdrew.
+    pub withdrawn_title: String,
+    pub withdrawn: String,
+}
+
+impl Default for StudyTexts {
+    fn default() -> Self {
+        Self {
+            language: "en".into(),
+            instructions: "You will see two lines moving from right to left: the yellow target \
+                           and the blue machine line.\n\nMove the machine so that the blue line \
+                           follows the yellow line as closely as you can: move the pointer \
+                           (mouse, pen or finger) up and down over the display, or use the input \
+                           device."
+                .into(),
+            before_practice: "The test lasts {practice_s} seconds.\n\nThis is a practice run to \
+                              get familiar with the display and the input. It is not scored."
+                .into(),
+            before_test: "The test lasts {trial_s} seconds.".into(),
+            ready: "The experimenter will start it. Please get ready.".into(),
+            move_to_on: "Please move to the seat on the machine".into(),
+            move_to_off: "Please move to the seat at the desk".into(),
+            move_note: "The experimenter will help you. The next test starts there.".into(),
+            finished_title: "Thank you!".into(),
+            finished: "That was the last test. Thank you very much for taking part. The \
+                       experimenter will be with you shortly."
+                .into(),
+            declined_title: "Thank you for your time".into(),
+            declined: "You chose not to take part, and that is completely fine. Nothing more is \
+                       needed from you. Please let the experimenter know."
+                .into(),
+            withdrawn_title: "Thank you for your time".into(),
+            withdrawn: "The session has ended. Thank you for the time you gave us. Please let the \
+                        experimenter know."
+                .into(),
+        }
+    }
+}
+
+impl StudyTexts {
+    /// Every text with its parameter name, for validation and rendering.
+    fn fields_mut(&mut self) -> [(&'static str, &mut String); 13] {
+        [
+            ("texts.instructions", &mut self.instructions),
+            ("texts.before_practice", &mut self.before_practice),
+            ("texts.before_test", &mut self.before_test),
+            ("texts.ready", &mut self.ready),
+            ("texts.move_to_on", &mut self.move_to_on),
+            ("texts.move_to_off", &mut self.move_to_off),
+            ("texts.move_note", &mut self.move_note),
+            ("texts.finished_title", &mut self.finished_title),
+            ("texts.finished", &mut self.finished),
+            ("texts.declined_title", &mut self.declined_title),
+            ("texts.declined", &mut self.declined),
+            ("texts.withdrawn_title", &mut self.withdrawn_title),
+            ("texts.withdrawn", &mut self.withdrawn),
+        ]
+    }
+}
+
+/// The placeholders a text may use: scored tests in all and at each seat, the durations of
+/// a test and of the practice (s), and the minutes of tracking in all (practice included,
+/// rounded up).
+pub const PLACEHOLDERS: [&str; 5] = [
+    "tests",
+    "tests_per_station",
+    "trial_s",
+    "practice_s",
+    "minutes",
+];
+
+/// Longest text besides the consent form's.
+pub const MAX_TEXT_CHARS: usize = 2000;
+
+/// Fills in the placeholders of the text `name`: `{key}` by its value in `values`, `{{` and
+/// `}}` by a brace. An unknown placeholder or an unclosed brace is an error naming the text,
+/// the placeholder and the allowed ones.
+pub fn render(
+    name: &'static str,
+    text: &str,
+    values: &[(&str, String)],
+) -> Result<String, ParamError> {
+    let invalid = |message: String| ParamError::Invalid { name, message };
+    let allowed = || {
+        values
+            .iter()
+            .map(|(k, _)| format!("{{{k}}}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while let Some(i) = rest.find(['{', '}']) {
+        out.push_str(&rest[..i]);
+        let tail = &rest[i..];
+        if tail.starts_with("{{") || tail.starts_with("}}") {
+            out.push_str(&tail[..1]);
+            rest = &tail[2..];
+        } else if let Some(after) = tail.strip_prefix('}') {
+            // A lone closing brace is just a brace.
+            out.push('}');
+            rest = after;
+        } else {
+            let Some(end) = tail.find('}') else {
+                return Err(invalid(format!(
+                    "a {{ without its }}; write {{{{ for a brace, or a placeholder: {}",
+                    allowed()
+                )));
+            };
+            let key = &tail[1..end];
+            let Some((_, value)) = values.iter().find(|(k, _)| *k == key) else {
+                return Err(invalid(format!(
+                    "unknown placeholder {{{key}}}; allowed: {}",
+                    allowed()
+                )));
+            };
+            out.push_str(value);
+            rest = &tail[end + 1..];
+        }
+    }
+    out.push_str(rest);
+    Ok(out)
+}
+
+/// A duration or count as a text shows it: at most one decimal, none when whole.
+fn shown(v: f64) -> String {
+    ((v * 10.0).round() / 10.0).to_string()
 }
 
 /// Whether trials run on the simulated rig or a real machine.
@@ -126,7 +287,12 @@ pub struct StudyParams {
     pub target_std_mm: f64,
     pub k_bf: f64,
     pub survey: SurveyParams,
+    /// The consent form; its text may hold the placeholders of `texts`.
     pub consent: ConsentForm,
+    /// What the station says besides the consent form and the survey (default: the English
+    /// texts of the published protocol).
+    #[serde(default)]
+    pub texts: StudyTexts,
     pub rig: RigKind,
     /// Simulated rig and operator body.
     pub plant: PlantParams,
@@ -197,7 +363,15 @@ impl StudyParams {
         check("practice_s", self.practice_s, 0.0, 1800.0)?;
         check("step_interval_s", self.step_interval_s, 0.1, 60.0)?;
         if self.trial_s / self.step_interval_s < 2.0 {
-            return invalid("step_interval_s", "a test needs at least two steps".into());
+            return invalid(
+                "trial_s",
+                format!(
+                    "{} s holds fewer than two steps of {} s (step_interval_s); a test needs at least {} s",
+                    self.trial_s,
+                    self.step_interval_s,
+                    2.0 * self.step_interval_s
+                ),
+            );
         }
         check("target_range_mm", self.target_range_mm, 1.0, 500.0)?;
         check(
@@ -251,8 +425,62 @@ impl StudyParams {
                 "a version (≤ 40 characters) and a text (≤ 20,000) are required".into(),
             );
         }
+        self.check_texts()?;
         self.plant.validate()?;
         self.body.validate()
+    }
+
+    /// The values of the texts' placeholders for this study, as `render` takes them.
+    pub fn text_values(&self) -> Vec<(&'static str, String)> {
+        let per_station = self.controllers.len();
+        let tests = per_station * self.stations.len();
+        let minutes = ((self.practice_s + tests as f64 * self.trial_s) / 60.0).ceil();
+        let values = [
+            tests.to_string(),
+            per_station.to_string(),
+            shown(self.trial_s),
+            shown(self.practice_s),
+            shown(minutes),
+        ];
+        PLACEHOLDERS.into_iter().zip(values).collect()
+    }
+
+    /// The consent form and the station's texts with their placeholders filled in.
+    pub fn rendered_texts(&self) -> Result<(ConsentForm, StudyTexts), ParamError> {
+        let values = self.text_values();
+        let consent = ConsentForm {
+            version: self.consent.version.clone(),
+            text: render("consent.text", &self.consent.text, &values)?,
+        };
+        let mut texts = self.texts.clone();
+        for (name, text) in texts.fields_mut() {
+            *text = render(name, text, &values)?;
+        }
+        Ok((consent, texts))
+    }
+
+    fn check_texts(&self) -> Result<(), ParamError> {
+        let lang = &self.texts.language;
+        let tag_ok = (1..=35).contains(&lang.len())
+            && lang.starts_with(|c: char| c.is_ascii_alphabetic())
+            && lang.chars().all(|c| c.is_ascii_alphanumeric() || c == '-');
+        if !tag_ok {
+            return Err(ParamError::Invalid {
+                name: "texts.language",
+                message: format!(
+                    "{lang:?} is not a language tag; use a BCP 47 tag such as \"en\" or \"de-CH\""
+                ),
+            });
+        }
+        for (name, text) in self.texts.clone().fields_mut() {
+            if text.chars().count() > MAX_TEXT_CHARS {
+                return Err(ParamError::Invalid {
+                    name,
+                    message: format!("at most {MAX_TEXT_CHARS} characters"),
+                });
+            }
+        }
+        self.rendered_texts().map(|_| ())
     }
 }
 
@@ -324,6 +552,46 @@ impl SurveyAnswer {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn values() -> Vec<(&'static str, String)> {
+        vec![("tests", "10".into()), ("trial_s", "140".into())]
+    }
+
+    #[test]
+    fn placeholders_are_filled_in_and_unknown_ones_named() {
+        let v = values();
+        assert_eq!(
+            render("t", "{tests} tests of {trial_s} s", &v).unwrap(),
+            "10 tests of 140 s"
+        );
+        assert_eq!(render("t", "{{tests}} } {", &v).ok(), None);
+        assert_eq!(render("t", "{{tests}} }", &v).unwrap(), "{tests} }");
+        assert_eq!(render("t", "", &v).unwrap(), "");
+        let err = render("consent.text", "ten {tests_total}", &v)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with("consent.text: unknown placeholder {tests_total}"),
+            "{err}"
+        );
+        assert!(err.contains("allowed: {tests}, {trial_s}"), "{err}");
+        let err = render("texts.ready", "a {tests", &v)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with("texts.ready:") && err.contains("{{"),
+            "{err}"
+        );
+        // Multi-byte text around placeholders.
+        assert_eq!(render("t", "é{tests}ü", &v).unwrap(), "é10ü");
+    }
+
+    #[test]
+    fn numbers_are_shown_with_at_most_one_decimal() {
+        assert_eq!(shown(140.0), "140");
+        assert_eq!(shown(0.5), "0.5");
+        assert_eq!(shown(2.34), "2.3");
+    }
 
     #[test]
     fn survey_validation_reports_every_bad_field() {

@@ -55,8 +55,9 @@ enum Command {
         /// Study to export [default: the newest].
         #[arg(long)]
         study: Option<i64>,
-        /// trials (one row per test), samples (1 kHz records, long format) or summary
-        /// (statistics per controller × station).
+        /// trials (one row per test), samples (1 kHz records, long format), summary
+        /// (statistics per controller × station), notes (notes and reasons about tests) or
+        /// audit (the whole audit log; --study is not used).
         #[arg(long)]
         kind: ExportKind,
         /// Output file (written to a temporary name and renamed when complete).
@@ -146,7 +147,11 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             out,
         } => {
             let pool = store::db::open(&db.db).await?;
-            let study = newest_study(&pool, study).await?;
+            let study = if kind.per_study() {
+                newest_study(&pool, study).await?
+            } else {
+                0
+            };
             let tmp = out.with_extension("partial");
             let file = tokio::fs::File::create(&tmp)
                 .await
@@ -171,6 +176,9 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     if !interrupted.is_empty() {
         tracing::warn!(trials = ?interrupted, "trials that were running when the server stopped are marked incomplete");
     }
+    // A pilot process killed while it ran leaves its trials running: they are filed as soon
+    // as its heartbeat stops, not at the next restart.
+    tokio::spawn(filing::watch_pilots(pool.clone()));
     let listener = tokio::net::TcpListener::bind(config.listen)
         .await
         .with_context(|| format!("listening on {}", config.listen))?;

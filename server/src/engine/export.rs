@@ -1,7 +1,8 @@
 //! Tidy CSV exports for R or pandas, streamed row by row (memory stays constant however large
 //! the study): `trials` (one row per test attempt), `samples` (the 1 kHz records, long
-//! format), `summary` (statistics per compensator × seat). Withdrawn subjects are left
-//! out. Text cells are neutralized against spreadsheet formula injection.
+//! format), `summary` (statistics per compensator × seat), `notes` (every note and reason
+//! about a test), and `audit` (the whole audit log, not one study's). Withdrawn subjects are
+//! left out. Text cells are neutralized against spreadsheet formula injection.
 
 use sqlx::SqlitePool;
 use tokio::io::{AsyncWrite, AsyncWriteExt, BufWriter};
@@ -19,6 +20,15 @@ pub enum ExportKind {
     Trials,
     Samples,
     Summary,
+    Notes,
+    Audit,
+}
+
+impl ExportKind {
+    /// Every kind but `audit` is one study's.
+    pub fn per_study(self) -> bool {
+        self != Self::Audit
+    }
 }
 
 impl std::str::FromStr for ExportKind {
@@ -28,17 +38,34 @@ impl std::str::FromStr for ExportKind {
             "trials" => Ok(Self::Trials),
             "samples" => Ok(Self::Samples),
             "summary" => Ok(Self::Summary),
+            "notes" => Ok(Self::Notes),
+            "audit" => Ok(Self::Audit),
             _ => Err(format!(
-                "unknown export {s:?}; valid: trials, samples, summary"
+                "unknown export {s:?}; valid: trials, samples, summary, notes, audit"
             )),
         }
     }
 }
 
+/// Characters a spreadsheet reads as the start of a formula.
+const FORMULA_STARTERS: [char; 6] = ['=', '+', '-', '@', '\t', '\r'];
+
+/// Whether a spreadsheet would read `s` as a formula: its first character, or its first
+/// after any leading whitespace (spreadsheets trim spaces, U+00A0, U+FEFF, U+3000 … before
+/// they look), is a formula starter.
+fn reads_as_formula(s: &str) -> bool {
+    if s.starts_with(FORMULA_STARTERS) {
+        return true;
+    }
+    // U+FEFF is not White_Space in Unicode, but a byte-order mark is dropped on import.
+    s.trim_start_matches(|c: char| c.is_whitespace() || c == '\u{feff}')
+        .starts_with(FORMULA_STARTERS)
+}
+
 /// A text cell: quoted when needed, and prefixed with an apostrophe when a spreadsheet would
-/// read it as a formula (=, +, -, @, tab, carriage return).
+/// read it as a formula (`reads_as_formula`).
 pub fn text_cell(s: &str) -> String {
-    let neutral = if s.starts_with(['=', '+', '-', '@', '\t', '\r']) {
+    let neutral = if reads_as_formula(s) {
         format!("'{s}")
     } else {
         s.to_string()
@@ -128,19 +155,24 @@ fn validity_cells(r: &store::exports::TrialExportRow) -> [String; 10] {
     ]
 }
 
-/// Writes the export of `kind` for `study_id` to `out`.
+/// Writes the export of `kind` for `study_id` to `out` (`audit`: the whole log, whatever
+/// the study).
 pub async fn write(
     pool: &SqlitePool,
     study_id: i64,
     kind: ExportKind,
     out: impl AsyncWrite + Unpin,
 ) -> Result<(), ExportError> {
-    store::studies::get(pool, study_id).await?;
+    if kind.per_study() {
+        store::studies::get(pool, study_id).await?;
+    }
     let mut w = BufWriter::with_capacity(1 << 16, out);
     match kind {
         ExportKind::Trials => trials(pool, study_id, &mut w).await?,
         ExportKind::Samples => samples(pool, study_id, &mut w).await?,
         ExportKind::Summary => summary(pool, study_id, &mut w).await?,
+        ExportKind::Notes => notes(pool, study_id, &mut w).await?,
+        ExportKind::Audit => audit(pool, &mut w).await?,
     }
     w.flush().await?;
     Ok(())
@@ -275,6 +307,74 @@ async fn summary(
     Ok(())
 }
 
+pub const NOTE_COLUMNS: [&str; 10] = [
+    "study_id",
+    "trial_id",
+    "subject_code",
+    "slot",
+    "attempt",
+    "kind",
+    "status",
+    "at",
+    "by",
+    "text",
+];
+
+async fn notes(
+    pool: &SqlitePool,
+    study_id: i64,
+    w: &mut (impl AsyncWrite + Unpin),
+) -> Result<(), ExportError> {
+    w.write_all(format!("{}\n", NOTE_COLUMNS.join(",")).as_bytes())
+        .await?;
+    let int = |v: Option<i64>| v.map(|x| x.to_string()).unwrap_or_default();
+    for r in store::exports::note_rows(pool, study_id).await? {
+        let cells = [
+            r.study_id.to_string(),
+            int(r.trial_id),
+            text_cell(&r.code),
+            int(r.slot),
+            int(r.attempt),
+            r.kind,
+            r.status.unwrap_or_default(),
+            r.at.map(rfc3339).unwrap_or_default(),
+            text_cell(&r.author),
+            text_cell(&r.text),
+        ];
+        w.write_all(cells.join(",").as_bytes()).await?;
+        w.write_all(b"\n").await?;
+    }
+    Ok(())
+}
+
+/// Rows of the audit log read at a time.
+const AUDIT_PAGE: i64 = 2000;
+
+async fn audit(pool: &SqlitePool, w: &mut (impl AsyncWrite + Unpin)) -> Result<(), ExportError> {
+    w.write_all(b"id,at,actor,actor_id,action,target,detail\n")
+        .await?;
+    let mut after = 0;
+    loop {
+        let rows = store::audit::page(pool, after, AUDIT_PAGE).await?;
+        let Some(last) = rows.last() else {
+            return Ok(());
+        };
+        after = last.0;
+        for (id, at, actor, actor_id, action, target, detail) in rows {
+            let line = format!(
+                "{id},{},{},{},{},{},{}\n",
+                rfc3339(at),
+                text_cell(&actor),
+                actor_id.map(|i| i.to_string()).unwrap_or_default(),
+                text_cell(&action),
+                text_cell(target.as_deref().unwrap_or("")),
+                text_cell(detail.as_deref().unwrap_or("")),
+            );
+            w.write_all(line.as_bytes()).await?;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -288,5 +388,26 @@ mod tests {
         assert_eq!(text_cell("@SUM(A1)"), "'@SUM(A1)");
         assert_eq!(text_cell("a,b"), "\"a,b\"");
         assert_eq!(text_cell("line\nbreak"), "\"line\nbreak\"");
+    }
+
+    #[test]
+    fn formulas_behind_leading_whitespace_are_neutralized() {
+        for cell in [
+            " =1",
+            "\u{a0}=1",
+            "\u{feff}=1",
+            "\u{3000}=1",
+            "\u{2003}+1",
+            "  \u{a0}-2",
+            "\n@SUM(A1)",
+        ] {
+            let out = text_cell(cell);
+            let unquoted = out.trim_start_matches('"');
+            assert!(unquoted.starts_with('\''), "{cell:?} → {out:?}");
+        }
+        // Text that only contains a starter later on is left alone.
+        assert_eq!(text_cell(" a=1"), " a=1");
+        assert_eq!(text_cell("\u{a0}ok"), "\u{a0}ok");
+        assert_eq!(text_cell(""), "");
     }
 }

@@ -1,6 +1,7 @@
 //! How a trial's end is filed: the outcome decides the status (a trial found invalid while
 //! it ran stays invalid); the result, the record, the re-queue of a failed test and the
-//! audit row are committed together.
+//! audit row are committed together. Trials nobody will finish (the server restarted, the
+//! controller or a pilot process was lost) are filed incomplete with the reason.
 
 use bdft_protocol::controller_to_server::TrialResult;
 use bdft_protocol::records::TrialStatus;
@@ -53,8 +54,9 @@ pub async fn file_result(
     Ok(true)
 }
 
-/// Marks every running trial incomplete with `reason` (server restart, controller lost);
-/// returns their ids.
+/// Marks every running trial of this server's controller incomplete with `reason` (server
+/// restart, controller lost); returns their ids. A pilot process's trials run on its own
+/// controller: they end with its heartbeat (`end_lost_pilots`), not with this server's.
 pub async fn interrupt_running(pool: &SqlitePool, reason: &str) -> Result<Vec<i64>> {
     let mut change = Change::begin(pool, "system:trial-filing").await?;
     let ids = store::trials::interrupt_running(change.db(), reason).await?;
@@ -72,4 +74,55 @@ pub async fn interrupt_running(pool: &SqlitePool, reason: &str) -> Result<Vec<i6
             .await?;
     }
     Ok(ids)
+}
+
+/// A pilot process that has not beaten for this long was killed (it beats every second,
+/// `pilot::BEAT`; the margin covers a loaded machine's stalls).
+pub const PILOT_SILENCE: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// Ends the pilot run `run_id`: the trials it left running are marked incomplete with
+/// `reason`, audited with the run; returns their ids.
+pub async fn end_pilot_run(pool: &SqlitePool, run_id: i64, reason: &str) -> Result<Vec<i64>> {
+    let mut change = Change::begin(pool, "system:pilot-watch").await?;
+    let ids = store::pilot_runs::end(change.db(), run_id, reason).await?;
+    change
+        .commit(
+            "pilot.end",
+            Some(format!("pilot_run:{run_id}")),
+            json!({ "interrupted_trials": ids, "reason": reason }),
+        )
+        .await?;
+    Ok(ids)
+}
+
+/// Ends every pilot run that has been silent for `PILOT_SILENCE` (its process was killed)
+/// and files its running trials incomplete; returns those trials' ids.
+pub async fn end_lost_pilots(pool: &SqlitePool) -> Result<Vec<i64>> {
+    let before = store::db::now_ms() - PILOT_SILENCE.as_millis() as i64;
+    let mut ids = Vec::new();
+    for (run_id, pid) in store::pilot_runs::silent_since(pool, before).await? {
+        let reason = format!(
+            "pilot process {pid} stopped (no heartbeat for {} s)",
+            PILOT_SILENCE.as_secs()
+        );
+        ids.extend(end_pilot_run(pool, run_id, &reason).await?);
+    }
+    Ok(ids)
+}
+
+/// The server's watch over pilot processes: every second, a killed pilot's trials are
+/// filed (so none stays "running" until a restart).
+pub async fn watch_pilots(pool: SqlitePool) {
+    let mut tick = tokio::time::interval(std::time::Duration::from_secs(1));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tick.tick().await;
+        match end_lost_pilots(&pool).await {
+            Ok(ids) if !ids.is_empty() => {
+                tracing::warn!(trials = ?ids, "a pilot process stopped: its running trials are marked incomplete");
+            }
+            Ok(_) => {}
+            Err(e) => tracing::warn!("checking for stopped pilot processes: {e}"),
+        }
+    }
 }

@@ -21,6 +21,7 @@ pub mod plots;
 pub mod power;
 pub mod queue;
 pub mod results;
+pub mod runnable;
 pub mod schedule;
 pub mod stability;
 pub mod station_sockets;

@@ -39,27 +39,64 @@ pub struct Progress {
     pub total: std::sync::atomic::AtomicUsize,
 }
 
+/// How often a pilot process tells the database it is alive.
+pub const BEAT: std::time::Duration = std::time::Duration::from_secs(1);
+
 /// Runs the pilot into `study_id` (default: the newest study, or a new default study if
-/// there is none). `seed` seeds a newly created study.
+/// there is none) as a process of its own (`bdft-server pilot`). `seed` seeds a newly
+/// created study. The run beats while it works, so a server can tell when this process was
+/// killed and file the trials it left running; if it fails, it files them itself.
 pub async fn run(
     pool: &SqlitePool,
     study_id: Option<i64>,
     subjects: u32,
     seed: Option<u64>,
 ) -> anyhow::Result<PilotReport> {
-    run_with_progress(
+    // An earlier pilot process that was killed: its trials are filed before this one starts.
+    super::filing::end_lost_pilots(pool).await?;
+    let mut change = Change::begin(pool, COMMAND_LINE).await?;
+    let run_id = store::pilot_runs::start(change.db(), std::process::id()).await?;
+    change
+        .commit(
+            "pilot.process",
+            Some(format!("pilot_run:{run_id}")),
+            json!({ "pid": std::process::id() }),
+        )
+        .await?;
+    let beating = {
+        let pool = pool.clone();
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(BEAT);
+            loop {
+                tick.tick().await;
+                if let Err(e) = store::pilot_runs::beat(&pool, run_id).await {
+                    tracing::warn!("pilot heartbeat: {e}");
+                }
+            }
+        })
+    };
+    let outcome = run_with_progress(
         pool,
         COMMAND_LINE,
         study_id,
         subjects,
         seed,
         Arc::new(Progress::default()),
+        Some(run_id),
     )
-    .await
+    .await;
+    beating.abort();
+    let reason = match &outcome {
+        Ok(_) => "pilot finished".to_string(),
+        Err(e) => format!("pilot failed: {e:#}"),
+    };
+    super::filing::end_pilot_run(pool, run_id, &reason).await?;
+    outcome
 }
 
 /// `run` on behalf of `requested_by` (who the audit log names for starting it), counting
-/// finished trials in `progress` (the dashboard's progress bar).
+/// finished trials in `progress` (the dashboard's progress bar). A pilot process passes its
+/// `run_id` (`pilot_runs`), so each trial it starts is known to be its own.
 pub async fn run_with_progress(
     pool: &SqlitePool,
     requested_by: &str,
@@ -67,6 +104,7 @@ pub async fn run_with_progress(
     subjects: u32,
     seed: Option<u64>,
     progress: Arc<Progress>,
+    run_id: Option<i64>,
 ) -> anyhow::Result<PilotReport> {
     // The audit log names the pilot's own actions with who started it.
     let actor = format!("pilot (by {requested_by})");
@@ -145,6 +183,9 @@ pub async fn run_with_progress(
                 while let Some(trial) = store::trials::next(&pool, subject_id).await? {
                     let mut change = Change::begin(&pool, actor.as_str()).await?;
                     store::trials::mark_running(change.db(), trial.id).await?;
+                    if let Some(run_id) = run_id {
+                        store::pilot_runs::claim(change.db(), run_id, trial.id).await?;
+                    }
                     change
                         .commit(
                             "trial.start",
@@ -253,7 +294,8 @@ impl PilotJob {
         let (job, pool, actor) = (Arc::clone(self), pool.clone(), actor.to_string());
         tokio::spawn(async move {
             let outcome =
-                run_with_progress(&pool, &actor, Some(study_id), subjects, None, progress)
+                // In the server's own process: it files the trials when it restarts.
+                run_with_progress(&pool, &actor, Some(study_id), subjects, None, progress, None)
                     .await
                     .map_err(|e| format!("{e:#}"));
             if let Some(run) = job.run().as_mut() {

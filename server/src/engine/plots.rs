@@ -21,11 +21,35 @@ const OFF: &str = "#0072B2";
 const ON: &str = "#D55E00";
 const FONT: &str = "DejaVu Sans, Verdana, sans-serif";
 
+/// User text (a study's name, a compensator's, a label) as SVG text: escaped, and with the
+/// characters XML 1.0 forbids (control characters, U+FFFE, U+FFFF) made spaces, because one
+/// of them makes the whole document unparseable for the PNG renderer.
 fn esc(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            c if c.is_control() || c == '\u{fffe}' || c == '\u{ffff}' => out.push(' '),
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// A line of the box, left out when it has no length (a box of one value has whiskers of
+/// none): the renderer cannot stroke a zero-length path and logs a warning for each.
+fn segment(svg: &mut String, (x1, y1): (f64, f64), (x2, y2): (f64, f64)) {
+    let at = |v: f64| format!("{v:.1}");
+    if at(x1) == at(x2) && at(y1) == at(y2) {
+        return;
+    }
+    let _ = write!(
+        svg,
+        r##"<line x1="{x1:.1}" y1="{y1:.1}" x2="{x2:.1}" y2="{y2:.1}"/>"##
+    );
 }
 
 /// A step of 1, 2 or 5 × 10^k giving about `n` ticks over `span`.
@@ -188,21 +212,15 @@ pub fn box_plot_svg(
             v.sort_by(f64::total_cmp);
             let (q1, med, q3, lo, hi, outliers) = box_stats(&v);
             let x = cx + dx * bw;
+            let _ = write!(svg, r##"<g stroke="{colour}" stroke-width="2">"##);
+            // Whiskers and their caps.
+            segment(&mut svg, (x, y(hi)), (x, y(q3)));
+            segment(&mut svg, (x, y(q1)), (x, y(lo)));
+            segment(&mut svg, (x - bw * 0.25, y(hi)), (x + bw * 0.25, y(hi)));
+            segment(&mut svg, (x - bw * 0.25, y(lo)), (x + bw * 0.25, y(lo)));
             let _ = write!(
                 svg,
-                r##"<g stroke="{colour}" stroke-width="2"><line x1="{x:.1}" y1="{:.1}" x2="{x:.1}" y2="{:.1}"/><line x1="{x:.1}" y1="{:.1}" x2="{x:.1}" y2="{:.1}"/><line x1="{:.1}" y1="{:.1}" x2="{:.1}" y2="{:.1}"/><line x1="{:.1}" y1="{:.1}" x2="{:.1}" y2="{:.1}"/><rect x="{:.1}" y="{:.1}" width="{bw:.1}" height="{:.1}" fill="{colour}" fill-opacity="0.18"/><line x1="{:.1}" y1="{:.1}" x2="{:.1}" y2="{:.1}" stroke-width="3"/></g>"##,
-                y(hi),
-                y(q3),
-                y(q1),
-                y(lo),
-                x - bw * 0.25,
-                y(hi),
-                x + bw * 0.25,
-                y(hi),
-                x - bw * 0.25,
-                y(lo),
-                x + bw * 0.25,
-                y(lo),
+                r##"<rect x="{:.1}" y="{:.1}" width="{bw:.1}" height="{:.1}" fill="{colour}" fill-opacity="0.18"/><line x1="{:.1}" y1="{:.1}" x2="{:.1}" y2="{:.1}" stroke-width="3"/></g>"##,
                 x - bw / 2.0,
                 y(q3),
                 (y(q1) - y(q3)).max(1.0),
@@ -317,5 +335,48 @@ mod tests {
         let empty = box_plot_svg("x", "y", &[], &[], None);
         assert!(empty.contains("No completed tests yet"));
         png(&empty).unwrap();
+    }
+
+    #[test]
+    fn control_characters_in_user_text_still_render() {
+        let name = "study\u{1}\u{7}\u{1b}[31m\u{0}\u{7f}\u{ffff} <b>&\"";
+        let groups = vec![("pid\u{2}".to_string(), "on".to_string(), vec![1.0, 2.0])];
+        let svg = box_plot_svg(name, "mm\u{8}", &["pid\u{2}".into()], &groups, None);
+        assert!(!svg.chars().any(|c| c.is_control()), "{svg}");
+        assert!(svg.contains("&lt;b&gt;&amp;&quot;"));
+        png(&svg).unwrap();
+        png(&box_plot_svg(name, "", &[], &[], None)).unwrap();
+    }
+
+    /// (x1, y1, x2, y2) of every `<line>` of an SVG.
+    fn lines(svg: &str) -> Vec<[f64; 4]> {
+        svg.split("<line ")
+            .skip(1)
+            .map(|l| {
+                let attr = |a: &str| -> f64 {
+                    let from = l.find(&format!("{a}=\"")).unwrap() + a.len() + 2;
+                    let len = l[from..].find('"').unwrap();
+                    l[from..from + len].parse().unwrap()
+                };
+                [attr("x1"), attr("y1"), attr("x2"), attr("y2")]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_box_of_one_value_has_no_zero_length_line() {
+        // n = 1 everywhere (and the same value in every group: a degenerate axis too).
+        let groups = vec![
+            ("pid".to_string(), "on".to_string(), vec![3.0]),
+            ("pid".to_string(), "off".to_string(), vec![3.0]),
+        ];
+        let svg = box_plot_svg("one each", "mm²", &["pid".into()], &groups, None);
+        let all = lines(&svg);
+        assert!(all.len() > 4, "{svg}");
+        for [x1, y1, x2, y2] in all {
+            assert!(x1 != x2 || y1 != y2, "zero-length line in {svg}");
+        }
+        assert!(svg.contains("n=1"));
+        png(&svg).unwrap();
     }
 }

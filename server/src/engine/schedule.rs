@@ -6,7 +6,7 @@ use bdft_controller::compensator::study_spec;
 use bdft_controller::rng::Rng;
 use bdft_controller::signals::StepTarget;
 use bdft_protocol::params::{CompensatorKind, ParamError, PlantParams, Seat, StepParams};
-use bdft_protocol::study::{ConsentForm, RigKind, StudyParams, SurveyParams};
+use bdft_protocol::study::{ConsentForm, RigKind, StudyParams, StudyTexts, SurveyParams};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
@@ -33,6 +33,7 @@ pub fn default_params() -> StudyParams {
         k_bf: STUDY_KBF,
         survey: SurveyParams::default(),
         consent: ConsentForm::default(),
+        texts: StudyTexts::default(),
         rig: RigKind::Simulated,
         plant,
         body: Default::default(),
@@ -197,6 +198,59 @@ mod tests {
         let reordered: serde_json::Value = serde_json::from_str(&text).unwrap();
         let back: StudyParams = serde_json::from_value(reordered).unwrap();
         assert_eq!(protocol_hash(&back), h);
+    }
+
+    #[test]
+    fn the_consent_text_follows_the_study_durations_and_counts() {
+        let mut p = default_params();
+        let (consent, texts) = p.rendered_texts().unwrap();
+        assert!(
+            consent
+                .text
+                .contains("then 10 tests of 140 seconds, 5 of them while seated"),
+            "{}",
+            consent.text
+        );
+        assert_eq!(texts.before_test, "The test lasts 140 seconds.");
+        assert!(
+            texts
+                .before_practice
+                .starts_with("The test lasts 120 seconds.")
+        );
+        p.trial_s = 90.0;
+        p.controllers.truncate(3);
+        let (consent, _) = p.rendered_texts().unwrap();
+        assert!(
+            consent
+                .text
+                .contains("then 6 tests of 90 seconds, 3 of them"),
+            "{}",
+            consent.text
+        );
+        // (120 s + 6 × 90 s) / 60 = 11 minutes.
+        assert!(p.text_values().contains(&("minutes", "11".into())));
+        p.consent.text = "{tests} tests, {test_count}".into();
+        let err = p.validate().unwrap_err().to_string();
+        assert!(
+            err.starts_with("consent.text: unknown placeholder {test_count}; allowed: {tests}, {tests_per_station}, {trial_s}, {practice_s}, {minutes}"),
+            "{err}"
+        );
+        p.consent = ConsentForm::default();
+        p.texts.language = "not a tag!".into();
+        assert!(
+            p.validate()
+                .unwrap_err()
+                .to_string()
+                .starts_with("texts.language:")
+        );
+    }
+
+    #[test]
+    fn old_stored_studies_without_texts_still_parse() {
+        let mut stored = serde_json::to_value(default_params()).unwrap();
+        stored.as_object_mut().unwrap().remove("texts");
+        let back: StudyParams = serde_json::from_value(stored).unwrap();
+        assert_eq!(back.texts, StudyTexts::default());
     }
 
     #[test]

@@ -13,10 +13,14 @@ use bdft_protocol::server_to_browser::{
 use serde_json::json;
 use sqlx::SqlitePool;
 
+use bdft_protocol::study::{ConsentForm, StudyParams, StudyTexts};
+
 use super::queue;
 use super::station_sockets::StationSockets;
 use crate::error::{AppError, Result};
 use crate::store::stations::Station;
+use crate::store::studies::Study;
+use crate::store::subjects::Subject;
 use crate::store::trials::{Trial, latest_attempts};
 use crate::store::{self, Change};
 
@@ -257,18 +261,42 @@ fn shares_a_seat(a: StationRole, b: StationRole) -> bool {
         .any(|seat| a.serves(seat) && b.serves(seat))
 }
 
+/// The consent form and the texts of a study with their placeholders filled in. A study
+/// stored before texts had placeholders may hold a brace that is not one: then its texts are
+/// shown as written.
+fn rendered_texts(params: &StudyParams) -> (ConsentForm, StudyTexts) {
+    params
+        .rendered_texts()
+        .unwrap_or_else(|_| (params.consent.clone(), params.texts.clone()))
+}
+
 /// What `station` shows now, with each test given by `test` (blinded for the subject,
-/// with the compensator for the experimenter).
+/// with the compensator for the experimenter), and the study's texts filled in.
 async fn phase<T>(
     pool: &SqlitePool,
     station: &Station,
     test: impl Fn(TestView, &Trial) -> T,
-) -> Result<Phase<T>> {
+) -> Result<(Phase<T>, Option<StudyTexts>)> {
     let Some(subject_id) = station.subject_id else {
-        return Ok(Phase::Waiting);
+        return Ok((Phase::Waiting, None));
     };
     let subject = store::subjects::get(pool, subject_id).await?;
     let study = store::studies::get(pool, subject.study_id).await?;
+    let (consent, texts) = rendered_texts(&study.params);
+    let phase = subject_phase(pool, station, &subject, &study, consent, test).await?;
+    Ok((phase, Some(texts)))
+}
+
+/// Where the station's subject is in the protocol.
+async fn subject_phase<T>(
+    pool: &SqlitePool,
+    station: &Station,
+    subject: &Subject,
+    study: &Study,
+    consent: ConsentForm,
+    test: impl Fn(TestView, &Trial) -> T,
+) -> Result<Phase<T>> {
+    let subject_id = subject.id;
     let code = subject.code.clone();
     if subject.withdrawn_at.is_some() {
         return Ok(Phase::Done {
@@ -280,7 +308,7 @@ async fn phase<T>(
         None => {
             return Ok(Phase::Consent {
                 subject: code,
-                consent: study.params.consent,
+                consent,
             });
         }
         Some(ConsentDecision::Declined) => {
@@ -304,7 +332,7 @@ async fn phase<T>(
             subject: code,
             trial_id: t.id,
             label: t.blinded_label,
-            survey: study.params.survey,
+            survey: study.params.survey.clone(),
         });
     }
     let trials = store::trials::of_subject(pool, subject_id).await?;
@@ -361,7 +389,7 @@ async fn phase<T>(
 /// What the station shows its subject now (never a compensator's name), with what
 /// happened to the last test when it was stopped.
 pub async fn station_view(pool: &SqlitePool, station: &Station) -> Result<StationView> {
-    let phase = phase(pool, station, |view, _| view).await?;
+    let (phase, texts) = phase(pool, station, |view, _| view).await?;
     let stopped = match (&phase, station.subject_id) {
         (Phase::Ready { .. } | Phase::Move { .. } | Phase::Held { .. }, Some(subject_id)) => {
             queue::stop_notice(&store::trials::of_subject(pool, subject_id).await?)
@@ -375,6 +403,7 @@ pub async fn station_view(pool: &SqlitePool, station: &Station) -> Result<Statio
         },
         phase,
         stopped,
+        texts,
     })
 }
 
@@ -391,7 +420,8 @@ pub async fn monitor_view(
             test,
             compensator: t.compensator,
         })
-        .await?,
+        .await?
+        .0,
         station: MonitorStation {
             id: station.id,
             name: station.name,

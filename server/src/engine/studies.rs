@@ -1,5 +1,5 @@
-//! Creating and editing a study: the parameters are validated, and a study whose protocol is
-//! locked (a subject enrolled) cannot change.
+//! Creating and editing a study: the parameters are validated and checked to run
+//! (`runnable`), and a study whose protocol is locked (a subject enrolled) cannot change.
 
 use bdft_protocol::study::StudyParams;
 use serde_json::json;
@@ -29,6 +29,7 @@ pub async fn create(
         ));
     }
     params.validate()?;
+    check_runnable(params).await?;
     let seed = seed.unwrap_or_else(store::tokens::random_seed);
     let mut change = Change::begin(pool, actor).await?;
     let id = store::studies::insert(change.db(), name, params, seed).await?;
@@ -40,6 +41,14 @@ pub async fn create(
         )
         .await?;
     Ok(id)
+}
+
+/// `runnable::check` off the async threads (it designs every compensator and draws targets).
+async fn check_runnable(params: &StudyParams) -> Result<()> {
+    let params = params.clone();
+    tokio::task::spawn_blocking(move || super::runnable::check(&params))
+        .await
+        .map_err(|e| AppError::Internal(anyhow::anyhow!("the runnable check failed: {e}")))?
 }
 
 /// Replaces the name and parameters of a study that has not started, if nobody changed it
@@ -54,6 +63,7 @@ pub async fn update(
 ) -> Result<Edit> {
     check_name(name)?;
     params.validate()?;
+    check_runnable(params).await?;
     let mut change = Change::begin(pool, actor).await?;
     let edit = store::studies::update(change.db(), id, version, name, params).await?;
     if let Edit::Stale(_) = edit {

@@ -29,6 +29,7 @@ pub fn routes() -> OpenApiRouter<AppState> {
         .routes(routes!(plot))
         .routes(routes!(download))
         .routes(routes!(audit_log))
+        .routes(routes!(audit_export))
 }
 
 /// Statistics per compensator × seat of every metric and rating.
@@ -92,10 +93,10 @@ async fn plot(
         .into_response())
 }
 
-/// A CSV export (`trials`, `samples` or `summary`, optionally with `.csv`), streamed: the
+/// A CSV export (`trials`, `samples`, `summary` or `notes`, optionally with `.csv`), streamed: the
 /// response starts at once and is written as rows are read.
 #[utoipa::path(get, path = "/api/studies/{id}/export/{kind}", tag = "results",
-    params(("id" = i64, Path), ("kind" = String, Path, description = "trials, samples or summary")),
+    params(("id" = i64, Path), ("kind" = String, Path, description = "trials, samples, summary or notes")),
     responses((status = 200, description = "CSV", content_type = "text/csv")))]
 async fn download(
     State(s): State<AppState>,
@@ -104,6 +105,11 @@ async fn download(
 ) -> Result<Response, AppError> {
     let kind_name = kind.trim_end_matches(".csv").to_string();
     let kind: ExportKind = kind_name.parse().map_err(AppError::BadRequest)?;
+    if !kind.per_study() {
+        return Err(AppError::BadRequest(
+            "kind: the audit log is not one study's; it is at /api/audit/export".into(),
+        ));
+    }
     let study = store::studies::get(&s.pool, id).await?;
     Change::begin(&s.pool, who.username.as_str())
         .await?
@@ -113,14 +119,7 @@ async fn download(
             json!({ "kind": kind_name }),
         )
         .await?;
-    let (w, r) = tokio::io::duplex(1 << 16);
-    let pool = s.pool.clone();
-    tokio::spawn(async move {
-        if let Err(e) = export::write(&pool, id, kind, w).await {
-            tracing::error!("export of study {id} failed mid-stream: {e}");
-        }
-    });
-    let body = Body::from_stream(tokio_util::io::ReaderStream::new(r));
+    let body = stream(&s, id, kind);
     let filename = format!(
         "bdft-study{}-{kind_name}-{}.csv",
         study.id,
@@ -130,7 +129,23 @@ async fn download(
             .get(..8)
             .unwrap_or("unlocked")
     );
-    Ok((
+    Ok(csv(body, &filename))
+}
+
+/// The export written into the response as it is read (`study_id` unused for `audit`).
+fn stream(s: &AppState, study_id: i64, kind: ExportKind) -> Body {
+    let (w, r) = tokio::io::duplex(1 << 16);
+    let pool = s.pool.clone();
+    tokio::spawn(async move {
+        if let Err(e) = export::write(&pool, study_id, kind, w).await {
+            tracing::error!("export {kind:?} (study {study_id}) failed mid-stream: {e}");
+        }
+    });
+    Body::from_stream(tokio_util::io::ReaderStream::new(r))
+}
+
+fn csv(body: Body, filename: &str) -> Response {
+    (
         [
             (header::CONTENT_TYPE, "text/csv; charset=utf-8".to_string()),
             (
@@ -140,7 +155,20 @@ async fn download(
         ],
         body,
     )
-        .into_response())
+        .into_response()
+}
+
+/// The whole audit log as CSV, oldest first (`id, at, actor, action, target, detail` with
+/// the detail as JSON), streamed.
+#[utoipa::path(get, path = "/api/audit/export", tag = "results",
+    responses((status = 200, description = "CSV", content_type = "text/csv")))]
+async fn audit_export(State(s): State<AppState>, who: Experimenter) -> Result<Response, AppError> {
+    Change::begin(&s.pool, who.username.as_str())
+        .await?
+        .commit("export", None, json!({ "kind": "audit" }))
+        .await?;
+    let body = stream(&s, 0, ExportKind::Audit);
+    Ok(csv(body, "bdft-audit.csv"))
 }
 
 #[derive(Debug, Deserialize, IntoParams)]

@@ -52,7 +52,7 @@ pub struct AuditEntry {
 }
 
 /// id, at, actor, actor_id, action, target, detail_json
-type AuditRow = (
+pub type AuditRow = (
     i64,
     i64,
     String,
@@ -61,6 +61,22 @@ type AuditRow = (
     Option<String>,
     Option<String>,
 );
+
+/// Up to `limit` rows after the row `after`, oldest first, with `at` in ms (an export reads
+/// the whole log page by page).
+pub async fn page<'c>(
+    db: impl SqliteExecutor<'c>,
+    after: i64,
+    limit: i64,
+) -> Result<Vec<AuditRow>> {
+    Ok(sqlx::query_as(
+        "SELECT id, at, actor, actor_id, action, target, detail_json FROM audit_log WHERE id > ? ORDER BY id LIMIT ?",
+    )
+    .bind(after)
+    .bind(limit)
+    .fetch_all(db)
+    .await?)
+}
 
 /// The newest `limit` rows, newest first.
 pub async fn newest<'c>(db: impl SqliteExecutor<'c>, limit: i64) -> Result<Vec<AuditEntry>> {

@@ -87,3 +87,43 @@ pub async fn recorded_trials<'c>(
     .fetch_all(db)
     .await?)
 }
+
+/// One note or reason about a test: the experimenter's notes, the reasons given for a redo,
+/// an abort, filing incomplete or a failed start, and the reason a test's status was filed
+/// with (a fault, the E-stop, a lost controller).
+#[derive(Debug, sqlx::FromRow)]
+pub struct NoteRow {
+    pub study_id: i64,
+    pub trial_id: Option<i64>,
+    pub code: String,
+    pub slot: Option<i64>,
+    pub attempt: Option<i64>,
+    /// `note`, `redo`, `abort`, `mark_incomplete`, `start_failed` or `status`.
+    pub kind: String,
+    pub status: Option<String>,
+    pub at: Option<i64>,
+    pub author: String,
+    pub text: String,
+}
+
+/// Audit actions whose detail carries the reason an experimenter gave for a test, and the
+/// kind each is exported as.
+const REASON_ACTIONS: &str =
+    "'trial.redo', 'trial.abort', 'trial.mark_incomplete', 'trial.start_failed'";
+
+/// Every note and reason about the study's subjects who have not withdrawn and their tests,
+/// in schedule order, then time.
+pub async fn note_rows<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<Vec<NoteRow>> {
+    let sql = format!(
+        "SELECT s.study_id, x.trial_id, s.code, t.slot, t.attempt, x.kind, t.status, x.at, x.author, x.text FROM ( \
+           SELECT n.subject_id, n.trial_id, 'note' AS kind, n.created_at AS at, n.author, n.text FROM notes n \
+           UNION ALL \
+           SELECT tt.subject_id, tt.id, substr(a.action, 7), a.at, a.actor, COALESCE(json_extract(a.detail_json, '$.reason'), '') \
+             FROM audit_log a JOIN trials tt ON tt.id = CAST(substr(a.target, 7) AS INTEGER) WHERE a.action IN ({REASON_ACTIONS}) AND a.target LIKE 'trial:%' \
+           UNION ALL \
+           SELECT tt.subject_id, tt.id, 'status', tt.finished_at, '', tt.status_reason FROM trials tt WHERE tt.status_reason IS NOT NULL \
+         ) x JOIN subjects s ON s.id = x.subject_id LEFT JOIN trials t ON t.id = x.trial_id \
+         WHERE s.study_id = ? AND s.withdrawn_at IS NULL ORDER BY s.enrol_index, t.slot, t.attempt, x.at"
+    );
+    Ok(sqlx::query_as(&sql).bind(study_id).fetch_all(db).await?)
+}

@@ -11,6 +11,7 @@ pub mod db;
 pub mod dry_runs;
 pub mod exports;
 pub mod latch;
+pub mod pilot_runs;
 pub mod records;
 pub mod stations;
 pub mod studies;

@@ -272,10 +272,11 @@ pub async fn mark_invalid(db: &mut SqliteConnection, trial_id: i64, reason: &str
     Ok(done.rows_affected() == 1)
 }
 
-/// Marks every running trial incomplete (after a server restart or a controller death),
-/// or invalid when it was found so; returns their ids.
+/// Marks every running trial of this server's controller incomplete (after a server restart
+/// or a controller death), or invalid when it was found so; returns their ids. A pilot
+/// process's trials (`pilot_trials`) run on its own controller and are left to its heartbeat.
 pub async fn interrupt_running(db: &mut SqliteConnection, reason: &str) -> Result<Vec<i64>> {
-    let ids: Vec<(i64,)> = sqlx::query_as("UPDATE trials SET status = CASE WHEN invalid_reason IS NULL THEN 'incomplete' ELSE 'invalid' END, status_reason = COALESCE(invalid_reason, ?), finished_at = MAX(?, COALESCE(started_at, 0)) WHERE status = 'running' RETURNING id")
+    let ids: Vec<(i64,)> = sqlx::query_as("UPDATE trials SET status = CASE WHEN invalid_reason IS NULL THEN 'incomplete' ELSE 'invalid' END, status_reason = COALESCE(invalid_reason, ?), finished_at = MAX(?, COALESCE(started_at, 0)) WHERE status = 'running' AND id NOT IN (SELECT trial_id FROM pilot_trials) RETURNING id")
         .bind(reason)
         .bind(now_ms())
         .fetch_all(db)

@@ -1,0 +1,73 @@
+//! The `bdft-server pilot` processes working on the database (`pilot_runs`), their
+//! heartbeats, and the trials each started (`pilot_trials`): how a killed pilot's trials
+//! are found.
+
+use sqlx::{SqliteConnection, SqliteExecutor};
+
+use super::db::now_ms;
+use crate::error::Result;
+
+/// Registers a pilot process; returns the run's id.
+pub async fn start(db: &mut SqliteConnection, pid: u32) -> Result<i64> {
+    let now = now_ms();
+    let (id,): (i64,) = sqlx::query_as(
+        "INSERT INTO pilot_runs (pid, started_at, beat_at) VALUES (?, ?, ?) RETURNING id",
+    )
+    .bind(i64::from(pid))
+    .bind(now)
+    .bind(now)
+    .fetch_one(db)
+    .await?;
+    Ok(id)
+}
+
+/// The run is alive. Not audited: a heartbeat changes no state of the study.
+pub async fn beat<'c>(db: impl SqliteExecutor<'c>, run_id: i64) -> Result<()> {
+    sqlx::query("UPDATE pilot_runs SET beat_at = ? WHERE id = ? AND ended_at IS NULL")
+        .bind(now_ms())
+        .bind(run_id)
+        .execute(db)
+        .await?;
+    Ok(())
+}
+
+/// `trial_id` is run by the pilot `run_id` (in the transaction that marks it running).
+pub async fn claim(db: &mut SqliteConnection, run_id: i64, trial_id: i64) -> Result<()> {
+    sqlx::query("INSERT INTO pilot_trials (trial_id, run_id) VALUES (?, ?)")
+        .bind(trial_id)
+        .bind(run_id)
+        .execute(db)
+        .await?;
+    Ok(())
+}
+
+/// Runs that have not ended and last beat before `before` (ms): (id, pid).
+pub async fn silent_since<'c>(db: impl SqliteExecutor<'c>, before: i64) -> Result<Vec<(i64, i64)>> {
+    Ok(sqlx::query_as(
+        "SELECT id, pid FROM pilot_runs WHERE ended_at IS NULL AND beat_at < ? ORDER BY id",
+    )
+    .bind(before)
+    .fetch_all(db)
+    .await?)
+}
+
+/// Ends a run: the trials it left running are filed incomplete with `reason`; returns
+/// their ids.
+pub async fn end(db: &mut SqliteConnection, run_id: i64, reason: &str) -> Result<Vec<i64>> {
+    let now = now_ms();
+    let ids: Vec<(i64,)> = sqlx::query_as(
+        "UPDATE trials SET status = 'incomplete', status_reason = ?, finished_at = MAX(?, COALESCE(started_at, 0)) \
+         WHERE status = 'running' AND id IN (SELECT trial_id FROM pilot_trials WHERE run_id = ?) RETURNING id",
+    )
+    .bind(reason)
+    .bind(now)
+    .bind(run_id)
+    .fetch_all(&mut *db)
+    .await?;
+    sqlx::query("UPDATE pilot_runs SET ended_at = ? WHERE id = ? AND ended_at IS NULL")
+        .bind(now)
+        .bind(run_id)
+        .execute(&mut *db)
+        .await?;
+    Ok(ids.into_iter().map(|r| r.0).collect())
+}
