@@ -25,7 +25,7 @@ export async function refresh(announce) {
     return;
   }
   const json = JSON.stringify(r.data);
-  setStatus($('audit-status'), 'info', `${r.data.length} entries, read ${when(Date.now())}`);
+  setStatus($('audit-status'), 'info', `${r.data.length} ${r.data.length === 1 ? 'entry' : 'entries'}, read ${when(Date.now())}`);
   if (json === lastJson) return;
   lastJson = json;
   rows = r.data;

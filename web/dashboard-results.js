@@ -53,7 +53,7 @@ export function init() {
 
 function setLinks() {
   const id = S.studyId;
-  for (const kind of ['trials', 'samples', 'summary', 'notes']) {
+  for (const kind of ['trials', 'samples', 'summary', 'stats', 'notes']) {
     const a = $(`download-${kind}`);
     if (id) {
       a.href = `/api/studies/${id}/export/${kind}`;

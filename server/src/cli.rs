@@ -56,7 +56,8 @@ enum Command {
         #[arg(long)]
         study: Option<i64>,
         /// trials (one row per test), samples (1 kHz records, long format), summary
-        /// (statistics per controller × station), notes (notes and reasons about tests) or
+        /// (statistics per controller × station), stats (Friedman, pairwise exact Wilcoxon
+        /// with Holm, on vs off, RM-ANOVA), notes (notes and reasons about tests) or
         /// audit (the whole audit log; --study is not used).
         #[arg(long)]
         kind: ExportKind,

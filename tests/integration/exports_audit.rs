@@ -92,7 +92,7 @@ fn notes_and_reasons_are_exported_and_the_audit_log_too() {
             .clone()
     };
     assert_eq!(of("note")[body], "'\u{a0}=HYPERLINK(\"x\")");
-    assert_eq!(of("mark_incomplete")[body], "' =1+1 felt ill");
+    assert_eq!(of("accept_incomplete")[body], "' =1+1 felt ill");
     assert_eq!(of("redo")[body], "'\u{3000}+retry later");
     let status = of("status");
     assert_eq!(status[column(&rows, "status")], "incomplete");
@@ -105,14 +105,16 @@ fn notes_and_reasons_are_exported_and_the_audit_log_too() {
     let audit = parse_csv(&text);
     assert_eq!(
         audit[0],
-        ["id", "at", "actor", "action", "target", "detail"]
+        [
+            "id", "at", "actor", "actor_id", "action", "target", "detail"
+        ]
     );
     let action = column(&audit, "action");
     for a in [
         "study.create",
         "consent",
         "trial.note",
-        "trial.mark_incomplete",
+        "trial.accept_incomplete",
         "trial.redo",
     ] {
         assert!(

@@ -80,6 +80,16 @@ fn a_pilots_statistics_agree_with_its_export_and_state_the_small_n_floor() {
     assert_eq!(find("wilcoxon_on_off", "ms_cab_accel", "on-off").len(), 5);
     let aov = find("rm_anova", "log_mse_tracking_mm2", "both");
     assert_eq!(aov.len(), 3, "{table}");
+    // The same table as CSV, from the API (and `bdft-server export --kind stats`).
+    let (code, stats_csv) = api.get_text(&format!("/api/studies/{copy}/export/stats"));
+    assert_eq!(code, 200);
+    let mut lines = stats_csv.lines();
+    let head = lines.next().unwrap();
+    assert!(
+        head.starts_with("test,metric,station,a,b,n,statistic,p_value,p_adjusted,effect_size"),
+        "{head}"
+    );
+    assert_eq!(lines.count(), rows.len());
     // The planner on the pilot's spread: 8 subjects cannot make any of the 10 pairs
     // significant (2/2^8 × 10 > 0.05), 12 can be simulated; bad requests (422) name the field.
     let (code, plan) = api.post(

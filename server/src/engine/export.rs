@@ -1,7 +1,7 @@
 //! Tidy CSV exports for R or pandas, streamed row by row (memory stays constant however large
 //! the study): `trials` (one row per test attempt), `samples` (the 1 kHz records, long
-//! format), `summary` (statistics per compensator × seat), `notes` (every note and reason
-//! about a test), and `audit` (the whole audit log, not one study's). Withdrawn subjects are
+//! format), `summary` (statistics per compensator × seat), `stats` (the inferential
+//! statistics: `inference_table`), `notes` (every note and reason about a test), and `audit` (the whole audit log, not one study's). Withdrawn subjects are
 //! left out. Text cells are neutralized against spreadsheet formula injection.
 
 use sqlx::SqlitePool;
@@ -20,6 +20,7 @@ pub enum ExportKind {
     Trials,
     Samples,
     Summary,
+    Stats,
     Notes,
     Audit,
 }
@@ -38,10 +39,11 @@ impl std::str::FromStr for ExportKind {
             "trials" => Ok(Self::Trials),
             "samples" => Ok(Self::Samples),
             "summary" => Ok(Self::Summary),
+            "stats" => Ok(Self::Stats),
             "notes" => Ok(Self::Notes),
             "audit" => Ok(Self::Audit),
             _ => Err(format!(
-                "unknown export {s:?}; valid: trials, samples, summary, notes, audit"
+                "unknown export {s:?}; valid: trials, samples, summary, stats, notes, audit"
             )),
         }
     }
@@ -171,6 +173,7 @@ pub async fn write(
         ExportKind::Trials => trials(pool, study_id, &mut w).await?,
         ExportKind::Samples => samples(pool, study_id, &mut w).await?,
         ExportKind::Summary => summary(pool, study_id, &mut w).await?,
+        ExportKind::Stats => stats(pool, study_id, &mut w).await?,
         ExportKind::Notes => notes(pool, study_id, &mut w).await?,
         ExportKind::Audit => audit(pool, &mut w).await?,
     }
@@ -303,6 +306,64 @@ async fn summary(
             s.controller, s.station, s.variable, s.n, s.mean, s.median, s.q1, s.q3, s.min, s.max
         );
         w.write_all(line.as_bytes()).await?;
+    }
+    Ok(())
+}
+
+pub const STATS_COLUMNS: [&str; 19] = [
+    "test",
+    "metric",
+    "station",
+    "a",
+    "b",
+    "n",
+    "statistic",
+    "p_value",
+    "p_adjusted",
+    "effect_size",
+    "effect",
+    "median_diff",
+    "ci_low",
+    "ci_high",
+    "df1",
+    "df2",
+    "eps",
+    "reachable",
+    "note",
+];
+
+async fn stats(
+    pool: &SqlitePool,
+    study_id: i64,
+    w: &mut (impl AsyncWrite + Unpin),
+) -> Result<(), ExportError> {
+    w.write_all(format!("{}\n", STATS_COLUMNS.join(",")).as_bytes())
+        .await?;
+    let opt = |v: Option<f64>| v.map(|x| x.to_string()).unwrap_or_default();
+    for r in super::inference_table::study_table(pool, study_id).await? {
+        let cells = [
+            r.test,
+            r.metric,
+            r.station,
+            r.a,
+            r.b,
+            r.n.to_string(),
+            r.statistic.to_string(),
+            r.p_value.to_string(),
+            opt(r.p_adjusted),
+            r.effect_size.to_string(),
+            r.effect,
+            opt(r.median_diff),
+            opt(r.ci_low),
+            opt(r.ci_high),
+            opt(r.df1),
+            opt(r.df2),
+            opt(r.eps),
+            u8::from(r.reachable).to_string(),
+            text_cell(&r.note),
+        ];
+        w.write_all(cells.join(",").as_bytes()).await?;
+        w.write_all(b"\n").await?;
     }
     Ok(())
 }

@@ -218,7 +218,7 @@ pub async fn add_note(pool: &SqlitePool, author: &str, trial_id: i64, text: &str
         .commit(
             "trial.note",
             Some(format!("trial:{trial_id}")),
-            json!({ "note": note }),
+            json!({ "note": note, "text": text }),
         )
         .await?;
     Ok(note)

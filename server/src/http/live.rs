@@ -365,8 +365,14 @@ impl Display {
             reason,
             "display beyond the study's limits"
         );
-        if let Err(e) =
-            validity::invalidate(&s.pool, &s.controller, "server", w.trial_id, &reason).await
+        if let Err(e) = validity::invalidate(
+            &s.pool,
+            &s.controller,
+            "system:display-watch",
+            w.trial_id,
+            &reason,
+        )
+        .await
         {
             tracing::error!(trial = w.trial_id, "filing an invalid trial: {e}");
         }

@@ -96,7 +96,7 @@ async fn plot(
 /// A CSV export (`trials`, `samples`, `summary` or `notes`, optionally with `.csv`), streamed: the
 /// response starts at once and is written as rows are read.
 #[utoipa::path(get, path = "/api/studies/{id}/export/{kind}", tag = "results",
-    params(("id" = i64, Path), ("kind" = String, Path, description = "trials, samples, summary or notes")),
+    params(("id" = i64, Path), ("kind" = String, Path, description = "trials, samples, summary, stats or notes")),
     responses((status = 200, description = "CSV", content_type = "text/csv")))]
 async fn download(
     State(s): State<AppState>,

@@ -98,7 +98,7 @@ pub struct NoteRow {
     pub code: String,
     pub slot: Option<i64>,
     pub attempt: Option<i64>,
-    /// `note`, `redo`, `abort`, `mark_incomplete`, `start_failed` or `status`.
+    /// `note`, `redo`, `abort`, `accept_incomplete`, `start_failed`, `invalid` or `status`.
     pub kind: String,
     pub status: Option<String>,
     pub at: Option<i64>,
@@ -109,7 +109,7 @@ pub struct NoteRow {
 /// Audit actions whose detail carries the reason an experimenter gave for a test, and the
 /// kind each is exported as.
 const REASON_ACTIONS: &str =
-    "'trial.redo', 'trial.abort', 'trial.mark_incomplete', 'trial.start_failed'";
+    "'trial.redo', 'trial.abort', 'trial.accept_incomplete', 'trial.start_failed', 'trial.invalid'";
 
 /// Every note and reason about the study's subjects who have not withdrawn and their tests,
 /// in schedule order, then time.
