@@ -82,7 +82,16 @@ fn echo_latencies(server: &Server, api: &Api, study: i64, rate: f64, seconds: f6
     let mut latencies = Vec::new();
     let mut started: Option<Instant> = None;
     let mut next = Instant::now();
+    // The display's health, as a visible page reports it (the server stops a test whose
+    // display goes silent).
+    let mut last_display: Option<Instant> = None;
     loop {
+        if last_display.is_none_or(|t| t.elapsed() >= Duration::from_millis(250)) {
+            last_display = Some(Instant::now());
+            let m = json!({ "type": "display", "trial_id": trial, "hidden": false,
+                "frames": seq, "longest_gap_ms": 17.0, "hidden_ms": 0.0, "inputs": seq });
+            ws.send(Message::Text(m.to_string().into())).unwrap();
+        }
         if started.is_some_and(|t| t.elapsed() > Duration::from_secs_f64(seconds)) {
             break;
         }

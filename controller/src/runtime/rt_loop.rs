@@ -542,9 +542,9 @@ mod tests {
             }
         }
         let n = live.len() - before;
-        // 100 echoes (one per 4 ticks) and 40 regular samples, some on the same tick.
+        // 200 echoes (one per 2 ticks) and 40 regular samples, some on the same tick.
         assert!(
-            (100..=140).contains(&n),
+            (200..=240).contains(&n),
             "{n} live samples in 400 ticks of 1 kHz input"
         );
     }

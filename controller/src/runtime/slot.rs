@@ -143,10 +143,11 @@ fn prefaulted(rows: usize) -> Vec<RecordRow> {
     v
 }
 
-/// Fewest ticks between two live samples sent for new input: 4 ms, so input up to 250 Hz
-/// is echoed at once, and the live samples of a trial stay below 350 a second (these and
-/// the regular 100 Hz) whatever the input rate.
-const ECHO_SPACING: u64 = 4;
+/// Fewest ticks between two live samples sent for new input: 2 ms, so input up to 500 Hz
+/// (the stations' limit) is echoed at once — at 4 ms, 250 Hz input with jitter drifted
+/// into echoes up to 3 ms late —, and the live samples of a trial stay below 600 a second
+/// (these and the regular 100 Hz) whatever the input rate.
+const ECHO_SPACING: u64 = 2;
 
 /// What one tick of a slot produced.
 #[derive(Debug)]
