@@ -164,6 +164,26 @@ export const CONTROLLER_NAME = {
   'lqr-cabacc': 'LQR + cab acceleration',
 };
 
+/** How the test ran: the station's display and input, the controller's timing. */
+export function validityText(t) {
+  const parse = (j) => {
+    try {
+      return j ? JSON.parse(j) : null;
+    } catch {
+      return null;
+    }
+  };
+  const c = parse(t.client_timing_json);
+  const k = parse(t.timing_json);
+  const parts = [];
+  if (c) {
+    parts.push(`display ${c.frames} frames, longest gap ${num(c.longest_gap_ms)} ms, hidden ${num(c.hidden_ms)} ms`);
+    parts.push(`input ${num(c.input_hz)} Hz, round trip p50 ${num(c.rtt_ms.p50)} / p95 ${num(c.rtt_ms.p95)} / max ${num(c.rtt_ms.max)} ms`);
+  } else if (t.started_at) parts.push('no display figures from the station');
+  if (k) parts.push(`controller ${k.overruns} overruns, wake p99 ${num(k.wake_latency_us.p99)} µs`);
+  return parts.join(' · ');
+}
+
 export function controllerName(kind) {
   return CONTROLLER_NAME[kind] ? `${CONTROLLER_NAME[kind]} (${kind})` : kind;
 }

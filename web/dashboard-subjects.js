@@ -2,7 +2,7 @@
 // with every trial attempt (real controller, blinded label, results, survey) and its actions.
 
 import {
-  S, act, CONTROLLER_NAME, el, emit, get, num, on, post, setStatus, syncRows, when, SEAT_NAME,
+  S, act, CONTROLLER_NAME, el, emit, get, num, on, post, setStatus, syncRows, validityText, when, SEAT_NAME,
 } from './dashboard-core.js';
 import { reloadSelected } from './dashboard-study.js';
 import { mayChange } from './dashboard-accounts.js';
@@ -261,23 +261,6 @@ async function loadSchedule(id) {
 
 const FINISHED = ['complete', 'aborted', 'incomplete', 'invalid'];
 
-/** The test's validity figures: what the station's display did and how the controller kept time. */
-function validityLine(t) {
-  const parse = (j) => {
-    try {
-      return j ? JSON.parse(j) : null;
-    } catch {
-      return null;
-    }
-  };
-  const d = parse(t.client_timing_json);
-  const c = parse(t.timing_json);
-  const parts = [];
-  if (d) parts.push(`display: ${d.frames} frames, longest gap ${Math.round(d.longest_gap_ms ?? 0)} ms, hidden ${Math.round(d.hidden_ms ?? 0)} ms, input ${Math.round(d.input_hz ?? 0)} Hz, round trip p95 ${num(d.rtt_ms && d.rtt_ms.p95)} ms`);
-  if (c) parts.push(`controller: ${c.overruns} overruns, wake p99 ${num(c.wake_latency_us && c.wake_latency_us.p99)} µs`);
-  return parts.length ? el('div', { class: 'sub validity' }, parts.join(' · ')) : null;
-}
-
 const HEADERS = [
   ['Slot', 'Slot in the schedule (0 = practice), attempt and trial id'],
   ['Seat · block · pos.', 'Seat (on or off the machine), block (1 = starting seat) and position in the block'],
@@ -382,7 +365,7 @@ function renderSchedule(d) {
           isLatest ? null : el('span', { class: 'tag' }, 'superseded'),
           t.status_reason ? el('div', { class: 'reason' }, t.status_reason) : null,
           t.accepted_reason ? el('div', { class: 'reason' }, `accepted as incomplete: ${t.accepted_reason}`) : null,
-          validityLine(t),
+          t.started_at ? el('div', { class: 'sub validity' }, validityText(t)) : null,
         ),
         el('td', { class: 'num', title: t.mse_tracking_mm2 ?? '' }, num(t.mse_tracking_mm2)),
         el('td', { class: 'num', title: t.ms_cab_accel ?? '' }, num(t.ms_cab_accel)),

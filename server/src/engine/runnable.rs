@@ -3,9 +3,9 @@
 //! practice's included — can be built as the controller builds it. The parameters' ranges
 //! are `StudyParams::validate`'s; this is what only building the parts can tell.
 
-use bdft_controller::closed_loop::{ClosedLoop, LoopSetup};
+use bdft_controller::closed_loop::ClosedLoop;
 use bdft_controller::signals::StepTarget;
-use bdft_protocol::params::{CompensatorSpec, LoopParams, Seat, StepParams};
+use bdft_protocol::params::{CompensatorSpec, StepParams};
 use bdft_protocol::study::StudyParams;
 
 use crate::error::{AppError, Result};
@@ -63,22 +63,14 @@ fn check_targets(params: &StudyParams) -> Result<()> {
 /// Builds the loop the controller builds for a trial of `spec` (plant, body and compensator
 /// designed at the loop's sample period): a design that has no solution fails here.
 fn check_design(params: &StudyParams, spec: &CompensatorSpec) -> Result<()> {
-    let setup = LoopSetup {
-        plant: params.plant,
-        body: params.body,
-        loop_params: LoopParams {
-            k_bf: params.k_bf,
-            ..LoopParams::default()
-        },
-        station: Seat::On,
-        compensator: spec.clone(),
-    };
-    ClosedLoop::new(&setup, 0).map(|_| ()).map_err(|e| {
-        AppError::BadRequest(format!(
-            "controllers: the {} design cannot be built: {e}",
-            spec.kind()
-        ))
-    })
+    ClosedLoop::new(&super::stability::study_loop(params, spec), 0)
+        .map(|_| ())
+        .map_err(|e| {
+            AppError::BadRequest(format!(
+                "controllers: the {} design cannot be built: {e}",
+                spec.kind()
+            ))
+        })
 }
 
 #[cfg(test)]

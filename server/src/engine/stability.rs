@@ -58,8 +58,14 @@ impl StabilityReport {
     }
 }
 
-fn verdict(params: &StudyParams, spec: &bdft_protocol::params::CompensatorSpec) -> Result<Verdict> {
-    let setup = LoopSetup {
+/// The loop a trial of `spec` in a study of `params` runs (on the machine, at the study's
+/// K_BF and the loop's sample period): what the stability gate analyses and the creation
+/// checks build.
+pub fn study_loop(
+    params: &StudyParams,
+    spec: &bdft_protocol::params::CompensatorSpec,
+) -> LoopSetup {
+    LoopSetup {
         plant: params.plant,
         body: params.body,
         loop_params: LoopParams {
@@ -68,7 +74,11 @@ fn verdict(params: &StudyParams, spec: &bdft_protocol::params::CompensatorSpec) 
         },
         station: Seat::On,
         compensator: spec.clone(),
-    };
+    }
+}
+
+fn verdict(params: &StudyParams, spec: &bdft_protocol::params::CompensatorSpec) -> Result<Verdict> {
+    let setup = study_loop(params, spec);
     let design = |e: bdft_controller::error::DesignError| {
         AppError::BadRequest(format!("{}: the design cannot be built: {e}", spec.kind()))
     };

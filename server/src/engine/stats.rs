@@ -1,12 +1,11 @@
 //! Descriptive statistics per compensator × seat: the numbers behind the box plots, the
-//! table of averages and the summary export. Only the completed, scored tests of subjects who
-//! have not withdrawn count.
+//! table of averages and the summary export. Only the latest attempt of each test counts,
+//! when it is complete, of subjects who have not withdrawn (`inference_table::StudyData`).
 
-use bdft_protocol::records::TrialStatus;
 use sqlx::SqlitePool;
 
+use super::inference_table::StudyData;
 use crate::error::Result;
-use crate::store;
 
 /// Quantile by linear interpolation between order statistics (R's type 7, numpy's default).
 pub fn quantile(sorted: &[f64], q: f64) -> f64 {
@@ -41,30 +40,17 @@ pub const SUMMARY_VARIABLES: [&str; 6] = [
     "rating_controllability",
 ];
 
-/// Values of the summary variables (in `SUMMARY_VARIABLES` order) of every completed,
-/// non-practice test of subjects who have not withdrawn, by (compensator, seat) name.
+/// Values of the summary variables (in `SUMMARY_VARIABLES` order) of the latest attempt of
+/// every non-practice test when it is complete, of the subjects who have not withdrawn, by
+/// (compensator, seat) name: a redone test counts once.
 pub type GroupValues = std::collections::BTreeMap<(String, String), Vec<[Option<f64>; 6]>>;
 
 pub async fn group_values(pool: &SqlitePool, study_id: i64) -> Result<GroupValues> {
     let mut groups = GroupValues::new();
-    for r in store::exports::trial_rows(pool, study_id)
-        .await?
-        .into_iter()
-        .filter(|r| !r.practice && r.status == TrialStatus::Complete)
-    {
-        let f = |v: Option<i64>| v.map(|x| x as f64);
-        let key = (
-            r.controller.name().to_string(),
-            r.station.as_str().to_string(),
-        );
-        groups.entry(key).or_default().push([
-            r.mse_tracking_mm2,
-            r.ms_cab_accel,
-            f(r.accuracy),
-            f(r.speed),
-            f(r.smoothness),
-            f(r.controllability),
-        ]);
+    for subject in StudyData::load(pool, study_id).await?.subjects {
+        for (key, values) in subject {
+            groups.entry(key).or_default().push(values);
+        }
     }
     Ok(groups)
 }
