@@ -11,7 +11,7 @@
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
-use bdft_tests::server::{Api, Server, eventually, pair_station, short_study};
+use bdft_tests::server::{Api, Server, person_at_a_station, short_study};
 use serde_json::{Value, json};
 use tungstenite::Message;
 
@@ -50,19 +50,8 @@ fn main() {
 /// One subject's test at a station of its own, input at `rate` Hz for `seconds`: the echo
 /// latency of every input (ms).
 fn echo_latencies(server: &Server, api: &Api, study: i64, rate: f64, seconds: f64) -> Vec<f64> {
-    let enrolled = api.ok(&format!("/api/studies/{study}/subjects"), json!({}));
-    let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let (station, token) = pair_station(api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
+    let (_, _, token) = person_at_a_station(server, api, study);
     let me = Api::with_bearer(&server.base, &token);
-    me.ok("/api/station/consent", json!({ "decision": "agreed" }));
-    eventually(Duration::from_secs(30), || {
-        let (_, c) = api.get("/api/controller");
-        (c["connected"] == true && c["estop_latched"] == false).then_some(())
-    });
     let (_, state) = me.get("/api/station/state");
     let trial = state["test"]["trial_id"].as_i64().unwrap();
     let url = format!(

@@ -10,7 +10,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use bdft_tests::TempDir;
-use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, eventually, pair_station, short_study};
+use bdft_tests::server::{
+    self, ADMIN_PASSWORD, Api, Server, eventually, pair_station, short_study,
+};
 use bdft_tests::webdriver::Driver;
 use serde_json::{Value, json};
 use tungstenite::client::IntoClientRequest;
@@ -26,19 +28,7 @@ const INPUT_BURST: f64 = 100.0;
 /// A person enrolled, consented and assigned to a new station serving both seats, with the
 /// controller connected: (subject id, station id, station token, the practice trial's id).
 fn person_at_a_station(server: &Server, api: &Api, study: i64) -> (i64, i64, String, i64) {
-    let enrolled = api.ok(&format!("/api/studies/{study}/subjects"), json!({}));
-    let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let (station, token) = pair_station(api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
-    Api::with_bearer(&server.base, &token)
-        .ok("/api/station/consent", json!({ "decision": "agreed" }));
-    eventually(Duration::from_secs(20), || {
-        let (_, c) = api.get("/api/controller");
-        (c["connected"] == true && c["estop_latched"] == false).then_some(())
-    });
+    let (subject, station, token) = server::person_at_a_station(server, api, study);
     let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
     let practice = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
     (subject, station, token, practice)

@@ -10,7 +10,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use bdft_tests::server::{Api, Server, eventually, pair_station};
+use bdft_tests::server::{self, Api, Server, eventually};
 use bdft_tests::webdriver::Driver;
 use serde_json::{Value, json};
 use tungstenite::stream::MaybeTlsStream;
@@ -40,20 +40,8 @@ fn person_study(api: &Api, controllers: usize, trial_s: f64, practice_s: f64) ->
 /// A person enrolled, consented and assigned to a station serving both seats, with the
 /// controller connected: (subject id, the station's API).
 fn person_at_a_station(server: &Server, api: &Api, study: i64) -> (i64, Api) {
-    let enrolled = api.ok(&format!("/api/studies/{study}/subjects"), json!({}));
-    let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let (station, token) = pair_station(api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
-    let station = Api::with_bearer(&server.base, &token);
-    station.ok("/api/station/consent", json!({ "decision": "agreed" }));
-    eventually(Duration::from_secs(20), || {
-        let (_, c) = api.get("/api/controller");
-        (c["connected"] == true && c["estop_latched"] == false).then_some(())
-    });
-    (subject, station)
+    let (subject, _, token) = server::person_at_a_station(server, api, study);
+    (subject, Api::with_bearer(&server.base, &token))
 }
 
 fn trials(api: &Api, subject: i64) -> Vec<Value> {

@@ -233,6 +233,25 @@ pub fn run_pilot(api: &Api, study: i64, subjects: u32) -> Value {
     })
 }
 
+/// A person enrolled, consented and assigned to a new station serving both seats, with the
+/// controller connected and not latched: (subject id, station id, station token).
+pub fn person_at_a_station(server: &Server, api: &Api, study: i64) -> (i64, i64, String) {
+    let enrolled = api.ok(&format!("/api/studies/{study}/subjects"), json!({}));
+    let subject = enrolled["subject"]["id"].as_i64().unwrap();
+    let (station, token) = pair_station(api, study, "both");
+    api.ok(
+        &format!("/api/stations/{station}/assign"),
+        json!({ "subject_id": subject }),
+    );
+    Api::with_bearer(&server.base, &token)
+        .ok("/api/station/consent", json!({ "decision": "agreed" }));
+    eventually(Duration::from_secs(30), || {
+        let (_, c) = api.get("/api/controller");
+        (c["connected"] == true && c["estop_latched"] == false).then_some(())
+    });
+    (subject, station, token)
+}
+
 pub fn pair_station(api: &Api, study: i64, role: &str) -> (i64, String) {
     let reg = Api::anonymous(&api.base).ok("/api/station/register", json!({}));
     let token = reg["token"].as_str().unwrap().to_string();

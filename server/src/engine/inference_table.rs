@@ -131,10 +131,16 @@ impl StudyData {
     }
 }
 
+/// The statistics and the planner run one at a time, off the async threads: each is seconds
+/// of CPU at most (the planner's work is bounded per request), so a burst of requests waits
+/// its turn instead of taking every core from the live sockets.
+pub static COMPUTE: tokio::sync::Semaphore = tokio::sync::Semaphore::const_new(1);
+
 /// The study's table.
 pub async fn study_table(pool: &SqlitePool, study_id: i64) -> Result<Vec<StatsRow>> {
     let data = StudyData::load(pool, study_id).await?;
     // Ten thousand resamples for each of some 150 comparisons: off the async threads.
+    let _turn = COMPUTE.acquire().await.expect("never closed");
     tokio::task::spawn_blocking(move || table(&data))
         .await
         .map_err(|e| anyhow::anyhow!("statistics task: {e}").into())

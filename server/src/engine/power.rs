@@ -51,6 +51,10 @@ pub struct PlanReport {
     pub plans: Vec<Plan>,
 }
 
+/// Simulated subjects a request may ask for in all (Σ candidates × draws): a few seconds of
+/// CPU, so that one request cannot hold the planner for minutes.
+const MAX_WORK: usize = 2_000_000;
+
 impl PlanRequest {
     fn check(&self) -> Result<usize> {
         let bad = |m: String| Err(AppError::BadRequest(m));
@@ -62,6 +66,13 @@ impl PlanRequest {
         }
         if !(100..=100_000).contains(&self.draws) {
             return bad("draws: 100 to 100000 simulated studies".into());
+        }
+        let work: usize = self.subjects.iter().map(|n| n * self.draws).sum();
+        if work > MAX_WORK {
+            return bad(format!(
+                "draws × subjects: {work} simulated subjects in all, at most {MAX_WORK} a \
+                 request (fewer draws or fewer candidates)"
+            ));
         }
         if !(self.alpha > 0.0 && self.alpha < 1.0) {
             return bad("alpha: a level between 0 and 1".into());
@@ -99,6 +110,10 @@ pub async fn plan_study(pool: &SqlitePool, study_id: i64, req: PlanRequest) -> R
             req.station
         ))
     })?;
+    let _turn = super::inference_table::COMPUTE
+        .acquire()
+        .await
+        .expect("never closed");
     tokio::task::spawn_blocking(move || PlanReport {
         plans: req
             .subjects
