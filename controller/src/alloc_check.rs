@@ -68,6 +68,13 @@ mod tests {
                     f_hz: 5.0,
                     zeta: 0.3,
                 },
+                BodyModel::Seated {
+                    k_h: 0.56,
+                    torso_f_hz: 1.1,
+                    torso_zeta: 0.4,
+                    arm_f_hz: 2.5,
+                    arm_zeta: 0.35,
+                },
             ] {
                 let setup = LoopSetup {
                     compensator: variants::variant(&name, &plant, 1e-3).unwrap(),
@@ -82,7 +89,8 @@ mod tests {
                 let n = allocations_during(|| {
                     for k in 0..5_000 {
                         let target = if k < 2_500 { 20.0 } else { -30.0 };
-                        let p_h = op.step(target, lp.last_measurement().y);
+                        let p_h = op.step(target, lp.last_measurement().y, lp.felt_accel());
+                        lp.set_grip(op.grip());
                         std::hint::black_box(lp.tick(Drive::Hand(p_h)));
                     }
                     lp.reset();

@@ -92,6 +92,20 @@ impl ClosedLoop {
         self.last
     }
 
+    /// The true cab acceleration at the operator's seat (mm/s²): what a person on the
+    /// machine feels; 0 at the desk.
+    pub fn felt_accel(&self) -> f64 {
+        match self.station {
+            Seat::On => self.plant.state()[crate::model::idx::XC_DD],
+            Seat::Off => 0.0,
+        }
+    }
+
+    /// The operator's grip on the device (`Body::set_grip`).
+    pub fn set_grip(&mut self, grip: f64) {
+        self.body.set_grip(grip);
+    }
+
     pub fn set_k_bf(&mut self, k_bf: f64) {
         self.k_bf = k_bf;
     }

@@ -126,6 +126,13 @@ impl Biquad {
         y
     }
 
+    /// Takes `other`'s coefficients and keeps this filter's state: a slowly retuned filter
+    /// (a stiffening grip) moves on without a jump.
+    pub fn retune(&mut self, other: &Biquad) {
+        self.b = other.b;
+        self.a = other.a;
+    }
+
     pub fn reset(&mut self) {
         self.z = [0.0; 2];
     }

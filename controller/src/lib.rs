@@ -21,6 +21,7 @@ pub mod model;
 pub mod operator;
 pub mod param_set;
 pub mod params;
+pub mod population;
 pub mod rng;
 pub mod runner;
 pub mod runtime;

@@ -1,18 +1,41 @@
-//! A synthetic operator: a simulated subject for automated end-to-end tests and pilot runs.
+//! A synthetic operator: a simulated subject for automated end-to-end tests, pilot runs and
+//! the power planner.
 //!
 //! A pursuit model, as in the manual-control literature: the operator sees the target T and
 //! the cylinder position y on the display after a reaction delay τ, moves the device to
 //! where the target maps to (T/K_BF), adds an error-correcting term on the seen error
-//! e = T − y (proportional plus a slow integral, which removes the steady offset the
-//! feedthrough causes), and the arm follows through a first-order neuromuscular lag. Remnant
+//! e = T − y (proportional plus a slow integral, which removes a steady offset), and the arm
+//! follows through a second-order neuromuscular lag ω_nm²/(s² + 2ζω_nm s + ω_nm²). Remnant
 //! — the part of human output not explained by the model — is white noise through the same
 //! lag.
+//!
+//! Two adaptations follow McRuer's crossover model and the feedthrough literature rather
+//! than being imposed on the outcome:
+//! - **Gain on an oscillatory element.** The operator watches how much the cylinder shakes
+//!   on the display (seen y above 1.5 Hz, RMS over about a second) and lowers the error gain
+//!   by 1/(1 + shake_aversion·shake): a shaky loop is corrected more gently.
+//! - **Grip under vibration.** On the machine the operator feels the cab's acceleration
+//!   (RMS over about a second) and grips harder: the arm's frequency rises by
+//!   grip_stiffening per m/s² (`grip`, which the runner hands to a seated body).
+//!
+//! What the operator can correct follows from the delay and the lag: slow feedthrough is
+//! seen on the display and corrected, feedthrough near the cab modes (4–6 Hz) is far above
+//! the operator's bandwidth and passes through uncorrected.
 
 pub use bdft_protocol::params::OperatorParams;
 
 use crate::error::ParamError;
+use crate::filters::{Biquad, FirstOrder};
 use crate::params::check;
 use crate::rng::Rng;
+
+/// Corner of the high-pass that separates seen shake from tracking motion (rad/s).
+const SHAKE_CORNER: f64 = 2.0 * std::f64::consts::PI * 1.5;
+/// Time constant of the operator's running impressions of shake and vibration (s).
+const IMPRESSION_S: f64 = 1.0;
+/// The grip is re-evaluated every this many ticks: it changes over seconds, and retuning
+/// the arm's filter costs a tangent.
+const GRIP_EVERY: u32 = 50;
 
 #[derive(Debug, Clone)]
 pub struct SyntheticOperator {
@@ -24,13 +47,36 @@ pub struct SyntheticOperator {
     seen_y: Vec<f64>,
     head: usize,
     integral: f64,
-    /// Discrete lag y[k+1] = a·y[k] + (1 − a)·u[k] (zero-order hold of ω/(s + ω)).
-    lag_a: f64,
-    hand: f64,
-    /// White-noise standard deviation before the lag that gives remnant_std_mm after it:
-    /// the lag passes a variance fraction (1 − a)/(1 + a).
+    /// The neuromuscular lag.
+    arm: Biquad,
+    /// Seen y above `SHAKE_CORNER`, and the running mean squares of it and of the felt cab
+    /// acceleration (exponential, `IMPRESSION_S`).
+    shake_filter: FirstOrder,
+    shake_ms: f64,
+    felt_ms: f64,
+    impression_a: f64,
+    grip: f64,
+    grip_countdown: u32,
+    /// White-noise standard deviation before the lag that gives remnant_std_mm after it.
     remnant_in_std: f64,
     rng: Rng,
+}
+
+/// Σh² of the discrete lag's impulse response: the fraction of a white input's variance it
+/// passes.
+fn variance_gain(lag: &Biquad) -> f64 {
+    let mut f = *lag;
+    f.reset();
+    let mut sum = f.step(1.0).powi(2);
+    // The response decays as e^(−ζω t); 60 time constants leave less than 1e-50 of it.
+    for _ in 0..200_000 {
+        let h = f.step(0.0);
+        sum += h * h;
+        if h.abs() < 1e-30 && sum > 0.0 {
+            break;
+        }
+    }
+    sum
 }
 
 impl SyntheticOperator {
@@ -38,7 +84,8 @@ impl SyntheticOperator {
         params.validate()?;
         check("kbf", k_bf, 1e-3, crate::params::MAX_KBF)?;
         let delay = (params.reaction_delay_s / dt).round() as usize;
-        let lag_a = (-params.neuromuscular_w * dt).exp();
+        let (w, z) = (params.neuromuscular_w, params.neuromuscular_zeta);
+        let arm = Biquad::tustin([0.0, 0.0, w * w], [1.0, 2.0 * z * w, w * w], dt, None);
         Ok(Self {
             params,
             dt,
@@ -47,16 +94,22 @@ impl SyntheticOperator {
             seen_y: vec![0.0; delay + 1],
             head: 0,
             integral: 0.0,
-            lag_a,
-            hand: 0.0,
-            remnant_in_std: params.remnant_std_mm * ((1.0 + lag_a) / (1.0 - lag_a)).sqrt(),
+            arm,
+            shake_filter: FirstOrder::high_pass(SHAKE_CORNER, dt),
+            shake_ms: 0.0,
+            felt_ms: 0.0,
+            impression_a: 1.0 - (-dt / IMPRESSION_S).exp(),
+            grip: 1.0,
+            grip_countdown: GRIP_EVERY,
+            remnant_in_std: params.remnant_std_mm / variance_gain(&arm).sqrt(),
             rng: Rng::derive(seed, Rng::OPERATOR),
         })
     }
 
-    /// One tick: the display shows `target` and `y` now; returns the intended hand position.
+    /// One tick: the display shows `target` and `y` now and the seat carries `felt_accel`
+    /// (mm/s²; 0 at the desk); returns the intended hand position.
     #[inline]
-    pub fn step(&mut self, target: f64, y: f64) -> f64 {
+    pub fn step(&mut self, target: f64, y: f64, felt_accel: f64) -> f64 {
         let len = self.seen_target.len();
         self.seen_target[self.head] = target;
         self.seen_y[self.head] = y;
@@ -64,17 +117,33 @@ impl SyntheticOperator {
         let oldest = (self.head + 1) % len;
         let (t_seen, y_seen) = (self.seen_target[oldest], self.seen_y[oldest]);
         self.head = oldest;
+
+        let shake = self.shake_filter.step(y_seen);
+        self.shake_ms += self.impression_a * (shake * shake - self.shake_ms);
+        self.felt_ms += self.impression_a * (felt_accel * felt_accel - self.felt_ms);
+        self.grip_countdown -= 1;
+        if self.grip_countdown == 0 {
+            self.grip_countdown = GRIP_EVERY;
+            // mm/s² → m/s².
+            self.grip = 1.0 + self.params.grip_stiffening_per_m_s2 * self.felt_ms.sqrt() * 1e-3;
+        }
+
         let e = t_seen - y_seen;
+        let gain = self.params.error_gain
+            / (1.0 + self.params.shake_aversion_per_mm * self.shake_ms.sqrt());
         self.integral += self.params.error_integral_gain * e * self.dt;
-        let command = (t_seen + self.params.error_gain * e + self.integral) / self.k_bf;
+        let command = (t_seen + gain * e + self.integral) / self.k_bf;
         let noise = if self.remnant_in_std > 0.0 {
             self.remnant_in_std * self.rng.normal()
         } else {
             0.0
         };
-        let out = self.hand;
-        self.hand = self.lag_a * self.hand + (1.0 - self.lag_a) * (command + noise);
-        out
+        self.arm.step(command + noise)
+    }
+
+    /// How hard the operator grips now: the factor on a seated body's arm frequency.
+    pub fn grip(&self) -> f64 {
+        self.grip
     }
 }
 
@@ -82,46 +151,49 @@ impl SyntheticOperator {
 mod tests {
     use super::*;
 
-    #[test]
-    fn reacts_after_the_delay_and_settles_through_the_lag() {
-        let p = OperatorParams {
+    fn quiet() -> OperatorParams {
+        OperatorParams {
             remnant_std_mm: 0.0,
             error_gain: 0.0,
             error_integral_gain: 0.0,
+            shake_aversion_per_mm: 0.0,
             ..OperatorParams::default()
+        }
+    }
+
+    #[test]
+    fn reacts_after_the_delay_and_settles_through_the_second_order_lag() {
+        let p = OperatorParams {
+            neuromuscular_zeta: 1.0,
+            ..quiet()
         };
         let dt = 1e-3;
         let mut op = SyntheticOperator::new(p, dt, 0.5, 1).unwrap();
         // A 10 mm target step at t = 0 with the cylinder held at the target: pure pursuit,
-        // so the hand goes to 10/K_BF = 20 mm with the lag's time constant after τ.
-        let out: Vec<f64> = (0..2000).map(|_| op.step(10.0, 10.0)).collect();
+        // so the hand goes to 10/K_BF = 20 mm through the lag after τ.
+        let out: Vec<f64> = (0..3000).map(|_| op.step(10.0, 10.0, 0.0)).collect();
         assert!(
             out[..250].iter().all(|&h| h == 0.0),
             "moved before the reaction delay"
         );
         assert!(out[252] > 0.0);
-        // One time constant (1/12 s) after the delay: 1 − e⁻¹ of the way.
-        let k = 250 + (1000.0 / 12.0f64).round() as usize + 1;
-        assert!(
-            (out[k] / 20.0 - (1.0 - (-1.0f64).exp())).abs() < 0.01,
-            "{}",
-            out[k]
-        );
-        assert!((out[1999] - 20.0).abs() < 1e-3);
+        // Critically damped: the step response is 1 − (1 + ωt)e^(−ωt); at ωt = 2, 0.594.
+        let k = 250 + (2.0 / 12.0 / dt).round() as usize;
+        let want = 1.0 - 3.0 * (-2.0f64).exp();
+        assert!((out[k] / 20.0 - want).abs() < 0.01, "{} vs {want}", out[k]);
+        assert!((out[2999] - 20.0).abs() < 1e-3);
     }
 
     #[test]
     fn remnant_has_the_requested_spread_and_is_seeded() {
         let p = OperatorParams {
             remnant_std_mm: 2.0,
-            error_gain: 0.0,
-            error_integral_gain: 0.0,
-            ..OperatorParams::default()
+            ..quiet()
         };
         let run = |seed| {
             let mut op = SyntheticOperator::new(p, 1e-3, 1.0, seed).unwrap();
             (0..400_000)
-                .map(|_| op.step(0.0, 0.0))
+                .map(|_| op.step(0.0, 0.0, 0.0))
                 .collect::<Vec<f64>>()
         };
         let a = run(3);
@@ -129,5 +201,57 @@ mod tests {
         assert_ne!(a, run(4));
         let (_, std) = crate::signals::mean_std(&a[10_000..]);
         assert!((std - 2.0).abs() < 0.15, "{std}");
+    }
+
+    #[test]
+    fn a_shaking_cylinder_lowers_the_error_correction() {
+        // The seen error is the same constant offset in both runs; in one the cylinder also
+        // shakes at 5 Hz. The proportional correction shrinks by 1/(1 + a·RMS shake).
+        let p = OperatorParams {
+            error_gain: 1.0,
+            shake_aversion_per_mm: 0.5,
+            neuromuscular_zeta: 1.0,
+            ..quiet()
+        };
+        let dt = 1e-3;
+        let settle = |amp: f64| {
+            let mut op = SyntheticOperator::new(p, dt, 1.0, 1).unwrap();
+            let mut last = 0.0;
+            let mut sum = 0.0;
+            for k in 0..20_000 {
+                let y = amp * (2.0 * std::f64::consts::PI * 5.0 * k as f64 * dt).sin();
+                last = op.step(10.0, y, 0.0);
+                if k >= 10_000 {
+                    sum += last;
+                }
+            }
+            let _ = last;
+            sum / 10_000.0
+        };
+        // Without shake: 10 + 1.0·10 = 20 mm. With a 2 mm sine (RMS √2, a little less after
+        // the 1.5 Hz high-pass passes 5 Hz at 0.958): gain 1/(1 + 0.5·1.355) ≈ 0.596.
+        let calm = settle(0.0);
+        assert!((calm - 20.0).abs() < 1e-6, "{calm}");
+        let shaken = settle(2.0);
+        let hp = 5.0 / (5.0f64.powi(2) + 1.5f64.powi(2)).sqrt();
+        let want = 10.0 + 10.0 / (1.0 + 0.5 * 2.0 * hp / 2f64.sqrt());
+        assert!((shaken - want).abs() < 0.05, "{shaken} vs {want}");
+    }
+
+    #[test]
+    fn vibration_stiffens_the_grip_in_proportion_to_its_rms() {
+        let p = OperatorParams {
+            grip_stiffening_per_m_s2: 0.2,
+            ..quiet()
+        };
+        let mut op = SyntheticOperator::new(p, 1e-3, 1.0, 1).unwrap();
+        assert_eq!(op.grip(), 1.0);
+        // 3 m/s² RMS: a sine of amplitude 3√2 m/s².
+        for k in 0..10_000 {
+            let a =
+                3000.0 * 2f64.sqrt() * (2.0 * std::f64::consts::PI * 4.0 * k as f64 * 1e-3).sin();
+            op.step(0.0, 0.0, a);
+        }
+        assert!((op.grip() - 1.6).abs() < 0.02, "{}", op.grip());
     }
 }

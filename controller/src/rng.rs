@@ -42,6 +42,8 @@ impl Rng {
     pub const TARGET: u64 = 1;
     pub const ACCEL_NOISE: u64 = 2;
     pub const OPERATOR: u64 = 3;
+    pub const POPULATION: u64 = 4;
+    pub const SURVEY: u64 = 5;
 
     /// An independent stream for a sub-purpose (e.g. "accelerometer noise" vs "target"), so
     /// that adding draws to one purpose never shifts another's values.

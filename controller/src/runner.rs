@@ -14,6 +14,14 @@ pub trait Loop {
     fn tick(&mut self, drive: Drive) -> TickRecord;
     /// Cylinder position shown on the pursuit display now (last measurement).
     fn displayed_y(&self) -> f64;
+    /// Cab acceleration the operator's seat carries now (mm/s²): 0 at the desk, or where the
+    /// loop does not simulate the cab (a real rig).
+    fn felt_accel(&self) -> f64 {
+        0.0
+    }
+    /// The operator's grip: a simulated seated body's arm-frequency factor
+    /// (`Body::set_grip`); a loop without a simulated body has none to change.
+    fn set_grip(&mut self, _grip: f64) {}
 }
 
 impl Loop for ClosedLoop {
@@ -23,6 +31,12 @@ impl Loop for ClosedLoop {
     }
     fn displayed_y(&self) -> f64 {
         self.last_measurement().y
+    }
+    fn felt_accel(&self) -> f64 {
+        ClosedLoop::felt_accel(self)
+    }
+    fn set_grip(&mut self, grip: f64) {
+        ClosedLoop::set_grip(self, grip)
     }
 }
 
@@ -158,7 +172,11 @@ impl<L: Loop> TrialRunner<L> {
         let t = self.k as f64 * self.dt;
         let target = self.signal.at(t);
         let drive = match &mut self.hand {
-            HandSource::Synthetic(op) => Drive::Hand(op.step(target, self.lp.displayed_y())),
+            HandSource::Synthetic(op) => {
+                let hand = op.step(target, self.lp.displayed_y(), self.lp.felt_accel());
+                self.lp.set_grip(op.grip());
+                Drive::Hand(hand)
+            }
             HandSource::External => Drive::Hand(external_hand),
             HandSource::Reference => Drive::Reference(target),
         };

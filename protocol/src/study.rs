@@ -5,7 +5,8 @@
 use serde::{Deserialize, Serialize};
 
 use crate::params::{
-    BodyModel, CompensatorKind, CompensatorSpec, ParamError, PlantParams, Seat, check,
+    BodyModel, CompensatorKind, CompensatorSpec, ParamError, PlantParams, PopulationParams, Seat,
+    check,
 };
 
 /// The four ratings asked after every test, by key (export columns `rating_<key>`).
@@ -297,6 +298,10 @@ pub struct StudyParams {
     /// Simulated rig and operator body.
     pub plant: PlantParams,
     pub body: BodyModel,
+    /// The synthetic subjects of a dry run: what each draws its own operator, body and
+    /// survey habits from (`population: {"body": "preset"}` keeps the study's `body` for all).
+    #[serde(default)]
+    pub population: PopulationParams,
     /// How much the on-machine station's display shakes with the simulated cab (0 = off).
     pub display_shake_gain: f64,
     /// Operator input older than this stops a test (ms).
@@ -427,7 +432,8 @@ impl StudyParams {
         }
         self.check_texts()?;
         self.plant.validate()?;
-        self.body.validate()
+        self.body.validate()?;
+        self.population.validate()
     }
 
     /// The values of the texts' placeholders for this study, as `render` takes them.

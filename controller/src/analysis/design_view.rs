@@ -205,7 +205,12 @@ fn lqr_matrix(lqr: &Lqr, setup: &LoopSetup, el: Elements, k_bf: f64) -> DMatrix<
     };
     let rate = take(el.rate_filter, 1);
     let cab = take(cab_filters, 2);
-    let body = take(matches!(setup.body, BodyModel::SingleResonance { .. }), 2);
+    let body_len = match setup.body {
+        BodyModel::RigidMass { .. } => 0,
+        BodyModel::SingleResonance { .. } => 2,
+        BodyModel::Seated { .. } => 4,
+    };
+    let body = take(body_len > 0, body_len);
     let e = |i: usize| {
         let mut r = DVector::zeros(n);
         r[i] = 1.0;
@@ -221,13 +226,26 @@ fn lqr_matrix(lqr: &Lqr, setup: &LoopSetup, el: Elements, k_bf: f64) -> DMatrix<
         (None, CabOutput::Velocity) => e(idx::XC_D),
         (None, CabOutput::Acceleration) => e(idx::XC_DD),
     };
+    // A transmissibility section (2ζωs + ω²)/(s² + 2ζωs + ω²) in states b, b + 1: its output.
+    let section_out = |b: usize, f_hz: f64, zeta: f64| {
+        let w = 2.0 * std::f64::consts::PI * f_hz;
+        e(b) * (w * w) + e(b + 1) * (2.0 * zeta * w)
+    };
     let h = match (setup.body, body) {
         (BodyModel::RigidMass { k_h }, _) => e(idx::XC) * k_h,
         (BodyModel::SingleResonance { k_h, f_hz, zeta }, Some(b)) => {
-            let w = 2.0 * std::f64::consts::PI * f_hz;
-            (e(b) * (w * w) + e(b + 1) * (2.0 * zeta * w)) * k_h
+            section_out(b, f_hz, zeta) * k_h
         }
-        (BodyModel::SingleResonance { .. }, None) => unreachable!("body states were added"),
+        (
+            BodyModel::Seated {
+                k_h,
+                arm_f_hz,
+                arm_zeta,
+                ..
+            },
+            Some(b),
+        ) => (e(idx::XC) - section_out(b + 2, arm_f_hz, arm_zeta)) * k_h,
+        (_, None) => unreachable!("body states were added"),
     };
     // u = −K(x̂ − N_x r_c), r_c = −K_BF·h.
     let kn = (&d.k * &d.nx)[(0, 0)];
@@ -268,12 +286,33 @@ fn lqr_matrix(lqr: &Lqr, setup: &LoopSetup, el: Elements, k_bf: f64) -> DMatrix<
         m[(c + 1, idx::XC_DD)] = 1.0;
         m[(c + 1, c)] = -wh;
     }
-    if let (Some(b), BodyModel::SingleResonance { f_hz, zeta, .. }) = (body, setup.body) {
+    // q̈ = −ω²q − 2ζωq̇ + input, output ω²q + 2ζωq̇.
+    let section = |m: &mut DMatrix<f64>, b: usize, f_hz: f64, zeta: f64, input: &DVector<f64>| {
         let w = 2.0 * std::f64::consts::PI * f_hz;
         m[(b, b + 1)] = 1.0;
-        m[(b + 1, b)] = -w * w;
-        m[(b + 1, b + 1)] = -2.0 * zeta * w;
-        m[(b + 1, idx::XC)] = 1.0;
+        m[(b + 1, b)] -= w * w;
+        m[(b + 1, b + 1)] -= 2.0 * zeta * w;
+        add_row(m, b + 1, input, 1.0);
+    };
+    match (body, setup.body) {
+        (Some(b), BodyModel::SingleResonance { f_hz, zeta, .. }) => {
+            section(&mut m, b, f_hz, zeta, &e(idx::XC));
+        }
+        (
+            Some(b),
+            BodyModel::Seated {
+                torso_f_hz,
+                torso_zeta,
+                arm_f_hz,
+                arm_zeta,
+                ..
+            },
+        ) => {
+            section(&mut m, b, torso_f_hz, torso_zeta, &e(idx::XC));
+            let torso = section_out(b, torso_f_hz, torso_zeta);
+            section(&mut m, b + 2, arm_f_hz, arm_zeta, &torso);
+        }
+        _ => {}
     }
     m
 }
@@ -454,19 +493,36 @@ mod tests {
         // only by sampling: same pole count, and the poles well below the 1 kHz rate (the
         // structure, the cylinder, the filters) within a few %. The observer's fast poles
         // (0.2 rad per sample) are moved by sampling by up to 25 rad/s.
-        let s = setup(CompensatorKind::LqrCabvel);
-        let lqr = lqr_of(&s).unwrap().unwrap();
-        let cont = lqr_continuous(&lqr, &s, Elements::ALL)
-            .poles(NOMINAL_KBF)
-            .unwrap();
-        let sampled = LinearizedLoop::new(&s).unwrap().poles(NOMINAL_KBF).unwrap();
-        assert_eq!(cont.len(), sampled.len());
-        for p in sampled.iter().filter(|p| p[0].hypot(p[1]) < 60.0) {
-            let near = cont
-                .iter()
-                .map(|q| distance(*p, *q))
-                .fold(f64::INFINITY, f64::min);
-            assert!(near < 0.05 * p[0].hypot(p[1]).max(1.0), "{p:?}: {near}");
+        // With each body model: the seated body's four states (torso and arm) written
+        // continuously here must be the sampled body's.
+        for body in [
+            BodyModel::default(),
+            BodyModel::Seated {
+                k_h: 0.56,
+                torso_f_hz: 1.1,
+                torso_zeta: 0.4,
+                arm_f_hz: 2.5,
+                arm_zeta: 0.35,
+            },
+        ] {
+            let mut s = setup(CompensatorKind::LqrCabvel);
+            s.body = body;
+            let lqr = lqr_of(&s).unwrap().unwrap();
+            let cont = lqr_continuous(&lqr, &s, Elements::ALL)
+                .poles(NOMINAL_KBF)
+                .unwrap();
+            let sampled = LinearizedLoop::new(&s).unwrap().poles(NOMINAL_KBF).unwrap();
+            assert_eq!(cont.len(), sampled.len(), "{body:?}");
+            for p in sampled.iter().filter(|p| p[0].hypot(p[1]) < 60.0) {
+                let near = cont
+                    .iter()
+                    .map(|q| distance(*p, *q))
+                    .fold(f64::INFINITY, f64::min);
+                assert!(
+                    near < 0.05 * p[0].hypot(p[1]).max(1.0),
+                    "{body:?} {p:?}: {near}"
+                );
+            }
         }
     }
 

@@ -85,6 +85,18 @@ impl Loop for SlotLoop {
             Self::Rig(l) => l.displayed_y(),
         }
     }
+    fn felt_accel(&self) -> f64 {
+        match self {
+            Self::Sim(l) => Loop::felt_accel(l),
+            Self::Rig(l) => l.felt_accel(),
+        }
+    }
+    fn set_grip(&mut self, grip: f64) {
+        match self {
+            Self::Sim(l) => Loop::set_grip(l, grip),
+            Self::Rig(l) => l.set_grip(grip),
+        }
+    }
 }
 
 /// Why a trial ended (strings are added on the I/O side; the loop does not allocate).

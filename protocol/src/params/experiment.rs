@@ -10,14 +10,22 @@ use super::{ParamError, check};
 pub struct OperatorParams {
     /// Visual-motor reaction delay τ (s).
     pub reaction_delay_s: f64,
-    /// Neuromuscular lag corner ω_nm (rad/s): arm ≈ ω_nm/(s + ω_nm).
+    /// Neuromuscular corner ω_nm (rad/s) and damping ζ_nm: the arm follows the intended
+    /// motion through ω_nm²/(s² + 2ζ_nm·ω_nm·s + ω_nm²).
     pub neuromuscular_w: f64,
+    pub neuromuscular_zeta: f64,
     /// Proportional gain on the seen error (mm of cylinder per mm of error).
     pub error_gain: f64,
     /// Integral gain on the seen error (1/s).
     pub error_integral_gain: f64,
     /// Standard deviation of the remnant at the hand (mm of device travel); 0 = none.
     pub remnant_std_mm: f64,
+    /// Lowering of the error gain per mm of RMS shake the operator sees on the cylinder
+    /// (above 1.5 Hz): with an oscillatory controlled element people lower their gain.
+    pub shake_aversion_per_mm: f64,
+    /// Rise of the arm's frequency (fraction) per m/s² RMS of cab acceleration felt: people
+    /// grip harder when shaken. Acts on a seated body (`BodyModel::Seated`) only.
+    pub grip_stiffening_per_m_s2: f64,
 }
 
 impl Default for OperatorParams {
@@ -25,9 +33,12 @@ impl Default for OperatorParams {
         Self {
             reaction_delay_s: 0.25,
             neuromuscular_w: 12.0,
+            neuromuscular_zeta: 0.45,
             error_gain: 0.3,
             error_integral_gain: 0.5,
             remnant_std_mm: 0.5,
+            shake_aversion_per_mm: 0.5,
+            grip_stiffening_per_m_s2: 0.15,
         }
     }
 }
@@ -36,6 +47,24 @@ impl OperatorParams {
     pub fn validate(&self) -> Result<(), ParamError> {
         check("operator.reaction_delay_s", self.reaction_delay_s, 0.0, 1.0)?;
         check("operator.neuromuscular_w", self.neuromuscular_w, 0.5, 200.0)?;
+        check(
+            "operator.neuromuscular_zeta",
+            self.neuromuscular_zeta,
+            0.05,
+            3.0,
+        )?;
+        check(
+            "operator.shake_aversion_per_mm",
+            self.shake_aversion_per_mm,
+            0.0,
+            20.0,
+        )?;
+        check(
+            "operator.grip_stiffening_per_m_s2",
+            self.grip_stiffening_per_m_s2,
+            0.0,
+            2.0,
+        )?;
         check("operator.error_gain", self.error_gain, 0.0, 2.0)?;
         check(
             "operator.error_integral_gain",

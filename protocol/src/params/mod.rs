@@ -4,10 +4,12 @@
 
 mod compensator;
 mod experiment;
+mod population;
 mod rig;
 
 pub use compensator::*;
 pub use experiment::*;
+pub use population::*;
 pub use rig::*;
 
 use thiserror::Error;

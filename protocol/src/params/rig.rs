@@ -89,6 +89,20 @@ pub enum BodyModel {
     /// A seated body with one resonance: H/X_c = k_h (2ζω s + ω²)/(s² + 2ζω s + ω²),
     /// the base-excitation transmissibility of a mass–spring–damper.
     SingleResonance { k_h: f64, f_hz: f64, zeta: f64 },
+    /// A seated person, fore-aft, in two stages: the torso follows the cab through its
+    /// transmissibility T(s) (peak near `torso_f_hz`), the hand follows the torso through the
+    /// arm's admittance on the device A(s) (peak near `arm_f_hz`, which rises as the grip
+    /// stiffens); both are base-excitation transmissibilities (2ζωs + ω²)/(s² + 2ζωs + ω²).
+    /// The device, fixed to the cab, reads the hand's motion relative to it:
+    /// h = k_h·(1 − T·A)·x_c. Static cab motion carries the whole body along and is not
+    /// passed on; above both peaks the hand stays behind and h → k_h·x_c, the rigid mass.
+    Seated {
+        k_h: f64,
+        torso_f_hz: f64,
+        torso_zeta: f64,
+        arm_f_hz: f64,
+        arm_zeta: f64,
+    },
 }
 
 impl Default for BodyModel {
@@ -105,6 +119,19 @@ impl BodyModel {
                 check("body.k_h", k_h, 0.0, 10.0)?;
                 check("body.f_hz", f_hz, 0.1, 100.0)?;
                 check("body.zeta", zeta, 1e-3, 5.0)
+            }
+            Self::Seated {
+                k_h,
+                torso_f_hz,
+                torso_zeta,
+                arm_f_hz,
+                arm_zeta,
+            } => {
+                check("body.k_h", k_h, 0.0, 10.0)?;
+                check("body.torso_f_hz", torso_f_hz, 0.1, 100.0)?;
+                check("body.torso_zeta", torso_zeta, 1e-3, 5.0)?;
+                check("body.arm_f_hz", arm_f_hz, 0.1, 100.0)?;
+                check("body.arm_zeta", arm_zeta, 1e-3, 5.0)
             }
         }
     }

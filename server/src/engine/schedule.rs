@@ -38,6 +38,7 @@ pub fn default_params() -> StudyParams {
         plant,
         body: Default::default(),
         display_shake_gain: 1.0,
+        population: Default::default(),
         stale_input_ms: 100.0,
         max_cab_rms_mm_s2: bdft_protocol::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
         max_hidden_ms: 500.0,
