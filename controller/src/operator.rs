@@ -12,11 +12,13 @@
 //! Two adaptations follow McRuer's crossover model and the feedthrough literature rather
 //! than being imposed on the outcome:
 //! - **Gain on an oscillatory element.** The operator watches how much the cylinder shakes
-//!   on the display (seen y above 1.5 Hz, RMS over about a second) and lowers the error gain
+//!   on the display (seen y above 3 Hz, RMS over about a second) and lowers the error gain
 //!   by 1/(1 + shake_aversion·shake): a shaky loop is corrected more gently.
 //! - **Grip under vibration.** On the machine the operator feels the cab's acceleration
 //!   (RMS over about a second) and grips harder: the arm's frequency rises by
-//!   grip_stiffening per m/s² (`grip`, which the runner hands to a seated body).
+//!   grip_stiffening per m/s² (`grip`, which the runner hands to a seated body), and its
+//!   remnant grows by vibration_remnant per m/s² (whole-body vibration makes manual control
+//!   noisier).
 //!
 //! What the operator can correct follows from the delay and the lag: slow feedthrough is
 //! seen on the display and corrected, feedthrough near the cab modes (4–6 Hz) is far above
@@ -25,12 +27,27 @@
 pub use bdft_protocol::params::OperatorParams;
 
 use crate::error::ParamError;
-use crate::filters::{Biquad, FirstOrder};
+use crate::filters::Biquad;
 use crate::params::check;
 use crate::rng::Rng;
 
-/// Corner of the high-pass that separates seen shake from tracking motion (rad/s).
-const SHAKE_CORNER: f64 = 2.0 * std::f64::consts::PI * 1.5;
+/// Corner of the high-pass that separates seen shake from tracking motion (rad/s): above
+/// the cylinder's following of a step (its closed loops reach 1–2 Hz), below the cab's
+/// modes (4 and 6.2 Hz).
+const SHAKE_CORNER: f64 = 2.0 * std::f64::consts::PI * 3.0;
+
+/// The filter that takes the shake out of a seen cylinder position: a second-order
+/// Butterworth high-pass at 3 Hz. The operator's gain and the survey's smoothness both see
+/// the cylinder through it.
+pub fn shake_filter(dt: f64) -> Biquad {
+    let w = SHAKE_CORNER;
+    Biquad::tustin(
+        [1.0, 0.0, 0.0],
+        [1.0, std::f64::consts::SQRT_2 * w, w * w],
+        dt,
+        Some(w),
+    )
+}
 /// Time constant of the operator's running impressions of shake and vibration (s).
 const IMPRESSION_S: f64 = 1.0;
 /// The grip is re-evaluated every this many ticks: it changes over seconds, and retuning
@@ -51,11 +68,13 @@ pub struct SyntheticOperator {
     arm: Biquad,
     /// Seen y above `SHAKE_CORNER`, and the running mean squares of it and of the felt cab
     /// acceleration (exponential, `IMPRESSION_S`).
-    shake_filter: FirstOrder,
+    shake_filter: Biquad,
     shake_ms: f64,
     felt_ms: f64,
     impression_a: f64,
     grip: f64,
+    /// The remnant's factor from felt vibration, re-evaluated with the grip.
+    shaken: f64,
     grip_countdown: u32,
     /// White-noise standard deviation before the lag that gives remnant_std_mm after it.
     remnant_in_std: f64,
@@ -95,11 +114,12 @@ impl SyntheticOperator {
             head: 0,
             integral: 0.0,
             arm,
-            shake_filter: FirstOrder::high_pass(SHAKE_CORNER, dt),
+            shake_filter: shake_filter(dt),
             shake_ms: 0.0,
             felt_ms: 0.0,
             impression_a: 1.0 - (-dt / IMPRESSION_S).exp(),
             grip: 1.0,
+            shaken: 1.0,
             grip_countdown: GRIP_EVERY,
             remnant_in_std: params.remnant_std_mm / variance_gain(&arm).sqrt(),
             rng: Rng::derive(seed, Rng::OPERATOR),
@@ -125,7 +145,9 @@ impl SyntheticOperator {
         if self.grip_countdown == 0 {
             self.grip_countdown = GRIP_EVERY;
             // mm/s² → m/s².
-            self.grip = 1.0 + self.params.grip_stiffening_per_m_s2 * self.felt_ms.sqrt() * 1e-3;
+            let felt = self.felt_ms.sqrt() * 1e-3;
+            self.grip = 1.0 + self.params.grip_stiffening_per_m_s2 * felt;
+            self.shaken = 1.0 + self.params.vibration_remnant_per_m_s2 * felt;
         }
 
         let e = t_seen - y_seen;
@@ -134,7 +156,7 @@ impl SyntheticOperator {
         self.integral += self.params.error_integral_gain * e * self.dt;
         let command = (t_seen + gain * e + self.integral) / self.k_bf;
         let noise = if self.remnant_in_std > 0.0 {
-            self.remnant_in_std * self.rng.normal()
+            self.shaken * self.remnant_in_std * self.rng.normal()
         } else {
             0.0
         };
@@ -157,6 +179,7 @@ mod tests {
             error_gain: 0.0,
             error_integral_gain: 0.0,
             shake_aversion_per_mm: 0.0,
+            vibration_remnant_per_m_s2: 0.0,
             ..OperatorParams::default()
         }
     }
@@ -216,24 +239,24 @@ mod tests {
         let dt = 1e-3;
         let settle = |amp: f64| {
             let mut op = SyntheticOperator::new(p, dt, 1.0, 1).unwrap();
-            let mut last = 0.0;
             let mut sum = 0.0;
             for k in 0..20_000 {
                 let y = amp * (2.0 * std::f64::consts::PI * 5.0 * k as f64 * dt).sin();
-                last = op.step(10.0, y, 0.0);
+                let hand = op.step(10.0, y, 0.0);
                 if k >= 10_000 {
-                    sum += last;
+                    sum += hand;
                 }
             }
-            let _ = last;
             sum / 10_000.0
         };
-        // Without shake: 10 + 1.0·10 = 20 mm. With a 2 mm sine (RMS √2, a little less after
-        // the 1.5 Hz high-pass passes 5 Hz at 0.958): gain 1/(1 + 0.5·1.355) ≈ 0.596.
+        // Without shake: 10 + 1.0·10 = 20 mm. With a 2 mm sine (RMS √2, times the 3 Hz
+        // Butterworth high-pass's gain at 5 Hz, r²/√((1 − r²)² + 2r²) with r = 5/3):
+        // gain 1/(1 + 0.5·RMS seen).
         let calm = settle(0.0);
         assert!((calm - 20.0).abs() < 1e-6, "{calm}");
         let shaken = settle(2.0);
-        let hp = 5.0 / (5.0f64.powi(2) + 1.5f64.powi(2)).sqrt();
+        let r2 = (5.0f64 / 3.0).powi(2);
+        let hp = r2 / ((1.0 - r2).powi(2) + 2.0 * r2).sqrt();
         let want = 10.0 + 10.0 / (1.0 + 0.5 * 2.0 * hp / 2f64.sqrt());
         assert!((shaken - want).abs() < 0.05, "{shaken} vs {want}");
     }

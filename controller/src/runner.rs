@@ -42,6 +42,9 @@ impl Loop for ClosedLoop {
 
 /// Where the intended hand position comes from.
 #[derive(Debug, Clone)]
+// A trial holds one for its whole life inside a slot the loop keeps on the heap already;
+// boxing the operator would add a pointer chase to every tick of a synthetic trial.
+#[allow(clippy::large_enum_variant)]
 pub enum HandSource {
     Synthetic(SyntheticOperator),
     /// Supplied each tick by the caller (a browser, a haptic device).

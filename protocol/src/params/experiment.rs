@@ -26,6 +26,9 @@ pub struct OperatorParams {
     /// Rise of the arm's frequency (fraction) per m/s² RMS of cab acceleration felt: people
     /// grip harder when shaken. Acts on a seated body (`BodyModel::Seated`) only.
     pub grip_stiffening_per_m_s2: f64,
+    /// Rise of the remnant (fraction) per m/s² RMS of cab acceleration felt: whole-body
+    /// vibration makes manual control noisier.
+    pub vibration_remnant_per_m_s2: f64,
 }
 
 impl Default for OperatorParams {
@@ -39,6 +42,7 @@ impl Default for OperatorParams {
             remnant_std_mm: 0.5,
             shake_aversion_per_mm: 0.5,
             grip_stiffening_per_m_s2: 0.15,
+            vibration_remnant_per_m_s2: 0.5,
         }
     }
 }
@@ -64,6 +68,12 @@ impl OperatorParams {
             self.grip_stiffening_per_m_s2,
             0.0,
             2.0,
+        )?;
+        check(
+            "operator.vibration_remnant_per_m_s2",
+            self.vibration_remnant_per_m_s2,
+            0.0,
+            10.0,
         )?;
         check("operator.error_gain", self.error_gain, 0.0, 2.0)?;
         check(

@@ -79,7 +79,7 @@ pub struct PopulationParams {
     /// Fatigue: remnant growth per hour on task (fraction).
     pub fatigue_per_hour: Spread,
     pub body: BodySource,
-    /// Feedthrough gain at high frequency (mm of device per mm of cab): the thesis's K_H.
+    /// Feedthrough gain far above the body's peaks (mm of device per mm of cab).
     pub body_k_h: Spread,
     /// Seated fore-aft torso transmissibility: frequency (Hz) and damping.
     pub torso_f_hz: Spread,
@@ -90,6 +90,8 @@ pub struct PopulationParams {
     /// Grip stiffening: rise of the arm's frequency (fraction) per m/s² RMS of felt cab
     /// acceleration.
     pub grip_stiffening_per_m_s2: Spread,
+    /// Rise of the remnant (fraction) per m/s² RMS of felt cab acceleration.
+    pub vibration_remnant_per_m_s2: Spread,
     /// Survey: the subject's own offset on the rating scale (points, normal with this
     /// standard deviation around 0) and the noise of each answer (points).
     pub survey_bias_sd: f64,
@@ -110,12 +112,15 @@ impl Default for PopulationParams {
             learning_tests: Spread::new(3.0, 0.4),
             fatigue_per_hour: Spread::new(0.15, 0.5),
             body: BodySource::Drawn,
-            body_k_h: Spread::new(0.56, 0.3),
+            // 0.56/|1 − T·A| at the first cab mode (4 Hz) of the median torso and arm: the
+            // median subject's feedthrough there is the thesis's identified K_H = 0.56.
+            body_k_h: Spread::new(0.5, 0.2),
             torso_f_hz: Spread::new(1.1, 0.2),
             torso_zeta: Spread::new(0.4, 0.3),
-            arm_f_hz: Spread::new(2.5, 0.2),
+            arm_f_hz: Spread::new(2.0, 0.2),
             arm_zeta: Spread::new(0.35, 0.3),
-            grip_stiffening_per_m_s2: Spread::new(0.15, 0.5),
+            grip_stiffening_per_m_s2: Spread::new(0.1, 0.5),
+            vibration_remnant_per_m_s2: Spread::new(0.5, 0.5),
             survey_bias_sd: 0.7,
             survey_noise_sd: 0.5,
         }
@@ -141,12 +146,13 @@ pub mod bounds {
     pub const ARM_F_HZ: (f64, f64) = (0.5, 10.0);
     pub const ARM_ZETA: (f64, f64) = (0.05, 2.0);
     pub const GRIP_STIFFENING_PER_M_S2: (f64, f64) = (0.0, 2.0);
+    pub const VIBRATION_REMNANT_PER_M_S2: (f64, f64) = (0.0, 10.0);
 }
 
 impl PopulationParams {
     pub fn validate(&self) -> Result<(), ParamError> {
         use bounds::*;
-        let spreads: [(&'static str, &Spread, (f64, f64)); 16] = [
+        let spreads: [(&'static str, &Spread, (f64, f64)); 17] = [
             (
                 "population.reaction_delay_s",
                 &self.reaction_delay_s,
@@ -203,6 +209,11 @@ impl PopulationParams {
                 &self.grip_stiffening_per_m_s2,
                 GRIP_STIFFENING_PER_M_S2,
             ),
+            (
+                "population.vibration_remnant_per_m_s2",
+                &self.vibration_remnant_per_m_s2,
+                VIBRATION_REMNANT_PER_M_S2,
+            ),
         ];
         for (name, s, (lo, hi)) in spreads {
             s.validate(name, lo, hi)?;
@@ -235,6 +246,7 @@ pub struct SubjectDraw {
     pub arm_f_hz: f64,
     pub arm_zeta: f64,
     pub grip_stiffening_per_m_s2: f64,
+    pub vibration_remnant_per_m_s2: f64,
     pub survey_bias_points: f64,
     pub survey_noise_points: f64,
 }

@@ -48,6 +48,9 @@ pub async fn enrol(
     let index = store::subjects::count_in_study(change.db(), study_id).await?;
     let code = format!("S{:02}", index + 1);
     let token = store::tokens::random_token();
+    // A synthetic subject draws its own operator, body and survey habits; a person is
+    // nobody's draw.
+    let drawn = synthetic.then(|| super::synthetic::draw(&study.params, study.seed, index));
     let subject_id = store::subjects::insert(
         change.db(),
         &NewSubject {
@@ -57,6 +60,7 @@ pub async fn enrol(
             synthetic,
             token: &token,
             starting_station: starting_station(index),
+            drawn: drawn.as_ref(),
         },
     )
     .await?;

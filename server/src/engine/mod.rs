@@ -29,6 +29,7 @@ pub mod stations;
 pub mod stats;
 pub mod studies;
 pub mod subjects;
+pub mod synthetic;
 pub mod trials;
 pub mod validity;
 

@@ -2,10 +2,11 @@
 //! path that live tests and pilot runs share.
 
 use bdft_controller::rng::Rng;
-use bdft_protocol::params::{CompensatorSpec, OperatorParams};
+use bdft_protocol::params::{CompensatorSpec, SubjectDraw};
 use bdft_protocol::server_to_controller::StartTrial;
 use bdft_protocol::trial::{InputSource, TargetSpec};
 
+use super::synthetic::operator_and_body;
 use crate::error::{AppError, Result};
 use crate::store::studies::Study;
 use crate::store::trials::Trial;
@@ -15,8 +16,9 @@ use crate::store::trials::Trial;
 pub enum Operator {
     /// A person at a station (browser input through the server).
     Person,
-    /// The synthetic operator (pilot runs, automated tests).
-    Synthetic,
+    /// A synthetic subject (pilot runs, automated tests) with its drawn parameters, or
+    /// none for one enrolled before populations existed.
+    Synthetic(Option<SubjectDraw>),
 }
 
 /// The controller message that runs `trial` of `study`.
@@ -29,12 +31,13 @@ pub fn start_message(study: &Study, trial: &Trial, operator: Operator) -> Result
     let levels_mm: Vec<f64> =
         serde_json::from_str(&trial.target_levels_json).map_err(|e| bad("target", e))?;
     let seed = trial.target_seed as u64;
-    let input = match operator {
-        Operator::Person => InputSource::Server,
-        Operator::Synthetic => InputSource::Synthetic {
-            operator: OperatorParams::default(),
-            seed: Rng::derive(seed, Rng::OPERATOR).next_u64(),
-        },
+    let (input, body) = match operator {
+        Operator::Person => (InputSource::Server, study.params.body),
+        Operator::Synthetic(draw) => {
+            let (operator, body) = operator_and_body(&study.params, trial, draw.as_ref());
+            let seed = Rng::derive(seed, Rng::OPERATOR).next_u64();
+            (InputSource::Synthetic { operator, seed }, body)
+        }
     };
     Ok(StartTrial {
         trial_id: trial.id as u64,
@@ -48,7 +51,7 @@ pub fn start_message(study: &Study, trial: &Trial, operator: Operator) -> Result
         duration_s: trial.duration_s,
         input,
         plant: study.params.plant,
-        body: study.params.body,
+        body,
         noise_seed: Rng::derive(seed, Rng::ACCEL_NOISE).next_u64(),
         live_rate_hz: 100.0,
         stale_input_ms: study.params.stale_input_ms,

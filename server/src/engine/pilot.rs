@@ -180,6 +180,7 @@ pub async fn run_with_progress(
                 let Some(subject_id) = queue.lock().await.pop() else {
                     return anyhow::Ok(done);
                 };
+                let subject = store::subjects::get(&pool, subject_id).await?;
                 while let Some(trial) = store::trials::next(&pool, subject_id).await? {
                     let mut change = Change::begin(&pool, actor.as_str()).await?;
                     store::trials::mark_running(change.db(), trial.id).await?;
@@ -193,13 +194,20 @@ pub async fn run_with_progress(
                             json!({}),
                         )
                         .await?;
-                    let start = start_message(&study, &trial, Operator::Synthetic)?;
+                    let start = start_message(&study, &trial, Operator::Synthetic(subject.drawn))?;
                     let (result, channels) = tokio::task::spawn_blocking(move || {
                         bdft_controller::runtime::local::run(&start, DT)
                     })
                     .await?
                     .map_err(anyhow::Error::msg)?;
-                    file_result(&pool, &actor, &result, &Record { dt: DT, channels }).await?;
+                    let record = Record { dt: DT, channels };
+                    file_result(&pool, &actor, &result, &record).await?;
+                    // The subject answers the survey of each completed test, as a person
+                    // would, from what it perceived.
+                    super::synthetic::answer_survey(
+                        &pool, &actor, &study, &subject, &trial, &record,
+                    )
+                    .await?;
                     done.0 += 1;
                     progress
                         .done

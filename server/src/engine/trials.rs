@@ -82,7 +82,7 @@ pub async fn start(
         )));
     }
     let operator = if subject.synthetic {
-        Operator::Synthetic
+        Operator::Synthetic(subject.drawn)
     } else {
         Operator::Person
     };

@@ -1,7 +1,7 @@
 //! Subjects (pseudonymous: a code and a page token's hash), their consent and withdrawal, and
 //! the experimenter's notes about them.
 
-use bdft_protocol::params::Seat;
+use bdft_protocol::params::{Seat, SubjectDraw};
 use bdft_protocol::records::ConsentDecision;
 use serde::Serialize;
 use sqlx::{SqliteConnection, SqliteExecutor};
@@ -25,6 +25,8 @@ pub struct Subject {
     pub withdrawn_at: Option<i64>,
     pub withdraw_reason: Option<String>,
     pub created_at: i64,
+    /// A synthetic subject's drawn parameters (`subjects.drawn_json`); none for a person.
+    pub drawn: Option<SubjectDraw>,
 }
 
 #[derive(sqlx::FromRow)]
@@ -41,6 +43,7 @@ struct SubjectRow {
     withdrawn_at: Option<i64>,
     withdraw_reason: Option<String>,
     created_at: i64,
+    drawn_json: Option<String>,
 }
 
 impl TryFrom<SubjectRow> for Subject {
@@ -69,11 +72,17 @@ impl TryFrom<SubjectRow> for Subject {
             withdrawn_at: r.withdrawn_at,
             withdraw_reason: r.withdraw_reason,
             created_at: r.created_at,
+            drawn: r
+                .drawn_json
+                .as_deref()
+                .map(serde_json::from_str)
+                .transpose()
+                .map_err(|e| corrupt(format!("drawn parameters: {e}")))?,
         })
     }
 }
 
-const COLUMNS: &str = "id, study_id, code, enrol_index, synthetic, starting_station, consent_version, consent_decision, consent_at, withdrawn_at, withdraw_reason, created_at";
+const COLUMNS: &str = "id, study_id, code, enrol_index, synthetic, starting_station, consent_version, consent_decision, consent_at, withdrawn_at, withdraw_reason, created_at, drawn_json";
 
 pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Subject> {
     let row: Option<SubjectRow> =
@@ -122,11 +131,12 @@ pub struct NewSubject<'a> {
     pub synthetic: bool,
     pub token: &'a str,
     pub starting_station: Seat,
+    pub drawn: Option<&'a SubjectDraw>,
 }
 
 pub async fn insert(db: &mut SqliteConnection, s: &NewSubject<'_>) -> Result<i64> {
     Ok(sqlx::query(
-        "INSERT INTO subjects (study_id, code, enrol_index, synthetic, token_hash, starting_station, created_at) VALUES (?, ?, ?, ?, ?, ?, ?)",
+        "INSERT INTO subjects (study_id, code, enrol_index, synthetic, token_hash, starting_station, created_at, drawn_json) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
     )
     .bind(s.study_id)
     .bind(s.code)
@@ -135,6 +145,10 @@ pub async fn insert(db: &mut SqliteConnection, s: &NewSubject<'_>) -> Result<i64
     .bind(token_hash(s.token))
     .bind(s.starting_station.as_str())
     .bind(now_ms())
+    .bind(
+        s.drawn
+            .map(|d| serde_json::to_string(d).expect("a draw serializes")),
+    )
     .execute(db)
     .await?
     .last_insert_rowid())
