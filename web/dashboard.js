@@ -10,6 +10,7 @@ import * as monitor from './dashboard-monitor.js';
 import * as results from './dashboard-results.js';
 import * as audit from './dashboard-audit.js';
 import * as pilot from './dashboard-pilot.js';
+import * as plan from './dashboard-plan.js';
 import * as accounts from './dashboard-accounts.js';
 
 const $ = (id) => document.getElementById(id);
@@ -49,6 +50,7 @@ async function showApp(me) {
     results.init();
     audit.init();
     pilot.init();
+    plan.init();
     accounts.init();
   }
   accounts.applyRole(me.role);

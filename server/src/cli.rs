@@ -9,6 +9,7 @@ use clap::{Parser, Subcommand};
 use crate::config::{DbConfig, ServeConfig};
 use crate::engine::export::ExportKind;
 use crate::engine::login_limiter::LoginLimiter;
+use crate::engine::power::{self, PlanRequest, PlanSource};
 use crate::engine::{accounts, controller_link, export, filing, pilot};
 use crate::store;
 use crate::store::accounts::Role;
@@ -34,7 +35,8 @@ enum Command {
     /// Run the experiment server: the API and pages on --listen, a supervised controller.
     Serve(ServeConfig),
     /// Run the whole protocol for N synthetic subjects, faster than real time, into the
-    /// database (subjects flagged synthetic, surveys left empty).
+    /// database (subjects flagged synthetic, each with its own drawn parameters, answering
+    /// the surveys).
     Pilot {
         #[command(flatten)]
         db: DbConfig,
@@ -47,6 +49,36 @@ enum Command {
         /// Seed of a study created for the pilot.
         #[arg(long)]
         seed: Option<u64>,
+    },
+    /// The power planner: for candidate numbers of subjects, the chance that each pair of
+    /// compensators differs significantly at one seat (exact Wilcoxon, Holm), from whole
+    /// simulated studies; the report (JSON) on standard output, progress on standard error.
+    Plan {
+        #[command(flatten)]
+        db: DbConfig,
+        /// Study to plan [default: the newest].
+        #[arg(long)]
+        study: Option<i64>,
+        /// Candidate numbers of subjects, comma-separated (2 to 200 each).
+        #[arg(long, value_delimiter = ',', required = true)]
+        subjects: Vec<usize>,
+        /// `on` or `off`.
+        #[arg(long, default_value = "on")]
+        station: String,
+        /// `mse_tracking_mm2` or `ms_cab_accel`.
+        #[arg(long, default_value = "mse_tracking_mm2")]
+        metric: String,
+        /// `population` (the study's synthetic subjects run full trials) or `pilot` (the
+        /// spread of the study's own data).
+        #[arg(long, value_enum, default_value = "population")]
+        source: PlanSourceArg,
+        /// Simulated studies per candidate.
+        #[arg(long, default_value_t = 200)]
+        draws: usize,
+        #[arg(long, default_value_t = 0.05)]
+        alpha: f64,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
     },
     /// Write a CSV export of a study.
     Export {
@@ -140,6 +172,54 @@ async fn execute(command: Command) -> anyhow::Result<()> {
                 elapsed_s = started.elapsed().as_secs_f64(),
                 "pilot finished"
             );
+        }
+        Command::Plan {
+            db,
+            study,
+            subjects,
+            station,
+            metric,
+            source,
+            draws,
+            alpha,
+            seed,
+        } => {
+            let pool = store::db::open(&db.db).await?;
+            let study = newest_study(&pool, study).await?;
+            let req = PlanRequest {
+                source: match source {
+                    PlanSourceArg::Population => PlanSource::Population,
+                    PlanSourceArg::Pilot => PlanSource::Pilot,
+                },
+                subjects,
+                metric,
+                station,
+                draws,
+                alpha,
+                seed,
+            };
+            let progress = std::sync::Arc::new(crate::engine::job::Progress::default());
+            let ticker = {
+                let progress = progress.clone();
+                tokio::spawn(async move {
+                    let mut every = tokio::time::interval(std::time::Duration::from_secs(2));
+                    loop {
+                        every.tick().await;
+                        let (done, total) = (
+                            progress.done.load(std::sync::atomic::Ordering::Relaxed),
+                            progress.total.load(std::sync::atomic::Ordering::Relaxed),
+                        );
+                        if total > 0 {
+                            eprintln!("planning: {done} of {total} simulated trials");
+                        }
+                    }
+                })
+            };
+            let started = std::time::Instant::now();
+            let report = power::plan_study(&pool, study, req, progress).await;
+            ticker.abort();
+            println!("{}", serde_json::to_string(&report?)?);
+            tracing::info!(elapsed_s = started.elapsed().as_secs_f64(), "plan finished");
         }
         Command::Export {
             db,
@@ -242,4 +322,11 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
 async fn shutdown_signal() {
     bdft_controller::runtime::shutdown_signal().await;
     tracing::info!("shutting down");
+}
+
+/// `plan --source`.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum PlanSourceArg {
+    Population,
+    Pilot,
 }

@@ -8,6 +8,7 @@ use sqlx::SqlitePool;
 use crate::engine::controller_link::ControllerLink;
 use crate::engine::login_limiter::LoginLimiter;
 use crate::engine::pilot::PilotJob;
+use crate::engine::power::PlanJob;
 use crate::engine::stability::StabilityCache;
 use crate::engine::station_sockets::StationSockets;
 use crate::engine::stations::Pairing;
@@ -21,6 +22,7 @@ pub struct AppState {
     /// Each station's one live socket.
     pub sockets: Arc<StationSockets>,
     pub pilot: Arc<PilotJob>,
+    pub plan: Arc<PlanJob>,
     pub stability: Arc<StabilityCache>,
     /// Serve the pages from this directory instead of the embedded copy (development).
     pub web_dir: Option<std::path::PathBuf>,
@@ -35,6 +37,7 @@ impl AppState {
             pairing: Arc::default(),
             sockets: Arc::default(),
             pilot: Arc::default(),
+            plan: Arc::default(),
             stability: Arc::default(),
             web_dir: None,
         }

@@ -98,7 +98,9 @@ fn an_analyst_changes_nothing_but_reads_everything_and_may_press_the_estop() {
             ),
             _ if path == "/api/estop" => assert_eq!(code, 200, "E-stop by an analyst: {body}"),
             // The planner changes nothing; an empty body is the analyst's mistake, not a refusal.
-            _ if path.ends_with("/plan") => assert_eq!(code, 422, "planning by an analyst: {body}"),
+            _ if path.ends_with("/plan") || path.ends_with("/plan-job") => {
+                assert_eq!(code, 422, "planning by an analyst: {body}")
+            }
             _ => {
                 assert_eq!(code, 403, "{method} {path}: {body}");
                 assert!(

@@ -688,10 +688,21 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
             assert!(mean.abs() <= 1.0 && (std / 20.0 - 1.0).abs() <= 0.05);
             let mse: f64 = get(r, "mse_tracking_mm2").parse().unwrap();
             assert!(mse > 0.0 && mse < 2000.0, "{mse}");
-            assert!(
-                get(r, "rating_accuracy").is_empty() && get(r, "comment").is_empty(),
-                "pilot surveys stay empty"
-            );
+            // Each synthetic subject answers the survey of every scored test on the
+            // study's 7-point scale, as a person would; the practice has none.
+            if t.practice {
+                assert!(get(r, "rating_accuracy").is_empty() && get(r, "comment").is_empty());
+            } else {
+                for item in ["accuracy", "speed", "smoothness", "controllability"] {
+                    let rating: u8 = get(r, &format!("rating_{item}")).parse().unwrap();
+                    assert!((1..=7).contains(&rating), "{item}: {rating}");
+                }
+                assert!(
+                    get(r, "comment").starts_with("(synthetic)"),
+                    "{}",
+                    get(r, "comment")
+                );
+            }
             assert!(
                 get(r, "started_at") <= get(r, "finished_at"),
                 "{} > {}",

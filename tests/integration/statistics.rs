@@ -4,7 +4,9 @@
 
 use std::collections::BTreeMap;
 
-use bdft_tests::server::{Server, run_pilot, short_study};
+use std::time::Duration;
+
+use bdft_tests::server::{Server, eventually, run_pilot, short_study};
 use serde_json::{Value, json};
 
 #[test]
@@ -137,4 +139,108 @@ fn a_pilots_statistics_agree_with_its_export_and_state_the_small_n_floor() {
         assert_eq!(code, 422, "{e}");
         assert!(e["error"].as_str().unwrap().starts_with(field), "{e}");
     }
+}
+
+#[test]
+fn the_population_planner_runs_whole_simulated_studies_in_the_background_with_progress() {
+    let server = Server::start("plan-population");
+    let api = server.experimenter();
+    // 10 s tests keep the simulated trials cheap; the planner runs them in full.
+    let study = short_study(&api, 10.0, 1.0);
+    let plan = |draws: usize| {
+        json!({ "source": "population", "subjects": [8, 12], "metric": "mse_tracking_mm2",
+                "station": "on", "draws": draws, "seed": 3 })
+    };
+    // Bad requests name the field; a population plan is a background job only.
+    let (code, e) = api.post(&format!("/api/studies/{study}/plan"), plan(20));
+    assert_eq!(code, 422, "{e}");
+    assert!(e["error"].as_str().unwrap().starts_with("source"), "{e}");
+    let (code, e) = api.post(&format!("/api/studies/{study}/plan-job"), plan(5));
+    assert_eq!(code, 422, "{e}");
+    assert!(e["error"].as_str().unwrap().starts_with("draws"), "{e}");
+    let (code, e) = api.post(
+        &format!("/api/studies/{study}/plan-job"),
+        json!({ "source": "population", "subjects": [200], "metric": "mse_tracking_mm2",
+                "station": "on", "draws": 10000 }),
+    );
+    assert_eq!(code, 422, "{e}");
+    assert!(
+        e["error"].as_str().unwrap().starts_with("draws × subjects"),
+        "{e}"
+    );
+
+    let run = || {
+        api.ok(&format!("/api/studies/{study}/plan-job"), plan(20));
+        eventually(Duration::from_secs(600), || {
+            let (_, s) = api.get("/api/plan-job");
+            (s["running"] == false && (s["report"].is_object() || s["error"].is_string()))
+                .then_some(s)
+        })
+    };
+    let status = run();
+    assert!(status["error"].is_null(), "{status}");
+    // Progress counted every simulated trial: 20 studies × 12 subjects × 5 compensators.
+    assert_eq!(status["total"], 20 * 12 * 5, "{status}");
+    assert_eq!(status["done"], status["total"]);
+    let report = &status["report"];
+    assert_eq!(report["source"], "population");
+    let plans = report["plans"].as_array().unwrap();
+    // 8 subjects: the exact floor rules every pair out, nothing is simulated for it.
+    assert!(
+        plans[0]["note"].as_str().unwrap().contains("0.078"),
+        "{report}"
+    );
+    assert_eq!(plans[0]["draws"], 0);
+    // 12 subjects: simulated, each power a probability.
+    assert_eq!(plans[1]["draws"], 20);
+    for p in plans[1]["pairs"].as_array().unwrap() {
+        let power = p["power"].as_f64().unwrap();
+        assert!(p["possible"] == true && (0.0..=1.0).contains(&power), "{p}");
+    }
+    // The model is estimated from the simulated subjects that completed every test.
+    let n = report["model"]["pilot_n"].as_u64().unwrap();
+    assert!((2..=240).contains(&n), "{n}");
+    assert_eq!(report["model"]["compensators"].as_array().unwrap().len(), 5);
+
+    // Seeded: the same plan again — and from the command line, in another process on
+    // another thread split — is the same plan.
+    assert_eq!(run()["report"], *report);
+    let out = std::process::Command::new(bdft_tests::binary("bdft-server"))
+        .args(["plan", "--db", server.db.to_str().unwrap(), "--study"])
+        .arg(study.to_string())
+        .args([
+            "--subjects",
+            "8,12",
+            "--draws",
+            "20",
+            "--seed",
+            "3",
+            "--station",
+            "on",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let cli: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(cli, *report);
+    // A bad argument is refused with the allowed values.
+    let out = std::process::Command::new(bdft_tests::binary("bdft-server"))
+        .args([
+            "plan",
+            "--db",
+            server.db.to_str().unwrap(),
+            "--subjects",
+            "8",
+            "--source",
+            "guess",
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("population") && err.contains("pilot"), "{err}");
 }

@@ -4,17 +4,22 @@
 
 use bdft_protocol::controller_to_server::TrialResult;
 use bdft_protocol::server_to_controller::StartTrial;
-use bdft_protocol::trial::{InputSource, TimingSummary};
+use bdft_protocol::trial::{InputSource, Metrics, TimingSummary};
 
-use super::setup::build_slot;
+use super::setup::{build_runner, build_slot};
 use super::slot::SlotTick;
+
+fn offline(start: &StartTrial) -> Result<(), String> {
+    if matches!(start.input, InputSource::Server | InputSource::Udp { .. }) {
+        return Err("a trial run offline needs a synthetic operator or a reference input".into());
+    }
+    Ok(())
+}
 
 /// Runs `start` (which must not need outside input) on the simulated rig; returns the result
 /// and the record channel by channel.
 pub fn run(start: &StartTrial, dt: f64) -> Result<(TrialResult, Vec<Vec<f32>>), String> {
-    if matches!(start.input, InputSource::Server | InputSource::Udp { .. }) {
-        return Err("a trial run offline needs a synthetic operator or a reference input".into());
-    }
+    offline(start)?;
     let mut slot = build_slot(start, dt, false)?.slot;
     let mut tick = 0;
     while !matches!(slot.tick(tick, 0, 0.0), SlotTick::Ended) {
@@ -32,4 +37,19 @@ pub fn run(start: &StartTrial, dt: f64) -> Result<(TrialResult, Vec<Vec<f32>>), 
         record_chunks: 0,
     };
     Ok((result, slot.record_channels(0, slot.record.len())))
+}
+
+/// Runs `start` like `run` but keeps no record: its metrics, if it ran to its end (None when
+/// the cab-vibration interlock stopped it). The power planner runs thousands of trials this
+/// way; a trial here ticks exactly as in `run`, so its metrics are `run`'s.
+pub fn metrics(start: &StartTrial, dt: f64) -> Result<Option<Metrics>, String> {
+    offline(start)?;
+    let (mut runner, _) = build_runner(start, dt, false)?;
+    while !runner.done() {
+        runner.tick(0.0);
+        if runner.tripped() {
+            return Ok(None);
+        }
+    }
+    Ok(Some(runner.metrics()))
 }

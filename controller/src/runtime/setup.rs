@@ -25,6 +25,26 @@ pub struct Built {
 
 /// Builds the slot; the error says what is wrong with the request.
 pub fn build_slot(st: &StartTrial, dt: f64, real_rig: bool) -> Result<Built, String> {
+    let (runner, input) = build_runner(st, dt, real_rig)?;
+    let stale_ticks = (st.stale_input_ms * 1e-3 / dt).round() as u64;
+    let live_every = (1.0 / (st.live_rate_hz * dt)).round().max(1.0) as u64;
+    let slot = Box::new(TrialSlot::new(
+        st.trial_id,
+        runner,
+        input.clone(),
+        stale_ticks,
+        live_every,
+    ));
+    Ok(Built { slot, input })
+}
+
+/// The trial's runner — rig loop, operator, target and interlock — and, for input fed from
+/// outside, the cell to write it into.
+pub fn build_runner(
+    st: &StartTrial,
+    dt: f64,
+    real_rig: bool,
+) -> Result<(TrialRunner<SlotLoop>, Option<Arc<InputCell>>), String> {
     st.validate().map_err(|e| e.to_string())?;
     let setup = LoopSetup {
         plant: st.plant,
@@ -60,14 +80,5 @@ pub fn build_slot(st: &StartTrial, dt: f64, real_rig: bool) -> Result<Built, Str
         st.duration_s,
     )
     .with_interlock(st.max_cab_rms_mm_s2);
-    let stale_ticks = (st.stale_input_ms * 1e-3 / dt).round() as u64;
-    let live_every = (1.0 / (st.live_rate_hz * dt)).round().max(1.0) as u64;
-    let slot = Box::new(TrialSlot::new(
-        st.trial_id,
-        runner,
-        input.clone(),
-        stale_ticks,
-        live_every,
-    ));
-    Ok(Built { slot, input })
+    Ok((runner, input))
 }

@@ -12,6 +12,7 @@ use serde_json::json;
 
 use super::enrolment::enrol;
 use super::filing::file_result;
+use super::job::{Job, Progress};
 use super::orchestrator::{Operator, start_message};
 use super::schedule::default_params;
 use crate::store::records::Record;
@@ -31,13 +32,6 @@ pub struct PilotReport {
 
 /// Loop sample period of the simulated trials.
 const DT: f64 = 1e-3;
-
-/// How far a running pilot is (trials run so far, of how many).
-#[derive(Debug, Default)]
-pub struct Progress {
-    pub done: std::sync::atomic::AtomicUsize,
-    pub total: std::sync::atomic::AtomicUsize,
-}
 
 /// How often a pilot process tells the database it is alive.
 pub const BEAT: std::time::Duration = std::time::Duration::from_secs(1);
@@ -209,9 +203,7 @@ pub async fn run_with_progress(
                     )
                     .await?;
                     done.0 += 1;
-                    progress
-                        .done
-                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    progress.add(1);
                     if result.outcome == bdft_protocol::trial::Outcome::Complete {
                         done.1 += 1;
                     }
@@ -238,15 +230,7 @@ pub async fn run_with_progress(
 /// The one pilot run the dashboard may have going, with its progress and outcome.
 #[derive(Debug, Default)]
 pub struct PilotJob {
-    run: std::sync::Mutex<Option<PilotRun>>,
-}
-
-#[derive(Debug, Clone)]
-struct PilotRun {
-    study_id: i64,
-    progress: Arc<Progress>,
-    /// None while running; then Ok(report) or Err(message).
-    outcome: Option<Result<PilotReport, String>>,
+    job: Job<PilotReport>,
 }
 
 /// Where the dashboard's pilot run stands.
@@ -266,10 +250,6 @@ pub struct PilotStatus {
 }
 
 impl PilotJob {
-    fn run(&self) -> std::sync::MutexGuard<'_, Option<PilotRun>> {
-        self.run.lock().unwrap_or_else(|p| p.into_inner())
-    }
-
     /// Starts a pilot of `subjects` synthetic subjects into `study_id` in the background;
     /// refused while another runs.
     pub async fn start(
@@ -285,20 +265,7 @@ impl PilotJob {
         }
         // Resolved now, so the dashboard names the dry run the data goes to.
         let study_id = super::dry_run::for_pilot(pool, actor, study_id).await?;
-        let progress = Arc::new(Progress::default());
-        {
-            let mut run = self.run();
-            if run.as_ref().is_some_and(|r| r.outcome.is_none()) {
-                return Err(AppError::Conflict(
-                    "a pilot run is already in progress".into(),
-                ));
-            }
-            *run = Some(PilotRun {
-                study_id,
-                progress: progress.clone(),
-                outcome: None,
-            });
-        }
+        let progress = self.job.begin(study_id, "a pilot run")?;
         let (job, pool, actor) = (Arc::clone(self), pool.clone(), actor.to_string());
         tokio::spawn(async move {
             let outcome =
@@ -306,32 +273,20 @@ impl PilotJob {
                 run_with_progress(&pool, &actor, Some(study_id), subjects, None, progress, None)
                     .await
                     .map_err(|e| format!("{e:#}"));
-            if let Some(run) = job.run().as_mut() {
-                run.outcome = Some(outcome);
-            }
+            job.job.finish(outcome);
         });
         Ok(())
     }
 
     pub fn status(&self) -> PilotStatus {
-        use std::sync::atomic::Ordering;
-        match self.run().clone() {
-            None => PilotStatus {
-                running: false,
-                study_id: None,
-                done: None,
-                total: None,
-                report: None,
-                error: None,
-            },
-            Some(r) => PilotStatus {
-                running: r.outcome.is_none(),
-                study_id: Some(r.study_id),
-                done: Some(r.progress.done.load(Ordering::Relaxed)),
-                total: Some(r.progress.total.load(Ordering::Relaxed)),
-                report: r.outcome.as_ref().and_then(|o| o.as_ref().ok()).cloned(),
-                error: r.outcome.as_ref().and_then(|o| o.as_ref().err()).cloned(),
-            },
+        let s = self.job.snapshot();
+        PilotStatus {
+            running: s.running,
+            study_id: s.study_id,
+            done: s.done,
+            total: s.total,
+            report: s.report,
+            error: s.error,
         }
     }
 }

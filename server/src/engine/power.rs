@@ -1,8 +1,10 @@
 //! The power planner: for candidate numbers of subjects, the probability that each planned
 //! comparison (every pair of compensators at one seat, exact Wilcoxon, Holm across the
-//! pairs) reaches significance, by simulating whole studies. The model of a study comes
-//! from a pilot: on the log scale, each compensator's mean and the residual spread of the
-//! subject × compensator table (the subjects' own level cancels in paired differences).
+//! pairs) reaches significance, by simulating whole studies. The studies come from one of
+//! two models: the study's synthetic population, whose subjects run full trials
+//! (`power_sim`; slow, so it runs as a background job with progress), or a pilot's data: on
+//! the log scale, each compensator's mean and the residual spread of the subject ×
+//! compensator table (the subjects' own level cancels in paired differences).
 //! Comparisons the exact test's floor rules out at an n are reported as impossible, not
 //! simulated.
 
@@ -10,23 +12,44 @@ use bdft_controller::rng::Rng;
 use serde::{Deserialize, Serialize};
 use sqlx::SqlitePool;
 
+use std::sync::Arc;
+
+use bdft_protocol::params::Seat;
+use bdft_protocol::study::StudyParams;
+
 use super::inference::nonparametric::{EXACT_MAX_N, holm, wilcoxon, wilcoxon_floor};
 use super::inference_table::StudyData;
+use super::job::{Job, Progress};
 use super::stats::SUMMARY_VARIABLES;
 use crate::error::{AppError, Result};
+use crate::store;
 
-/// What to plan: candidate numbers of subjects for one metric at one seat, with the model
-/// estimated from the study's (a pilot's) data.
+/// Where the simulated studies come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum PlanSource {
+    /// The log-normal model estimated from the study's (a pilot's) data.
+    #[default]
+    Pilot,
+    /// The study's synthetic population, running full 1 kHz trials.
+    Population,
+}
+
+/// What to plan: candidate numbers of subjects for one metric at one seat.
 #[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PlanRequest {
+    /// `pilot` (default) or `population`.
+    #[serde(default)]
+    pub source: PlanSource,
     /// Candidate numbers of subjects, 2 to 200 each, at most 20.
     pub subjects: Vec<usize>,
     /// `mse_tracking_mm2` or `ms_cab_accel` (the continuous metrics).
     pub metric: String,
     /// `on` or `off`.
     pub station: String,
-    /// Simulated studies per candidate, 100 to 100000 (default 1000).
+    /// Simulated studies per candidate: 100 to 100000 with a pilot's model (default 1000),
+    /// 10 to 10000 with the population.
     #[serde(default = "default_draws")]
     pub draws: usize,
     #[serde(default = "default_alpha")]
@@ -46,6 +69,9 @@ fn default_alpha() -> f64 {
 /// The model and the plan of every candidate.
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct PlanReport {
+    pub source: PlanSource,
+    /// With a pilot, the pilot's model; with the population, the same model estimated from
+    /// every simulated subject (the population's effects on the log scale).
     pub model: Model,
     pub seed: u64,
     pub plans: Vec<Plan>,
@@ -64,11 +90,24 @@ impl PlanRequest {
         if let Some(n) = self.subjects.iter().find(|n| !(2..=200).contains(*n)) {
             return bad(format!("subjects: {n} is outside 2 to 200"));
         }
-        if !(100..=100_000).contains(&self.draws) {
-            return bad("draws: 100 to 100000 simulated studies".into());
+        let draws = match self.source {
+            PlanSource::Pilot => 100..=100_000,
+            PlanSource::Population => 10..=10_000,
+        };
+        if !draws.contains(&self.draws) {
+            return bad(format!(
+                "draws: {} to {} simulated studies with the {} model",
+                draws.start(),
+                draws.end(),
+                if self.source == PlanSource::Pilot {
+                    "pilot"
+                } else {
+                    "population"
+                }
+            ));
         }
         let work: usize = self.subjects.iter().map(|n| n * self.draws).sum();
-        if work > MAX_WORK {
+        if self.source == PlanSource::Pilot && work > MAX_WORK {
             return bad(format!(
                 "draws × subjects: {work} simulated subjects in all, at most {MAX_WORK} a \
                  request (fewer draws or fewer candidates)"
@@ -94,10 +133,89 @@ impl PlanRequest {
     }
 }
 
-/// Plans with the model estimated from the study's data (run a pilot and plan on its
-/// dry-run copy, or on the study's own first subjects).
-pub async fn plan_study(pool: &SqlitePool, study_id: i64, req: PlanRequest) -> Result<PlanReport> {
+/// Most loop ticks a population plan may simulate: the benchmark's size, 1,000 studies of 8
+/// subjects × 10 trials of 140 s (docs/benchmarks.md: minutes of both cores).
+const MAX_POPULATION_TICKS: f64 = 1.12e10;
+
+/// Refuses a population plan larger than `MAX_POPULATION_TICKS`; the largest candidate n.
+fn check_population_work(params: &StudyParams, req: &PlanRequest) -> Result<usize> {
+    let max_n = req.subjects.iter().copied().max().unwrap_or(2);
+    let ticks = super::power_sim::ticks(params, req.draws, max_n);
+    if ticks > MAX_POPULATION_TICKS {
+        return Err(AppError::BadRequest(format!(
+            "draws × subjects: {ticks:.3e} loop ticks of simulated trials, at most \
+             {MAX_POPULATION_TICKS:.3e} a request (fewer draws or fewer subjects)"
+        )));
+    }
+    Ok(max_n)
+}
+
+/// Plans `study_id`: with a pilot's model, estimated from the study's data (run a pilot and
+/// plan on its dry-run copy, or on the study's own first subjects); with the population, by
+/// running its simulated subjects' trials (`progress` counts them).
+pub async fn plan_study(
+    pool: &SqlitePool,
+    study_id: i64,
+    req: PlanRequest,
+    progress: Arc<Progress>,
+) -> Result<PlanReport> {
     let metric = req.check()?;
+    if req.source == PlanSource::Population {
+        let study = store::studies::get(pool, study_id).await?;
+        let seat: Seat = req
+            .station
+            .parse()
+            .map_err(|e: bdft_protocol::params::ParamError| AppError::BadRequest(e.to_string()))?;
+        let max_n = check_population_work(&study.params, &req)?;
+        let _turn = super::inference_table::COMPUTE
+            .acquire()
+            .await
+            .expect("never closed");
+        return tokio::task::spawn_blocking(move || {
+            let rows = super::power_sim::simulate(
+                &study.params,
+                seat,
+                metric,
+                req.draws,
+                max_n,
+                req.seed,
+                &progress,
+            )?;
+            let names: Vec<String> = study
+                .params
+                .controllers
+                .iter()
+                .map(|c| c.kind().name().to_string())
+                .collect();
+            let all: Vec<Vec<f64>> = rows.iter().flatten().cloned().collect();
+            let model = estimate(&names, &all).ok_or_else(|| {
+                AppError::Conflict("fewer than 2 simulated subjects completed every test".into())
+            })?;
+            let mut rng = Rng::new(req.seed);
+            let plans = req
+                .subjects
+                .iter()
+                .map(|&n| {
+                    // Study d of every candidate is the first n subjects of simulated study
+                    // d: common random numbers, so candidates differ only by n.
+                    let mut study = 0;
+                    plan_with(&names, n, req.alpha, req.draws, &mut rng, |_, n| {
+                        let first = study * max_n;
+                        study += 1;
+                        rows[first..first + n].iter().flatten().cloned().collect()
+                    })
+                })
+                .collect();
+            Ok(PlanReport {
+                source: req.source,
+                model,
+                seed: req.seed,
+                plans,
+            })
+        })
+        .await
+        .map_err(|e| AppError::Internal(anyhow::anyhow!("planner task: {e}")))?;
+    }
     let data = StudyData::load(pool, study_id).await?;
     let model = estimate(
         &data.compensators,
@@ -106,7 +224,7 @@ pub async fn plan_study(pool: &SqlitePool, study_id: i64, req: PlanRequest) -> R
     .ok_or_else(|| {
         AppError::Conflict(format!(
             "the study has fewer than 2 subjects with every compensator complete at the {} \
-                 seat: run a pilot (its dry-run copy) first",
+                 seat: run a pilot (its dry-run copy) first, or plan with the population",
             req.station
         ))
     })?;
@@ -115,6 +233,7 @@ pub async fn plan_study(pool: &SqlitePool, study_id: i64, req: PlanRequest) -> R
         .await
         .expect("never closed");
     tokio::task::spawn_blocking(move || PlanReport {
+        source: req.source,
         plans: req
             .subjects
             .iter()
@@ -125,6 +244,67 @@ pub async fn plan_study(pool: &SqlitePool, study_id: i64, req: PlanRequest) -> R
     })
     .await
     .map_err(|e| anyhow::anyhow!("planner task: {e}").into())
+}
+
+/// The one power plan the dashboard may have going in the background, with its progress.
+#[derive(Debug, Default)]
+pub struct PlanJob {
+    job: Job<PlanReport>,
+}
+
+/// Where the dashboard's power plan stands.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct PlanStatus {
+    pub running: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub study_id: Option<i64>,
+    /// Simulated trials run so far, of how many (a pilot's model: 0 of 0).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub done: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub total: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub report: Option<PlanReport>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
+impl PlanJob {
+    /// Checks `req` and starts planning `study_id` in the background; refused while another
+    /// plan runs.
+    pub async fn start(
+        self: &Arc<Self>,
+        pool: &SqlitePool,
+        study_id: i64,
+        req: PlanRequest,
+    ) -> Result<()> {
+        req.check()?;
+        let study = store::studies::get(pool, study_id).await?;
+        if req.source == PlanSource::Population {
+            check_population_work(&study.params, &req)?;
+        }
+        let progress = self.job.begin(study_id, "a power plan")?;
+        let (job, pool) = (Arc::clone(self), pool.clone());
+        tokio::spawn(async move {
+            let outcome = plan_study(&pool, study_id, req, progress)
+                .await
+                .map_err(|e| e.to_string());
+            job.job.finish(outcome);
+        });
+        Ok(())
+    }
+
+    pub fn status(&self) -> PlanStatus {
+        let s = self.job.snapshot();
+        PlanStatus {
+            running: s.running,
+            study_id: s.study_id,
+            done: s.done,
+            total: s.total,
+            report: s.report,
+            error: s.error,
+        }
+    }
 }
 
 /// A study model on the log scale: compensator means and the residual standard deviation.

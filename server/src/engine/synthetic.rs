@@ -43,22 +43,20 @@ pub fn hours_on_task(params: &StudyParams, slot: u32) -> f64 {
     (params.practice_s + f64::from(slot - 1) * params.trial_s) / 3600.0
 }
 
-/// The operator and body of a synthetic subject's trial. A subject enrolled before
-/// populations existed has no draw: the default operator with the study's body, as then.
+/// The operator and body of a synthetic subject's test in `slot` of its schedule. A subject
+/// enrolled before populations existed has no draw: the default operator with the study's
+/// body, as then.
 pub fn operator_and_body(
     params: &StudyParams,
-    trial: &Trial,
+    slot: u32,
     draw: Option<&SubjectDraw>,
 ) -> (OperatorParams, BodyModel) {
     match draw {
         None => (OperatorParams::default(), params.body),
-        Some(d) => {
-            let slot = u32::try_from(trial.slot).unwrap_or(0);
-            (
-                population::operator(d, slot, hours_on_task(params, slot)),
-                population::body(d, params.body),
-            )
-        }
+        Some(d) => (
+            population::operator(d, slot, hours_on_task(params, slot)),
+            population::body(d, params.body),
+        ),
     }
 }
 

@@ -64,7 +64,12 @@ const ADMIN_ONLY: &str = "/api/accounts";
 /// lab anyone logged in who sees a person in danger must be able to stop the machine, the
 /// read-only analyst too. Resetting it is not: that lets the machine move again. The power
 /// planner is a POST for its body but changes nothing: planning is an analyst's work.
-const ANALYST_MAY_CHANGE: &[&str] = &["/api/estop", "/api/logout", "/api/studies/{id}/plan"];
+const ANALYST_MAY_CHANGE: &[&str] = &[
+    "/api/estop",
+    "/api/logout",
+    "/api/studies/{id}/plan",
+    "/api/studies/{id}/plan-job",
+];
 
 /// What `role` may do on the route `path` (as registered) with `method`: anything not
 /// listed for it is refused, so a new route fails closed.

@@ -14,7 +14,7 @@ use super::error::{ApiResult, AppError, AppJson};
 use super::extract::Experimenter;
 use crate::engine::export::{self, ExportKind};
 use crate::engine::inference_table::{StatsRow, study_table};
-use crate::engine::power::{PlanReport, PlanRequest, plan_study};
+use crate::engine::power::{PlanReport, PlanRequest, PlanSource, PlanStatus, plan_study};
 use crate::engine::results::{box_plot, parse_file};
 use crate::engine::stats::{Stats, summary_stats};
 use crate::state::AppState;
@@ -26,6 +26,8 @@ pub fn routes() -> OpenApiRouter<AppState> {
         .routes(routes!(summary))
         .routes(routes!(inference))
         .routes(routes!(plan))
+        .routes(routes!(start_plan_job))
+        .routes(routes!(plan_job_status))
         .routes(routes!(plot))
         .routes(routes!(download))
         .routes(routes!(audit_log))
@@ -69,7 +71,42 @@ async fn plan(
     Path(id): Path<i64>,
     AppJson(req): AppJson<PlanRequest>,
 ) -> ApiResult<PlanReport> {
-    Ok(AppJson(plan_study(&s.pool, id, req).await?))
+    if req.source == PlanSource::Population {
+        return Err(AppError::BadRequest(format!(
+            "source: a plan with the population runs full trials for minutes: start it with \
+             POST /api/studies/{id}/plan-job and follow GET /api/plan-job"
+        )));
+    }
+    Ok(AppJson(
+        plan_study(&s.pool, id, req, Default::default()).await?,
+    ))
+}
+
+#[derive(Debug, serde::Serialize, utoipa::ToSchema)]
+pub struct PlanStarted {
+    pub started: bool,
+}
+
+/// The power planner in the background, with progress at GET /api/plan-job: with the
+/// study's synthetic population (whole simulated studies of full trials) or a pilot's
+/// model. One plan at a time.
+#[utoipa::path(post, path = "/api/studies/{id}/plan-job", tag = "results", params(("id" = i64, Path)),
+    request_body = PlanRequest, responses((status = 200, body = PlanStarted)))]
+async fn start_plan_job(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+    AppJson(req): AppJson<PlanRequest>,
+) -> ApiResult<PlanStarted> {
+    s.plan.start(&s.pool, id, req).await?;
+    Ok(AppJson(PlanStarted { started: true }))
+}
+
+/// Where the background power plan stands: progress (simulated trials), then its report or
+/// error.
+#[utoipa::path(get, path = "/api/plan-job", tag = "results", responses((status = 200, body = PlanStatus)))]
+async fn plan_job_status(State(s): State<AppState>, _who: Experimenter) -> AppJson<PlanStatus> {
+    AppJson(s.plan.status())
 }
 
 /// A box plot of one variable by compensator and seat: `{variable}.svg` or `.png`.
