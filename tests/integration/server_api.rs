@@ -748,6 +748,9 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
         .output()
         .unwrap();
     assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("trials, samples, summary"));
+    assert!(
+        String::from_utf8_lossy(&out.stderr)
+            .contains("trials, samples, subjects, codebook, summary")
+    );
     let _ = Proc::controller; // the pilot needs no controller process
 }

@@ -84,6 +84,24 @@ const STAT: ColumnType = num(12);
 /// The keys that join the exports: the study and the subject's pseudonym.
 const STUDY_ID: Column = col("study_id", "", INT, "the study's id");
 const SUBJECT_CODE: Column = col("subject_code", "", TEXT, "the subject's pseudonym (S01, …)");
+const SUBJECT_INDEX: Column = col(
+    "subject_index",
+    "",
+    INT,
+    "the subject's enrolment order, from 1",
+);
+const SYNTHETIC: Column = col(
+    "synthetic",
+    "",
+    FLAG,
+    "1 for a synthetic subject (pilot), 0 for a person",
+);
+const STARTING_STATION: Column = col(
+    "starting_station",
+    "",
+    TEXT,
+    "the seat the subject's tests began at (on/off)",
+);
 const TRIAL_ID: Column = col(
     "trial_id",
     "",
@@ -121,24 +139,9 @@ pub fn trials(survey: &SurveyParams) -> Vec<Column> {
         STUDY_ID,
         TRIAL_ID,
         SUBJECT_CODE,
-        col(
-            "subject_index",
-            "",
-            INT,
-            "the subject's enrolment order, from 1",
-        ),
-        col(
-            "synthetic",
-            "",
-            FLAG,
-            "1 for a synthetic subject (pilot), 0 for a person",
-        ),
-        col(
-            "starting_station",
-            "",
-            TEXT,
-            "the seat the subject's tests began at (on/off)",
-        ),
+        SUBJECT_INDEX,
+        SYNTHETIC,
+        STARTING_STATION,
         PHASE,
         STATION,
         col(
@@ -352,24 +355,9 @@ pub fn subjects(drawn_keys: &[String]) -> Vec<Column> {
     let mut c = vec![
         STUDY_ID,
         SUBJECT_CODE,
-        col(
-            "subject_index",
-            "",
-            INT,
-            "the subject's enrolment order, from 1",
-        ),
-        col(
-            "synthetic",
-            "",
-            FLAG,
-            "1 for a synthetic subject (pilot), 0 for a person",
-        ),
-        col(
-            "starting_station",
-            "",
-            TEXT,
-            "the seat the subject's tests began at (on/off)",
-        ),
+        SUBJECT_INDEX,
+        SYNTHETIC,
+        STARTING_STATION,
         col(
             "consent_version",
             "",
@@ -394,7 +382,7 @@ pub fn subjects(drawn_keys: &[String]) -> Vec<Column> {
             "order",
             "",
             TEXT,
-            "the schedule's order: seat, then the compensators of the block in position order (on: pid > lqr … | off: …)",
+            "the schedule's order: seat, then the compensators of the block in the order run (on: pid > lqr … | off: …)",
         ),
         col(
             "valid_tests",

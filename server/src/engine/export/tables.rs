@@ -264,14 +264,14 @@ async fn subjects<W: AsyncWrite + Unpin>(
     Ok(())
 }
 
-/// The schedule's order: each seat's compensators in position order, from the first
+/// The schedule's order: each seat's compensators in schedule (slot) order, from the first
 /// attempts (`on: pid > lqr > … | off: …`).
 fn order_summary(trials: &[&TrialExportRow]) -> String {
     let mut tests: Vec<&&TrialExportRow> = trials
         .iter()
         .filter(|r| !r.practice && r.attempt == 1)
         .collect();
-    tests.sort_by_key(|r| r.position);
+    tests.sort_by_key(|r| r.slot);
     let mut blocks: Vec<(&str, Vec<&str>)> = Vec::new();
     for r in tests {
         match blocks.last_mut() {
