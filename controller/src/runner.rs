@@ -41,6 +41,9 @@ impl Loop for ClosedLoop {
 }
 
 /// Where the intended hand position comes from.
+// One per trial, built once: its size costs nothing, a box would add an indirection to
+// every tick.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone)]
 pub enum HandSource {
     Synthetic(SyntheticOperator),

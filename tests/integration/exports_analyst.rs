@@ -342,7 +342,7 @@ fn a_pilots_analyst_exports_are_tidy_and_parquet_equals_csv() {
         .collect();
     assert_eq!(cut.len() - 1, 1000, "1 s at 1 kHz");
     assert_eq!(cut[1..].iter().collect::<Vec<_>>(), expected);
-    assert!(values(all, "phase").iter().any(|p| *p == "practice"));
+    assert!(values(all, "phase").contains(&"practice"));
     let practice_controllers: BTreeSet<&str> = all[1..]
         .iter()
         .filter(|r| r[column(all, "phase")] == "practice")
@@ -522,14 +522,9 @@ fn the_command_line_cuts_samples_and_simulate_writes_the_same_record_layout() {
             for r in &rows[1..] {
                 let v = &r[7 * usize::from(what == "export") + j];
                 let places = v.split_once('.').map_or(0, |(_, d)| d.len());
-                assert!(
-                    places <= decimals
-                        && !v.ends_with('.')
-                        && !(v.contains('.') && v.ends_with('0'))
-                        && !v.contains('e')
-                        && v != "-0",
-                    "{what} {name} = {v:?}"
-                );
+                let trailing = v.contains('.') && (v.ends_with('0') || v.ends_with('.'));
+                let odd = v.contains('e') || v == "-0" || trailing;
+                assert!(places <= decimals && !odd, "{what} {name} = {v:?}");
             }
         }
     }
