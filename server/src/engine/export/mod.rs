@@ -16,7 +16,6 @@ mod tables;
 use sqlx::SqlitePool;
 use tokio::io::{AsyncWrite, BufWriter};
 
-pub use columns::{Column, ColumnType};
 pub use sink::ExportFormat;
 
 use crate::error::AppError;
