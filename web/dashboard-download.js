@@ -21,6 +21,27 @@ export function init() {
   });
 }
 
+/**
+ * Points every export link (`a[data-export]`, `data-format` csv — the default — or parquet)
+ * at study `id`, or disables them without a study.
+ */
+export function setExportLinks(id) {
+  for (const a of document.querySelectorAll('a[data-export]')) {
+    const kind = a.dataset.export;
+    const format = a.dataset.format || 'csv';
+    if (id) {
+      a.href = `/api/studies/${id}/export/${kind}${format === 'csv' ? '' : `?format=${format}`}`;
+      a.setAttribute('download', `bdft-study${id}-${kind}.${format}`);
+      a.removeAttribute('aria-disabled');
+    } else {
+      a.href = '#';
+      a.setAttribute('aria-disabled', 'true');
+    }
+    a.dataset.progressDownload = '';
+    a.dataset.label = `${kind}.${format}`;
+  }
+}
+
 function bytes(n) {
   if (n < 1024) return `${n} B`;
   if (n < 1024 * 1024) return `${(n / 1024).toFixed(1)} kB`;

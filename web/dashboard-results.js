@@ -39,7 +39,6 @@ export function init() {
   on('study', () => {
     lastSummary = '';
     stamp = Date.now();
-    setLinks();
     $('averages').replaceChildren();
     $('comparisons').replaceChildren();
     $('statistics').replaceChildren();
@@ -51,27 +50,10 @@ export function init() {
   on('study-updated', () => refresh(false));
 }
 
-function setLinks() {
-  const id = S.studyId;
-  for (const kind of ['trials', 'samples', 'summary', 'stats', 'notes']) {
-    const a = $(`download-${kind}`);
-    if (id) {
-      a.href = `/api/studies/${id}/export/${kind}`;
-      a.setAttribute('download', `bdft-study${id}-${kind}.csv`);
-      a.removeAttribute('aria-disabled');
-    } else {
-      a.href = '#';
-      a.setAttribute('aria-disabled', 'true');
-    }
-    a.dataset.progressDownload = '';
-    a.dataset.label = `${kind}.csv`;
-  }
-}
-
 /** Reloads the summary; the plots are reloaded when the numbers changed (or `force`). */
 export async function refresh(force) {
   const id = S.studyId;
-  setLinks();
+  downloads.setExportLinks(id);
   if (!id) {
     $('averages').replaceChildren(el('tbody', {}, el('tr', {}, el('td', { class: 'muted' }, 'Select or create a study first.'))));
     return;

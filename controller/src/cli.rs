@@ -18,7 +18,9 @@ use bdft_controller::interlock::DEFAULT_LIMIT_MM_S2;
 use bdft_controller::param_set::ParamSet;
 use bdft_controller::params::{LoopParams, MAX_KBF, NOMINAL_KBF, PlantParams, Seat};
 use bdft_controller::runtime;
-use bdft_controller::simulate::{SAMPLE_COLUMNS, SignalKind, SimConfig, simulate};
+use bdft_controller::simulate::{SignalKind, SimConfig, simulate};
+use bdft_protocol::numbers::format_number;
+use bdft_protocol::trial::{RECORD_CHANNELS, RECORD_TIME};
 
 #[derive(Debug, Parser)]
 #[command(
@@ -481,18 +483,27 @@ fn write_record(
     let file =
         std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
     let mut w = std::io::BufWriter::new(file);
-    writeln!(w, "{}", SAMPLE_COLUMNS.join(","))?;
+    // The columns, names and number format of the server's samples export (less its join
+    // keys): one definition in bdft_protocol::trial. No real-time loop here: latency 0.
+    let header: Vec<&str> = std::iter::once(&RECORD_TIME)
+        .chain(&RECORD_CHANNELS)
+        .map(|c| c.name)
+        .collect();
+    writeln!(w, "{}", header.join(","))?;
+    let mut line = String::with_capacity(128);
     let mut io_err = None;
     let summary = simulate(cfg, |s| {
         if io_err.is_some() {
             return;
         }
-        let v = s.values();
-        let res = writeln!(
-            w,
-            "{:.3},{},{},{},{},{},{},{}",
-            v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7]
-        );
+        line.clear();
+        line.push_str(&format_number(s.t, RECORD_TIME.decimals));
+        for (v, c) in s.record_row(0.0).into_iter().zip(&RECORD_CHANNELS) {
+            line.push(',');
+            line.push_str(&format_number(v, c.decimals));
+        }
+        line.push('\n');
+        let res = w.write_all(line.as_bytes());
         if let Err(e) = res {
             io_err = Some(e);
         }

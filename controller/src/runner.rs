@@ -2,7 +2,7 @@
 //! metrics. The offline simulation and the real-time process both run trials through this,
 //! so a trial in the controller process reproduces `simulate` exactly for the same seeds.
 
-use bdft_protocol::trial::Metrics;
+use bdft_protocol::trial::{Metrics, RECORD_CHANNELS};
 
 use crate::closed_loop::{ClosedLoop, Drive, TickRecord};
 use crate::interlock::{VibrationInterlock, WINDOW_S};
@@ -41,6 +41,9 @@ impl Loop for ClosedLoop {
 }
 
 /// Where the intended hand position comes from.
+// One per trial, built once: its size costs nothing, a box would add an indirection to
+// every tick.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone)]
 // A trial holds one for its whole life inside a slot the loop keeps on the heap already;
 // boxing the operator would add a pointer chase to every tick of a synthetic trial.
@@ -66,22 +69,11 @@ pub struct Sample {
     pub cab_accel: f64,
 }
 
-/// Column names of the record, in `Sample` order.
-pub const SAMPLE_COLUMNS: [&str; 8] = [
-    "t_s",
-    "target_mm",
-    "hand_mm",
-    "feedthrough_mm",
-    "cyl_ref_mm",
-    "valve_cmd",
-    "cyl_pos_mm",
-    "cab_accel_mm_s2",
-];
-
 impl Sample {
-    pub fn values(&self) -> [f64; 8] {
+    /// This tick's row of the full-rate record, in `RECORD_CHANNELS` order (the controller's
+    /// stored record and `simulate --out` both write it), with the tick's wake-up latency.
+    pub fn record_row(&self, tick_latency_us: f64) -> [f64; RECORD_CHANNELS.len()] {
         [
-            self.t,
             self.target,
             self.hand,
             self.feedthrough,
@@ -89,6 +81,8 @@ impl Sample {
             self.valve,
             self.y,
             self.cab_accel,
+            self.device(),
+            tick_latency_us,
         ]
     }
 

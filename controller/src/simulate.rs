@@ -8,8 +8,8 @@ use crate::error::{DesignError, ParamError};
 use crate::operator::{OperatorParams, SyntheticOperator};
 use crate::params::{Seat, check};
 use crate::rng::Rng;
+pub use crate::runner::Sample;
 use crate::runner::{HandSource, TrialRunner};
-pub use crate::runner::{SAMPLE_COLUMNS, Sample};
 use crate::signals::{Signal, StepParams, StepTarget, SweptSine, Trapezoid};
 
 /// The signal families `simulate` offers.

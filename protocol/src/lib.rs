@@ -16,6 +16,7 @@ pub mod browser_to_server;
 pub mod controller_to_server;
 pub mod framing;
 pub mod link_auth;
+pub mod numbers;
 pub mod params;
 pub mod records;
 pub mod rig;

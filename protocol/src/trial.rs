@@ -161,15 +161,86 @@ pub enum Outcome {
     Faulted { fault: FaultKind, message: String },
 }
 
+/// One column of the full-rate record as the analysts' files carry it (the server's samples
+/// export and `bdft-controller simulate --out` write the same columns, names, units and
+/// number format from this one definition).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RecordColumn {
+    /// Column name; it ends in the unit.
+    pub name: &'static str,
+    pub unit: &'static str,
+    pub meaning: &'static str,
+    /// Values are written to this many decimals (the column's resolution, 10^-decimals):
+    /// `numbers::format_number`.
+    pub decimals: u8,
+}
+
+/// Time since the trial's start, the first column of a record file (one row per tick).
+pub const RECORD_TIME: RecordColumn = RecordColumn {
+    name: "t_s",
+    unit: "s",
+    meaning: "time since the trial started (tick × sample period)",
+    decimals: 3,
+};
+
+/// Positions are stored as f32 (about 7 significant digits: 0.01 µm at 100 mm), so 0.1 µm
+/// is as fine as they mean anything.
+const MM_DECIMALS: u8 = 4;
+
 /// Channels of the full-rate record, in the order of `RecordChunk::channels`.
-pub const RECORD_CHANNELS: [&str; 9] = [
-    "target_mm",
-    "hand_mm",
-    "feedthrough_mm",
-    "cyl_ref_mm",
-    "valve_cmd",
-    "cyl_pos_mm",
-    "cab_accel_mm_s2",
-    "device_mm",
-    "tick_latency_us",
+pub const RECORD_CHANNELS: [RecordColumn; 9] = [
+    RecordColumn {
+        name: "target_mm",
+        unit: "mm",
+        meaning: "pursuit target (cylinder position the subject is asked to follow)",
+        decimals: MM_DECIMALS,
+    },
+    RecordColumn {
+        name: "hand_mm",
+        unit: "mm",
+        meaning: "intended hand position (the operator's output before feedthrough)",
+        decimals: MM_DECIMALS,
+    },
+    RecordColumn {
+        name: "feedthrough_mm",
+        unit: "mm",
+        meaning: "hand motion forced by cab vibration (biodynamic feedthrough)",
+        decimals: MM_DECIMALS,
+    },
+    RecordColumn {
+        name: "cyl_ref_mm",
+        unit: "mm",
+        meaning: "cylinder reference the compensator's output sets",
+        decimals: MM_DECIMALS,
+    },
+    RecordColumn {
+        name: "valve_cmd",
+        unit: "1",
+        meaning: "valve command applied, after saturation (dimensionless)",
+        decimals: 6,
+    },
+    RecordColumn {
+        name: "cyl_pos_mm",
+        unit: "mm",
+        meaning: "measured cylinder position",
+        decimals: MM_DECIMALS,
+    },
+    RecordColumn {
+        name: "cab_accel_mm_s2",
+        unit: "mm/s²",
+        meaning: "measured fore-aft cab (seat) acceleration",
+        decimals: 3,
+    },
+    RecordColumn {
+        name: "device_mm",
+        unit: "mm",
+        meaning: "input device reading: intended hand position less the feedthrough",
+        decimals: MM_DECIMALS,
+    },
+    RecordColumn {
+        name: "tick_latency_us",
+        unit: "µs",
+        meaning: "wake-up latency of the real-time tick (0 in an offline simulation)",
+        decimals: 1,
+    },
 ];

@@ -7,7 +7,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 
 use crate::config::{DbConfig, ServeConfig};
-use crate::engine::export::ExportKind;
+use crate::engine::export::{ExportFormat, ExportKind, ExportRequest, SampleCut};
 use crate::engine::login_limiter::LoginLimiter;
 use crate::engine::power::{self, PlanRequest, PlanSource};
 use crate::engine::{accounts, controller_link, export, filing, pilot};
@@ -80,19 +80,30 @@ enum Command {
         #[arg(long, default_value_t = 0)]
         seed: u64,
     },
-    /// Write a CSV export of a study.
+    /// Write an export of a study as CSV or Parquet.
     Export {
         #[command(flatten)]
         db: DbConfig,
         /// Study to export [default: the newest].
         #[arg(long)]
         study: Option<i64>,
-        /// trials (one row per test), samples (1 kHz records, long format), summary
-        /// (statistics per controller × station), stats (Friedman, pairwise exact Wilcoxon
-        /// with Holm, on vs off, RM-ANOVA), notes (notes and reasons about tests) or
+        /// trials (one row per test attempt, with valid and latest flags), samples (1 kHz
+        /// records, long format, with join keys), subjects (one row per subject, with the
+        /// drawn parameters), codebook (every column of every export: meaning, unit, type),
+        /// summary (statistics per controller × station), stats (Friedman, pairwise exact
+        /// Wilcoxon with Holm, on vs off, RM-ANOVA), notes (notes and reasons about tests) or
         /// audit (the whole audit log; --study is not used).
         #[arg(long)]
         kind: ExportKind,
+        /// csv or parquet.
+        #[arg(long, default_value = "csv")]
+        format: ExportFormat,
+        /// Samples only: one subject's, by code (S01).
+        #[arg(long, conflicts_with = "trial")]
+        subject: Option<String>,
+        /// Samples only: one test attempt's, by its trial_id.
+        #[arg(long)]
+        trial: Option<i64>,
         /// Output file (written to a temporary name and renamed when complete).
         #[arg(long)]
         out: PathBuf,
@@ -225,8 +236,16 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             db,
             study,
             kind,
+            format,
+            subject,
+            trial,
             out,
         } => {
+            let req = ExportRequest {
+                kind,
+                format,
+                cut: SampleCut::from_options(subject, trial)?,
+            };
             let pool = store::db::open(&db.db).await?;
             let study = if kind.per_study() {
                 newest_study(&pool, study).await?
@@ -237,7 +256,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             let file = tokio::fs::File::create(&tmp)
                 .await
                 .with_context(|| format!("creating {}", tmp.display()))?;
-            if let Err(e) = export::write(&pool, study, kind, file).await {
+            if let Err(e) = export::write(&pool, study, &req, file).await {
                 let _ = tokio::fs::remove_file(&tmp).await;
                 return Err(e.into());
             }

@@ -286,10 +286,10 @@ fn a_short_study_runs_end_to_end_in_a_real_browser() {
         .filter(|r| r[col("status")] == "complete")
         .collect();
     assert_eq!(done.len(), 2);
-    assert_eq!(done[0][col("practice")], "1");
+    assert_eq!(done[0][col("phase")], "practice");
     assert_eq!(done[1][col("station")], "on");
-    assert_eq!(done[1][col("rating_accuracy")], "5");
-    assert_eq!(done[1][col("rating_controllability")], "6");
+    assert_eq!(done[1][col("rating_accuracy_1to7")], "5");
+    assert_eq!(done[1][col("rating_controllability_1to7")], "6");
     assert_eq!(done[1][col("comment")], "felt a bit sluggish");
 
     // A subject's page that tries the dashboard's data is refused.

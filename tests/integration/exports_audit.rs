@@ -10,7 +10,7 @@ use bdft_tests::{TempDir, binary};
 use serde_json::{Value, json};
 
 /// Quoted-field aware CSV parsing (the exports quote cells with commas, quotes, newlines).
-fn parse_csv(text: &str) -> Vec<Vec<String>> {
+pub(crate) fn parse_csv(text: &str) -> Vec<Vec<String>> {
     let (mut rows, mut row, mut cell) = (Vec::new(), Vec::new(), String::new());
     let (mut quoted, mut chars) = (false, text.chars().peekable());
     while let Some(c) = chars.next() {
@@ -33,7 +33,7 @@ fn parse_csv(text: &str) -> Vec<Vec<String>> {
     rows
 }
 
-fn column(rows: &[Vec<String>], name: &str) -> usize {
+pub(crate) fn column(rows: &[Vec<String>], name: &str) -> usize {
     rows[0]
         .iter()
         .position(|h| h == name)

@@ -134,10 +134,10 @@ fn a_subject_goes_through_the_whole_protocol_via_the_api() {
     for r in &rows {
         assert_eq!(r[col(&h, "status")], "complete");
         assert_eq!(r[col(&h, "protocol_hash")], hash);
-        let practice = r[col(&h, "practice")] == "1";
-        assert_eq!(r[col(&h, "rating_accuracy")].is_empty(), practice);
+        let practice = r[col(&h, "phase")] == "practice";
+        assert_eq!(r[col(&h, "rating_accuracy_1to7")].is_empty(), practice);
         if !practice {
-            assert_eq!(r[col(&h, "rating_controllability")], "6");
+            assert_eq!(r[col(&h, "rating_controllability_1to7")], "6");
             assert!(
                 r[col(&h, "comment")].starts_with("'="),
                 "formula neutralized: {}",
@@ -639,17 +639,17 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
         "position",
         "controller",
         "blinded_label",
-        "practice",
+        "phase",
         "status",
         "seed",
         "target_mean_mm",
         "target_std_mm",
         "mse_tracking_mm2",
-        "ms_cab_accel",
-        "rating_accuracy",
-        "rating_speed",
-        "rating_smoothness",
-        "rating_controllability",
+        "ms_cab_accel_mm2_s4",
+        "rating_accuracy_1to7",
+        "rating_speed_1to7",
+        "rating_smoothness_1to7",
+        "rating_controllability_1to7",
         "comment",
         "protocol_hash",
         "started_at",
@@ -675,11 +675,16 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
             assert_eq!(get(r, "synthetic"), "1");
             assert_eq!(get(r, "starting_station"), start);
             assert_eq!(get(r, "station"), t.seat.as_str());
-            assert_eq!(get(r, "controller"), t.compensator.name());
-            assert_eq!(get(r, "blinded_label"), t.blinded_label);
-            assert_eq!(get(r, "block"), t.block.to_string());
-            assert_eq!(get(r, "position"), t.position.to_string());
-            assert_eq!(get(r, "practice"), if t.practice { "1" } else { "0" });
+            // Practice has no compensator, block or position: no row reads as a PID test.
+            let test_only = |v: String| if t.practice { String::new() } else { v };
+            assert_eq!(get(r, "controller"), test_only(t.compensator.name().into()));
+            assert_eq!(get(r, "blinded_label"), test_only(t.blinded_label.clone()));
+            assert_eq!(get(r, "block"), test_only(t.block.to_string()));
+            assert_eq!(get(r, "position"), test_only(t.position.to_string()));
+            assert_eq!(
+                get(r, "phase"),
+                if t.practice { "practice" } else { "test" }
+            );
             assert_eq!(get(r, "seed"), t.target_seed.to_string());
             assert_eq!(get(r, "status"), "complete");
             assert_eq!(get(r, "protocol_hash"), hash);
@@ -691,10 +696,10 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
             // Each synthetic subject answers the survey of every scored test on the
             // study's 7-point scale, as a person would; the practice has none.
             if t.practice {
-                assert!(get(r, "rating_accuracy").is_empty() && get(r, "comment").is_empty());
+                assert!(get(r, "rating_accuracy_1to7").is_empty() && get(r, "comment").is_empty());
             } else {
                 for item in ["accuracy", "speed", "smoothness", "controllability"] {
-                    let rating: u8 = get(r, &format!("rating_{item}")).parse().unwrap();
+                    let rating: u8 = get(r, &format!("rating_{item}_1to7")).parse().unwrap();
                     assert!((1..=7).contains(&rating), "{item}: {rating}");
                 }
                 assert!(
@@ -754,6 +759,9 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
         .output()
         .unwrap();
     assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("trials, samples, summary"));
+    assert!(
+        String::from_utf8_lossy(&out.stderr)
+            .contains("trials, samples, subjects, codebook, summary")
+    );
     let _ = Proc::controller; // the pilot needs no controller process
 }

@@ -36,7 +36,9 @@ fn a_pilots_statistics_agree_with_its_export_and_state_the_small_n_floor() {
     let mut by_subject: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
     for line in lines {
         let r: Vec<&str> = line.split(',').collect();
-        if r[col("practice")] == "1" || r[col("station")] != "on" || r[col("status")] != "complete"
+        if r[col("phase")] == "practice"
+            || r[col("station")] != "on"
+            || r[col("status")] != "complete"
         {
             continue;
         }

@@ -167,6 +167,21 @@ impl Api {
         }
     }
 
+    /// Raw bytes of a GET (Parquet downloads).
+    pub fn get_bytes(&self, path: &str) -> (u16, Vec<u8>) {
+        use std::io::Read;
+        let req = self.agent.get(&format!("{}{path}", self.base));
+        let resp = match req.call() {
+            Ok(r) => r,
+            Err(ureq::Error::Status(_, r)) => r,
+            Err(e) => panic!("GET {path}: {e}"),
+        };
+        let code = resp.status();
+        let mut bytes = Vec::new();
+        resp.into_reader().read_to_end(&mut bytes).unwrap();
+        (code, bytes)
+    }
+
     pub fn get(&self, path: &str) -> (u16, Value) {
         self.call("GET", path, None)
     }

@@ -231,17 +231,8 @@ impl TrialSlot {
         }
         let (k, _) = self.runner.progress();
         let s: Sample = self.runner.tick(hand);
-        self.record.push([
-            s.target as f32,
-            s.hand as f32,
-            s.feedthrough as f32,
-            s.r_c as f32,
-            s.valve as f32,
-            s.y as f32,
-            s.cab_accel as f32,
-            s.device() as f32,
-            latency_us,
-        ]);
+        self.record
+            .push(s.record_row(f64::from(latency_us)).map(|v| v as f32));
         if self.runner.tripped() {
             self.end(EndReason::Faulted(FaultKind::CabVibration));
             return SlotTick::Ended;

@@ -18,6 +18,7 @@ use super::inference::rm_anova::{Effect, rm_anova2};
 use super::stats::SUMMARY_VARIABLES;
 use crate::error::Result;
 use crate::store;
+use crate::store::exports::{TrialExportRow, Withdrawn};
 
 /// The significance level the table's reachability statements use.
 pub const ALPHA: f64 = 0.05;
@@ -62,6 +63,18 @@ pub struct StatsRow {
     pub note: String,
 }
 
+/// Whether an attempt is a valid measurement: a test, not the practice, that ran complete.
+/// (The trials export's `valid` flag.)
+pub fn valid(r: &TrialExportRow) -> bool {
+    !r.practice && r.status == TrialStatus::Complete
+}
+
+/// Whether an attempt counts in the analyses: valid and the latest attempt of its test, so
+/// a redone test counts once, and a test whose latest attempt failed not at all.
+pub fn counts(r: &TrialExportRow) -> bool {
+    valid(r) && r.latest
+}
+
 /// One subject's values of the summary variables per (compensator, seat).
 pub type Cells = BTreeMap<(String, String), [Option<f64>; 6]>;
 
@@ -77,13 +90,10 @@ pub struct StudyData {
 impl StudyData {
     pub async fn load(pool: &SqlitePool, study_id: i64) -> Result<Self> {
         let study = store::studies::get(pool, study_id).await?;
-        let rows = store::exports::trial_rows(pool, study_id).await?;
+        let rows = store::exports::trial_rows(pool, study_id, Withdrawn::LeftOut).await?;
         let mut subjects: BTreeMap<i64, Cells> = BTreeMap::new();
         for r in &rows {
-            let latest = !rows
-                .iter()
-                .any(|u| u.code == r.code && u.slot == r.slot && u.attempt > r.attempt);
-            if r.practice || !latest || r.status != TrialStatus::Complete {
+            if !counts(r) {
                 continue;
             }
             let f = |v: Option<i64>| v.map(|x| x as f64);

@@ -81,7 +81,7 @@ pub async fn answer_survey(
     let channel = |name: &str| {
         bdft_protocol::trial::RECORD_CHANNELS
             .iter()
-            .position(|c| *c == name)
+            .position(|c| c.name == name)
             .and_then(|i| record.channels.get(i))
             .map_or(&[][..], Vec::as_slice)
     };

@@ -1,4 +1,5 @@
-//! Results: summary statistics, box plots, streamed CSV exports and the audit log.
+//! Results: summary statistics, box plots, streamed CSV and Parquet exports and the audit
+//! log.
 
 use axum::body::Body;
 use axum::extract::{Path, Query, State};
@@ -12,7 +13,7 @@ use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppError, AppJson};
 use super::extract::Experimenter;
-use crate::engine::export::{self, ExportKind};
+use crate::engine::export::{self, ExportFormat, ExportKind, ExportRequest, SampleCut};
 use crate::engine::inference_table::{StatsRow, study_table};
 use crate::engine::power::{PlanReport, PlanRequest, PlanSource, PlanStatus, plan_study};
 use crate::engine::results::{box_plot, parse_file};
@@ -130,61 +131,106 @@ async fn plot(
         .into_response())
 }
 
-/// A CSV export (`trials`, `samples`, `summary` or `notes`, optionally with `.csv`), streamed: the
-/// response starts at once and is written as rows are read.
+#[derive(Debug, Deserialize, IntoParams)]
+struct ExportQuery {
+    /// `csv` (default) or `parquet`.
+    format: Option<String>,
+    /// Samples only: one subject's, by code (`S01`).
+    subject: Option<String>,
+    /// Samples only: one test attempt's, by its `trial_id`.
+    trial: Option<String>,
+}
+
+impl ExportQuery {
+    /// The request for `kind` (its name, optionally with `.csv` or `.parquet`).
+    fn request(self, kind: &str) -> Result<ExportRequest, AppError> {
+        let (name, extension) = kind.split_once('.').unwrap_or((kind, ""));
+        let kind: ExportKind = name
+            .parse()
+            .map_err(|e| AppError::BadRequest(format!("kind: {e}")))?;
+        let format = match (self.format.as_deref(), extension) {
+            (Some(f), _) | (None, f @ ("csv" | "parquet")) => f,
+            (None, "") => "csv",
+            (None, other) => other,
+        };
+        let format: ExportFormat = format
+            .parse()
+            .map_err(|e| AppError::BadRequest(format!("format: {e}")))?;
+        let trial = self
+            .trial
+            .map(|t| {
+                t.parse::<i64>().map_err(|_| {
+                    AppError::BadRequest(format!(
+                        "trial: {:?} is not a trial id; allowed: a whole number, a trial_id of the trials export",
+                        t.chars().take(40).collect::<String>()
+                    ))
+                })
+            })
+            .transpose()?;
+        Ok(ExportRequest {
+            kind,
+            format,
+            cut: SampleCut::from_options(self.subject, trial)?,
+        })
+    }
+}
+
+/// An export as CSV or Parquet (`?format=`): `trials`, `samples` (all, `?subject=S01` or
+/// `?trial=ID`), `subjects`, `codebook`, `summary`, `stats` or `notes`, optionally with
+/// `.csv` or `.parquet`; streamed: the response starts at once and is written as rows are
+/// read.
 #[utoipa::path(get, path = "/api/studies/{id}/export/{kind}", tag = "results",
-    params(("id" = i64, Path), ("kind" = String, Path, description = "trials, samples, summary, stats or notes")),
-    responses((status = 200, description = "CSV", content_type = "text/csv")))]
+    params(("id" = i64, Path), ("kind" = String, Path, description = "trials, samples, subjects, codebook, summary, stats or notes"), ExportQuery),
+    responses((status = 200, description = "CSV or Parquet", content_type = "text/csv"),
+        (status = 422, description = "a kind, format or cut that is not allowed, named with what is")))]
 async fn download(
     State(s): State<AppState>,
     who: Experimenter,
     Path((id, kind)): Path<(i64, String)>,
+    Query(q): Query<ExportQuery>,
 ) -> Result<Response, AppError> {
-    let kind_name = kind.trim_end_matches(".csv").to_string();
-    let kind: ExportKind = kind_name.parse().map_err(AppError::BadRequest)?;
-    if !kind.per_study() {
+    let req = q.request(&kind)?;
+    if !req.kind.per_study() {
         return Err(AppError::BadRequest(
             "kind: the audit log is not one study's; it is at /api/audit/export".into(),
         ));
     }
     let study = store::studies::get(&s.pool, id).await?;
+    export::check(&s.pool, id, &req).await?;
+    let cut = match &req.cut {
+        SampleCut::All => json!(null),
+        SampleCut::Subject(code) => json!({ "subject": code }),
+        SampleCut::Trial(t) => json!({ "trial": t }),
+    };
     Change::begin(&s.pool, who.username.as_str())
         .await?
         .commit(
             "export",
             Some(format!("study:{id}")),
-            json!({ "kind": kind_name }),
+            json!({ "kind": req.kind.name(), "format": req.format.extension(), "cut": cut }),
         )
         .await?;
-    let body = stream(&s, id, kind);
-    let filename = format!(
-        "bdft-study{}-{kind_name}-{}.csv",
-        study.id,
-        &study
-            .protocol_hash
-            .unwrap_or_default()
-            .get(..8)
-            .unwrap_or("unlocked")
-    );
-    Ok(csv(body, &filename))
+    let filename = req.file_name(study.id, study.protocol_hash.as_deref());
+    let format = req.format;
+    Ok(attachment(stream(&s, id, req), format, &filename))
 }
 
 /// The export written into the response as it is read (`study_id` unused for `audit`).
-fn stream(s: &AppState, study_id: i64, kind: ExportKind) -> Body {
+fn stream(s: &AppState, study_id: i64, req: ExportRequest) -> Body {
     let (w, r) = tokio::io::duplex(1 << 16);
     let pool = s.pool.clone();
     tokio::spawn(async move {
-        if let Err(e) = export::write(&pool, study_id, kind, w).await {
-            tracing::error!("export {kind:?} (study {study_id}) failed mid-stream: {e}");
+        if let Err(e) = export::write(&pool, study_id, &req, w).await {
+            tracing::error!("export {req:?} (study {study_id}) failed mid-stream: {e}");
         }
     });
     Body::from_stream(tokio_util::io::ReaderStream::new(r))
 }
 
-fn csv(body: Body, filename: &str) -> Response {
+fn attachment(body: Body, format: ExportFormat, filename: &str) -> Response {
     (
         [
-            (header::CONTENT_TYPE, "text/csv; charset=utf-8".to_string()),
+            (header::CONTENT_TYPE, format.mime().to_string()),
             (
                 header::CONTENT_DISPOSITION,
                 format!("attachment; filename=\"{filename}\""),
@@ -204,8 +250,8 @@ async fn audit_export(State(s): State<AppState>, who: Experimenter) -> Result<Re
         .await?
         .commit("export", None, json!({ "kind": "audit" }))
         .await?;
-    let body = stream(&s, 0, ExportKind::Audit);
-    Ok(csv(body, "bdft-audit.csv"))
+    let body = stream(&s, 0, ExportRequest::new(ExportKind::Audit));
+    Ok(attachment(body, ExportFormat::Csv, "bdft-audit.csv"))
 }
 
 #[derive(Debug, Deserialize, IntoParams)]

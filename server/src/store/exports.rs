@@ -51,37 +51,106 @@ pub struct TrialExportRow {
     pub client_timing_json: Option<String>,
     pub timing_json: Option<String>,
     pub accepted_reason: Option<String>,
+    /// This row is the latest attempt of its test (subject and slot).
+    pub latest: bool,
 }
 
 const TRIALS_SQL: &str = "SELECT s.study_id, t.id AS trial_id, s.code, s.enrol_index, s.synthetic, s.starting_station, t.station, t.block, t.position, t.slot, t.attempt, \
      t.controller, t.blinded_label, t.practice, t.status, t.status_reason, t.target_seed, t.target_mean_mm, t.target_std_mm, t.k_bf, t.duration_s, \
      t.mse_tracking_mm2, t.ms_cab_accel, v.accuracy, v.speed, v.smoothness, v.controllability, v.comment, t.protocol_hash, t.started_at, t.finished_at, s.consent_version, \
-     t.client_timing_json, t.timing_json, t.accepted_reason \
+     t.client_timing_json, t.timing_json, t.accepted_reason, \
+     NOT EXISTS (SELECT 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.slot = t.slot AND u.attempt > t.attempt) AS latest \
      FROM trials t JOIN subjects s ON s.id = t.subject_id LEFT JOIN surveys v ON v.trial_id = t.id \
-     WHERE s.study_id = ? AND s.withdrawn_at IS NULL ORDER BY s.enrol_index, t.slot, t.attempt";
+     WHERE s.study_id = ?1 AND (?2 OR s.withdrawn_at IS NULL) ORDER BY s.enrol_index, t.slot, t.attempt";
 
-/// Every attempt of every test of the study's subjects who have not withdrawn.
+/// Whose tests a query reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Withdrawn {
+    /// The subjects who have not withdrawn (every analysis and every per-test export).
+    LeftOut,
+    /// All the study's subjects (the subjects export, which says who withdrew).
+    Included,
+}
+
+/// Every attempt of every test of the study's subjects (who have not withdrawn, unless
+/// `Withdrawn::Included`).
 pub async fn trial_rows<'c>(
     db: impl SqliteExecutor<'c>,
     study_id: i64,
+    withdrawn: Withdrawn,
 ) -> Result<Vec<TrialExportRow>> {
     Ok(sqlx::query_as(TRIALS_SQL)
         .bind(study_id)
+        .bind(withdrawn == Withdrawn::Included)
         .fetch_all(db)
         .await?)
 }
 
-/// A trial that has a record: (trial id, subject code, seat, compensator, practice).
-pub type RecordedTrial = (i64, String, String, String, bool);
+/// A trial that has a record, with the keys that join its samples to the other exports.
+#[derive(Debug, sqlx::FromRow)]
+pub struct RecordedTrial {
+    pub trial_id: i64,
+    pub code: String,
+    pub station: String,
+    pub controller: String,
+    pub attempt: i64,
+    pub practice: bool,
+}
 
-/// The trials of the study's remaining subjects that have a record, in schedule order.
+/// The trials of the study's remaining subjects that have a record, in schedule order:
+/// all, or only subject `code`'s, or only trial `trial_id`.
 pub async fn recorded_trials<'c>(
     db: impl SqliteExecutor<'c>,
     study_id: i64,
+    code: Option<&str>,
+    trial_id: Option<i64>,
 ) -> Result<Vec<RecordedTrial>> {
     Ok(sqlx::query_as(
-        "SELECT t.id, s.code, t.station, t.controller, t.practice FROM trials t JOIN subjects s ON s.id = t.subject_id \
-         JOIN trial_records r ON r.trial_id = t.id WHERE s.study_id = ? AND s.withdrawn_at IS NULL ORDER BY s.enrol_index, t.slot, t.attempt",
+        "SELECT t.id AS trial_id, s.code, t.station, t.controller, t.attempt, t.practice FROM trials t JOIN subjects s ON s.id = t.subject_id \
+         JOIN trial_records r ON r.trial_id = t.id WHERE s.study_id = ?1 AND s.withdrawn_at IS NULL \
+         AND (?2 IS NULL OR s.code = ?2) AND (?3 IS NULL OR t.id = ?3) ORDER BY s.enrol_index, t.slot, t.attempt",
+    )
+    .bind(study_id)
+    .bind(code)
+    .bind(trial_id)
+    .fetch_all(db)
+    .await?)
+}
+
+/// A subject as the subjects export reads it, with the parameters drawn for a synthetic
+/// subject (`drawn_json`: a flat object of name → number; NULL for a person).
+#[derive(Debug, sqlx::FromRow)]
+pub struct SubjectExportRow {
+    pub code: String,
+    pub enrol_index: i64,
+    pub synthetic: bool,
+    pub starting_station: String,
+    pub consent_version: Option<String>,
+    pub consent_decision: Option<String>,
+    pub consent_at: Option<i64>,
+    pub withdrawn_at: Option<i64>,
+    pub drawn_json: Option<String>,
+}
+
+/// Every subject of the study, withdrawn or not, in enrolment order.
+pub async fn subject_rows<'c>(
+    db: impl SqliteExecutor<'c>,
+    study_id: i64,
+) -> Result<Vec<SubjectExportRow>> {
+    Ok(sqlx::query_as(
+        "SELECT code, enrol_index, synthetic, starting_station, consent_version, consent_decision, consent_at, withdrawn_at, drawn_json \
+         FROM subjects WHERE study_id = ? ORDER BY enrol_index",
+    )
+    .bind(study_id)
+    .fetch_all(db)
+    .await?)
+}
+
+/// The codes of the study's subjects who have not withdrawn, in enrolment order (what a
+/// per-subject export may name).
+pub async fn subject_codes<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<Vec<String>> {
+    Ok(sqlx::query_scalar(
+        "SELECT code FROM subjects WHERE study_id = ? AND withdrawn_at IS NULL ORDER BY enrol_index",
     )
     .bind(study_id)
     .fetch_all(db)

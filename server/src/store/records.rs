@@ -78,7 +78,7 @@ pub async fn file_result(
 /// The record of one trial (about 5 MB for 140 s), channels in `RECORD_CHANNELS` order.
 pub async fn get<'c>(db: impl SqliteExecutor<'c>, trial_id: i64) -> Result<Record> {
     use sqlx::Row;
-    let channels = RECORD_CHANNELS.join(", ");
+    let channels = RECORD_CHANNELS.map(|c| c.name).join(", ");
     let row = sqlx::query(&format!(
         "SELECT dt, {channels} FROM trial_records WHERE trial_id = ?"
     ))

@@ -1,0 +1,579 @@
+//! The column definitions of every export: one table of specs per export, which the header
+//! writer, the cell formatter (a number column's resolution), the Parquet schema and the
+//! codebook all read, so they cannot drift apart.
+
+use std::borrow::Cow;
+
+use bdft_protocol::study::{RATING_KEYS, SurveyParams};
+use bdft_protocol::trial::{RECORD_CHANNELS, RECORD_TIME};
+
+/// What a column holds, and how its cells are written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ColumnType {
+    Integer,
+    /// 0 or 1.
+    Flag,
+    /// Written to this many decimals (resolution 10^-decimals) and at most 12 significant
+    /// digits: `bdft_protocol::numbers::format_number`.
+    Number {
+        decimals: u8,
+    },
+    Text,
+    /// RFC 3339, UTC, milliseconds.
+    Time,
+}
+
+impl ColumnType {
+    /// The type's name in the codebook.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Integer => "integer",
+            Self::Flag => "flag (0/1)",
+            Self::Number { .. } => "number",
+            Self::Text => "text",
+            Self::Time => "time (RFC 3339, UTC)",
+        }
+    }
+
+    /// The smallest step a number column shows (`None` for the other types).
+    pub fn resolution(self) -> Option<f64> {
+        match self {
+            Self::Number { decimals } => Some(10f64.powi(-i32::from(decimals))),
+            _ => None,
+        }
+    }
+}
+
+/// One column of an export: its header, unit (`1` dimensionless, empty for text), type and
+/// meaning.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Column {
+    pub name: Cow<'static, str>,
+    pub unit: Cow<'static, str>,
+    pub ty: ColumnType,
+    pub meaning: Cow<'static, str>,
+}
+
+const fn col(
+    name: &'static str,
+    unit: &'static str,
+    ty: ColumnType,
+    meaning: &'static str,
+) -> Column {
+    Column {
+        name: Cow::Borrowed(name),
+        unit: Cow::Borrowed(unit),
+        ty,
+        meaning: Cow::Borrowed(meaning),
+    }
+}
+
+const INT: ColumnType = ColumnType::Integer;
+const FLAG: ColumnType = ColumnType::Flag;
+const TEXT: ColumnType = ColumnType::Text;
+const TIME: ColumnType = ColumnType::Time;
+const fn num(decimals: u8) -> ColumnType {
+    ColumnType::Number { decimals }
+}
+/// Positions and their statistics: 1 nm, far below what a display or a cylinder shows, so
+/// only float noise (4.7e-16 mm) is rounded away.
+const MM: ColumnType = num(6);
+/// Statistics (p-values, effect sizes): 12 decimals.
+const STAT: ColumnType = num(12);
+
+/// The keys that join the exports: the study and the subject's pseudonym.
+const STUDY_ID: Column = col("study_id", "", INT, "the study's id");
+const SUBJECT_CODE: Column = col("subject_code", "", TEXT, "the subject's pseudonym (S01, …)");
+const SUBJECT_INDEX: Column = col(
+    "subject_index",
+    "",
+    INT,
+    "the subject's enrolment order, from 1",
+);
+const SYNTHETIC: Column = col(
+    "synthetic",
+    "",
+    FLAG,
+    "1 for a synthetic subject (pilot), 0 for a person",
+);
+const STARTING_STATION: Column = col(
+    "starting_station",
+    "",
+    TEXT,
+    "the seat the subject's tests began at (on/off)",
+);
+const TRIAL_ID: Column = col(
+    "trial_id",
+    "",
+    INT,
+    "the test attempt's id (one per attempt)",
+);
+const PHASE: Column = col(
+    "phase",
+    "",
+    TEXT,
+    "practice (the unscored warm-up: no compensator, block or position of its own) or test",
+);
+const STATION: Column = col(
+    "station",
+    "",
+    TEXT,
+    "the seat: on (on the machine, with feedthrough) or off (at the desk)",
+);
+const CONTROLLER: Column = col(
+    "controller",
+    "",
+    TEXT,
+    "the compensator (pid, pid-notch, pid-shaper, lqr, lqr-cabvel, lqr-cabacc); empty for practice",
+);
+const ATTEMPT: Column = col(
+    "attempt",
+    "",
+    INT,
+    "attempt number of the test (1, then redos)",
+);
+
+/// The trials export (one row per test attempt), its ratings named with the study's scale.
+pub fn trials(survey: &SurveyParams) -> Vec<Column> {
+    let mut c = vec![
+        STUDY_ID,
+        TRIAL_ID,
+        SUBJECT_CODE,
+        SUBJECT_INDEX,
+        SYNTHETIC,
+        STARTING_STATION,
+        PHASE,
+        STATION,
+        col(
+            "block",
+            "",
+            INT,
+            "block of the schedule (1: starting seat, 2: the other); empty for practice",
+        ),
+        col(
+            "position",
+            "",
+            INT,
+            "order of the test in the subject's schedule (1..); empty for practice",
+        ),
+        col(
+            "slot",
+            "",
+            INT,
+            "the schedule's slot (0 = practice); an attempt's test is (subject_code, slot)",
+        ),
+        ATTEMPT,
+        col(
+            "latest",
+            "",
+            FLAG,
+            "1 on the latest attempt of its test (exactly one row per test)",
+        ),
+        col(
+            "valid",
+            "",
+            FLAG,
+            "1 when this attempt counts as a measurement: a test (not practice) that ran complete; the statistics use the rows with valid = 1 and latest = 1",
+        ),
+        CONTROLLER,
+        col(
+            "blinded_label",
+            "",
+            TEXT,
+            "what the subject was told the compensator is (\"Controller k\"); empty for practice",
+        ),
+        col(
+            "status",
+            "",
+            TEXT,
+            "scheduled, running, complete, aborted, incomplete or invalid",
+        ),
+        col(
+            "status_reason",
+            "",
+            TEXT,
+            "why the attempt was filed with its status (a fault, the E-stop, …)",
+        ),
+        col("seed", "", INT, "seed of the attempt's target"),
+        col(
+            "target_mean_mm",
+            "mm",
+            MM,
+            "mean of the target over the attempt",
+        ),
+        col(
+            "target_std_mm",
+            "mm",
+            MM,
+            "standard deviation of the target over the attempt",
+        ),
+        col("k_bf", "1", num(6), "device-to-cylinder gain K_BF"),
+        col("duration_s", "s", num(3), "planned length of the attempt"),
+        col(
+            "mse_tracking_mm2",
+            "mm²",
+            MM,
+            "mean-squared tracking error, target − cylinder position",
+        ),
+        col(
+            "ms_cab_accel_mm2_s4",
+            "(mm/s²)²",
+            num(3),
+            "mean-squared measured cab acceleration",
+        ),
+    ];
+    let points = survey.scale_points;
+    for key in RATING_KEYS {
+        let label = survey
+            .items
+            .iter()
+            .find(|i| i.key == key)
+            .map(|i| i.label.clone())
+            .unwrap_or_default();
+        c.push(Column {
+            name: format!("rating_{key}_1to{points}").into(),
+            unit: format!("1–{points}").into(),
+            ty: INT,
+            meaning: format!("the subject's rating (ordinal, higher is better): {label}").into(),
+        });
+    }
+    c.extend([
+        col(
+            "comment",
+            "",
+            TEXT,
+            "the subject's answer to the open question",
+        ),
+        col(
+            "protocol_hash",
+            "",
+            TEXT,
+            "hash of the study protocol the attempt ran under",
+        ),
+        col("started_at", "", TIME, "when the attempt started"),
+        col("finished_at", "", TIME, "when the attempt ended"),
+        col(
+            "consent_version",
+            "",
+            TEXT,
+            "version of the consent form the subject agreed to",
+        ),
+        col(
+            "display_frames",
+            "",
+            INT,
+            "frames the station's display drew during the attempt",
+        ),
+        col(
+            "display_longest_gap_ms",
+            "ms",
+            num(3),
+            "longest time between two displayed frames",
+        ),
+        col(
+            "display_hidden_ms",
+            "ms",
+            num(3),
+            "time the station's page was hidden",
+        ),
+        col(
+            "input_hz",
+            "Hz",
+            num(3),
+            "rate of the station's input samples",
+        ),
+        col(
+            "rtt_p50_ms",
+            "ms",
+            num(3),
+            "median station ↔ server round-trip time",
+        ),
+        col(
+            "rtt_p95_ms",
+            "ms",
+            num(3),
+            "95th percentile station ↔ server round-trip time",
+        ),
+        col(
+            "rtt_max_ms",
+            "ms",
+            num(3),
+            "longest station ↔ server round-trip time",
+        ),
+        col(
+            "controller_overruns",
+            "",
+            INT,
+            "real-time ticks that missed their deadline",
+        ),
+        col(
+            "controller_wake_p99_us",
+            "µs",
+            num(1),
+            "99th percentile wake-up latency of the real-time tick",
+        ),
+        col(
+            "accepted_reason",
+            "",
+            TEXT,
+            "the experimenter's reason for accepting a failed attempt as incomplete",
+        ),
+    ]);
+    c
+}
+
+/// The samples export: the join keys, then the record's columns (as `simulate --out`).
+pub fn samples() -> Vec<Column> {
+    let record = std::iter::once(&RECORD_TIME)
+        .chain(&RECORD_CHANNELS)
+        .map(|r| Column {
+            name: r.name.into(),
+            unit: r.unit.into(),
+            ty: num(r.decimals),
+            meaning: r.meaning.into(),
+        });
+    [
+        STUDY_ID,
+        SUBJECT_CODE,
+        TRIAL_ID,
+        PHASE,
+        STATION,
+        CONTROLLER,
+        ATTEMPT,
+    ]
+    .into_iter()
+    .chain(record)
+    .collect()
+}
+
+/// Prefix of a subject's drawn parameters in the subjects export (`drawn.reaction_delay_s`).
+pub const DRAWN_PREFIX: &str = "drawn.";
+
+/// The subjects export: one row per subject, then one column per drawn parameter the
+/// study's subjects have (`drawn_keys`, sorted).
+pub fn subjects(drawn_keys: &[String]) -> Vec<Column> {
+    let mut c = vec![
+        STUDY_ID,
+        SUBJECT_CODE,
+        SUBJECT_INDEX,
+        SYNTHETIC,
+        STARTING_STATION,
+        col(
+            "consent_version",
+            "",
+            TEXT,
+            "version of the consent form shown",
+        ),
+        col(
+            "consent_decision",
+            "",
+            TEXT,
+            "agreed or declined; empty before a decision",
+        ),
+        col("consent_at", "", TIME, "when the subject decided"),
+        col(
+            "withdrawn",
+            "",
+            FLAG,
+            "1 when the subject withdrew (then left out of every other export)",
+        ),
+        col("withdrawn_at", "", TIME, "when the subject withdrew"),
+        col(
+            "order",
+            "",
+            TEXT,
+            "the schedule's order: seat, then the compensators of the block in the order run (on: pid > lqr … | off: …)",
+        ),
+        col(
+            "valid_tests",
+            "",
+            INT,
+            "tests whose latest attempt is valid (those the statistics use)",
+        ),
+    ];
+    c.extend(drawn_keys.iter().map(|k| drawn_column(k)));
+    c
+}
+
+/// A drawn parameter's column: its key carries the unit (`reaction_delay_s`).
+fn drawn_column(key: &str) -> Column {
+    Column {
+        name: format!("{DRAWN_PREFIX}{key}").into(),
+        unit: "as the name's suffix".into(),
+        ty: num(9),
+        meaning: "a synthetic subject's parameter drawn from the study's population at enrolment (operator, body, survey bias); empty for a person".into(),
+    }
+}
+
+pub fn summary() -> Vec<Column> {
+    let stat = |name, meaning| col(name, "of the variable", MM, meaning);
+    vec![
+        col("controller", "", TEXT, "the compensator"),
+        STATION,
+        col("variable", "", TEXT, "the trials export's metric or rating"),
+        col("n", "", INT, "subjects with a valid latest attempt"),
+        stat("mean", "mean"),
+        stat("median", "median"),
+        stat("q1", "first quartile (linear interpolation)"),
+        stat("q3", "third quartile (linear interpolation)"),
+        stat("min", "smallest value"),
+        stat("max", "largest value"),
+    ]
+}
+
+pub fn stats() -> Vec<Column> {
+    vec![
+        col(
+            "test",
+            "",
+            TEXT,
+            "friedman, wilcoxon, wilcoxon_on_off or rm_anova",
+        ),
+        col("metric", "", TEXT, "the metric or rating analysed"),
+        col(
+            "station",
+            "",
+            TEXT,
+            "on, off, on-off (a seat comparison) or both (the ANOVA)",
+        ),
+        col(
+            "a",
+            "",
+            TEXT,
+            "first compensator of a pair (the effect for rm_anova)",
+        ),
+        col("b", "", TEXT, "second compensator of a pair"),
+        col("n", "", INT, "subjects in the analysis"),
+        col(
+            "statistic",
+            "1",
+            STAT,
+            "χ² (Friedman), min(R⁺, R⁻) (Wilcoxon), F (ANOVA)",
+        ),
+        col(
+            "p_value",
+            "1",
+            STAT,
+            "the test's p (ANOVA: Greenhouse–Geisser corrected)",
+        ),
+        col(
+            "p_adjusted",
+            "1",
+            STAT,
+            "Holm-adjusted p within the family; empty for omnibus tests",
+        ),
+        col(
+            "effect_size",
+            "1",
+            STAT,
+            "the effect size named in `effect`",
+        ),
+        col(
+            "effect",
+            "",
+            TEXT,
+            "kendall_w, rank_biserial (of a − b) or eta_g2",
+        ),
+        col("median_diff", "of the metric", STAT, "median of a − b"),
+        col(
+            "ci_low",
+            "of the metric",
+            STAT,
+            "95 % bootstrap interval of median_diff, low end",
+        ),
+        col(
+            "ci_high",
+            "of the metric",
+            STAT,
+            "95 % bootstrap interval of median_diff, high end",
+        ),
+        col("df1", "1", STAT, "degrees of freedom (ANOVA, corrected)"),
+        col(
+            "df2",
+            "1",
+            STAT,
+            "error degrees of freedom (ANOVA, corrected)",
+        ),
+        col("eps", "1", STAT, "Greenhouse–Geisser ε"),
+        col(
+            "reachable",
+            "",
+            FLAG,
+            "1 when the comparison can reach p < 0.05 after adjustment at this n",
+        ),
+        col(
+            "note",
+            "",
+            TEXT,
+            "why a comparison cannot reach significance, or other remarks",
+        ),
+    ]
+}
+
+pub fn notes() -> Vec<Column> {
+    vec![
+        STUDY_ID,
+        TRIAL_ID,
+        SUBJECT_CODE,
+        col("slot", "", INT, "the schedule's slot of the test"),
+        ATTEMPT,
+        col(
+            "kind",
+            "",
+            TEXT,
+            "note, redo, abort, accept_incomplete, start_failed, invalid or status",
+        ),
+        col("status", "", TEXT, "the attempt's status"),
+        col("at", "", TIME, "when it was written"),
+        col("by", "", TEXT, "who wrote it"),
+        col("text", "", TEXT, "the note or reason"),
+    ]
+}
+
+pub fn audit() -> Vec<Column> {
+    vec![
+        col("id", "", INT, "the audit row's id (increasing)"),
+        col("at", "", TIME, "when the action happened"),
+        col(
+            "actor",
+            "",
+            TEXT,
+            "who acted (an account, a station, system:…)",
+        ),
+        col("actor_id", "", INT, "the acting account's id"),
+        col(
+            "action",
+            "",
+            TEXT,
+            "what was done (study.create, trial.redo, export, …)",
+        ),
+        col(
+            "target",
+            "",
+            TEXT,
+            "what it was done to (study:1, trial:7, …)",
+        ),
+        col("detail", "", TEXT, "details as JSON"),
+    ]
+}
+
+pub fn codebook() -> Vec<Column> {
+    vec![
+        col("export", "", TEXT, "the export kind"),
+        col("column", "", TEXT, "the column's header"),
+        col(
+            "type",
+            "",
+            TEXT,
+            "integer, flag (0/1), number, text or time (RFC 3339, UTC)",
+        ),
+        col("unit", "", TEXT, "the unit (1: dimensionless; empty: none)"),
+        col(
+            "resolution",
+            "of the column",
+            num(12),
+            "number columns: values are rounded to this step and to 12 significant digits; |x| below half of it is written 0",
+        ),
+        col("meaning", "", TEXT, "what the column holds"),
+    ]
+}
