@@ -18,6 +18,7 @@ use super::inference::rm_anova::{Effect, rm_anova2};
 use super::stats::SUMMARY_VARIABLES;
 use crate::error::Result;
 use crate::store;
+use crate::store::exports::TrialExportRow;
 
 /// The significance level the table's reachability statements use.
 pub const ALPHA: f64 = 0.05;
@@ -74,18 +75,23 @@ pub struct StudyData {
     pub subjects: Vec<Cells>,
 }
 
+/// The attempts the analyses count: of every scored test, the latest attempt, when it is
+/// complete (a redone test counts once; practice never).
+pub fn analysable(rows: &[TrialExportRow]) -> impl Iterator<Item = &TrialExportRow> {
+    rows.iter().filter(|r| {
+        let latest = !rows
+            .iter()
+            .any(|u| u.code == r.code && u.slot == r.slot && u.attempt > r.attempt);
+        !r.practice && latest && r.status == TrialStatus::Complete
+    })
+}
+
 impl StudyData {
     pub async fn load(pool: &SqlitePool, study_id: i64) -> Result<Self> {
         let study = store::studies::get(pool, study_id).await?;
         let rows = store::exports::trial_rows(pool, study_id).await?;
         let mut subjects: BTreeMap<i64, Cells> = BTreeMap::new();
-        for r in &rows {
-            let latest = !rows
-                .iter()
-                .any(|u| u.code == r.code && u.slot == r.slot && u.attempt > r.attempt);
-            if r.practice || !latest || r.status != TrialStatus::Complete {
-                continue;
-            }
+        for r in analysable(&rows) {
             let f = |v: Option<i64>| v.map(|x| x as f64);
             subjects.entry(r.enrol_index).or_default().insert(
                 (r.controller.name().into(), r.station.as_str().into()),

@@ -13,6 +13,7 @@ pub mod export;
 pub mod filing;
 pub mod inference;
 pub mod inference_table;
+pub mod learning;
 pub mod login_limiter;
 pub mod orchestrator;
 pub mod passwords;

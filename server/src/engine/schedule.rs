@@ -350,7 +350,12 @@ mod tests {
         let s = schedule(&p, 42, 1);
         let got: Vec<(String, u64)> = s
             .iter()
-            .map(|t| (format!("{} {}", t.compensator, t.blinded_label), t.target_seed))
+            .map(|t| {
+                (
+                    format!("{} {}", t.compensator, t.blinded_label),
+                    t.target_seed,
+                )
+            })
             .collect();
         let want = [
             ("pid Practice", 2825990621681512),
@@ -413,7 +418,11 @@ mod tests {
         for idx in 0..4 {
             for t in schedule(&p, 3, idx) {
                 let tg = target(&p, &t).unwrap();
-                assert!((tg.ms_step_mm2 / wanted - 1.0).abs() < 1e-9, "{}", tg.ms_step_mm2);
+                assert!(
+                    (tg.ms_step_mm2 / wanted - 1.0).abs() < 1e-9,
+                    "{}",
+                    tg.ms_step_mm2
+                );
                 assert!(tg.mean_mm.abs() < 1e-9);
                 assert!((tg.std_mm / p.target_std_mm - 1.0).abs() < 1e-12);
             }
