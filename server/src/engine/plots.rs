@@ -390,10 +390,10 @@ pub fn learning_curve_svg(title: &str, curve: &LearningCurve) -> String {
     }
     let slope = match (curve.slope, curve.slope_percent_per_test) {
         (Some(b), Some(percent)) => format!(
-            "learning slope {b:.3} {} ({percent:+.1} % per test), median of {} subjects; thick line: median",
+            "learning slope {b:.3} {} ({percent:+.1} % per test), median of {} subjects",
             curve.slope_unit, curve.slope_n
         ),
-        _ => "thick line: median".into(),
+        _ => "no learning slope yet".into(),
     };
     let _ = write!(
         svg,
