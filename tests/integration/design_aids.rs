@@ -2,11 +2,15 @@
 //! is refused with the field named when its values cannot work, and otherwise runs a pilot
 //! whose subjects' orders are the design's rows and whose every target has the same
 //! mean-squared step change; the learning curve's points are the exported trials' values
-//! and its slope is the one computed here from the export.
+//! and its slope is the one computed here from the export; and the dashboard (in Chromium)
+//! sets both aids from its study form and shows the curve and the slope.
 
 use std::collections::BTreeMap;
+use std::time::Duration;
 
-use bdft_tests::server::{Api, Server, run_pilot};
+use bdft_tests::TempDir;
+use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, eventually, run_pilot};
+use bdft_tests::webdriver::{Driver, Session, artifacts_dir};
 use serde_json::{Value, json};
 
 /// The Williams design for 5 compensators, written out from its textbook construction (the
@@ -254,4 +258,89 @@ fn design_aids_are_validated_followed_by_enrolment_and_drawn_from_the_export() {
     let (code, body) = api.get(&format!("/api/studies/{copy}/plots/learning.svg"));
     assert_eq!(code, 422, "{body}");
     assert!(body["error"].as_str().unwrap().contains("learning_curve"));
+}
+
+/// Sets a <select>'s value and fires `change`, as a person choosing an option does.
+fn choose(s: &Session, css: &str, value: &str) {
+    s.find(css);
+    s.exec(
+        "const e = document.querySelector(arguments[0]); e.value = arguments[1]; e.dispatchEvent(new Event('change', { bubbles: true }));",
+        json!([css, value]),
+    );
+}
+
+#[test]
+fn the_dashboard_sets_the_design_aids_and_shows_the_learning_curve() {
+    let server = Server::start("design_aids_browser");
+    let base = server.base.clone();
+    let api = server.experimenter();
+    let downloads = TempDir::new("downloads");
+    let driver = Driver::start();
+    let dash = driver.session(downloads.path());
+    dash.goto(&format!("{base}/"));
+    dash.type_into("#login-username", "admin");
+    dash.type_into("#login-password", ADMIN_PASSWORD);
+    dash.click("#login-submit");
+    dash.find("#estop");
+    // The form shows the defaults of a study that leaves the design aids out.
+    assert_eq!(
+        dash.exec(
+            "return document.querySelector('#p-order_design').value;",
+            json!([])
+        ),
+        "random"
+    );
+    assert_eq!(
+        dash.exec(
+            "return document.querySelector('#p-matched_targets').value;",
+            json!([])
+        ),
+        "false"
+    );
+    dash.type_into("#study-name", "Design aids");
+    dash.type_into("#p-trial_s", "2");
+    dash.type_into("#p-practice_s", "2");
+    dash.type_into("#p-step_interval_s", "0.5");
+    choose(&dash, "#p-order_design", "williams");
+    choose(&dash, "#p-matched_targets", "true");
+    dash.click("#study-create");
+    let study = eventually(Duration::from_secs(20), || {
+        api.get("/api/studies").1.as_array()?.first()?["id"].as_i64()
+    });
+    let (_, st) = api.get(&format!("/api/studies/{study}"));
+    assert_eq!(st["params"]["order_design"], "williams");
+    assert_eq!(st["params"]["matched_targets"], true);
+
+    let status = run_pilot(&api, study, 2);
+    let copy = status["report"]["study_id"]
+        .as_i64()
+        .expect("the pilot ran");
+    dash.goto(&format!("{base}/"));
+    dash.find("#estop");
+    dash.wait_until(
+        "return [...document.querySelectorAll('#study-select option')].some((o) => o.value === arguments[0]);",
+        json!([copy.to_string()]),
+    );
+    choose(&dash, "#study-select", &copy.to_string());
+    dash.wait_until(
+        "const i = document.querySelector('img[src*=\"learning_curve.svg\"]'); return i && i.complete && i.naturalWidth > 0;",
+        json!([]),
+    );
+    let slope = dash.wait_until(
+        "const p = document.querySelector('#learning-slope'); return p && p.textContent.includes('per test position') && p.textContent;",
+        json!([]),
+    );
+    let (_, curve) = api.get(&format!("/api/studies/{copy}/learning"));
+    assert!(
+        slope
+            .as_str()
+            .unwrap()
+            .contains(&format!("over {} subjects", curve["slope_n"])),
+        "{slope}"
+    );
+    dash.exec(
+        "document.querySelector('#learning-slope').scrollIntoView();",
+        json!([]),
+    );
+    dash.screenshot(&artifacts_dir().join("design-aids-learning-curve.png"));
 }
