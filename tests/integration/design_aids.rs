@@ -9,8 +9,8 @@ use std::collections::BTreeMap;
 use std::time::Duration;
 
 use bdft_tests::TempDir;
-use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, eventually, run_pilot};
-use bdft_tests::webdriver::{Driver, Session, artifacts_dir};
+use bdft_tests::server::{Api, Server, eventually, run_pilot};
+use bdft_tests::webdriver::{Driver, artifacts_dir};
 use serde_json::{Value, json};
 
 /// The Williams design for 5 compensators, written out from its textbook construction (the
@@ -260,15 +260,6 @@ fn design_aids_are_validated_followed_by_enrolment_and_drawn_from_the_export() {
     assert!(body["error"].as_str().unwrap().contains("learning_curve"));
 }
 
-/// Sets a <select>'s value and fires `change`, as a person choosing an option does.
-fn choose(s: &Session, css: &str, value: &str) {
-    s.find(css);
-    s.exec(
-        "const e = document.querySelector(arguments[0]); e.value = arguments[1]; e.dispatchEvent(new Event('change', { bubbles: true }));",
-        json!([css, value]),
-    );
-}
-
 #[test]
 fn the_dashboard_sets_the_design_aids_and_shows_the_learning_curve() {
     let server = Server::start("design_aids_browser");
@@ -277,11 +268,7 @@ fn the_dashboard_sets_the_design_aids_and_shows_the_learning_curve() {
     let downloads = TempDir::new("downloads");
     let driver = Driver::start();
     let dash = driver.session(downloads.path());
-    dash.goto(&format!("{base}/"));
-    dash.type_into("#login-username", "admin");
-    dash.type_into("#login-password", ADMIN_PASSWORD);
-    dash.click("#login-submit");
-    dash.find("#estop");
+    dash.log_in_to_dashboard(&base);
     // The form shows the defaults of a study that leaves the design aids out.
     assert_eq!(
         dash.exec(
@@ -301,8 +288,8 @@ fn the_dashboard_sets_the_design_aids_and_shows_the_learning_curve() {
     dash.type_into("#p-trial_s", "2");
     dash.type_into("#p-practice_s", "2");
     dash.type_into("#p-step_interval_s", "0.5");
-    choose(&dash, "#p-order_design", "williams");
-    choose(&dash, "#p-matched_targets", "true");
+    dash.choose("#p-order_design", "williams");
+    dash.choose("#p-matched_targets", "true");
     dash.click("#study-create");
     let study = eventually(Duration::from_secs(20), || {
         api.get("/api/studies").1.as_array()?.first()?["id"].as_i64()
@@ -321,7 +308,7 @@ fn the_dashboard_sets_the_design_aids_and_shows_the_learning_curve() {
         "return [...document.querySelectorAll('#study-select option')].some((o) => o.value === arguments[0]);",
         json!([copy.to_string()]),
     );
-    choose(&dash, "#study-select", &copy.to_string());
+    dash.choose("#study-select", &copy.to_string());
     dash.wait_until(
         "const i = document.querySelector('img[src*=\"learning_curve.svg\"]'); return i && i.complete && i.naturalWidth > 0;",
         json!([]),
