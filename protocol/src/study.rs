@@ -306,9 +306,11 @@ pub struct StudyParams {
     /// Every target's standard deviation (realized within ±5 %).
     pub target_std_mm: f64,
     /// Difficulty-matched targets: every target of the study also has the same mean-squared
-    /// step change, 2·target_std_mm² (see `signals::StepTarget::generate_matched`). Off by
-    /// default (the original protocol); left out of the JSON when off, so the protocol hash
-    /// of a study that predates it is unchanged.
+    /// step change, 2·target_std_mm² (see `signals::StepTarget::generate_matched`). One
+    /// value for the whole study rather than per subject: no compensator and no subject gets
+    /// a harder target, and each target stays a function of its own seed. Off by default
+    /// (the original protocol); left out of the JSON when off, so the protocol hash of a
+    /// study that predates it is unchanged.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub matched_targets: bool,
     /// How the orders of compensators are chosen (default `random`; left out of the JSON
