@@ -1,5 +1,5 @@
-// Results of the selected study: box plots rendered by the server, the table of averages per
-// compensator × seat, key comparisons, and the CSV exports.
+// Results of the selected study: box plots and the learning curve rendered by the server, the
+// table of averages per compensator × seat, key comparisons, and the CSV exports.
 
 import { S, CONTROLLER_NAME, controllerName, debounce, el, errText, get, num, on, setStatus } from './dashboard-core.js';
 import * as downloads from './dashboard-download.js';
@@ -45,6 +45,8 @@ export function init() {
     $('stats-reach').replaceChildren();
     statsRows = [];
     $('plots').replaceChildren();
+    $('learning').replaceChildren();
+    $('learning-slope').replaceChildren();
     refresh(true);
   });
   on('study-updated', () => refresh(false));
@@ -226,46 +228,70 @@ function renderStatistics() {
   );
 }
 
+/** A server-drawn figure `name` (.svg shown, .svg and .png to download) with its caption. */
+function figure(id, name, label, alt) {
+  const base = `/api/studies/${id}/plots/${name}`;
+  const status = el('p', { class: 'plot-missing', hidden: true });
+  const img = el('img', { src: `${base}.svg?v=${stamp}`, alt, 'data-variable': name });
+  img.addEventListener('error', async () => {
+    img.hidden = true;
+    status.hidden = false;
+    setStatus(status, 'info', 'No plot yet…');
+    const r = await get(`${base}.svg`);
+    setStatus(
+      status,
+      r.status === 404 ? 'info' : 'err',
+      r.status === 404
+        ? `No plot (HTTP 404: ${(r.data && r.data.error) || 'not found'}). It appears once tests are complete and the server draws plots.`
+        : `The plot could not be loaded: ${errText(r)}`,
+    );
+  });
+  img.addEventListener('load', () => {
+    img.hidden = false;
+    status.hidden = true;
+  });
+  return el(
+    'figure',
+    { class: 'plot', 'data-variable': name },
+    el('figcaption', {}, label),
+    img,
+    status,
+    el(
+      'div',
+      { class: 'plot-links' },
+      'Download: ',
+      el('a', { href: `${base}.svg`, download: `study${id}-${name}.svg`, 'data-progress-download': '', 'data-label': `${name}.svg` }, 'SVG'),
+      ' · ',
+      el('a', { href: `${base}.png`, download: `study${id}-${name}.png`, 'data-progress-download': '', 'data-label': `${name}.png` }, 'PNG'),
+    ),
+  );
+}
+
 function renderPlots() {
   const id = S.studyId;
-  const box = $('plots');
-  box.replaceChildren(
-    ...VARIABLES.map(([v, label]) => {
-      const base = `/api/studies/${id}/plots/${v}`;
-      const status = el('p', { class: 'plot-missing', hidden: true });
-      const img = el('img', { src: `${base}.svg?v=${stamp}`, alt: `Box plot: ${label}, per compensator and seat`, 'data-variable': v });
-      img.addEventListener('error', async () => {
-        img.hidden = true;
-        status.hidden = false;
-        setStatus(status, 'info', 'No plot yet…');
-        const r = await get(`${base}.svg`);
-        setStatus(
-          status,
-          r.status === 404 ? 'info' : 'err',
-          r.status === 404
-            ? `No plot (HTTP 404: ${(r.data && r.data.error) || 'not found'}). It appears once tests are complete and the server draws plots.`
-            : `The plot could not be loaded: ${errText(r)}`,
-        );
-      });
-      img.addEventListener('load', () => {
-        img.hidden = false;
-        status.hidden = true;
-      });
-      return el(
-        'figure',
-        { class: 'plot', 'data-variable': v },
-        el('figcaption', {}, label),
-        img,
-        status,
-        el(
-          'div',
-          { class: 'plot-links' },
-          'Download: ',
-          el('a', { href: `${base}.svg`, download: `study${id}-${v}.svg`, 'data-progress-download': '', 'data-label': `${v}.svg` }, 'SVG'),
-          ' · ',
-          el('a', { href: `${base}.png`, download: `study${id}-${v}.png`, 'data-progress-download': '', 'data-label': `${v}.png` }, 'PNG'),
-        ),
-      );
-    }),
+  $('plots').replaceChildren(
+    ...VARIABLES.map(([v, label]) => figure(id, v, label, `Box plot: ${label}, per compensator and seat`)),
   );
+  $('learning').replaceChildren(
+    figure(id, 'learning_curve', 'Tracking error by test position', 'Learning curve: tracking error against test position, a line per subject and the median, by seat'),
+  );
+  loadLearning(id);
+}
+
+/** The learning slope under the curve: the median over subjects of each one's slope. */
+async function loadLearning(id) {
+  const box = $('learning-slope');
+  const r = await get(`/api/studies/${id}/learning`);
+  if (id !== S.studyId) return;
+  if (!r.ok) {
+    setStatus(box, 'err', `Could not load the learning curve: ${errText(r)}`);
+    return;
+  }
+  const c = r.data;
+  box.className = 'status info';
+  box.hidden = false;
+  box.textContent = c.slope == null
+    ? 'Learning slope: needs a subject with two completed tests.'
+    : `Learning slope: ${num(c.slope, 3)} ${c.slope_unit} (error ${c.slope_percent_per_test >= 0 ? '+' : ''}${num(c.slope_percent_per_test, 1)} % per test), ` +
+      `the median over ${c.slope_n} subject${c.slope_n === 1 ? '' : 's'} of each one's least-squares slope of ln MSE on position; negative: error falls with practice.`;
 }

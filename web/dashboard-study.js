@@ -5,13 +5,19 @@ import { S, act, el, emit, get, send, setStatus, when, controllerName } from './
 
 const $ = (id) => document.getElementById(id);
 
-/** Form fields and where they live in StudyParams. `int` fields must be whole numbers. */
+/**
+ * Form fields and where they live in StudyParams. `int` fields must be whole numbers, `bool`
+ * ones are yes/no selects; `fallback` is shown when the parameters leave the key out (the
+ * server leaves the design aids out at their defaults, so old studies keep their hash).
+ */
 const FIELDS = [
   { id: 'p-trial_s', path: ['trial_s'] },
   { id: 'p-practice_s', path: ['practice_s'] },
   { id: 'p-step_interval_s', path: ['step_interval_s'] },
   { id: 'p-target_range_mm', path: ['target_range_mm'] },
   { id: 'p-target_std_mm', path: ['target_std_mm'] },
+  { id: 'p-matched_targets', path: ['matched_targets'], bool: true, fallback: false },
+  { id: 'p-order_design', path: ['order_design'], text: true, fallback: 'random' },
   { id: 'p-k_bf', path: ['k_bf'] },
   { id: 'p-survey_scale_points', path: ['survey', 'scale_points'], int: true },
   { id: 'p-display_shake_gain', path: ['display_shake_gain'] },
@@ -242,7 +248,7 @@ function deletePath(obj, path) {
 /** Fills the form: the named fields, and the rest of the parameters as JSON. */
 function fillForm(params) {
   for (const f of FIELDS) {
-    const v = getPath(params, f.path);
+    const v = getPath(params, f.path) ?? f.fallback;
     $(f.id).value = v === undefined || v === null ? '' : String(v);
     $(f.id).classList.remove('invalid');
   }
@@ -400,6 +406,10 @@ function readParams() {
     if (getPath(params, f.path) !== undefined) overridden.push(f.path.join('.'));
     if (f.text) {
       setPath(params, f.path, n.value);
+      continue;
+    }
+    if (f.bool) {
+      setPath(params, f.path, n.value === 'true');
       continue;
     }
     const v = Number(n.value);

@@ -98,13 +98,45 @@ pub struct StepTarget {
     /// signal over time).
     pub mean_mm: f64,
     pub std_mm: f64,
+    /// Realized mean-squared step change (`ms_step`, mm²).
+    pub ms_step_mm2: f64,
 }
+
+/// The mean-squared step change a difficulty-matched target has, as a multiple of its
+/// variance: 2, that of independent levels (E[(a − b)²] = 2σ²), whatever the number of steps,
+/// so the practice and the tests of a study share one value.
+pub const MATCHED_MS_STEP_PER_VARIANCE: f64 = 2.0;
 
 impl StepTarget {
     /// Draws levels for `duration_s`: uniform on ±range, then shifted and scaled so that the
     /// mean is zero and the standard deviation is exactly `std_mm`; a draw that no longer fits
     /// the range after scaling is rejected and drawn again. Same seed, same target.
     pub fn generate(params: &StepParams, duration_s: f64, seed: u64) -> Result<Self, ParamError> {
+        Self::draw(params, duration_s, seed, None)
+    }
+
+    /// As `generate`, and besides the mean-squared step change (`ms_step`) is exactly
+    /// `MATCHED_MS_STEP_PER_VARIANCE`·std_mm², so every such target is equally hard to follow
+    /// by that measure. Mean, standard deviation and step change are all invariant under
+    /// reordering and scale alike, so the match is made on the zero-mean draw before scaling:
+    /// the ratio (Σ steps²)/(Σ levels²) of a draw `u` and of a further draw `w` on the other
+    /// side of the wanted ratio bracket it, and the mixture (1 − t)·u + t·w hitting it exactly
+    /// is found by bisection on t (both draws are random, so the mixture has no trend a
+    /// subject could learn).
+    pub fn generate_matched(
+        params: &StepParams,
+        duration_s: f64,
+        seed: u64,
+    ) -> Result<Self, ParamError> {
+        Self::draw(params, duration_s, seed, Some(MATCHED_MS_STEP_PER_VARIANCE))
+    }
+
+    fn draw(
+        params: &StepParams,
+        duration_s: f64,
+        seed: u64,
+        ms_step_ratio: Option<f64>,
+    ) -> Result<Self, ParamError> {
         params.validate()?;
         check("duration_s", duration_s, params.interval_s, 3600.0)?;
         let n = (duration_s / params.interval_s).ceil() as usize;
@@ -117,6 +149,13 @@ impl StepTarget {
         let mut rng = Rng::derive(seed, Rng::TARGET);
         for _ in 0..10_000 {
             let raw: Vec<f64> = (0..n).map(|_| rng.uniform(-1.0, 1.0)).collect();
+            let raw = match ms_step_ratio {
+                None => raw,
+                Some(ratio) => match matched_mixture(raw, ratio, &mut rng) {
+                    Some(x) => x,
+                    None => continue,
+                },
+            };
             let (mean, std) = mean_std(&raw);
             if std < 1e-9 {
                 continue;
@@ -129,6 +168,7 @@ impl StepTarget {
                 let (mean_mm, std_mm) = mean_std(&levels);
                 return Ok(Self {
                     interval_s: params.interval_s,
+                    ms_step_mm2: ms_step(&levels),
                     levels_mm: levels,
                     seed,
                     mean_mm,
@@ -136,10 +176,15 @@ impl StepTarget {
                 });
             }
         }
+        let matched = if ms_step_ratio.is_some() {
+            " and a matched step change"
+        } else {
+            ""
+        };
         Err(ParamError::Invalid {
             name: "steps",
             message: format!(
-                "no target with standard deviation {} mm fits in ±{} mm over {n} steps; lower std_mm or widen range_mm",
+                "no target with standard deviation {} mm{matched} fits in ±{} mm over {n} steps; lower std_mm or widen range_mm",
                 params.std_mm, params.range_mm
             ),
         })
@@ -152,6 +197,61 @@ impl StepTarget {
             levels_mm: self.levels_mm.clone(),
         }
     }
+}
+
+/// Mean-squared step change of a target's levels: Σ(l[i] − l[i−1])²/n over all n levels,
+/// with l[−1] = 0 (the first step is the move from rest, which the subject tracks too), in
+/// mm² for levels in mm. A measure of how hard a target is to follow.
+pub fn ms_step(levels: &[f64]) -> f64 {
+    let mut prev = 0.0;
+    let mut sum = 0.0;
+    for &l in levels {
+        sum += (l - prev) * (l - prev);
+        prev = l;
+    }
+    sum / levels.len() as f64
+}
+
+/// Σ steps² − ratio·Σ levels² of a zero-mean draw: zero when its step change is `ratio`
+/// times its variance, whatever its scale.
+fn ms_step_excess(xs: &[f64], ratio: f64) -> f64 {
+    ms_step(xs) - ratio * xs.iter().map(|x| x * x).sum::<f64>() / xs.len() as f64
+}
+
+/// Draws beyond `u` that may be tried for the other side of the ratio (each side about half
+/// of all draws, so 64 misses in a row are a sign the ratio is out of reach at this length).
+const MATCH_TRIES: usize = 64;
+
+/// The zero-mean mixture of the draw `raw` and further draws from `rng` whose step change is
+/// exactly `ratio` times its variance, or None when none is found (too few steps).
+fn matched_mixture(raw: Vec<f64>, ratio: f64, rng: &mut Rng) -> Option<Vec<f64>> {
+    let centred = |xs: Vec<f64>| {
+        let (mean, _) = mean_std(&xs);
+        xs.into_iter().map(|x| x - mean).collect::<Vec<f64>>()
+    };
+    let u = centred(raw);
+    let fu = ms_step_excess(&u, ratio);
+    if fu == 0.0 {
+        return Some(u);
+    }
+    let w = (0..MATCH_TRIES)
+        .map(|_| centred((0..u.len()).map(|_| rng.uniform(-1.0, 1.0)).collect()))
+        .find(|w| ms_step_excess(w, ratio).signum() != fu.signum())?;
+    let mix = |t: f64| -> Vec<f64> { u.iter().zip(&w).map(|(a, b)| a + t * (b - a)).collect() };
+    let (mut lo, mut hi) = (0.0, 1.0);
+    // Bisection to the last bit of t: the excess changes sign between lo and hi.
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if mid <= lo || mid >= hi {
+            break;
+        }
+        if ms_step_excess(&mix(mid), ratio).signum() == fu.signum() {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    Some(mix(lo))
 }
 
 /// Population mean and standard deviation.
@@ -244,6 +344,78 @@ mod tests {
         assert_eq!(s.at(1.999), a.levels_mm[0]);
         assert_eq!(s.at(2.0), a.levels_mm[1]);
         assert_eq!(s.at(500.0), a.levels_mm[69]);
+    }
+
+    /// FNV-1a over the levels' bits: a fingerprint of a whole target.
+    fn fingerprint(levels: &[f64]) -> u64 {
+        levels.iter().fold(0xcbf2_9ce4_8422_2325, |h, l| {
+            (h ^ l.to_bits()).wrapping_mul(0x0000_0100_0000_01b3)
+        })
+    }
+
+    #[test]
+    fn unmatched_targets_are_bit_identical_to_those_drawn_before_matching_existed() {
+        // Printed by `generate` at commit 548fbae (before difficulty matching): existing
+        // studies keep their targets.
+        let p = StepParams::default();
+        for (seed, print, first) in [
+            (1, 0x90eb_9ca1_5a6a_a947, -11.420913813237657),
+            (7, 0xc56c_9cd5_01cd_8448, -26.282657691607486),
+            (42, 0xf979_35a2_7228_de07, -13.276803448441502),
+            (1234567, 0x9af7_c71a_7367_a1df, 27.789106477590657),
+        ] {
+            let t = StepTarget::generate(&p, 140.0, seed).unwrap();
+            assert_eq!(t.levels_mm[0], first, "seed {seed}");
+            assert_eq!(fingerprint(&t.levels_mm), print, "seed {seed}");
+        }
+    }
+
+    #[test]
+    fn the_ms_step_change_counts_the_first_step_from_rest() {
+        // (1 − 0)² + (3 − 1)² + (2 − 3)² = 6 over 3 levels.
+        assert_eq!(ms_step(&[1.0, 3.0, 2.0]), 2.0);
+        assert_eq!(ms_step(&[-4.0]), 16.0);
+    }
+
+    #[test]
+    fn matched_targets_share_one_step_change_with_exact_mean_std_and_range() {
+        let p = StepParams::default();
+        let wanted = MATCHED_MS_STEP_PER_VARIANCE * p.std_mm * p.std_mm;
+        let mut free = vec![];
+        // The study's tests (70 steps), its practice (60) and a short pilot's (4 and 8).
+        for duration in [140.0, 120.0, 8.0, 16.0] {
+            for seed in 0..50 {
+                let t = StepTarget::generate_matched(&p, duration, seed).unwrap();
+                assert_eq!(t, StepTarget::generate_matched(&p, duration, seed).unwrap());
+                let ms = ms_step(&t.levels_mm);
+                assert!(
+                    (ms / wanted - 1.0).abs() < 1e-9,
+                    "{duration} s, seed {seed}: {ms} mm² against {wanted}"
+                );
+                assert_eq!(t.ms_step_mm2, ms);
+                let (mean, std) = mean_std(&t.levels_mm);
+                assert!(mean.abs() < 1e-9, "mean {mean}");
+                assert!((std / p.std_mm - 1.0).abs() < 1e-12, "std {std}");
+                assert!(t.levels_mm.iter().all(|v| v.abs() <= p.range_mm));
+                let unmatched = StepTarget::generate(&p, duration, seed).unwrap();
+                assert_eq!(unmatched.ms_step_mm2, ms_step(&unmatched.levels_mm));
+                free.push(unmatched.ms_step_mm2 / wanted);
+            }
+        }
+        // Without matching the step change varies from target to target: the match matters.
+        let (lo, hi) = free
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(l, h), &r| (l.min(r), h.max(r)));
+        assert!(lo < 0.9 && hi > 1.1, "unmatched ratios {lo}..{hi}");
+    }
+
+    #[test]
+    fn a_matched_target_of_two_steps_is_refused() {
+        // Two zero-mean levels are ±a: their step change is always 2.5 a², never 2 a².
+        let err = StepTarget::generate_matched(&StepParams::default(), 4.0, 1)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("matched step change"), "{err}");
     }
 
     #[test]

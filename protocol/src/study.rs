@@ -260,6 +260,25 @@ fn shown(v: f64) -> String {
     ((v * 10.0).round() / 10.0).to_string()
 }
 
+/// How each subject's order of compensators at a seat is chosen.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(rename_all = "lowercase")]
+pub enum OrderDesign {
+    /// The original protocol: a seeded random order per seat, the second seat's different.
+    #[default]
+    Random,
+    /// A Williams design (balanced Latin square): over its rows every compensator is in
+    /// every position equally often and follows every other one equally often.
+    Williams,
+}
+
+impl OrderDesign {
+    fn is_random(&self) -> bool {
+        *self == Self::Random
+    }
+}
+
 /// Whether trials run on the simulated rig or a real machine.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
@@ -286,6 +305,18 @@ pub struct StudyParams {
     pub target_range_mm: f64,
     /// Every target's standard deviation (realized within ±5 %).
     pub target_std_mm: f64,
+    /// Difficulty-matched targets: every target of the study also has the same mean-squared
+    /// step change, 2·target_std_mm² (see `signals::StepTarget::generate_matched`). One
+    /// value for the whole study rather than per subject: no compensator and no subject gets
+    /// a harder target, and each target stays a function of its own seed. Off by default
+    /// (the original protocol); left out of the JSON when off, so the protocol hash of a
+    /// study that predates it is unchanged.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub matched_targets: bool,
+    /// How the orders of compensators are chosen (default `random`; left out of the JSON
+    /// when `random`, for the same reason).
+    #[serde(default, skip_serializing_if = "OrderDesign::is_random")]
+    pub order_design: OrderDesign,
     pub k_bf: f64,
     pub survey: SurveyParams,
     /// The consent form; its text may hold the placeholders of `texts`.

@@ -13,15 +13,6 @@ fn shot(s: &Session, name: &str) {
     s.screenshot(&artifacts_dir().join(format!("{name}.png")));
 }
 
-/// Sets a <select>'s value and fires `change`, as a person choosing an option does.
-fn choose(s: &Session, css: &str, value: &str) {
-    s.find(css);
-    s.exec(
-        "const e = document.querySelector(arguments[0]); e.value = arguments[1]; e.dispatchEvent(new Event('change', { bubbles: true }));",
-        json!([css, value]),
-    );
-}
-
 /// Waits until the station page shows one of `phases`; returns it. A short test may start
 /// and end between two looks, so a wait for "running" alone would depend on timing.
 fn wait_phase_of(s: &Session, phases: &[&str]) -> String {
@@ -172,7 +163,7 @@ fn a_short_study_runs_end_to_end_in_a_real_browser() {
         assert!(code.trim().len() >= 6, "pairing code shown: {code:?}");
         dash.type_into("#pair-code", code.trim());
         dash.type_into("#pair-name", name);
-        choose(&dash, "#pair-role", role);
+        dash.choose("#pair-role", role);
         dash.click("#pair-submit");
         let id = eventually(Duration::from_secs(20), || {
             api.get(&format!("/api/studies/{study}/stations"))
@@ -186,8 +177,7 @@ fn a_short_study_runs_end_to_end_in_a_real_browser() {
     }
     shot(&desk, "03-station-pairing");
     for id in &station_ids {
-        choose(
-            &dash,
+        dash.choose(
             &format!("select[data-assign-station='{id}']"),
             &subject.to_string(),
         );

@@ -5,6 +5,7 @@ mod browser;
 mod controller_cli;
 mod controller_link_auth;
 mod controller_serve;
+mod design_aids;
 mod exports_analyst;
 mod exports_audit;
 mod hardening;

@@ -10,9 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use bdft_tests::TempDir;
-use bdft_tests::server::{
-    self, ADMIN_PASSWORD, Api, Server, eventually, pair_station, short_study,
-};
+use bdft_tests::server::{self, Api, Server, eventually, pair_station, short_study};
 use bdft_tests::webdriver::Driver;
 use serde_json::{Value, json};
 use tungstenite::client::IntoClientRequest;
@@ -426,11 +424,7 @@ fn the_estop_shows_stopped_on_the_station_and_holds_start_until_reset() {
 
     // The experimenter's dashboard with the station's Start enabled.
     let dash = driver.session(downloads.path());
-    dash.goto(&format!("{base}/"));
-    dash.type_into("#login-username", "admin");
-    dash.type_into("#login-password", ADMIN_PASSWORD);
-    dash.click("#login-submit");
-    dash.find("#estop");
+    dash.log_in_to_dashboard(&base);
     let start = format!("button[data-action='start'][data-station-id='{station_id}']");
     let start_state = format!(
         "const b = document.querySelector(\"{start}\"); \

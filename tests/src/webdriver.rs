@@ -188,6 +188,25 @@ impl Session {
         .unwrap_or_else(|e| panic!("type into {css}: {e}"));
     }
 
+    /// Opens the dashboard at `base` and logs in as the first administrator; returns when
+    /// the dashboard shows.
+    pub fn log_in_to_dashboard(&self, base: &str) {
+        self.goto(&format!("{base}/"));
+        self.type_into("#login-username", "admin");
+        self.type_into("#login-password", crate::server::ADMIN_PASSWORD);
+        self.click("#login-submit");
+        self.find("#estop");
+    }
+
+    /// Sets a <select>'s value and fires `change`, as a person choosing an option does.
+    pub fn choose(&self, css: &str, value: &str) {
+        self.find(css);
+        self.exec(
+            "const e = document.querySelector(arguments[0]); e.value = arguments[1]; e.dispatchEvent(new Event('change', { bubbles: true }));",
+            json!([css, value]),
+        );
+    }
+
     pub fn text(&self, css: &str) -> String {
         let id = self.find(css);
         self.cmd("GET", &format!("/element/{id}/text"), json!({}))

@@ -103,6 +103,7 @@ pub async fn enrol(
                 target_levels_json: serde_json::to_string(&tg.levels_mm).expect("levels serialize"),
                 target_mean_mm: tg.mean_mm,
                 target_std_mm: tg.std_mm,
+                target_ms_step_mm2: tg.ms_step_mm2,
                 protocol_hash: &hash,
             },
         )

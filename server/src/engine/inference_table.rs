@@ -87,15 +87,18 @@ pub struct StudyData {
     pub subjects: Vec<Cells>,
 }
 
+/// The attempts the analyses count (`counts`): of every scored test, the latest attempt,
+/// when it is complete (a redone test counts once; practice never).
+pub fn analysable(rows: &[TrialExportRow]) -> impl Iterator<Item = &TrialExportRow> {
+    rows.iter().filter(|r| counts(r))
+}
+
 impl StudyData {
     pub async fn load(pool: &SqlitePool, study_id: i64) -> Result<Self> {
         let study = store::studies::get(pool, study_id).await?;
         let rows = store::exports::trial_rows(pool, study_id, Withdrawn::LeftOut).await?;
         let mut subjects: BTreeMap<i64, Cells> = BTreeMap::new();
-        for r in &rows {
-            if !counts(r) {
-                continue;
-            }
+        for r in analysable(&rows) {
             let f = |v: Option<i64>| v.map(|x| x as f64);
             subjects.entry(r.enrol_index).or_default().insert(
                 (r.controller.name().into(), r.station.as_str().into()),

@@ -14,6 +14,7 @@ pub mod filing;
 pub mod inference;
 pub mod inference_table;
 pub mod job;
+pub mod learning;
 pub mod login_limiter;
 pub mod orchestrator;
 pub mod passwords;
@@ -34,6 +35,7 @@ pub mod subjects;
 pub mod synthetic;
 pub mod trials;
 pub mod validity;
+pub mod williams;
 
 use crate::error::{AppError, Result};
 

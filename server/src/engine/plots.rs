@@ -1,10 +1,12 @@
-//! Box plots per controller, split by station, of each metric and rating — drawn here as SVG
-//! (median, 25–75 % box, whiskers to the furthest point within 1.5 IQR, outliers marked) and
-//! rasterized to PNG with resvg and a vendored font (DejaVu Sans), so the figures need no
+//! Box plots per controller, split by station, of each metric and rating (median, 25–75 %
+//! box, whiskers to the furthest point within 1.5 IQR, outliers marked), and the learning
+//! curve (error against test position per seat, a line per subject and the median) — drawn
+//! here as SVG and rasterized to PNG with resvg and a vendored font (DejaVu Sans), so the figures need no
 //! browser, no plotting library and no internet.
 
 use std::fmt::Write;
 
+use super::learning::LearningCurve;
 use super::stats::quantile;
 
 /// The values of one box: (controller, station, values).
@@ -103,6 +105,124 @@ pub fn box_stats(sorted: &[f64]) -> (f64, f64, f64, f64, f64, Vec<f64>) {
     (q1, med, q3, lo, hi, outliers)
 }
 
+/// A figure's SVG up to its title.
+fn open_figure(title: &str) -> String {
+    let mut svg = String::new();
+    let _ = write!(
+        svg,
+        r##"<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" viewBox="0 0 {W} {H}" font-family="{FONT}"><rect width="100%" height="100%" fill="#ffffff"/><text x="{}" y="26" font-size="19" text-anchor="middle" fill="#111">{}</text>"##,
+        W / 2.0,
+        esc(title)
+    );
+    svg
+}
+
+/// A figure with nothing to show says so.
+fn empty_figure(mut svg: String) -> String {
+    let _ = write!(
+        svg,
+        r##"<text x="{}" y="{}" font-size="18" text-anchor="middle" fill="#555">No completed tests yet</text></svg>"##,
+        W / 2.0,
+        H / 2.0
+    );
+    svg
+}
+
+/// The value axis of a figure: fitted to the values (or forced to `y_range`), on a log
+/// scale when they span more than a factor of 50.
+struct YAxis {
+    log: bool,
+    y0: f64,
+    y1: f64,
+}
+
+impl YAxis {
+    /// Fits the axis and draws its grid, ticks, axis lines and label.
+    fn draw(svg: &mut String, values: &[f64], y_range: Option<(f64, f64)>, y_label: &str) -> Self {
+        // Mean-square metrics can span orders of magnitude between an unstable and a
+        // compensated controller: then a log axis keeps every box readable.
+        let lo = values.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let log = y_range.is_none() && lo > 0.0 && hi / lo > 50.0;
+        let (mut y0, mut y1) = match y_range {
+            Some(r) => r,
+            None if log => (lo.log10().floor(), hi.log10().ceil()),
+            None => {
+                let pad = ((hi - lo) * 0.05).max(hi.abs() * 0.01).max(1e-9);
+                (if lo >= 0.0 { 0.0 } else { lo - pad }, hi + pad)
+            }
+        };
+        if y1 <= y0 {
+            y1 = y0 + 1.0;
+        }
+        let step = if log { 1.0 } else { nice_step(y1 - y0, 6.0) };
+        if y_range.is_none() && !log {
+            y0 = (y0 / step).floor() * step;
+            y1 = (y1 / step).ceil() * step;
+        }
+        let ph = H - TOP - BOTTOM;
+        // Grid and y axis (in axis units: log10 of the value on a log axis).
+        let first_tick = if y_range.is_some() { y0.ceil() } else { y0 };
+        let mut t = first_tick;
+        while t <= y1 + step * 0.01 {
+            let yy = TOP + ph * (1.0 - (t - y0) / (y1 - y0));
+            let label = if log {
+                format!("1e{t:.0}")
+            } else {
+                fmt_tick(t, step)
+            };
+            let _ = write!(
+                svg,
+                r##"<line x1="{LEFT}" y1="{yy:.1}" x2="{}" y2="{yy:.1}" stroke="#e3e3e3"/><text x="{}" y="{:.1}" font-size="13" text-anchor="end" fill="#333">{label}</text>"##,
+                W - RIGHT,
+                LEFT - 8.0,
+                yy + 4.0,
+            );
+            t += step;
+        }
+        let y_label = if log {
+            format!("{y_label}, log scale")
+        } else {
+            y_label.to_string()
+        };
+        let _ = write!(
+            svg,
+            r##"<line x1="{LEFT}" y1="{TOP}" x2="{LEFT}" y2="{}" stroke="#333"/><line x1="{LEFT}" y1="{}" x2="{}" y2="{}" stroke="#333"/><text transform="translate(24 {}) rotate(-90)" font-size="14" text-anchor="middle" fill="#111">{}</text>"##,
+            TOP + ph,
+            TOP + ph,
+            W - RIGHT,
+            TOP + ph,
+            TOP + ph / 2.0,
+            esc(&y_label)
+        );
+        Self { log, y0, y1 }
+    }
+
+    /// The SVG y coordinate of value `v`.
+    fn y(&self, v: f64) -> f64 {
+        let a = if self.log { v.log10() } else { v };
+        TOP + (H - TOP - BOTTOM) * (1.0 - (a - self.y0) / (self.y1 - self.y0))
+    }
+}
+
+/// The seats' legend, centred under the title.
+fn seat_legend(svg: &mut String) {
+    for (i, (label, colour)) in [("off the machine (desk)", OFF), ("on the machine", ON)]
+        .iter()
+        .enumerate()
+    {
+        let x = W / 2.0 - 200.0 + 230.0 * i as f64;
+        let ly = 50.0;
+        let _ = write!(
+            svg,
+            r##"<rect x="{x:.1}" y="{:.1}" width="14" height="14" fill="{colour}" fill-opacity="0.35" stroke="{colour}"/><text x="{:.1}" y="{:.1}" font-size="13" fill="#111">{label}</text>"##,
+            ly - 11.0,
+            x + 20.0,
+            ly + 1.0
+        );
+    }
+}
+
 /// The SVG of one variable. `controllers` fixes the order along the x axis; `y_range`
 /// forces the axis (ratings: the scale), otherwise it is fitted to the data.
 pub fn box_plot_svg(
@@ -112,85 +232,18 @@ pub fn box_plot_svg(
     groups: &[Group],
     y_range: Option<(f64, f64)>,
 ) -> String {
-    let mut svg = String::new();
-    let _ = write!(
-        svg,
-        r##"<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" viewBox="0 0 {W} {H}" font-family="{FONT}"><rect width="100%" height="100%" fill="#ffffff"/><text x="{}" y="26" font-size="19" text-anchor="middle" fill="#111">{}</text>"##,
-        W / 2.0,
-        esc(title)
-    );
+    let mut svg = open_figure(title);
     let values: Vec<f64> = groups
         .iter()
         .flat_map(|g| g.2.iter().copied())
         .filter(|v| v.is_finite())
         .collect();
     if values.is_empty() || controllers.is_empty() {
-        let _ = write!(
-            svg,
-            r##"<text x="{}" y="{}" font-size="18" text-anchor="middle" fill="#555">No completed tests yet</text></svg>"##,
-            W / 2.0,
-            H / 2.0
-        );
-        return svg;
+        return empty_figure(svg);
     }
-    // Mean-square metrics can span orders of magnitude between an unstable and a
-    // compensated controller: then a log axis keeps every box readable.
-    let lo = values.iter().copied().fold(f64::INFINITY, f64::min);
-    let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    let log = y_range.is_none() && lo > 0.0 && hi / lo > 50.0;
-    let tf = |v: f64| if log { v.log10() } else { v };
-    let (mut y0, mut y1) = match y_range {
-        Some(r) => r,
-        None if log => (lo.log10().floor(), hi.log10().ceil()),
-        None => {
-            let pad = ((hi - lo) * 0.05).max(hi.abs() * 0.01).max(1e-9);
-            (if lo >= 0.0 { 0.0 } else { lo - pad }, hi + pad)
-        }
-    };
-    if y1 <= y0 {
-        y1 = y0 + 1.0;
-    }
-    let step = if log { 1.0 } else { nice_step(y1 - y0, 6.0) };
-    if y_range.is_none() && !log {
-        y0 = (y0 / step).floor() * step;
-        y1 = (y1 / step).ceil() * step;
-    }
+    let axis = YAxis::draw(&mut svg, &values, y_range, y_label);
+    let y = |v: f64| axis.y(v);
     let (pw, ph) = (W - LEFT - RIGHT, H - TOP - BOTTOM);
-    let y = |v: f64| TOP + ph * (1.0 - (tf(v) - y0) / (y1 - y0));
-    // Grid and y axis (in axis units: log10 of the value on a log axis).
-    let first_tick = if y_range.is_some() { y0.ceil() } else { y0 };
-    let mut t = first_tick;
-    while t <= y1 + step * 0.01 {
-        let yy = TOP + ph * (1.0 - (t - y0) / (y1 - y0));
-        let label = if log {
-            format!("1e{t:.0}")
-        } else {
-            fmt_tick(t, step)
-        };
-        let _ = write!(
-            svg,
-            r##"<line x1="{LEFT}" y1="{yy:.1}" x2="{}" y2="{yy:.1}" stroke="#e3e3e3"/><text x="{}" y="{:.1}" font-size="13" text-anchor="end" fill="#333">{label}</text>"##,
-            W - RIGHT,
-            LEFT - 8.0,
-            yy + 4.0,
-        );
-        t += step;
-    }
-    let y_label = if log {
-        format!("{y_label}, log scale")
-    } else {
-        y_label.to_string()
-    };
-    let _ = write!(
-        svg,
-        r##"<line x1="{LEFT}" y1="{TOP}" x2="{LEFT}" y2="{}" stroke="#333"/><line x1="{LEFT}" y1="{}" x2="{}" y2="{}" stroke="#333"/><text transform="translate(24 {}) rotate(-90)" font-size="14" text-anchor="middle" fill="#111">{}</text>"##,
-        TOP + ph,
-        TOP + ph,
-        W - RIGHT,
-        TOP + ph,
-        TOP + ph / 2.0,
-        esc(&y_label)
-    );
     let slot = pw / controllers.len() as f64;
     let bw = (slot * 0.28).min(60.0);
     for (i, c) in controllers.iter().enumerate() {
@@ -244,21 +297,112 @@ pub fn box_plot_svg(
             );
         }
     }
-    // Legend, centred under the title.
-    for (i, (label, colour)) in [("off the machine (desk)", OFF), ("on the machine", ON)]
+    seat_legend(&mut svg);
+    svg.push_str("</svg>");
+    svg
+}
+
+/// The learning curve: tracking error against test position, one panel per seat (desk on
+/// the left, machine on the right, positions 1 … `positions` in each), a thin line per
+/// subject and the median per position as a thick line with dots.
+pub fn learning_curve_svg(title: &str, curve: &LearningCurve) -> String {
+    let mut svg = open_figure(title);
+    let values: Vec<f64> = curve
+        .subjects
         .iter()
-        .enumerate()
-    {
-        let x = W / 2.0 - 200.0 + 230.0 * i as f64;
-        let ly = 50.0;
+        .flat_map(|s| s.points.iter().map(|p| p.mse_tracking_mm2))
+        .filter(|v| v.is_finite())
+        .collect();
+    if values.is_empty() || curve.positions == 0 {
+        return empty_figure(svg);
+    }
+    let axis = YAxis::draw(&mut svg, &values, None, "MSE of tracking (mm²)");
+    let ph = H - TOP - BOTTOM;
+    let gap = 24.0;
+    let panel_w = (W - LEFT - RIGHT - gap) / 2.0;
+    let polyline = |svg: &mut String,
+                    pts: &[(f64, f64)],
+                    colour: &str,
+                    width: f64,
+                    opacity: f64| {
+        if pts.len() < 2 {
+            return;
+        }
+        let coords: Vec<String> = pts.iter().map(|(x, y)| format!("{x:.1},{y:.1}")).collect();
         let _ = write!(
             svg,
-            r##"<rect x="{x:.1}" y="{:.1}" width="14" height="14" fill="{colour}" fill-opacity="0.35" stroke="{colour}"/><text x="{:.1}" y="{:.1}" font-size="13" fill="#111">{label}</text>"##,
-            ly - 11.0,
-            x + 20.0,
-            ly + 1.0
+            r##"<polyline points="{}" fill="none" stroke="{colour}" stroke-width="{width}" stroke-opacity="{opacity}"/>"##,
+            coords.join(" ")
         );
+    };
+    for (i, (station, colour, label)) in [
+        ("off", OFF, "off the machine (desk)"),
+        ("on", ON, "on the machine"),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let x0 = LEFT + i as f64 * (panel_w + gap);
+        let x =
+            |position: u32| x0 + panel_w * (f64::from(position) - 0.5) / f64::from(curve.positions);
+        for p in 1..=curve.positions {
+            let _ = write!(
+                svg,
+                r##"<text x="{:.1}" y="{:.1}" font-size="12" text-anchor="middle" fill="#333">{p}</text>"##,
+                x(p),
+                TOP + ph + 18.0
+            );
+        }
+        let _ = write!(
+            svg,
+            r##"<text x="{:.1}" y="{:.1}" font-size="14" text-anchor="middle" fill="{colour}">{label}</text>"##,
+            x0 + panel_w / 2.0,
+            TOP + ph + 40.0
+        );
+        for subject in &curve.subjects {
+            let pts: Vec<(f64, f64)> = subject
+                .points
+                .iter()
+                .filter(|p| p.station == station && p.mse_tracking_mm2.is_finite())
+                .map(|p| (x(p.position), axis.y(p.mse_tracking_mm2)))
+                .collect();
+            polyline(&mut svg, &pts, colour, 1.2, 0.45);
+            for (cx, cy) in &pts {
+                let _ = write!(
+                    svg,
+                    r##"<circle cx="{cx:.1}" cy="{cy:.1}" r="2.5" fill="{colour}" fill-opacity="0.45"/>"##
+                );
+            }
+        }
+        let med: Vec<(f64, f64)> = curve
+            .median
+            .iter()
+            .filter(|m| m.station == station)
+            .map(|m| (x(m.position), axis.y(m.mse_tracking_mm2)))
+            .collect();
+        polyline(&mut svg, &med, "#111", 3.0, 1.0);
+        for (cx, cy) in &med {
+            let _ = write!(
+                svg,
+                r##"<circle cx="{cx:.1}" cy="{cy:.1}" r="5" fill="{colour}" stroke="#111" stroke-width="1.5"/>"##
+            );
+        }
     }
+    let slope = match (curve.slope, curve.slope_percent_per_test) {
+        (Some(b), Some(percent)) => format!(
+            "learning slope {b:.3} {} ({percent:+.1} % per test), median of {} subjects",
+            curve.slope_unit, curve.slope_n
+        ),
+        _ => "no learning slope yet".into(),
+    };
+    let _ = write!(
+        svg,
+        r##"<text x="{:.1}" y="{:.1}" font-size="13" text-anchor="middle" fill="#111">test position (both seats) — {}</text>"##,
+        LEFT + (W - LEFT - RIGHT) / 2.0,
+        H - 14.0,
+        esc(&slope)
+    );
+    seat_legend(&mut svg);
     svg.push_str("</svg>");
     svg
 }
@@ -346,6 +490,54 @@ mod tests {
         assert!(svg.contains("&lt;b&gt;&amp;&quot;"));
         png(&svg).unwrap();
         png(&box_plot_svg(name, "", &[], &[], None)).unwrap();
+    }
+
+    #[test]
+    fn the_learning_curve_draws_a_line_per_subject_and_seat_and_the_medians() {
+        use super::super::learning::CurvePoint;
+        let point = |position, station: &str, mse| CurvePoint {
+            position,
+            station: station.into(),
+            controller: "pid".into(),
+            mse_tracking_mm2: mse,
+        };
+        // Two subjects, each two tests at each seat; a third with a single test.
+        let curve = LearningCurve::from_points(
+            4,
+            vec![
+                (
+                    "S01".into(),
+                    vec![
+                        point(1, "on", 40.0),
+                        point(2, "on", 30.0),
+                        point(3, "off", 20.0),
+                        point(4, "off", 10.0),
+                    ],
+                ),
+                (
+                    "S02".into(),
+                    vec![
+                        point(1, "off", 50.0),
+                        point(2, "off", 45.0),
+                        point(3, "on", 35.0),
+                        point(4, "on", 30.0),
+                    ],
+                ),
+                ("S03".into(), vec![point(1, "on", 60.0)]),
+            ],
+        );
+        let svg = learning_curve_svg("curve <study>", &curve);
+        assert!(svg.contains("curve &lt;study&gt;"));
+        // Four subject lines (two subjects × two seats; one point draws none) and a median
+        // line per seat.
+        assert_eq!(svg.matches("<polyline").count(), 4 + 2, "{svg}");
+        assert_eq!(svg.matches(r#"r="2.5""#).count(), 9);
+        assert_eq!(svg.matches(r#"r="5""#).count(), curve.median.len());
+        assert!(svg.contains("ln(mm²) per test position"));
+        let bytes = png(&svg).unwrap();
+        assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n");
+        let empty = learning_curve_svg("x", &LearningCurve::from_points(10, vec![]));
+        assert!(empty.contains("No completed tests yet"));
     }
 
     /// (x1, y1, x2, y2) of every `<line>` of an SVG.

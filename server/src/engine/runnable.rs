@@ -4,10 +4,10 @@
 //! are `StudyParams::validate`'s; this is what only building the parts can tell.
 
 use bdft_controller::closed_loop::ClosedLoop;
-use bdft_controller::signals::StepTarget;
-use bdft_protocol::params::{CompensatorSpec, StepParams};
+use bdft_protocol::params::CompensatorSpec;
 use bdft_protocol::study::StudyParams;
 
+use super::schedule::draw_target;
 use crate::error::{AppError, Result};
 
 /// Target seeds tried per duration. A standard deviation near what the range allows fails
@@ -38,18 +38,18 @@ fn designs(params: &StudyParams) -> Vec<CompensatorSpec> {
 }
 
 fn check_targets(params: &StudyParams) -> Result<()> {
-    let steps = StepParams {
-        interval_s: params.step_interval_s,
-        range_mm: params.target_range_mm,
-        std_mm: params.target_std_mm,
-    };
     let durations = [params.trial_s, params.practice_s];
     for duration in durations.into_iter().filter(|&d| d > 0.0) {
-        // As `schedule::target` draws them.
         let duration = duration.max(2.0 * params.step_interval_s);
         for seed in 0..TARGET_SEEDS {
-            if let Err(e) = StepTarget::generate(&steps, duration, seed) {
+            if let Err(e) = draw_target(params, duration, seed) {
                 let steps = (duration / params.step_interval_s).ceil();
+                if params.matched_targets {
+                    return Err(AppError::BadRequest(format!(
+                        "matched_targets: no target of {steps} steps with a standard deviation of {} mm and the matched step change fits within ±{} mm (target_range_mm) for every seed ({e}); turn matched_targets off, lengthen the tests (trial_s, practice_s) or lower target_std_mm",
+                        params.target_std_mm, params.target_range_mm
+                    )));
+                }
                 return Err(AppError::BadRequest(format!(
                     "target_std_mm: no target of {steps} steps with a standard deviation of {} mm fits within ±{} mm (target_range_mm) for every seed ({e}); lower target_std_mm or widen target_range_mm",
                     params.target_std_mm, params.target_range_mm

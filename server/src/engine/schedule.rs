@@ -6,9 +6,13 @@ use bdft_controller::compensator::study_spec;
 use bdft_controller::rng::Rng;
 use bdft_controller::signals::StepTarget;
 use bdft_protocol::params::{CompensatorKind, ParamError, PlantParams, Seat, StepParams};
-use bdft_protocol::study::{ConsentForm, RigKind, StudyParams, StudyTexts, SurveyParams};
+use bdft_protocol::study::{
+    ConsentForm, OrderDesign, RigKind, StudyParams, StudyTexts, SurveyParams,
+};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
+
+use super::williams;
 
 /// K_BF of the human-subject study: about 30 % above the rig's nominal 0.6, so that the
 /// feedthrough is clearly felt.
@@ -30,6 +34,8 @@ pub fn default_params() -> StudyParams {
         step_interval_s: 2.0,
         target_range_mm: 40.0,
         target_std_mm: 20.0,
+        matched_targets: false,
+        order_design: OrderDesign::Random,
         k_bf: STUDY_KBF,
         survey: SurveyParams::default(),
         consent: ConsentForm::default(),
@@ -101,8 +107,10 @@ fn shuffle<T>(items: &mut [T], rng: &mut Rng) {
 }
 
 /// The schedule of the subject enrolled `enrol_index`-th (from 0): practice off the machine,
-/// then every compensator once at the starting seat in random order, then every compensator
-/// once at the other seat in a different random order. Blinded labels ("Controller k", as
+/// then every compensator once at the starting seat, then every compensator once at the
+/// other seat in a different order. The orders are random (`OrderDesign::Random`, the
+/// original) or rows of the Williams design in the study's order of compensators
+/// (`OrderDesign::Williams`, `williams::seat_rows` says which). Blinded labels ("Controller k", as
 /// the approved protocol words it for the subject) are a random numbering of the
 /// compensators, fixed for the subject across both seats.
 pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<ScheduledTest> {
@@ -113,15 +121,30 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
     let kinds: Vec<CompensatorKind> = params.controllers.iter().map(|c| c.kind()).collect();
     let mut labels: Vec<usize> = (1..=kinds.len()).collect();
     shuffle(&mut labels, &mut rng);
-    let mut first = kinds.clone();
-    shuffle(&mut first, &mut rng);
-    let mut second = kinds.clone();
-    loop {
-        shuffle(&mut second, &mut rng);
-        if second != first || kinds.len() < 2 {
-            break;
+    let start = starting_station(enrol_index);
+    let (first, second) = match params.order_design {
+        OrderDesign::Random => {
+            let mut first = kinds.clone();
+            shuffle(&mut first, &mut rng);
+            let mut second = kinds.clone();
+            loop {
+                shuffle(&mut second, &mut rng);
+                if second != first || kinds.len() < 2 {
+                    break;
+                }
+            }
+            (first, second)
         }
-    }
+        OrderDesign::Williams => {
+            let rows = williams::rows(kinds.len());
+            let (on, off) = williams::seat_rows(kinds.len(), enrol_index);
+            let order = |row: usize| rows[row].iter().map(|&c| kinds[c]).collect::<Vec<_>>();
+            match start {
+                Seat::On => (order(on), order(off)),
+                Seat::Off => (order(off), order(on)),
+            }
+        }
+    };
     let label_of = |k: CompensatorKind| {
         let i = kinds
             .iter()
@@ -143,7 +166,6 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
             target_seed: rng.next_u64() >> 11,
         });
     }
-    let start = starting_station(enrol_index);
     for (block, (seat, order)) in [(start, &first), (other(start), &second)]
         .into_iter()
         .enumerate()
@@ -166,18 +188,30 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
 }
 
 /// The target of one test: steps every `step_interval_s`, within ±range, zero mean and the
-/// study's standard deviation (exact up to rounding, so well inside ±1 mm and ±5 %).
+/// study's standard deviation (exact up to rounding, so well inside ±1 mm and ±5 %); with
+/// `matched_targets`, the study's one mean-squared step change as well.
 pub fn target(params: &StudyParams, test: &ScheduledTest) -> Result<StepTarget, ParamError> {
+    draw_target(params, test.duration_s, test.target_seed)
+}
+
+/// The target of a test lasting `duration_s` with `seed`, as `target` draws it (the
+/// creation check draws them too).
+pub fn draw_target(
+    params: &StudyParams,
+    duration_s: f64,
+    seed: u64,
+) -> Result<StepTarget, ParamError> {
     let steps = StepParams {
         interval_s: params.step_interval_s,
         range_mm: params.target_range_mm,
         std_mm: params.target_std_mm,
     };
-    StepTarget::generate(
-        &steps,
-        test.duration_s.max(2.0 * params.step_interval_s),
-        test.target_seed,
-    )
+    let duration_s = duration_s.max(2.0 * params.step_interval_s);
+    if params.matched_targets {
+        StepTarget::generate_matched(&steps, duration_s, seed)
+    } else {
+        StepTarget::generate(&steps, duration_s, seed)
+    }
 }
 
 #[cfg(test)]
@@ -299,6 +333,107 @@ mod tests {
             schedule(&p, 100, 0),
             "the study seed matters"
         );
+    }
+
+    #[test]
+    fn studies_without_the_design_aids_keep_their_hash_orders_and_targets() {
+        // A study stored before the design aids existed (its JSON without them) parses, and
+        // hashes as its stored JSON did: at their defaults they are left out of the hashed
+        // JSON.
+        let p = default_params();
+        let mut stored = serde_json::to_value(&p).unwrap();
+        let fields = stored.as_object_mut().unwrap();
+        fields.remove("order_design");
+        fields.remove("matched_targets");
+        let before: String = Sha256::digest(stored.to_string().as_bytes())
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect();
+        let parsed: StudyParams = serde_json::from_value(stored).unwrap();
+        assert_eq!(parsed, p);
+        assert_eq!(protocol_hash(&parsed), before);
+        // Orders, labels and target seeds printed by this code at commit 548fbae, before the
+        // design aids existed: a random-order study draws the same.
+        let s = schedule(&p, 42, 1);
+        let got: Vec<(String, u64)> = s
+            .iter()
+            .map(|t| {
+                (
+                    format!("{} {}", t.compensator, t.blinded_label),
+                    t.target_seed,
+                )
+            })
+            .collect();
+        let want = [
+            ("pid Practice", 2825990621681512),
+            ("lqr-cabvel Controller 4", 8625465733573564),
+            ("pid-shaper Controller 5", 8592553454261585),
+            ("pid Controller 3", 5190547355146260),
+            ("lqr Controller 2", 2912446273349778),
+            ("pid-notch Controller 1", 7598544895189793),
+            ("lqr Controller 2", 4814618595203681),
+            ("pid-notch Controller 1", 7097563375347571),
+            ("pid-shaper Controller 5", 4176194195833212),
+            ("pid Controller 3", 2236093709095440),
+            ("lqr-cabvel Controller 4", 1568883948158621),
+        ];
+        assert_eq!(got, want.map(|(a, b)| (a.to_string(), b)));
+        // A matched or Williams study is a different protocol: another hash.
+        let mut q = p.clone();
+        q.order_design = OrderDesign::Williams;
+        assert_ne!(protocol_hash(&q), protocol_hash(&p));
+        let mut q = p.clone();
+        q.matched_targets = true;
+        assert_ne!(protocol_hash(&q), protocol_hash(&p));
+    }
+
+    #[test]
+    fn williams_schedules_follow_the_rows_at_each_seat() {
+        for k in 2..=5 {
+            let mut p = default_params();
+            p.controllers.truncate(k);
+            p.order_design = OrderDesign::Williams;
+            let kinds: Vec<CompensatorKind> = p.controllers.iter().map(|c| c.kind()).collect();
+            let rows = williams::rows(k);
+            let n = rows.len() as u32;
+            for idx in 0..2 * n {
+                let s = schedule(&p, 5, idx);
+                assert_eq!(s, schedule(&p, 5, idx), "reproducible");
+                let order = |seat: Seat| -> Vec<usize> {
+                    s.iter()
+                        .filter(|t| !t.practice && t.seat == seat)
+                        .map(|t| kinds.iter().position(|&c| c == t.compensator).unwrap())
+                        .collect()
+                };
+                assert_eq!(order(Seat::On), rows[(idx % n) as usize], "k {k}, {idx}");
+                assert_eq!(
+                    order(Seat::Off),
+                    rows[((idx + n / 2) % n) as usize],
+                    "k {k}, {idx}"
+                );
+                assert_eq!(s[1].seat, starting_station(idx));
+                assert_ne!(order(Seat::On), order(Seat::Off));
+            }
+        }
+    }
+
+    #[test]
+    fn matched_study_targets_share_one_step_change() {
+        let mut p = default_params();
+        p.matched_targets = true;
+        let wanted = 2.0 * p.target_std_mm * p.target_std_mm;
+        for idx in 0..4 {
+            for t in schedule(&p, 3, idx) {
+                let tg = target(&p, &t).unwrap();
+                assert!(
+                    (tg.ms_step_mm2 / wanted - 1.0).abs() < 1e-9,
+                    "{}",
+                    tg.ms_step_mm2
+                );
+                assert!(tg.mean_mm.abs() < 1e-9);
+                assert!((tg.std_mm / p.target_std_mm - 1.0).abs() < 1e-12);
+            }
+        }
     }
 
     #[test]

@@ -15,8 +15,9 @@ use super::error::{ApiResult, AppError, AppJson};
 use super::extract::Experimenter;
 use crate::engine::export::{self, ExportFormat, ExportKind, ExportRequest, SampleCut};
 use crate::engine::inference_table::{StatsRow, study_table};
+use crate::engine::learning::{LearningCurve, learning_curve};
 use crate::engine::power::{PlanReport, PlanRequest, PlanSource, PlanStatus, plan_study};
-use crate::engine::results::{box_plot, parse_file};
+use crate::engine::results::{parse_file, plot as draw_plot};
 use crate::engine::stats::{Stats, summary_stats};
 use crate::state::AppState;
 use crate::store::audit::AuditEntry;
@@ -30,6 +31,7 @@ pub fn routes() -> OpenApiRouter<AppState> {
         .routes(routes!(start_plan_job))
         .routes(routes!(plan_job_status))
         .routes(routes!(plot))
+        .routes(routes!(learning))
         .routes(routes!(download))
         .routes(routes!(audit_log))
         .routes(routes!(audit_export))
@@ -110,17 +112,18 @@ async fn plan_job_status(State(s): State<AppState>, _who: Experimenter) -> AppJs
     AppJson(s.plan.status())
 }
 
-/// A box plot of one variable by compensator and seat: `{variable}.svg` or `.png`.
+/// A figure: the box plot of one variable by compensator and seat (`{variable}.svg` or
+/// `.png`), or the learning curve (`learning_curve.svg` or `.png`).
 #[utoipa::path(get, path = "/api/studies/{id}/plots/{file}", tag = "results",
-    params(("id" = i64, Path), ("file" = String, Path, description = "e.g. mse_tracking_mm2.svg")),
+    params(("id" = i64, Path), ("file" = String, Path, description = "e.g. mse_tracking_mm2.svg or learning_curve.png")),
     responses((status = 200, description = "SVG or PNG image", content_type = "image/svg+xml")))]
 async fn plot(
     State(s): State<AppState>,
     _who: Experimenter,
     Path((id, file)): Path<(i64, String)>,
 ) -> Result<Response, AppError> {
-    let (index, format) = parse_file(&file)?;
-    let body = box_plot(&s.pool, id, index, format).await?;
+    let (which, format) = parse_file(&file)?;
+    let body = draw_plot(&s.pool, id, which, format).await?;
     Ok((
         [
             (header::CONTENT_TYPE, format.mime()),
@@ -129,6 +132,20 @@ async fn plot(
         body,
     )
         .into_response())
+}
+
+/// The learning curve's numbers: each subject's tracking error by test position (1 … 2k
+/// across both seats; the latest complete attempt of each test), the median per seat and
+/// position, and the learning slope (median over subjects of the least-squares slope of
+/// ln MSE on position).
+#[utoipa::path(get, path = "/api/studies/{id}/learning", tag = "results", params(("id" = i64, Path)),
+    responses((status = 200, body = LearningCurve)))]
+async fn learning(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<LearningCurve> {
+    Ok(AppJson(learning_curve(&s.pool, id).await?))
 }
 
 #[derive(Debug, Deserialize, IntoParams)]

@@ -40,6 +40,8 @@ pub struct Trial {
     pub target_levels_json: String,
     pub target_mean_mm: f64,
     pub target_std_mm: f64,
+    /// Realized mean-squared step change of the target (mm²; none before migration 0013).
+    pub target_ms_step_mm2: Option<f64>,
     #[sqlx(try_from = "String")]
     pub status: TrialStatus,
     pub status_reason: Option<String>,
@@ -144,14 +146,15 @@ pub struct NewTrial<'a> {
     pub target_levels_json: String,
     pub target_mean_mm: f64,
     pub target_std_mm: f64,
+    pub target_ms_step_mm2: f64,
     pub protocol_hash: &'a str,
 }
 
 /// Stores a scheduled test; it is queued in schedule order.
 pub async fn insert(db: &mut SqliteConnection, t: &NewTrial<'_>) -> Result<i64> {
     Ok(sqlx::query(
-        "INSERT INTO trials (subject_id, slot, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, protocol_hash, queue_order) \
-         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+        "INSERT INTO trials (subject_id, slot, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order) \
+         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
     )
     .bind(t.subject_id)
     .bind(i64::from(t.slot))
@@ -168,6 +171,7 @@ pub async fn insert(db: &mut SqliteConnection, t: &NewTrial<'_>) -> Result<i64> 
     .bind(&t.target_levels_json)
     .bind(t.target_mean_mm)
     .bind(t.target_std_mm)
+    .bind(t.target_ms_step_mm2)
     .bind(t.protocol_hash)
     .bind(i64::from(t.slot))
     .execute(db)
@@ -191,8 +195,8 @@ pub async fn latest_attempt<'c>(db: impl SqliteExecutor<'c>, trial: &Trial) -> R
 /// second re-queue fail.)
 pub async fn insert_next_attempt(db: &mut SqliteConnection, trial_id: i64) -> Result<i64> {
     Ok(sqlx::query(
-        "INSERT INTO trials (subject_id, slot, attempt, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, protocol_hash, queue_order) \
-         SELECT subject_id, slot, attempt + 1, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, protocol_hash, \
+        "INSERT INTO trials (subject_id, slot, attempt, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order) \
+         SELECT subject_id, slot, attempt + 1, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, \
          (SELECT MAX(queue_order) + 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.block = t.block) FROM trials t WHERE id = ?",
     )
     .bind(trial_id)
