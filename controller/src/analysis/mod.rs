@@ -20,6 +20,8 @@ use crate::params::{MAX_KBF, Seat, check};
 use crate::state::LinearState;
 
 pub mod design_view;
+pub mod frequency;
+pub mod nyquist;
 pub mod robustness;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
