@@ -17,7 +17,7 @@ use super::design_view::{ModelComparison, compare};
 use super::nyquist::{Nyquist, OpenLoop};
 use super::{linear_rig, linear_setup};
 use crate::closed_loop::{ClosedLoop, Drive, LoopSetup};
-use crate::compensator::Compensator;
+use crate::compensator::{Compensator, CompensatorSpec};
 use crate::error::DesignError;
 use crate::model::{Body, Measurement, Plant};
 use crate::params::{MAX_KBF, Seat, check};
@@ -311,6 +311,35 @@ pub fn closed_loop_map(setup: &LoopSetup, seat: Seat) -> Result<StateSpace, Desi
         };
         y[0] = lp.tick(drive).y;
     }))
+}
+
+/// The whole report: the parts of `base` (its plant and body, at its loop period and K_BF)
+/// and each named design on them.
+pub fn report(
+    base: &LoopSetup,
+    designs: &[(String, CompensatorSpec)],
+) -> Result<FrequencyReport, DesignError> {
+    let freqs_hz = report_grid(base.loop_params.dt);
+    let compensators = designs
+        .iter()
+        .map(|(name, spec)| {
+            let setup = LoopSetup {
+                compensator: spec.clone(),
+                ..base.clone()
+            };
+            Ok(CompensatorFrequency {
+                name: name.clone(),
+                ..compensator_frequency(&setup, &freqs_hz)?
+            })
+        })
+        .collect::<Result<Vec<_>, DesignError>>()?;
+    Ok(FrequencyReport {
+        kbf: base.loop_params.k_bf,
+        dt: base.loop_params.dt,
+        parts: parts(base, &freqs_hz)?,
+        freqs_hz,
+        compensators,
+    })
 }
 
 /// Everything for one compensator at the setup's K_BF.
