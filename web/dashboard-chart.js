@@ -4,17 +4,33 @@
 const FONT = '12px system-ui, -apple-system, "Segoe UI", Roboto, sans-serif';
 
 /** A step of 1, 2 or 5 × 10^k giving about `n` ticks over `span`. */
-function niceStep(span, n) {
+export function niceStep(span, n) {
   const raw = Math.max(span / n, Number.MIN_VALUE);
   const mag = 10 ** Math.floor(Math.log10(raw));
   const f = raw / mag;
   return mag * (f < 1.5 ? 1 : f < 3.5 ? 2 : f < 7.5 ? 5 : 10);
 }
 
-function tickLabel(v, step) {
+export function tickLabel(v, step) {
   if (Math.abs(v) >= 1e5) return v.toExponential(1).replace('e+', 'e');
   const digits = step >= 1 ? 0 : Math.min(3, Math.ceil(-Math.log10(step)));
   return v.toFixed(digits);
+}
+
+/** Sizes a canvas to its laid-out box at the device's pixel ratio; returns its context, with
+ *  the font set, and its size in CSS pixels. */
+export function fitCanvas(c) {
+  const dpr = window.devicePixelRatio || 1;
+  const w = Math.max(50, Math.round(c.clientWidth * dpr));
+  const h = Math.max(40, Math.round(c.clientHeight * dpr));
+  if (c.width !== w || c.height !== h) {
+    c.width = w;
+    c.height = h;
+  }
+  const g = c.getContext('2d');
+  g.setTransform(dpr, 0, 0, dpr, 0, 0);
+  g.font = FONT;
+  return { g, W: w / dpr, H: h / dpr };
 }
 
 export class StripChart {
@@ -31,18 +47,7 @@ export class StripChart {
 
   /** Draws `samples` (sorted by t) over [tEnd − window, tEnd]; `range` = [lo, hi] or null (auto). */
   draw(samples, tEnd, range, note) {
-    const c = this.canvas;
-    const dpr = window.devicePixelRatio || 1;
-    const w = Math.max(50, Math.round(c.clientWidth * dpr));
-    const h = Math.max(40, Math.round(c.clientHeight * dpr));
-    if (c.width !== w || c.height !== h) {
-      c.width = w;
-      c.height = h;
-    }
-    const g = c.getContext('2d');
-    g.setTransform(dpr, 0, 0, dpr, 0, 0);
-    const W = w / dpr;
-    const H = h / dpr;
+    const { g, W, H } = fitCanvas(this.canvas);
     const left = 58;
     const right = 16;
     const top = 8;

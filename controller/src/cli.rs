@@ -56,9 +56,9 @@ enum Command {
     /// and the Monte-Carlo pass rate at the study's K_BF with K_H, both structure
     /// frequencies and dampings and the valve parameters drawn within the ranges.
     Robustness {
-        /// Designs: compensator names, optionally with an option after a colon
-        /// (pid-shaper:zvd, pid-shaper:ei, pid-shaper:two-hump-ei, …-per-mode,
-        /// lqr:kalman, …).
+        /// Designs: compensator names (the --params file's design of it), optionally with an
+        /// option after a colon (pid-shaper:zvd, pid-shaper:ei, pid-shaper:two-hump-ei,
+        /// …-per-mode, lqr:kalman, …: that variant of the default design).
         #[arg(required = true)]
         designs: Vec<String>,
         /// JSON file of parameters (as printed by `defaults`); its plant is the nominal one
@@ -240,6 +240,19 @@ fn parse_duration(s: &str) -> Result<f64, String> {
     }
 }
 
+/// The design a workbench name stands for: a compensator's name is the parameter file's
+/// design of it (its default when the file lists none), a name with an option that variant
+/// of the default design.
+fn design(
+    params: &ParamSet,
+    name: &str,
+) -> anyhow::Result<bdft_controller::compensator::CompensatorSpec> {
+    Ok(match name.parse::<CompensatorKind>() {
+        Ok(kind) => params.compensator(kind),
+        Err(_) => variant(name, &params.plant, params.dt)?,
+    })
+}
+
 fn load_params(path: Option<&PathBuf>) -> anyhow::Result<ParamSet> {
     let Some(path) = path else {
         return Ok(ParamSet::default());
@@ -396,7 +409,7 @@ fn execute(command: Command) -> anyhow::Result<()> {
                 .iter()
                 .map(|name| {
                     let mut setup = params.setup(CompensatorKind::Pid, Seat::On, kbf);
-                    setup.compensator = variant(name, &params.plant, params.dt)?;
+                    setup.compensator = design(&params, name)?;
                     robustness(name, &setup, &spec).with_context(|| format!("analysing {name}"))
                 })
                 .collect::<anyhow::Result<Vec<_>>>()?;
@@ -440,11 +453,8 @@ fn execute(command: Command) -> anyhow::Result<()> {
             };
             let designs = names
                 .into_iter()
-                .map(|name| {
-                    let spec = match name.parse::<CompensatorKind>() {
-                        Ok(kind) => params.compensator(kind),
-                        Err(_) => variant(&name, &params.plant, params.dt)?,
-                    };
+                .map(|name| -> anyhow::Result<_> {
+                    let spec = design(&params, &name)?;
                     Ok((name, spec))
                 })
                 .collect::<anyhow::Result<Vec<_>>>()?;

@@ -31,6 +31,7 @@ pub mod studies;
 pub mod subjects;
 pub mod trials;
 pub mod validity;
+pub mod workbench_analysis;
 
 use crate::error::{AppError, Result};
 
