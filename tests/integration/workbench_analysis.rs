@@ -21,7 +21,11 @@ fn params_file(dir: &TempDir, study: &Value) -> String {
 
 fn cli_json(args: &[&str]) -> Value {
     let out = controller(args);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     serde_json::from_slice(&out.stdout).unwrap()
 }
 
@@ -29,7 +33,10 @@ fn close(a: &Value, b: &Value, what: &str) {
     match (a, b) {
         (Value::Number(x), Value::Number(y)) => {
             let (x, y) = (x.as_f64().unwrap(), y.as_f64().unwrap());
-            assert!((x - y).abs() <= 1e-9 * x.abs().max(1.0), "{what}: {x} vs {y}");
+            assert!(
+                (x - y).abs() <= 1e-9 * x.abs().max(1.0),
+                "{what}: {x} vs {y}"
+            );
         }
         (Value::Array(x), Value::Array(y)) => {
             assert_eq!(x.len(), y.len(), "{what}: lengths");
@@ -75,7 +82,12 @@ fn a_studys_frequency_and_robustness_reports_match_the_cli_and_refuse_bad_input(
     assert_eq!(comps.len(), names.len());
     for (c, k) in comps.iter().zip(cli["compensators"].as_array().unwrap()) {
         let name = c["name"].as_str().unwrap();
-        for key in ["closed_loop_on", "closed_loop_off", "compensator", "nyquist"] {
+        for key in [
+            "closed_loop_on",
+            "closed_loop_off",
+            "compensator",
+            "nyquist",
+        ] {
             close(&c[key], &k[key], &format!("{name}.{key}"));
         }
         assert_eq!(c["poles"], k["poles"], "{name}: pole tables");
@@ -92,8 +104,21 @@ fn a_studys_frequency_and_robustness_reports_match_the_cli_and_refuse_bad_input(
     assert_eq!(code, 200, "{rob}");
     let kbf = study["params"]["k_bf"].to_string();
     let cli = cli_json(&[
-        "robustness", "pid-notch", "--params", &file, "--grid", "6", "--draws", "40",
-        "--kh-range", "-40,30", "--freq-range", "-10,15", "--kbf", &kbf, "--json",
+        "robustness",
+        "pid-notch",
+        "--params",
+        &file,
+        "--grid",
+        "6",
+        "--draws",
+        "40",
+        "--kh-range",
+        "-40,30",
+        "--freq-range",
+        "-10,15",
+        "--kbf",
+        &kbf,
+        "--json",
     ]);
     close(&rob, &cli[0], "robustness");
     assert_eq!(rob["kh_scales"][0], 0.6);
@@ -101,7 +126,10 @@ fn a_studys_frequency_and_robustness_reports_match_the_cli_and_refuse_bad_input(
 
     // Bad input: 422 naming the field and what is allowed.
     let base = format!("/api/studies/{id}/workbench");
-    let e = error_of(&api, &format!("{base}/robustness?design=pid&kh_lo=10&kh_hi=-10"));
+    let e = error_of(
+        &api,
+        &format!("{base}/robustness?design=pid&kh_lo=10&kh_hi=-10"),
+    );
     assert!(e.contains("kh_range"), "{e}");
     let e = error_of(&api, &format!("{base}/robustness?design=pid&freq_lo=-95"));
     assert!(e.contains("freq_range") && e.contains("-90"), "{e}");
@@ -155,7 +183,10 @@ fn the_workbench_draws_bode_nyquist_and_the_robustness_map_with_their_verdicts()
         "return document.querySelectorAll('#wb-robust-design option').length > 0",
         json!([]),
     );
-    dash.exec("document.querySelector('#sec-workbench').scrollIntoView()", json!([]));
+    dash.exec(
+        "document.querySelector('#sec-workbench').scrollIntoView()",
+        json!([]),
+    );
     dash.click("#wb-frequency");
     let (_, report) = api.get(&format!("/api/studies/{id}/workbench/frequency"));
     let designs = report["compensators"].as_array().unwrap().len();
@@ -170,14 +201,24 @@ fn the_workbench_draws_bode_nyquist_and_the_robustness_map_with_their_verdicts()
     for c in report["compensators"].as_array().unwrap() {
         let name = c["name"].as_str().unwrap();
         let row = dash.text(&format!("#wb-verdicts tr[data-design='{name}']"));
-        let want = if c["nyquist"]["stable"] == true { "stable" } else { "unstable" };
-        assert!(row.contains(want) && (want == "unstable" || !row.contains("unstable")), "{name}: {row}");
+        let want = if c["nyquist"]["stable"] == true {
+            "stable"
+        } else {
+            "unstable"
+        };
+        assert!(
+            row.contains(want) && (want == "unstable" || !row.contains("unstable")),
+            "{name}: {row}"
+        );
     }
     let inked = "const c = document.querySelector(arguments[0]); const d = c.getContext('2d') \
         .getImageData(0, 0, c.width, c.height).data; let n = 0; \
         for (let i = 0; i < d.length; i += 4) if (d[i] < 200 && d[i + 2] > 120) n++; return n;";
     let blue = dash.exec(inked, json!(["#wb-nyquist canvas"]));
-    assert!(blue.as_u64().unwrap() > 100, "the first Nyquist curve is drawn: {blue}");
+    assert!(
+        blue.as_u64().unwrap() > 100,
+        "the first Nyquist curve is drawn: {blue}"
+    );
     assert!(dash.exists("#wb-poles details[data-design='lqr']"));
 
     // The robustness map of one design at a small grid.
@@ -202,9 +243,15 @@ fn the_workbench_draws_bode_nyquist_and_the_robustness_map_with_their_verdicts()
         .getContext('2d').getImageData(0, 0, c.width, c.height).data; let n = 0; \
         for (let i = 0; i < d.length; i += 4) if (d[i + 1] > d[i] + 20) n++; return n;";
     let green = dash.exec(colored, json!([]));
-    assert!(green.as_u64().unwrap() > 1000, "the map has stable cells: {green}");
+    assert!(
+        green.as_u64().unwrap() > 1000,
+        "the map has stable cells: {green}"
+    );
     // A bad range is refused with the field named on the page.
-    dash.exec("document.querySelector('#wb-kh-lo').value = '80';", json!([]));
+    dash.exec(
+        "document.querySelector('#wb-kh-lo').value = '80';",
+        json!([]),
+    );
     dash.click("#wb-robust-form button[type=submit]");
     dash.wait_until(
         "return (document.querySelector('#wb-robust-status').textContent || '').includes('kh_range');",

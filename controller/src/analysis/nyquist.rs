@@ -64,7 +64,7 @@ impl LoopParts {
             _ => vec![(0, 1.0)],
         };
         let compensator = match &lin.compensator {
-            CompensatorSpec::PidShaper { pid, .. } => CompensatorSpec::Pid { pid: pid.clone() },
+            CompensatorSpec::PidShaper { pid, .. } => CompensatorSpec::Pid { pid: *pid },
             other => other.clone(),
         };
         let rest = ClosedLoop::new(&LoopSetup { compensator, ..lin }, 0)?;
