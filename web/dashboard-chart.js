@@ -33,6 +33,20 @@ export function fitCanvas(c) {
   return { g, W: w / dpr, H: h / dpr };
 }
 
+/** Horizontal grid lines at nice steps over [lo, hi], labelled left of `left`; y maps a value
+ *  to its pixel row. Expects the stroke and fill colours set. */
+export function yGrid(g, { left, width, lo, hi, y, n }) {
+  const step = niceStep(hi - lo, n);
+  for (let v = Math.ceil(lo / step) * step; v <= hi + 1e-9; v += step) {
+    const yy = Math.round(y(v)) + 0.5;
+    g.beginPath();
+    g.moveTo(left, yy);
+    g.lineTo(left + width, yy);
+    g.stroke();
+    g.fillText(tickLabel(v, step), left - 5, yy);
+  }
+}
+
 export class StripChart {
   /**
    * series: [{key, color, label, dash?}]; opts: {window_s, unit, minSpan}.
@@ -99,15 +113,7 @@ export class StripChart {
     g.lineWidth = 1;
     g.textAlign = 'right';
     g.textBaseline = 'middle';
-    const ystep = niceStep(hi - lo, Math.max(2, Math.min(5, Math.floor(ph / 26))));
-    for (let v = Math.ceil(lo / ystep) * ystep; v <= hi + 1e-9; v += ystep) {
-      const yy = Math.round(y(v)) + 0.5;
-      g.beginPath();
-      g.moveTo(left, yy);
-      g.lineTo(left + pw, yy);
-      g.stroke();
-      g.fillText(tickLabel(v, ystep), left - 5, yy);
-    }
+    yGrid(g, { left, width: pw, lo, hi, y, n: Math.max(2, Math.min(5, Math.floor(ph / 26))) });
     g.textAlign = 'center';
     g.textBaseline = 'top';
     for (let t = Math.ceil(t0); t <= tEnd; t += 1) {

@@ -4,7 +4,7 @@
 // computes every number (GET /api/studies/{id}/workbench/…); this file only draws them.
 
 import { S, controllerName, el, errText, get, num, on, setStatus } from './dashboard-core.js';
-import { fitCanvas, niceStep, tickLabel } from './dashboard-chart.js';
+import { fitCanvas, niceStep, tickLabel, yGrid } from './dashboard-chart.js';
 
 const $ = (id) => document.getElementById(id);
 const COLORS = ['#1f6fb2', '#c0392b', '#2e8b57', '#8e44ad', '#d68910', '#17a2b8', '#555'];
@@ -188,15 +188,7 @@ function axes(g, { left, top, width, height, lo, hi, x0, x1, unit, log }) {
   g.lineWidth = 1;
   g.textAlign = 'right';
   g.textBaseline = 'middle';
-  const ys = niceStep(hi - lo, 4);
-  for (let v = Math.ceil(lo / ys) * ys; v <= hi + 1e-9; v += ys) {
-    const yy = Math.round(top + height - ((v - lo) / (hi - lo)) * height) + 0.5;
-    g.beginPath();
-    g.moveTo(left, yy);
-    g.lineTo(left + width, yy);
-    g.stroke();
-    g.fillText(tickLabel(v, ys), left - 4, yy);
-  }
+  yGrid(g, { left, width, lo, hi, y: (v) => top + height - ((v - lo) / (hi - lo)) * height, n: 4 });
   g.textAlign = 'center';
   g.textBaseline = 'top';
   const xs = log ? 1 : niceStep(x1 - x0, 4);

@@ -24,7 +24,7 @@ use crate::params::{MAX_KBF, Seat, check};
 use crate::state::LinearState;
 
 /// Probe size: small enough that nothing saturates (valve, stroke, PID output), large enough
-/// to stay far above rounding (as the stability analysis probes).
+/// to stay far above rounding.
 const EPS: f64 = 1e-6;
 
 /// A linear block x⁺ = Ax + Bu, y = Cx + Du, with A in Hessenberg form for fast evaluation.
@@ -113,15 +113,27 @@ impl StateSpace {
     }
 }
 
-/// Reads a block's linear map off its `step`: column i of A and C from a step of εeᵢ with no
-/// input, column j of B and D from a step of input εeⱼ from rest. `step` applies the inputs
-/// and writes the outputs (measured before or after the update, as the block defines them).
+/// Reads a block's linear map off its `step`, ready for evaluation on the unit circle.
 pub fn probe<S: LinearState>(
     block: &mut S,
     inputs: usize,
     outputs: usize,
-    mut step: impl FnMut(&mut S, &[f64], &mut [f64]),
+    step: impl FnMut(&mut S, &[f64], &mut [f64]),
 ) -> StateSpace {
+    let (a, b, c, d) = probe_matrices(block, inputs, outputs, step);
+    StateSpace::new(a, b, c, d)
+}
+
+/// (A, B, C, D) of a block read off its `step`: column i of A and C from a step of εeᵢ with
+/// no input, column j of B and D from a step of input εeⱼ from rest. `step` applies the
+/// inputs and writes the outputs (measured before or after the update, as the block defines
+/// them). The block is left at rest.
+pub fn probe_matrices<S: LinearState>(
+    block: &mut S,
+    inputs: usize,
+    outputs: usize,
+    mut step: impl FnMut(&mut S, &[f64], &mut [f64]),
+) -> (DMatrix<f64>, DMatrix<f64>, DMatrix<f64>, DMatrix<f64>) {
     let n = block.state_len();
     let (mut a, mut b) = (DMatrix::zeros(n, n), DMatrix::zeros(n, inputs));
     let (mut c, mut d) = (DMatrix::zeros(outputs, n), DMatrix::zeros(outputs, inputs));
@@ -153,7 +165,7 @@ pub fn probe<S: LinearState>(
         }
     }
     block.write_state(&vec![0.0; n]);
-    StateSpace::new(a, b, c, d)
+    (a, b, c, d)
 }
 
 /// One response on the report's frequency grid.
