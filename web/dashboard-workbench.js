@@ -43,8 +43,11 @@ async function loadFrequency() {
 function renderFrequency(rep) {
   const f = rep.freqs_hz;
   $('wb-verdicts').replaceChildren(verdictTable(rep));
+  // The LQR designs share the cylinder's inner velocity loop (one figure, the first's).
+  const inner = rep.compensators.find((c) => c.inner_loop);
+  const parts = inner ? [...rep.parts, inner.inner_loop] : rep.parts;
   $('wb-bode-parts').replaceChildren(
-    ...rep.parts.map((p) => bodeFigure(p.name, f, [{ label: p.unit, mag: p.mag_db, phase: p.phase_deg }])),
+    ...parts.map((p) => bodeFigure(p.name, f, [{ label: p.unit, mag: p.mag_db, phase: p.phase_deg }])),
   );
   const loops = (key) => rep.compensators.map((c) => ({ label: c.name, mag: c[key].mag_db, phase: c[key].phase_deg }));
   $('wb-bode-loops').replaceChildren(

@@ -189,14 +189,17 @@ fn the_workbench_draws_bode_nyquist_and_the_robustness_map_with_their_verdicts()
     );
     dash.click("#wb-frequency");
     let (_, report) = api.get(&format!("/api/studies/{id}/workbench/frequency"));
-    let designs = report["compensators"].as_array().unwrap().len();
-    // Every plot drawn: parts (3), loops (2), compensators and Nyquist curves (one each).
+    let comps = report["compensators"].as_array().unwrap();
+    // Every plot drawn: parts (3, and the LQR's inner loop), loops (2), compensators and
+    // Nyquist curves (one each).
+    let inner = comps.iter().any(|c| c["inner_loop"].is_object());
+    let plots = 5 + usize::from(inner) + 2 * comps.len();
     let drawn = dash.wait_until(
         "const n = document.querySelectorAll('#wb-analysis canvas[data-drawn]').length; \
-         return n >= 5 + 2 * arguments[0] ? n : null;",
-        json!([designs]),
+         return n >= arguments[0] ? n : null;",
+        json!([plots]),
     );
-    assert_eq!(drawn, json!(5 + 2 * designs));
+    assert_eq!(drawn, json!(plots));
     // The verdicts are the server's, and the curves are not blank.
     for c in report["compensators"].as_array().unwrap() {
         let name = c["name"].as_str().unwrap();

@@ -19,7 +19,8 @@ use super::{linear_rig, linear_setup};
 use crate::closed_loop::{ClosedLoop, Drive, LoopSetup};
 use crate::compensator::{Compensator, CompensatorSpec};
 use crate::error::DesignError;
-use crate::model::{Body, Measurement, Plant};
+use crate::linalg::zoh;
+use crate::model::{Body, Measurement, Plant, design_model, idx};
 use crate::params::{MAX_KBF, Seat, check};
 use crate::state::LinearState;
 
@@ -225,6 +226,11 @@ pub struct CompensatorFrequency {
     /// report's K_BF; the reference is K_BF·p_h) and off it.
     pub closed_loop_on: Bode,
     pub closed_loop_off: Bode,
+    /// The cylinder under the LQR's inner velocity loop: position per velocity reference, in
+    /// the design model the LQR was computed on (zero-order hold); absent for the PID family,
+    /// which has no inner loop.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inner_loop: Option<Bode>,
     /// The loop gain with the feedthrough opened, at the report's K_BF.
     pub nyquist: Nyquist,
     /// Closed-loop poles in both views, with the cause of each difference.
@@ -354,6 +360,26 @@ pub fn report(
     })
 }
 
+/// The LQR designs' cylinder under the inner velocity loop V = K_P(u − ẏ), sampled with a
+/// zero-order hold; `None` for designs without that loop.
+pub fn inner_loop_map(setup: &LoopSetup) -> Option<StateSpace> {
+    let (CompensatorSpec::Lqr { lqr }
+    | CompensatorSpec::LqrCabvel { lqr }
+    | CompensatorSpec::LqrCabacc { lqr }) = &setup.compensator
+    else {
+        return None;
+    };
+    let (a, b) = design_model(&setup.plant, lqr.inner_loop_gain);
+    let (ad, bd) = zoh(
+        &DMatrix::from_column_slice(7, 7, a.as_slice()),
+        &DMatrix::from_column_slice(7, 1, b.as_slice()),
+        setup.loop_params.dt,
+    );
+    let mut c = DMatrix::zeros(1, 7);
+    c[(0, idx::Y)] = 1.0;
+    Some(StateSpace::new(ad, bd, c, DMatrix::zeros(1, 1)))
+}
+
 /// Everything for one compensator at the setup's K_BF.
 pub fn compensator_frequency(
     setup: &LoopSetup,
@@ -389,11 +415,21 @@ pub fn compensator_frequency(
             |t| comp.response(0, 2, t),
         ));
     }
+    let inner_loop = inner_loop_map(setup).map(|m| {
+        Bode::from_response(
+            "inner velocity loop closed (design model): y per velocity reference",
+            "mm per mm/s",
+            freqs_hz,
+            dt,
+            |t| m.response(0, 0, t),
+        )
+    });
     let on = closed_loop_map(setup, Seat::On)?;
     let off = closed_loop_map(setup, Seat::Off)?;
     Ok(CompensatorFrequency {
         name: setup.compensator.kind().name().to_string(),
         compensator,
+        inner_loop,
         closed_loop_on: Bode::from_response(
             "closed loop on the machine: y per reference",
             "mm per mm",

@@ -120,6 +120,31 @@ fn the_rig_parts_are_their_continuous_transfer_functions_well_below_the_sample_r
 }
 
 #[test]
+fn the_inner_velocity_loop_is_its_design_model_transfer_function() {
+    let s = setup(CompensatorKind::LqrCabvel, 0.78);
+    let p = PlantParams::default();
+    let kk = match &s.compensator {
+        CompensatorSpec::LqrCabvel { lqr } => lqr.inner_loop_gain,
+        _ => unreachable!(),
+    };
+    let m = inner_loop_map(&s).unwrap();
+    for f in [0.05, 0.5, 3.0] {
+        let w = 2.0 * PI * f;
+        let jw = Complex::new(0.0, w);
+        let wv = p.w_vc;
+        // kk ω²/(s(s² + 2ζωs + (1 + kk)ω²)), half a sample late (the hold).
+        let want = kk * wv * wv / (jw * (jw * jw + 2.0 * p.z_vc * wv * jw + (1.0 + kk) * wv * wv))
+            * Complex::from_polar(1.0, -w * DT / 2.0);
+        let got = m.response(0, 0, w * DT);
+        assert!(
+            (got - want).norm() < 2e-3 * want.norm(),
+            "{f} Hz: {got} vs {want}"
+        );
+    }
+    assert!(inner_loop_map(&setup(CompensatorKind::Pid, 0.78)).is_none());
+}
+
+#[test]
 fn closed_loop_dc_gain_is_one_with_integral_action_and_analytic_on_a_rigid_body() {
     let p = PlantParams::default();
     for kind in [
