@@ -11,8 +11,10 @@
 use std::collections::HashMap;
 use std::sync::{Arc, LazyLock, Mutex};
 
-use bdft_controller::analysis::frequency::{self, FrequencyReport};
-use bdft_controller::analysis::robustness::{Range, RobustnessReport, RobustnessSpec, robustness};
+use bdft_controller::analysis::frequency;
+pub use bdft_controller::analysis::frequency::FrequencyReport;
+pub use bdft_controller::analysis::robustness::RobustnessReport;
+use bdft_controller::analysis::robustness::{Range, RobustnessSpec, robustness};
 use bdft_controller::error::DesignError;
 use bdft_protocol::params::{CompensatorSpec, MAX_KBF, check};
 use bdft_protocol::study::StudyParams;

@@ -4,8 +4,6 @@
 
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Path, Query, State};
-use bdft_controller::analysis::frequency::FrequencyReport;
-use bdft_controller::analysis::robustness::RobustnessReport;
 use serde::Deserialize;
 use utoipa::IntoParams;
 use utoipa_axum::router::OpenApiRouter;
@@ -13,7 +11,9 @@ use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppError, AppJson};
 use super::extract::Experimenter;
-use crate::engine::workbench_analysis::{RobustnessQuery, frequency_report, robustness_report};
+use crate::engine::workbench_analysis::{
+    FrequencyReport, RobustnessQuery, RobustnessReport, frequency_report, robustness_report,
+};
 use crate::state::AppState;
 
 pub fn routes() -> OpenApiRouter<AppState> {
