@@ -47,6 +47,20 @@ export function yGrid(g, { left, width, lo, hi, y, n }) {
   }
 }
 
+/** The plot's border and its unit written up the left edge. */
+export function frame(g, { left, top, width, height, unit }) {
+  g.strokeStyle = '#888';
+  g.strokeRect(left + 0.5, top + 0.5, width, height);
+  g.save();
+  g.translate(12, top + height / 2);
+  g.rotate(-Math.PI / 2);
+  g.textAlign = 'center';
+  g.textBaseline = 'middle';
+  g.fillStyle = '#444';
+  g.fillText(unit, 0, 0);
+  g.restore();
+}
+
 export class StripChart {
   /**
    * series: [{key, color, label, dash?}]; opts: {window_s, unit, minSpan}.
@@ -125,16 +139,7 @@ export class StripChart {
       g.stroke();
       if (t % 2 === 0) g.fillText(`${t}s`, xx, top + ph + 4);
     }
-    g.strokeStyle = '#888';
-    g.strokeRect(left + 0.5, top + 0.5, pw, ph);
-    g.save();
-    g.translate(12, top + ph / 2);
-    g.rotate(-Math.PI / 2);
-    g.textAlign = 'center';
-    g.textBaseline = 'middle';
-    g.fillStyle = '#444';
-    g.fillText(this.unit, 0, 0);
-    g.restore();
+    frame(g, { left, top, width: pw, height: ph, unit: this.unit });
 
     // The series, clipped to the plot.
     g.save();

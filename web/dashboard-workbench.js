@@ -4,7 +4,7 @@
 // computes every number (GET /api/studies/{id}/workbench/…); this file only draws them.
 
 import { S, controllerName, el, errText, get, num, on, setStatus } from './dashboard-core.js';
-import { fitCanvas, niceStep, tickLabel, yGrid } from './dashboard-chart.js';
+import { fitCanvas, frame, niceStep, tickLabel, yGrid } from './dashboard-chart.js';
 
 const $ = (id) => document.getElementById(id);
 const COLORS = ['#1f6fb2', '#c0392b', '#2e8b57', '#8e44ad', '#d68910', '#17a2b8', '#555'];
@@ -203,15 +203,7 @@ function axes(g, { left, top, width, height, lo, hi, x0, x1, unit, log }) {
     g.stroke();
     g.fillText(log ? tickLabel(10 ** v, 10 ** v) : tickLabel(v, xs), xx, top + height + 2);
   }
-  g.strokeStyle = '#888';
-  g.strokeRect(left + 0.5, top + 0.5, width, height);
-  g.save();
-  g.translate(12, top + height / 2);
-  g.rotate(-Math.PI / 2);
-  g.textAlign = 'center';
-  g.textBaseline = 'middle';
-  g.fillText(unit, 0, 0);
-  g.restore();
+  frame(g, { left, top, width, height, unit });
 }
 
 function polyline(g, color, pts, dash = []) {
