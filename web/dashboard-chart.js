@@ -4,17 +4,61 @@
 const FONT = '12px system-ui, -apple-system, "Segoe UI", Roboto, sans-serif';
 
 /** A step of 1, 2 or 5 × 10^k giving about `n` ticks over `span`. */
-function niceStep(span, n) {
+export function niceStep(span, n) {
   const raw = Math.max(span / n, Number.MIN_VALUE);
   const mag = 10 ** Math.floor(Math.log10(raw));
   const f = raw / mag;
   return mag * (f < 1.5 ? 1 : f < 3.5 ? 2 : f < 7.5 ? 5 : 10);
 }
 
-function tickLabel(v, step) {
+export function tickLabel(v, step) {
   if (Math.abs(v) >= 1e5) return v.toExponential(1).replace('e+', 'e');
   const digits = step >= 1 ? 0 : Math.min(3, Math.ceil(-Math.log10(step)));
   return v.toFixed(digits);
+}
+
+/** Sizes a canvas to its laid-out box at the device's pixel ratio; returns its context, with
+ *  the font set, and its size in CSS pixels. */
+export function fitCanvas(c) {
+  const dpr = window.devicePixelRatio || 1;
+  const w = Math.max(50, Math.round(c.clientWidth * dpr));
+  const h = Math.max(40, Math.round(c.clientHeight * dpr));
+  if (c.width !== w || c.height !== h) {
+    c.width = w;
+    c.height = h;
+  }
+  const g = c.getContext('2d');
+  g.setTransform(dpr, 0, 0, dpr, 0, 0);
+  g.font = FONT;
+  return { g, W: w / dpr, H: h / dpr };
+}
+
+/** Horizontal grid lines at nice steps over [lo, hi], labelled left of `left`; y maps a value
+ *  to its pixel row. Expects the stroke and fill colours set. */
+export function yGrid(g, { left, width, lo, hi, y, n }) {
+  const step = niceStep(hi - lo, n);
+  for (let v = Math.ceil(lo / step) * step; v <= hi + 1e-9; v += step) {
+    const yy = Math.round(y(v)) + 0.5;
+    g.beginPath();
+    g.moveTo(left, yy);
+    g.lineTo(left + width, yy);
+    g.stroke();
+    g.fillText(tickLabel(v, step), left - 5, yy);
+  }
+}
+
+/** The plot's border and its unit written up the left edge. */
+export function frame(g, { left, top, width, height, unit }) {
+  g.strokeStyle = '#888';
+  g.strokeRect(left + 0.5, top + 0.5, width, height);
+  g.save();
+  g.translate(12, top + height / 2);
+  g.rotate(-Math.PI / 2);
+  g.textAlign = 'center';
+  g.textBaseline = 'middle';
+  g.fillStyle = '#444';
+  g.fillText(unit, 0, 0);
+  g.restore();
 }
 
 export class StripChart {
@@ -31,18 +75,7 @@ export class StripChart {
 
   /** Draws `samples` (sorted by t) over [tEnd − window, tEnd]; `range` = [lo, hi] or null (auto). */
   draw(samples, tEnd, range, note) {
-    const c = this.canvas;
-    const dpr = window.devicePixelRatio || 1;
-    const w = Math.max(50, Math.round(c.clientWidth * dpr));
-    const h = Math.max(40, Math.round(c.clientHeight * dpr));
-    if (c.width !== w || c.height !== h) {
-      c.width = w;
-      c.height = h;
-    }
-    const g = c.getContext('2d');
-    g.setTransform(dpr, 0, 0, dpr, 0, 0);
-    const W = w / dpr;
-    const H = h / dpr;
+    const { g, W, H } = fitCanvas(this.canvas);
     const left = 58;
     const right = 16;
     const top = 8;
@@ -94,15 +127,7 @@ export class StripChart {
     g.lineWidth = 1;
     g.textAlign = 'right';
     g.textBaseline = 'middle';
-    const ystep = niceStep(hi - lo, Math.max(2, Math.min(5, Math.floor(ph / 26))));
-    for (let v = Math.ceil(lo / ystep) * ystep; v <= hi + 1e-9; v += ystep) {
-      const yy = Math.round(y(v)) + 0.5;
-      g.beginPath();
-      g.moveTo(left, yy);
-      g.lineTo(left + pw, yy);
-      g.stroke();
-      g.fillText(tickLabel(v, ystep), left - 5, yy);
-    }
+    yGrid(g, { left, width: pw, lo, hi, y, n: Math.max(2, Math.min(5, Math.floor(ph / 26))) });
     g.textAlign = 'center';
     g.textBaseline = 'top';
     for (let t = Math.ceil(t0); t <= tEnd; t += 1) {
@@ -114,16 +139,7 @@ export class StripChart {
       g.stroke();
       if (t % 2 === 0) g.fillText(`${t}s`, xx, top + ph + 4);
     }
-    g.strokeStyle = '#888';
-    g.strokeRect(left + 0.5, top + 0.5, pw, ph);
-    g.save();
-    g.translate(12, top + ph / 2);
-    g.rotate(-Math.PI / 2);
-    g.textAlign = 'center';
-    g.textBaseline = 'middle';
-    g.fillStyle = '#444';
-    g.fillText(this.unit, 0, 0);
-    g.restore();
+    frame(g, { left, top, width: pw, height: ph, unit: this.unit });
 
     // The series, clipped to the plot.
     g.save();

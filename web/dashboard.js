@@ -8,6 +8,7 @@ import * as subjects from './dashboard-subjects.js';
 import * as stations from './dashboard-stations.js';
 import * as monitor from './dashboard-monitor.js';
 import * as results from './dashboard-results.js';
+import * as workbench from './dashboard-workbench.js';
 import * as audit from './dashboard-audit.js';
 import * as pilot from './dashboard-pilot.js';
 import * as plan from './dashboard-plan.js';
@@ -48,6 +49,7 @@ async function showApp(me) {
     stations.init();
     monitor.init();
     results.init();
+    workbench.init();
     audit.init();
     pilot.init();
     plan.init();

@@ -11,6 +11,7 @@ use std::time::Duration;
 
 use bdft_controller::analysis::AnalysisReport;
 use bdft_controller::analysis::design_view::{Model, compare};
+use bdft_controller::analysis::frequency;
 use bdft_controller::analysis::robustness::{Range, RobustnessSpec, robustness};
 use bdft_controller::compensator::CompensatorKind;
 use bdft_controller::compensator::variants::variant;
@@ -57,9 +58,9 @@ enum Command {
     /// and the Monte-Carlo pass rate at the study's K_BF with K_H, both structure
     /// frequencies and dampings and the valve parameters drawn within the ranges.
     Robustness {
-        /// Designs: compensator names, optionally with an option after a colon
-        /// (pid-shaper:zvd, pid-shaper:ei, pid-shaper:two-hump-ei, …-per-mode,
-        /// lqr:kalman, …).
+        /// Designs: compensator names (the --params file's design of it), optionally with an
+        /// option after a colon (pid-shaper:zvd, pid-shaper:ei, pid-shaper:two-hump-ei,
+        /// …-per-mode, lqr:kalman, …: that variant of the default design).
         #[arg(required = true)]
         designs: Vec<String>,
         /// JSON file of parameters (as printed by `defaults`); its plant is the nominal one
@@ -88,6 +89,25 @@ enum Command {
         seed: u64,
         /// The study's K_BF: a draw passes if the loop is stable there.
         #[arg(long, default_value_t = 0.78, value_parser = parse_kbf)]
+        kbf: f64,
+        /// Print JSON instead of a summary.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Frequency domain of the sampled loop as it runs: Bode data of the rig's parts, the
+    /// body, each compensator and each closed loop (on and off the machine); the Nyquist
+    /// curve with the feedthrough loop opened (encirclements of −1, verdict, largest stable
+    /// K_BF); the closed-loop pole table in both views.
+    Frequency {
+        /// JSON file of parameters (as printed by `defaults`).
+        #[arg(long)]
+        params: Option<PathBuf>,
+        /// A design to report (repeatable; names as for `robustness`) [default: the six
+        /// compensators].
+        #[arg(long = "compensator")]
+        compensators: Vec<String>,
+        /// K_BF at which the loops are closed and the Nyquist curve is drawn.
+        #[arg(long, default_value_t = NOMINAL_KBF, value_parser = parse_kbf)]
         kbf: f64,
         /// Print JSON instead of a summary.
         #[arg(long)]
@@ -220,6 +240,19 @@ fn parse_duration(s: &str) -> Result<f64, String> {
             "{v} is out of range: the duration must be in (0, 3600] seconds"
         ))
     }
+}
+
+/// The design a workbench name stands for: a compensator's name is the parameter file's
+/// design of it (its default when the file lists none), a name with an option that variant
+/// of the default design.
+fn design(
+    params: &ParamSet,
+    name: &str,
+) -> anyhow::Result<bdft_controller::compensator::CompensatorSpec> {
+    Ok(match name.parse::<CompensatorKind>() {
+        Ok(kind) => params.compensator(kind),
+        Err(_) => variant(name, &params.plant, params.dt)?,
+    })
 }
 
 fn load_params(path: Option<&PathBuf>) -> anyhow::Result<ParamSet> {
@@ -378,7 +411,7 @@ fn execute(command: Command) -> anyhow::Result<()> {
                 .iter()
                 .map(|name| {
                     let mut setup = params.setup(CompensatorKind::Pid, Seat::On, kbf);
-                    setup.compensator = variant(name, &params.plant, params.dt)?;
+                    setup.compensator = design(&params, name)?;
                     robustness(name, &setup, &spec).with_context(|| format!("analysing {name}"))
                 })
                 .collect::<anyhow::Result<Vec<_>>>()?;
@@ -402,6 +435,59 @@ fn execute(command: Command) -> anyhow::Result<()> {
                         .pass_rate
                         .map_or_else(|| "—".into(), |p| format!("{:.1} %", 100.0 * p));
                     writeln!(out, "{:<26} {lo:>14.4} {hi:>14.4} {rate:>10}", r.design)?;
+                }
+            }
+        }
+        Command::Frequency {
+            params,
+            compensators,
+            kbf,
+            json,
+        } => {
+            let params = load_params(params.as_ref())?;
+            let names = if compensators.is_empty() {
+                CompensatorKind::ALL
+                    .iter()
+                    .map(|k| k.name().to_string())
+                    .collect()
+            } else {
+                compensators
+            };
+            let designs = names
+                .into_iter()
+                .map(|name| -> anyhow::Result<_> {
+                    let spec = design(&params, &name)?;
+                    Ok((name, spec))
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            let base = params.setup(CompensatorKind::Pid, Seat::On, kbf);
+            let r = frequency::report(&base, &designs)?;
+            if json {
+                serde_json::to_writer(&mut out, &r)?;
+                writeln!(out)?;
+            } else {
+                writeln!(
+                    out,
+                    "K_BF {kbf}: the feedthrough loop opened (Nyquist), {} frequencies {:.2}–{:.0} Hz",
+                    r.freqs_hz.len(),
+                    r.freqs_hz[0],
+                    r.freqs_hz[r.freqs_hz.len() - 1]
+                )?;
+                writeln!(
+                    out,
+                    "{:<26} {:>8} {:>14} {:>12} {:>14}",
+                    "design", "stable", "encirclements", "open-loop P", "max K_BF"
+                )?;
+                for c in &r.compensators {
+                    let n = &c.nyquist;
+                    let max = n
+                        .max_stable_kbf
+                        .map_or_else(|| format!("> {MAX_KBF}"), |k| format!("{k:.4}"));
+                    writeln!(
+                        out,
+                        "{:<26} {:>8} {:>14} {:>12} {max:>14}",
+                        c.name, n.stable, n.encirclements, n.open_loop_unstable
+                    )?;
                 }
             }
         }

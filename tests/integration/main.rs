@@ -16,3 +16,4 @@ mod statistics;
 mod study_params;
 mod subject_page;
 mod validity;
+mod workbench_analysis;

@@ -17,9 +17,10 @@ use crate::closed_loop::{ClosedLoop, Drive, LoopSetup};
 use crate::error::DesignError;
 use crate::linalg::{eigenvalues, spectral_radius};
 use crate::params::{MAX_KBF, Seat, check};
-use crate::state::LinearState;
 
 pub mod design_view;
+pub mod frequency;
+pub mod nyquist;
 pub mod robustness;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -199,25 +200,12 @@ pub fn linear_rig(mut rig: crate::params::PlantParams) -> crate::params::PlantPa
     rig
 }
 
-/// Column i of the map is tick(εeᵢ)/ε with no input; ε is small enough that nothing
-/// saturates (valve, stroke) and large enough to stay far above rounding.
+/// The one-tick map at `k_bf` with no input ([`frequency::probe_matrices`]).
 fn probe(lp: &mut ClosedLoop, k_bf: f64) -> DMatrix<f64> {
-    const EPS: f64 = 1e-6;
     lp.set_k_bf(k_bf);
-    let n = lp.state_len();
-    let mut a = DMatrix::zeros(n, n);
-    let mut x = vec![0.0; n];
-    let mut next = vec![0.0; n];
-    for i in 0..n {
-        x.fill(0.0);
-        x[i] = EPS;
-        lp.write_state(&x);
+    let (a, ..) = frequency::probe_matrices(lp, 0, 0, |lp, _, _| {
         lp.tick(Drive::Hand(0.0));
-        lp.read_state(&mut next);
-        for (r, v) in next.iter().enumerate() {
-            a[(r, i)] = v / EPS;
-        }
-    }
+    });
     lp.reset();
     a
 }
@@ -240,7 +228,13 @@ pub fn analyze_loop(
         name: setup.compensator.kind().name().to_string(),
         stable: rho < 1.0 - 1e-12,
         spectral_radius: rho,
-        max_stable_kbf: lin.max_stable_kbf()?,
+        // The shaper's loop from its frequency response (the FIR split off, `nyquist`): the
+        // same first loss of stability without ~100 eigenvalue problems of ~210 states.
+        max_stable_kbf: if lin.has_delays {
+            nyquist::OpenLoop::new(setup)?.max_stable_up_to(MAX_KBF)
+        } else {
+            lin.max_stable_kbf()?
+        },
         poles: if lin.has_delays {
             Vec::new()
         } else {

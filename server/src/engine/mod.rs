@@ -36,6 +36,7 @@ pub mod synthetic;
 pub mod trials;
 pub mod validity;
 pub mod williams;
+pub mod workbench_analysis;
 
 use crate::error::{AppError, Result};
 

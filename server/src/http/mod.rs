@@ -23,6 +23,7 @@ mod stations;
 mod studies;
 mod subjects;
 mod trials;
+mod workbench;
 
 use std::sync::Arc;
 
@@ -72,6 +73,7 @@ pub fn app(state: AppState) -> Router {
         .merge(controller::experimenter())
         .merge(pilot::routes())
         .merge(results::routes())
+        .merge(workbench::routes())
         .merge(live::experimenter())
         .route_layer(middleware::from_fn_with_state(
             state.clone(),

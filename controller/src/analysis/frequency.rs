@@ -1,0 +1,453 @@
+//! Frequency responses of the sampled blocks as they run: each part (valve/cylinder,
+//! structure, body), each compensator and each closed loop, as Bode data over a log grid.
+//!
+//! A block's state-space map is read off its own `step` by probing each state and each input
+//! ([`probe`], the same reading the stability analysis does on `ClosedLoop::tick`), so the
+//! plots are of the code that runs: the plant's zero-order hold, the Tustin filters, the
+//! shaper's delays. Its response is then evaluated on the unit circle, G(e^{jωT}) =
+//! C(zI − A)⁻¹B + D, after one Hessenberg reduction of A, so each frequency costs O(n²)
+//! even for the shaper's ~210-state delay line.
+
+use std::f64::consts::PI;
+
+use nalgebra::{Complex, DMatrix};
+use serde::{Deserialize, Serialize};
+
+use super::design_view::{ModelComparison, compare};
+use super::nyquist::{Nyquist, OpenLoop};
+use super::{linear_rig, linear_setup};
+use crate::closed_loop::{ClosedLoop, Drive, LoopSetup};
+use crate::compensator::{Compensator, CompensatorSpec};
+use crate::error::DesignError;
+use crate::linalg::zoh;
+use crate::model::{Body, Measurement, Plant, design_model, idx};
+use crate::params::{MAX_KBF, Seat, check};
+use crate::state::LinearState;
+
+/// Probe size: small enough that nothing saturates (valve, stroke, PID output), large enough
+/// to stay far above rounding.
+const EPS: f64 = 1e-6;
+
+/// A linear block x⁺ = Ax + Bu, y = Cx + Du, with A in Hessenberg form for fast evaluation.
+#[derive(Debug, Clone)]
+pub struct StateSpace {
+    a: DMatrix<f64>,
+    /// Upper Hessenberg H = QᵀAQ, with B and C carried into its basis.
+    h: DMatrix<f64>,
+    qb: DMatrix<f64>,
+    cq: DMatrix<f64>,
+    d: DMatrix<f64>,
+}
+
+impl StateSpace {
+    pub fn new(a: DMatrix<f64>, b: DMatrix<f64>, c: DMatrix<f64>, d: DMatrix<f64>) -> Self {
+        let (q, h) = if a.nrows() == 0 {
+            (a.clone(), a.clone())
+        } else {
+            a.clone().hessenberg().unpack()
+        };
+        Self {
+            qb: q.transpose() * b,
+            cq: c * q,
+            h,
+            a,
+            d,
+        }
+    }
+
+    /// The one-step state matrix.
+    pub fn a(&self) -> &DMatrix<f64> {
+        &self.a
+    }
+
+    /// Response from input `input` to output `output` at z = e^{jθ} (θ = ωT).
+    pub fn response(&self, output: usize, input: usize, theta: f64) -> Complex<f64> {
+        let n = self.h.nrows();
+        let d = Complex::new(self.d[(output, input)], 0.0);
+        if n == 0 {
+            return d;
+        }
+        let z = Complex::from_polar(1.0, theta);
+        // (zI − H)x = QᵀB by Gaussian elimination with partial pivoting between neighbouring
+        // rows: H has one subdiagonal, so each step touches two rows (O(n²) in all).
+        let mut m: Vec<Complex<f64>> = self
+            .h
+            .transpose()
+            .iter()
+            .map(|&v| -v)
+            .map(Complex::from)
+            .collect();
+        for i in 0..n {
+            m[i * n + i] += z;
+        }
+        let mut x: Vec<Complex<f64>> = (0..n).map(|i| Complex::from(self.qb[(i, input)])).collect();
+        for k in 0..n - 1 {
+            if m[(k + 1) * n + k].norm_sqr() > m[k * n + k].norm_sqr() {
+                for j in k..n {
+                    m.swap(k * n + j, (k + 1) * n + j);
+                }
+                x.swap(k, k + 1);
+            }
+            let pivot = m[k * n + k];
+            if pivot == Complex::from(0.0) {
+                continue;
+            }
+            let l = m[(k + 1) * n + k] / pivot;
+            for j in k..n {
+                let v = m[k * n + j];
+                m[(k + 1) * n + j] -= l * v;
+            }
+            let v = x[k];
+            x[k + 1] -= l * v;
+        }
+        for k in (0..n).rev() {
+            let mut s = x[k];
+            for j in k + 1..n {
+                s -= m[k * n + j] * x[j];
+            }
+            x[k] = s / m[k * n + k];
+        }
+        (0..n)
+            .map(|i| x[i] * self.cq[(output, i)])
+            .sum::<Complex<f64>>()
+            + d
+    }
+}
+
+/// Reads a block's linear map off its `step`, ready for evaluation on the unit circle.
+pub fn probe<S: LinearState>(
+    block: &mut S,
+    inputs: usize,
+    outputs: usize,
+    step: impl FnMut(&mut S, &[f64], &mut [f64]),
+) -> StateSpace {
+    let (a, b, c, d) = probe_matrices(block, inputs, outputs, step);
+    StateSpace::new(a, b, c, d)
+}
+
+/// (A, B, C, D) of a block read off its `step`: column i of A and C from a step of εeᵢ with
+/// no input, column j of B and D from a step of input εeⱼ from rest. `step` applies the
+/// inputs and writes the outputs (measured before or after the update, as the block defines
+/// them). The block is left at rest.
+pub fn probe_matrices<S: LinearState>(
+    block: &mut S,
+    inputs: usize,
+    outputs: usize,
+    mut step: impl FnMut(&mut S, &[f64], &mut [f64]),
+) -> (DMatrix<f64>, DMatrix<f64>, DMatrix<f64>, DMatrix<f64>) {
+    let n = block.state_len();
+    let (mut a, mut b) = (DMatrix::zeros(n, n), DMatrix::zeros(n, inputs));
+    let (mut c, mut d) = (DMatrix::zeros(outputs, n), DMatrix::zeros(outputs, inputs));
+    let mut x = vec![0.0; n];
+    let mut next = vec![0.0; n];
+    let mut u = vec![0.0; inputs];
+    let mut y = vec![0.0; outputs];
+    for col in 0..n + inputs {
+        x.fill(0.0);
+        u.fill(0.0);
+        if col < n {
+            x[col] = EPS;
+        } else {
+            u[col - n] = EPS;
+        }
+        block.write_state(&x);
+        step(block, &u, &mut y);
+        block.read_state(&mut next);
+        let (m, o, j) = if col < n {
+            (&mut a, &mut c, col)
+        } else {
+            (&mut b, &mut d, col - n)
+        };
+        for (r, v) in next.iter().enumerate() {
+            m[(r, j)] = v / EPS;
+        }
+        for (r, v) in y.iter().enumerate() {
+            o[(r, j)] = v / EPS;
+        }
+    }
+    block.write_state(&vec![0.0; n]);
+    (a, b, c, d)
+}
+
+/// One response on the report's frequency grid.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Bode {
+    /// What responds to what, e.g. "cylinder position y per valve command V".
+    pub name: String,
+    /// Unit of the gain (output unit / input unit).
+    pub unit: String,
+    pub mag_db: Vec<f64>,
+    /// Unwrapped along the grid, starting in (−180, 180].
+    pub phase_deg: Vec<f64>,
+}
+
+impl Bode {
+    pub fn from_response(
+        name: &str,
+        unit: &str,
+        freqs_hz: &[f64],
+        dt: f64,
+        g: impl Fn(f64) -> Complex<f64>,
+    ) -> Self {
+        let mut mag_db = Vec::with_capacity(freqs_hz.len());
+        let mut phase_deg: Vec<f64> = Vec::with_capacity(freqs_hz.len());
+        for &f in freqs_hz {
+            let r = g(2.0 * PI * f * dt);
+            mag_db.push(20.0 * r.norm().log10());
+            let mut p = r.arg().to_degrees();
+            if let Some(&prev) = phase_deg.last() {
+                p += 360.0 * ((prev - p) / 360.0).round();
+            }
+            phase_deg.push(p);
+        }
+        Self {
+            name: name.into(),
+            unit: unit.into(),
+            mag_db,
+            phase_deg,
+        }
+    }
+}
+
+/// The log frequency grid of the plots: `n` points from `lo_hz` to `hi_hz`.
+pub fn log_grid(lo_hz: f64, hi_hz: f64, n: usize) -> Vec<f64> {
+    (0..n)
+        .map(|i| lo_hz * (hi_hz / lo_hz).powf(i as f64 / (n.max(2) - 1) as f64))
+        .collect()
+}
+
+/// Frequency-domain views of one compensator.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CompensatorFrequency {
+    pub name: String,
+    /// The compensator alone: valve command per reference and per each measurement it uses.
+    pub compensator: Vec<Bode>,
+    /// Cylinder position per cylinder reference, on the machine (feedthrough closed at the
+    /// report's K_BF; the reference is K_BF·p_h) and off it.
+    pub closed_loop_on: Bode,
+    pub closed_loop_off: Bode,
+    /// The cylinder under the LQR's inner velocity loop: position per velocity reference, in
+    /// the design model the LQR was computed on (zero-order hold); absent for the PID family,
+    /// which has no inner loop.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inner_loop: Option<Bode>,
+    /// The loop gain with the feedthrough opened, at the report's K_BF.
+    pub nyquist: Nyquist,
+    /// Closed-loop poles in both views, with the cause of each difference.
+    pub poles: ModelComparison,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FrequencyReport {
+    pub kbf: f64,
+    pub dt: f64,
+    pub freqs_hz: Vec<f64>,
+    /// The rig and the body: valve/cylinder, structure, body.
+    pub parts: Vec<Bode>,
+    pub compensators: Vec<CompensatorFrequency>,
+}
+
+/// Grid of the report: 0.05 Hz to just below the Nyquist frequency.
+pub fn report_grid(dt: f64) -> Vec<f64> {
+    log_grid(0.05, 0.45 / dt, 240)
+}
+
+/// The rig's and the body's responses for `setup` (its plant and body; noise and dead-band
+/// off, as the analysis linearizes).
+pub fn parts(setup: &LoopSetup, freqs_hz: &[f64]) -> Result<Vec<Bode>, DesignError> {
+    let dt = setup.loop_params.dt;
+    let mut plant = Plant::new(linear_rig(setup.plant), dt, 0)?;
+    // Outputs are the measurements at the start of the tick, as the loop reads them.
+    let rig = probe(&mut plant, 1, 2, |p, u, y| {
+        let m = p.measure();
+        p.step(u[0]);
+        y[0] = m.y;
+        y[1] = m.cab_accel;
+    });
+    let mut body = Body::new(setup.body, dt);
+    let body = probe(&mut body, 1, 1, |b, u, y| y[0] = b.step(u[0]));
+    Ok(vec![
+        Bode::from_response(
+            "valve/cylinder: cylinder position y per valve command V",
+            "mm per unit V",
+            freqs_hz,
+            dt,
+            |t| rig.response(0, 0, t),
+        ),
+        Bode::from_response(
+            "structure: cab acceleration per cylinder position",
+            "mm/s² per mm",
+            freqs_hz,
+            dt,
+            |t| rig.response(1, 0, t) / rig.response(0, 0, t),
+        ),
+        Bode::from_response(
+            &format!("body ({}): hand per cab displacement", body_kind(setup)),
+            "mm per mm",
+            freqs_hz,
+            dt,
+            |t| body.response(0, 0, t),
+        ),
+    ])
+}
+
+/// The body model's name as parameters spell it (`rigid-mass`, `seated`, …).
+fn body_kind(setup: &LoopSetup) -> String {
+    serde_json::to_value(setup.body)
+        .ok()
+        .and_then(|v| v["kind"].as_str().map(String::from))
+        .unwrap_or_default()
+}
+
+/// The compensator's map from [reference, y, cab acceleration] to the valve command.
+pub fn compensator_map(setup: &LoopSetup) -> Result<StateSpace, DesignError> {
+    let mut c = Compensator::build(&setup.compensator, &setup.plant, setup.loop_params.dt)?;
+    Ok(probe(&mut c, 3, 1, |c, u, v| {
+        v[0] = c.step(
+            u[0],
+            Measurement {
+                y: u[1],
+                cab_accel: u[2],
+            },
+        );
+    }))
+}
+
+/// Cylinder position per cylinder reference of the closed loop at `seat`: on the machine the
+/// operator's device drives it (reference K_BF·p_h, feedthrough closed), off it the
+/// reference drives it directly.
+pub fn closed_loop_map(setup: &LoopSetup, seat: Seat) -> Result<StateSpace, DesignError> {
+    let mut s = linear_setup(setup);
+    s.station = seat;
+    let k_bf = s.loop_params.k_bf;
+    let mut lp = ClosedLoop::new(&s, 0)?;
+    Ok(probe(&mut lp, 1, 1, |lp, u, y| {
+        let drive = if seat == Seat::On && k_bf > 0.0 {
+            Drive::Hand(u[0] / k_bf)
+        } else {
+            Drive::Reference(u[0])
+        };
+        y[0] = lp.tick(drive).y;
+    }))
+}
+
+/// The whole report: the parts of `base` (its plant and body, at its loop period and K_BF)
+/// and each named design on them.
+pub fn report(
+    base: &LoopSetup,
+    designs: &[(String, CompensatorSpec)],
+) -> Result<FrequencyReport, DesignError> {
+    let freqs_hz = report_grid(base.loop_params.dt);
+    let compensators = designs
+        .iter()
+        .map(|(name, spec)| {
+            let setup = LoopSetup {
+                compensator: spec.clone(),
+                ..base.clone()
+            };
+            Ok(CompensatorFrequency {
+                name: name.clone(),
+                ..compensator_frequency(&setup, &freqs_hz)?
+            })
+        })
+        .collect::<Result<Vec<_>, DesignError>>()?;
+    Ok(FrequencyReport {
+        kbf: base.loop_params.k_bf,
+        dt: base.loop_params.dt,
+        parts: parts(base, &freqs_hz)?,
+        freqs_hz,
+        compensators,
+    })
+}
+
+/// The LQR designs' cylinder under the inner velocity loop V = K_P(u − ẏ), sampled with a
+/// zero-order hold; `None` for designs without that loop.
+pub fn inner_loop_map(setup: &LoopSetup) -> Option<StateSpace> {
+    let (CompensatorSpec::Lqr { lqr }
+    | CompensatorSpec::LqrCabvel { lqr }
+    | CompensatorSpec::LqrCabacc { lqr }) = &setup.compensator
+    else {
+        return None;
+    };
+    let (a, b) = design_model(&setup.plant, lqr.inner_loop_gain);
+    let (ad, bd) = zoh(
+        &DMatrix::from_column_slice(7, 7, a.as_slice()),
+        &DMatrix::from_column_slice(7, 1, b.as_slice()),
+        setup.loop_params.dt,
+    );
+    let mut c = DMatrix::zeros(1, 7);
+    c[(0, idx::Y)] = 1.0;
+    Some(StateSpace::new(ad, bd, c, DMatrix::zeros(1, 1)))
+}
+
+/// Everything for one compensator at the setup's K_BF.
+pub fn compensator_frequency(
+    setup: &LoopSetup,
+    freqs_hz: &[f64],
+) -> Result<CompensatorFrequency, DesignError> {
+    let k_bf = setup.loop_params.k_bf;
+    check("kbf", k_bf, 0.0, MAX_KBF)?;
+    let dt = setup.loop_params.dt;
+    let comp = compensator_map(setup)?;
+    // The PID family reads only y; the LQR observers read the accelerometer too.
+    let uses_cab = matches!(
+        Compensator::build(&setup.compensator, &setup.plant, dt)?,
+        Compensator::Lqr(_)
+    );
+    let mut compensator = vec![
+        Bode::from_response("valve command per reference", "per mm", freqs_hz, dt, |t| {
+            comp.response(0, 0, t)
+        }),
+        Bode::from_response(
+            "valve command per cylinder position y",
+            "per mm",
+            freqs_hz,
+            dt,
+            |t| comp.response(0, 1, t),
+        ),
+    ];
+    if uses_cab {
+        compensator.push(Bode::from_response(
+            "valve command per cab acceleration",
+            "per mm/s²",
+            freqs_hz,
+            dt,
+            |t| comp.response(0, 2, t),
+        ));
+    }
+    let inner_loop = inner_loop_map(setup).map(|m| {
+        Bode::from_response(
+            "inner velocity loop closed (design model): y per velocity reference",
+            "mm per mm/s",
+            freqs_hz,
+            dt,
+            |t| m.response(0, 0, t),
+        )
+    });
+    let on = closed_loop_map(setup, Seat::On)?;
+    let off = closed_loop_map(setup, Seat::Off)?;
+    Ok(CompensatorFrequency {
+        name: setup.compensator.kind().name().to_string(),
+        compensator,
+        inner_loop,
+        closed_loop_on: Bode::from_response(
+            "closed loop on the machine: y per reference",
+            "mm per mm",
+            freqs_hz,
+            dt,
+            |t| on.response(0, 0, t),
+        ),
+        closed_loop_off: Bode::from_response(
+            "closed loop off the machine: y per reference",
+            "mm per mm",
+            freqs_hz,
+            dt,
+            |t| off.response(0, 0, t),
+        ),
+        nyquist: OpenLoop::new(setup)?.nyquist(k_bf)?,
+        poles: compare(setup)?,
+    })
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,71 @@
+//! The workbench's analysis of a study's designs: frequency responses, Nyquist views and pole
+//! tables, and robustness maps. Read-only (GET), so analysts may use them; the numbers behind
+//! every plot are the JSON answered here, the dashboard draws them.
+
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{Path, Query, State};
+use serde::Deserialize;
+use utoipa::IntoParams;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::error::{ApiResult, AppError, AppJson};
+use super::extract::Experimenter;
+use crate::engine::workbench_analysis::{
+    FrequencyReport, RobustnessQuery, RobustnessReport, frequency_report, robustness_report,
+};
+use crate::state::AppState;
+
+pub fn routes() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(frequency))
+        .routes(routes!(robustness))
+}
+
+/// A query string that does not parse is the user's mistake: 422 naming the field.
+fn query<T>(q: Result<Query<T>, QueryRejection>) -> Result<T, AppError> {
+    q.map(|Query(q)| q)
+        .map_err(|r| AppError::BadRequest(r.body_text()))
+}
+
+#[derive(Debug, Deserialize, IntoParams)]
+struct FrequencyQuery {
+    /// K_BF at which the loops are closed and the Nyquist curve drawn, 0–20 [default: the
+    /// study's].
+    kbf: Option<f64>,
+}
+
+/// Bode data of the rig's parts, the body, each compensator and each closed loop (on and off
+/// the machine); the Nyquist curve of each design with the feedthrough loop opened
+/// (encirclements of −1, verdict, largest stable K_BF); the closed-loop poles in the design
+/// and implemented views with the cause of each difference. As `bdft-controller frequency
+/// --json` prints it.
+#[utoipa::path(get, path = "/api/studies/{id}/workbench/frequency", tag = "workbench",
+    params(("id" = i64, Path), FrequencyQuery),
+    responses((status = 200, body = Object, description = "the frequency report (bdft-controller frequency --json)")))]
+async fn frequency(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+    q: Result<Query<FrequencyQuery>, QueryRejection>,
+) -> ApiResult<FrequencyReport> {
+    let q = query(q)?;
+    let r = frequency_report(&s.pool, id, q.kbf).await?;
+    Ok(AppJson(FrequencyReport::clone(&r)))
+}
+
+/// The largest stable K_BF of one design over a K_H × structure-frequency map, and the
+/// Monte-Carlo pass rate at K_BF with K_H, both structure frequencies and dampings and the
+/// valve parameters drawn within the ranges (as `bdft-controller robustness … --json`).
+#[utoipa::path(get, path = "/api/studies/{id}/workbench/robustness", tag = "workbench",
+    params(("id" = i64, Path), RobustnessQuery),
+    responses((status = 200, body = Object, description = "the robustness report (bdft-controller robustness --json, one design)")))]
+async fn robustness(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+    q: Result<Query<RobustnessQuery>, QueryRejection>,
+) -> ApiResult<RobustnessReport> {
+    let q = query(q)?;
+    Ok(AppJson(robustness_report(&s.pool, id, q).await?))
+}
