@@ -11,6 +11,8 @@ import * as results from './dashboard-results.js';
 import * as audit from './dashboard-audit.js';
 import * as pilot from './dashboard-pilot.js';
 import * as accounts from './dashboard-accounts.js';
+import * as configs from './dashboard-configs.js';
+import * as bench from './dashboard-bench.js';
 
 const $ = (id) => document.getElementById(id);
 
@@ -50,6 +52,8 @@ async function showApp(me) {
     audit.init();
     pilot.init();
     accounts.init();
+    bench.init();
+    configs.init();
   }
   accounts.applyRole(me.role);
   // The page shows once the study list and the form are filled, so that nothing typed

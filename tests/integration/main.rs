@@ -6,6 +6,7 @@ mod controller_cli;
 mod controller_link_auth;
 mod controller_serve;
 mod exports_audit;
+mod workbench_bench;
 mod hardening;
 mod server_api;
 mod server_layers;

@@ -83,7 +83,7 @@ fn num(v: Option<f64>) -> String {
     v.map(|x| x.to_string()).unwrap_or_default()
 }
 
-pub const TRIAL_COLUMNS: [&str; 42] = [
+pub const TRIAL_COLUMNS: [&str; 43] = [
     "study_id",
     "trial_id",
     "subject_code",
@@ -128,6 +128,8 @@ pub const TRIAL_COLUMNS: [&str; 42] = [
     "controller_overruns",
     "controller_wake_p99_us",
     "accepted_reason",
+    // The configuration version the trial ran (empty: a design not from a version).
+    "config_version",
 ];
 
 /// The validity cells of a trial row, in `TRIAL_COLUMNS` order: empty where a figure is
@@ -242,6 +244,9 @@ async fn trials(
         w.write_all(cells.join(",").as_bytes()).await?;
         w.write_all(b",").await?;
         w.write_all(validity.join(",").as_bytes()).await?;
+        w.write_all(b",").await?;
+        w.write_all(text_cell(r.config_version.as_deref().unwrap_or("")).as_bytes())
+            .await?;
         w.write_all(b"\n").await?;
     }
     Ok(())

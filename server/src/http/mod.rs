@@ -12,6 +12,8 @@ pub mod error;
 pub mod extract;
 
 mod accounts;
+mod bench;
+mod configs;
 mod controller;
 mod live;
 mod pages;
@@ -71,6 +73,8 @@ pub fn app(state: AppState) -> Router {
         .merge(trials::routes())
         .merge(controller::experimenter())
         .merge(pilot::routes())
+        .merge(bench::routes())
+        .merge(configs::routes())
         .merge(results::routes())
         .merge(live::experimenter())
         .route_layer(middleware::from_fn_with_state(

@@ -51,13 +51,16 @@ pub struct TrialExportRow {
     pub client_timing_json: Option<String>,
     pub timing_json: Option<String>,
     pub accepted_reason: Option<String>,
+    /// The configuration version the trial ran, as "name vN" (none: not from a version).
+    pub config_version: Option<String>,
 }
 
 const TRIALS_SQL: &str = "SELECT s.study_id, t.id AS trial_id, s.code, s.enrol_index, s.synthetic, s.starting_station, t.station, t.block, t.position, t.slot, t.attempt, \
      t.controller, t.blinded_label, t.practice, t.status, t.status_reason, t.target_seed, t.target_mean_mm, t.target_std_mm, t.k_bf, t.duration_s, \
      t.mse_tracking_mm2, t.ms_cab_accel, v.accuracy, v.speed, v.smoothness, v.controllability, v.comment, t.protocol_hash, t.started_at, t.finished_at, s.consent_version, \
-     t.client_timing_json, t.timing_json, t.accepted_reason \
+     t.client_timing_json, t.timing_json, t.accepted_reason, c.name || ' v' || c.version AS config_version \
      FROM trials t JOIN subjects s ON s.id = t.subject_id LEFT JOIN surveys v ON v.trial_id = t.id \
+     LEFT JOIN compensator_configs c ON c.id = t.config_id \
      WHERE s.study_id = ? AND s.withdrawn_at IS NULL ORDER BY s.enrol_index, t.slot, t.attempt";
 
 /// Every attempt of every test of the study's subjects who have not withdrawn.
