@@ -17,6 +17,8 @@ const DESIGNS = [
 const COLORS = ['#1f77b4', '#d62728', '#2ca02c', '#9467bd', '#ff7f0e', '#8c564b', '#e377c2', '#17becf'];
 
 let timer = null;
+/** A run started here is being followed: its end shows it. */
+let following = false;
 
 export function init() {
   $('bench-designs').append(
@@ -66,6 +68,7 @@ async function start() {
     $('bench-run').disabled = false;
     return;
   }
+  following = true;
   check();
 }
 
@@ -87,11 +90,8 @@ async function check() {
   }
   bar.hidden = true;
   $('bench-run').disabled = false;
-  if (s.run_id && timer !== null) {
-    timer = null;
-    await loadRuns();
-  }
-  if (s.run_id && $('bench-status').classList.contains('busy')) {
+  if (following) {
+    following = false;
     setStatus($('bench-status'), 'ok', `Bench run #${s.run_id} finished.`);
     await loadRuns();
   }

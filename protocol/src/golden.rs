@@ -197,7 +197,12 @@ fn start_trial_validation_names_the_bad_field() {
         },
         ..st
     };
-    assert!(st.validate().unwrap_err().to_string().contains("samples_mm"));
+    assert!(
+        st.validate()
+            .unwrap_err()
+            .to_string()
+            .contains("samples_mm")
+    );
     let st = StartTrial {
         target: TargetSpec::Sampled {
             sample_rate_hz: 100.0,
@@ -205,7 +210,12 @@ fn start_trial_validation_names_the_bad_field() {
         },
         ..st
     };
-    assert!(st.validate().unwrap_err().to_string().contains("samples_mm"));
+    assert!(
+        st.validate()
+            .unwrap_err()
+            .to_string()
+            .contains("samples_mm")
+    );
 }
 
 #[test]

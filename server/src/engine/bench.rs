@@ -214,9 +214,8 @@ async fn resolve(
             (Some(name), None) => Resolved {
                 label: name.clone(),
                 config_id: None,
-                spec: variants::variant(name, plant, DT).map_err(|e| {
-                    AppError::BadRequest(format!("compensators[{i}].design: {e}"))
-                })?,
+                spec: variants::variant(name, plant, DT)
+                    .map_err(|e| AppError::BadRequest(format!("compensators[{i}].design: {e}")))?,
             },
             (None, Some(id)) => {
                 let v = store::configs::get(pool, id).await.map_err(|e| match e {
@@ -406,7 +405,11 @@ pub async fn fail_interrupted(pool: &SqlitePool) -> Result<()> {
     let n = store::bench::fail_unfinished(change.db(), "server restart").await?;
     if n > 0 {
         change
-            .commit("bench.fail", None, json!({ "runs": n, "error": "server restart" }))
+            .commit(
+                "bench.fail",
+                None,
+                json!({ "runs": n, "error": "server restart" }),
+            )
             .await?;
     }
     Ok(())
@@ -599,7 +602,10 @@ pub async fn view(pool: &SqlitePool, run_id: i64) -> Result<RunView> {
         .iter()
         .map(|r| {
             serde_json::from_str(&r.trace_json).map_err(|e| {
-                AppError::Internal(anyhow::anyhow!("stored trace of bench result {}: {e}", r.id))
+                AppError::Internal(anyhow::anyhow!(
+                    "stored trace of bench result {}: {e}",
+                    r.id
+                ))
             })
         })
         .collect::<Result<_>>()?;

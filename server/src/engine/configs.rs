@@ -46,12 +46,7 @@ pub async fn create(
 
 /// Puts each of `config_ids` in place of the study's design of the same kind (a new study
 /// version, audited as `study.configs`); refused for a locked study.
-pub async fn pick(
-    pool: &SqlitePool,
-    actor: &str,
-    study_id: i64,
-    config_ids: &[i64],
-) -> Result<()> {
+pub async fn pick(pool: &SqlitePool, actor: &str, study_id: i64, config_ids: &[i64]) -> Result<()> {
     if config_ids.is_empty() || config_ids.len() > MAX_PICKS {
         return Err(AppError::BadRequest(format!(
             "config_ids: 1 to {MAX_PICKS} configuration versions"

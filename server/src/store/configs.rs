@@ -102,12 +102,14 @@ pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<ConfigVersi
 
 /// The versions `study_id` picked, as (kind name, configuration id).
 pub async fn picked<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<Vec<(String, i64)>> {
-    Ok(sqlx::query_as(
-        "SELECT kind, config_id FROM study_configs WHERE study_id = ? ORDER BY kind",
+    Ok(
+        sqlx::query_as(
+            "SELECT kind, config_id FROM study_configs WHERE study_id = ? ORDER BY kind",
+        )
+        .bind(study_id)
+        .fetch_all(db)
+        .await?,
     )
-    .bind(study_id)
-    .fetch_all(db)
-    .await?)
 }
 
 /// `study_id` takes `config_id` for its design of the version's kind (replacing an earlier
