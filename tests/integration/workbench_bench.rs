@@ -240,7 +240,8 @@ fn bench_requests_are_validated_and_a_real_rig_without_a_rig_is_refused() {
 }
 
 #[test]
-fn a_bench_run_on_the_real_rig_runs_in_real_time_and_a_silent_rig_faults_cleanly() {
+fn a_bench_run_on_the_real_rig_runs_in_real_time_stops_at_the_estop_and_a_silent_rig_faults_cleanly()
+ {
     let mut rig = Proc::rig_sim();
     let rig_arg = format!("--controller-arg={}", rig.addr);
     let server = Server::start_with(
@@ -271,16 +272,16 @@ fn a_bench_run_on_the_real_rig_runs_in_real_time_and_a_silent_rig_faults_cleanly
     )["id"]
         .as_i64()
         .unwrap();
-    let run = |api: &Api| {
+    let run = |api: &Api, duration_s: f64| {
         bench(
             api,
             json!({ "study_id": study, "compensators": [{ "design": "pid" }],
-                    "signal": { "kind": "trapezoid" }, "duration_s": 1.0 }),
+                    "signal": { "kind": "trapezoid" }, "duration_s": duration_s }),
         )
     };
     // Through the controller link as a trial on the rig: every tick of the second, in real
     // time, its result back to the bench (no study trial is made of it).
-    let v = run(&api);
+    let v = run(&api, 1.0);
     assert_eq!(v["run"]["rig"], "real");
     assert_eq!(v["run"]["status"], "done", "{}", v["run"]);
     assert_eq!(
@@ -290,9 +291,35 @@ fn a_bench_run_on_the_real_rig_runs_in_real_time_and_a_silent_rig_faults_cleanly
     );
     assert_eq!(v["results"][0]["ticks"], 1000);
     assert_eq!(v["traces"][0]["target_mm"].as_array().unwrap().len(), 100);
-    // The rig goes silent: the run's trial faults on the controller and the run says so.
+    // The E-stop stops a run on the machine: its trial faults at once (or, pressed before the
+    // trial reached the controller, nothing more starts), long before its 60 s.
+    let started = api.ok(
+        "/api/bench",
+        json!({ "study_id": study, "compensators": [{ "design": "pid" }, { "design": "pid-notch" }],
+                "signal": { "kind": "trapezoid" }, "duration_s": 60.0 }),
+    )["run_id"]
+        .as_i64()
+        .unwrap();
+    eventually(Duration::from_secs(30), || {
+        (api.get("/api/bench").1["running"] == true).then_some(())
+    });
+    let (code, body) = api.post("/api/estop", json!({}));
+    assert_eq!(code, 200, "{body}");
+    let v = eventually(Duration::from_secs(30), || {
+        let (_, v) = api.get(&format!("/api/bench/runs/{started}"));
+        (v["run"]["status"] != "running").then_some(v)
+    });
+    assert_eq!(v["run"]["status"], "failed", "{v}");
+    for r in v["results"].as_array().unwrap() {
+        assert!(r["outcome"].as_str().unwrap().starts_with("faulted"), "{r}");
+        assert!(r["ticks"].as_u64().unwrap() < 60_000, "{r}");
+    }
+    api.ok("/api/estop/reset", json!({}));
+
+    // The rig goes silent: the run's trial (longer than the rig timeout) faults on the
+    // controller and the run says so.
     rig.kill();
-    let v = run(&api);
+    let v = run(&api, 3.0);
     assert_ne!(v["run"]["status"], "running");
     let outcome = v["results"][0]["outcome"]
         .as_str()
@@ -440,6 +467,9 @@ fn a_bench_run_from_the_dashboard_shows_its_plots_and_table() {
         json!([]),
     );
     assert_eq!(lines, json!([3, 2]));
-    s.exec("document.querySelector('#bench-table').scrollIntoView();", json!([]));
+    s.exec(
+        "document.querySelector('#bench-table').scrollIntoView();",
+        json!([]),
+    );
     s.screenshot(&artifacts_dir().join("wb-bench.png"));
 }
