@@ -5,7 +5,6 @@
 // acceleration (SVG, drawn here from the stored 100 Hz traces).
 
 import { S, act, el, errText, get, num, on, post, setStatus, when } from './dashboard-core.js';
-import { versions } from './dashboard-configs.js';
 
 const $ = (id) => document.getElementById(id);
 

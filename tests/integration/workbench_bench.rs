@@ -440,6 +440,28 @@ fn a_bench_run_from_the_dashboard_shows_its_plots_and_table() {
     s.type_into("#login-password", ADMIN_PASSWORD);
     s.click("#login-submit");
     s.find("#wb-bench");
+    // A configuration version made on the page from the published notch design.
+    s.wait_until(
+        "return [...document.querySelectorAll('#config-base option')].some(o => o.textContent.startsWith('pid-notch'));",
+        json!([]),
+    );
+    s.exec(
+        "const e = document.querySelector('#config-base'); e.value = [...e.options].find(o => o.textContent.startsWith('pid-notch')).value;",
+        json!([]),
+    );
+    s.click("#config-load");
+    s.type_into("#config-name", "pid-notch page");
+    s.click("#config-save");
+    s.wait_until(
+        "return document.querySelectorAll('#config-table tr[data-config-id]').length === 1 && document.querySelectorAll('#bench-configs input').length === 1;",
+        json!([]),
+    );
+    assert!(
+        s.text("#config-table").contains("pid-notch page"),
+        "{}",
+        s.text("#config-table")
+    );
+    s.click("#bench-configs input");
     for d in ["pid", "pid-notch"] {
         s.click(&format!("#bench-designs input[value='{d}']"));
     }
@@ -453,12 +475,12 @@ fn a_bench_run_from_the_dashboard_shows_its_plots_and_table() {
     );
     s.click("#bench-run");
     s.wait_until(
-        "return document.querySelectorAll('#bench-table tbody tr').length === 2;",
+        "return document.querySelectorAll('#bench-table tbody tr').length === 3;",
         json!([]),
     );
     let table = s.text("#bench-table");
     assert!(
-        table.contains("pid-notch") && table.contains("%"),
+        table.contains("pid-notch") && table.contains("pid-notch page v1") && table.contains("%"),
         "{table}"
     );
     // Two overlaid plots, each with a line per compensator (and the reference in tracking).
@@ -466,7 +488,7 @@ fn a_bench_run_from_the_dashboard_shows_its_plots_and_table() {
         "return [...document.querySelectorAll('#bench-plots svg')].map(g => g.querySelectorAll('polyline').length);",
         json!([]),
     );
-    assert_eq!(lines, json!([3, 2]));
+    assert_eq!(lines, json!([4, 3]));
     s.exec(
         "document.querySelector('#bench-table').scrollIntoView();",
         json!([]),
