@@ -34,17 +34,20 @@ CREATE TABLE study_configs (
 -- The version each trial ran: NULL for a design not from a configuration.
 ALTER TABLE trials ADD COLUMN config_id INTEGER REFERENCES compensator_configs(id);
 
--- Filled as the trial is scheduled (enrolment, redo), only when the trial's design is the
--- picked version's design to the byte: a study edited by hand after picking keeps no stale
--- version.
+-- Filled as the trial is scheduled (enrolment, redo) from the picks of the subject's study,
+-- or of the study a dry run copies, only when the trial's design is the picked version's
+-- design to the byte: a study edited by hand after picking (or a copy made before it) keeps
+-- no stale version.
 CREATE TRIGGER trials_config_version AFTER INSERT ON trials
 WHEN NEW.config_id IS NULL
 BEGIN
     UPDATE trials SET config_id = (
-        SELECT c.id FROM study_configs sc
+        SELECT c.id FROM subjects s
+        JOIN study_configs sc ON sc.study_id = s.study_id
+            OR sc.study_id = (SELECT d.of_study FROM dry_runs d WHERE d.study_id = s.study_id)
         JOIN compensator_configs c ON c.id = sc.config_id
-        JOIN subjects s ON s.study_id = sc.study_id
         WHERE s.id = NEW.subject_id AND sc.kind = NEW.controller AND c.spec_json = NEW.compensator_json
+        LIMIT 1
     ) WHERE id = NEW.id;
 END;
 

@@ -4,7 +4,7 @@
 use std::time::Duration;
 
 use bdft_tests::controller_link::Proc;
-use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, eventually};
+use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, dry_run, eventually};
 use bdft_tests::webdriver::{Driver, artifacts_dir};
 use bdft_tests::{TempDir, controller};
 use serde_json::{Value, json};
@@ -389,27 +389,35 @@ fn configuration_versions_are_immutable_picked_by_a_study_and_recorded_on_its_tr
             .contains(&edited)
     );
 
-    // Its trials record the version they run (only the notch's), exported in the trials CSV.
-    api.ok(&format!("/api/studies/{study}/subjects"), json!({}));
-    let (code, csv) = api.get_text(&format!("/api/studies/{study}/export/trials"));
-    assert_eq!(code, 200);
-    let mut lines = csv.lines();
-    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
-    let (ci, vi) = (
-        header.iter().position(|h| *h == "controller").unwrap(),
-        header.iter().position(|h| *h == "config_version").unwrap(),
+    // Its trials record the version they run (only the notch's), exported in the trials CSV;
+    // so do those of its dry-run copy (a pilot's).
+    let copy = dry_run(&api, study);
+    api.ok(
+        &format!("/api/studies/{copy}/subjects"),
+        json!({ "synthetic": true }),
     );
-    let mut notch_rows = 0;
-    for l in lines {
-        let cells: Vec<&str> = l.split(',').collect();
-        if cells[ci] == "pid-notch" {
-            notch_rows += 1;
-            assert_eq!(cells[vi], "notch tuned v2");
-        } else {
-            assert_eq!(cells[vi], "", "{l}");
+    api.ok(&format!("/api/studies/{study}/subjects"), json!({}));
+    for s in [study, copy] {
+        let (code, csv) = api.get_text(&format!("/api/studies/{s}/export/trials"));
+        assert_eq!(code, 200);
+        let mut lines = csv.lines();
+        let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+        let (ci, vi) = (
+            header.iter().position(|h| *h == "controller").unwrap(),
+            header.iter().position(|h| *h == "config_version").unwrap(),
+        );
+        let mut notch_rows = 0;
+        for l in lines {
+            let cells: Vec<&str> = l.split(',').collect();
+            if cells[ci] == "pid-notch" {
+                notch_rows += 1;
+                assert_eq!(cells[vi], "notch tuned v2");
+            } else {
+                assert_eq!(cells[vi], "", "{l}");
+            }
         }
+        assert!(notch_rows > 0);
     }
-    assert!(notch_rows > 0);
 
     // Locked now: the versions cannot switch.
     let (code, body) = api.call(
