@@ -18,6 +18,18 @@ fn bench(api: &Api, body: Value) -> Value {
     })
 }
 
+/// A study of the published parameters on the real rig.
+fn real_rig_study(api: &Api) -> i64 {
+    let (_, mut params) = api.get("/api/defaults");
+    params["rig"] = json!("real");
+    api.ok(
+        "/api/studies",
+        json!({ "name": "machine", "params": params }),
+    )["id"]
+        .as_i64()
+        .unwrap()
+}
+
 /// `bdft-controller simulate … --json` as another tool calls it.
 fn simulate(compensator: &str, signal: &str, duration: &str) -> Value {
     let out = controller(&[
@@ -214,14 +226,7 @@ fn bench_requests_are_validated_and_a_real_rig_without_a_rig_is_refused() {
     assert_eq!(code, 422);
 
     // A study on the real rig, with the server's own simulating controller: refused, named.
-    let (_, mut params) = api.get("/api/defaults");
-    params["rig"] = json!("real");
-    let study = api.ok(
-        "/api/studies",
-        json!({ "name": "machine", "params": params }),
-    )["id"]
-        .as_i64()
-        .unwrap();
+    let study = real_rig_study(&api);
     let (code, body) = api.post(
         "/api/bench",
         json!({ "study_id": study, "compensators": [{ "design": "pid" }], "signal": { "kind": "trapezoid" } }),
@@ -264,14 +269,7 @@ fn a_bench_run_on_the_real_rig_runs_in_real_time_stops_at_the_estop_and_a_silent
         let (_, c) = api.get("/api/controller");
         (c["connected"] == true && c["rig"] == "udp").then_some(())
     });
-    let (_, mut params) = api.get("/api/defaults");
-    params["rig"] = json!("real");
-    let study = api.ok(
-        "/api/studies",
-        json!({ "name": "machine", "params": params }),
-    )["id"]
-        .as_i64()
-        .unwrap();
+    let study = real_rig_study(&api);
     let run = |api: &Api, duration_s: f64| {
         bench(
             api,
