@@ -13,6 +13,8 @@ import * as audit from './dashboard-audit.js';
 import * as pilot from './dashboard-pilot.js';
 import * as plan from './dashboard-plan.js';
 import * as accounts from './dashboard-accounts.js';
+import * as configs from './dashboard-configs.js';
+import * as bench from './dashboard-bench.js';
 
 const $ = (id) => document.getElementById(id);
 
@@ -54,6 +56,8 @@ async function showApp(me) {
     pilot.init();
     plan.init();
     accounts.init();
+    bench.init();
+    configs.init();
   }
   accounts.applyRole(me.role);
   // The page shows once the study list and the form are filled, so that nothing typed

@@ -254,6 +254,26 @@ fn matched_mixture(raw: Vec<f64>, ratio: f64, rng: &mut Rng) -> Option<Vec<f64>>
     Some(mix(lo))
 }
 
+/// An uploaded reference: samples at a fixed rate, linearly interpolated, the last held.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SampledReference {
+    pub sample_rate_hz: f64,
+    pub samples_mm: Vec<f64>,
+}
+
+impl SampledReference {
+    pub fn at(&self, t: f64) -> f64 {
+        let x = (t * self.sample_rate_hz).max(0.0);
+        let last = self.samples_mm.len() - 1;
+        let i = x.floor() as usize;
+        if i >= last {
+            return self.samples_mm[last];
+        }
+        let f = x - i as f64;
+        self.samples_mm[i] + f * (self.samples_mm[i + 1] - self.samples_mm[i])
+    }
+}
+
 /// Population mean and standard deviation.
 pub fn mean_std(xs: &[f64]) -> (f64, f64) {
     let n = xs.len() as f64;
@@ -272,6 +292,7 @@ pub enum Signal {
         interval_s: f64,
         levels_mm: Vec<f64>,
     },
+    Sampled(SampledReference),
 }
 
 impl Signal {
@@ -286,6 +307,7 @@ impl Signal {
                 let i = ((t / interval_s).max(0.0) as usize).min(levels_mm.len() - 1);
                 levels_mm[i]
             }
+            Self::Sampled(s) => s.at(t),
         }
     }
 
@@ -315,6 +337,13 @@ impl Signal {
             } => Self::Trapezoid(Trapezoid {
                 amplitude_mm: *amplitude_mm,
                 period_s: *period_s,
+            }),
+            TargetSpec::Sampled {
+                sample_rate_hz,
+                samples_mm,
+            } => Self::Sampled(SampledReference {
+                sample_rate_hz: *sample_rate_hz,
+                samples_mm: samples_mm.clone(),
             }),
         }
     }
@@ -452,6 +481,20 @@ mod tests {
             1.0 / (2.0 * spacing)
         );
         assert!((0..3000).all(|k| s.at(k as f64 * 0.01).abs() <= 5.0));
+    }
+
+    #[test]
+    fn a_sampled_reference_interpolates_between_samples_and_holds_the_last() {
+        let s = SampledReference {
+            sample_rate_hz: 10.0,
+            samples_mm: vec![0.0, 2.0, -4.0],
+        };
+        assert_eq!(s.at(0.0), 0.0);
+        assert!((s.at(0.05) - 1.0).abs() < 1e-12);
+        assert!((s.at(0.15) + 1.0).abs() < 1e-12);
+        assert_eq!(s.at(0.2), -4.0);
+        assert_eq!(s.at(99.0), -4.0);
+        assert_eq!(s.at(-1.0), 0.0);
     }
 
     #[test]

@@ -182,6 +182,26 @@ fn start_trial_validation_names_the_bad_field() {
         ..st
     };
     assert!(st.validate().unwrap_err().to_string().contains("levels_mm"));
+    let sampled = TargetSpec::Sampled {
+        sample_rate_hz: 100.0,
+        samples_mm: vec![0.0, 1.5],
+    };
+    assert_golden(
+        &sampled,
+        r#"{"kind":"sampled","sample_rate_hz":100.0,"samples_mm":[0.0,1.5]}"#,
+    );
+    // A sample out of range, and too few samples.
+    for samples_mm in [vec![0.0, f64::INFINITY], vec![0.0]] {
+        let st = StartTrial {
+            target: TargetSpec::Sampled {
+                sample_rate_hz: 100.0,
+                samples_mm,
+            },
+            ..st.clone()
+        };
+        let err = st.validate().unwrap_err().to_string();
+        assert!(err.contains("samples_mm"), "{err}");
+    }
 }
 
 #[test]

@@ -26,12 +26,21 @@ pub enum TargetSpec {
     },
     /// Smoothed trapezoid (bench test).
     Trapezoid { amplitude_mm: f64, period_s: f64 },
+    /// An uploaded reference (bench test): `samples_mm[i]` at i / sample_rate_hz, linear in
+    /// between, the last sample held after the end.
+    Sampled {
+        sample_rate_hz: f64,
+        samples_mm: Vec<f64>,
+    },
 }
 
 /// Longest trial the controller accepts (s); bounds the memory a record preallocates.
 pub const MAX_TRIAL_S: f64 = 1800.0;
 /// Most step levels a target may carry.
 pub const MAX_LEVELS: usize = 100_000;
+/// Most samples an uploaded reference may carry (200 s at 1 kHz): bounds the upload and the
+/// message that carries it.
+pub const MAX_SAMPLES: usize = 200_000;
 
 impl TargetSpec {
     pub fn validate(&self) -> Result<(), ParamError> {
@@ -70,6 +79,25 @@ impl TargetSpec {
             } => {
                 check("target.amplitude_mm", *amplitude_mm, 0.0, 500.0)?;
                 check("target.period_s", *period_s, 0.1, 600.0)
+            }
+            Self::Sampled {
+                sample_rate_hz,
+                samples_mm,
+            } => {
+                check("target.sample_rate_hz", *sample_rate_hz, 1.0, 10_000.0)?;
+                if !(2..=MAX_SAMPLES).contains(&samples_mm.len()) {
+                    return Err(ParamError::Invalid {
+                        name: "target.samples_mm",
+                        message: format!(
+                            "{} samples given; allowed: 2 to {MAX_SAMPLES}",
+                            samples_mm.len()
+                        ),
+                    });
+                }
+                for &x in samples_mm {
+                    check("target.samples_mm", x, -1000.0, 1000.0)?;
+                }
+                Ok(())
             }
         }
     }
@@ -244,3 +272,8 @@ pub const RECORD_CHANNELS: [RecordColumn; 9] = [
         decimals: 1,
     },
 ];
+
+/// Where the record channel called `name` is in `RECORD_CHANNELS`.
+pub fn record_channel(name: &str) -> Option<usize> {
+    RECORD_CHANNELS.iter().position(|c| c.name == name)
+}

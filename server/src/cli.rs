@@ -276,6 +276,7 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     if !interrupted.is_empty() {
         tracing::warn!(trials = ?interrupted, "trials that were running when the server stopped are marked incomplete");
     }
+    crate::engine::bench::fail_interrupted(&pool).await?;
     // A pilot process killed while it ran leaves its trials running: they are filed as soon
     // as its heartbeat stops, not at the next restart.
     tokio::spawn(filing::watch_pilots(pool.clone()));

@@ -5,6 +5,7 @@ use std::sync::Arc;
 
 use sqlx::SqlitePool;
 
+use crate::engine::bench::BenchJob;
 use crate::engine::controller_link::ControllerLink;
 use crate::engine::login_limiter::LoginLimiter;
 use crate::engine::pilot::PilotJob;
@@ -23,6 +24,8 @@ pub struct AppState {
     pub sockets: Arc<StationSockets>,
     pub pilot: Arc<PilotJob>,
     pub plan: Arc<PlanJob>,
+    /// The one bench run at a time.
+    pub bench: Arc<BenchJob>,
     pub stability: Arc<StabilityCache>,
     /// Serve the pages from this directory instead of the embedded copy (development).
     pub web_dir: Option<std::path::PathBuf>,
@@ -38,6 +41,7 @@ impl AppState {
             sockets: Arc::default(),
             pilot: Arc::default(),
             plan: Arc::default(),
+            bench: Arc::default(),
             stability: Arc::default(),
             web_dir: None,
         }

@@ -17,3 +17,4 @@ mod study_params;
 mod subject_page;
 mod validity;
 mod workbench_analysis;
+mod workbench_bench;

@@ -6,6 +6,8 @@
 //! *Invariant:* nothing here imports axum; `http` calls in, never the reverse.
 
 pub mod accounts;
+pub mod bench;
+pub mod configs;
 pub mod controller_link;
 pub mod dry_run;
 pub mod enrolment;

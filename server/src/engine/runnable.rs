@@ -62,7 +62,7 @@ fn check_targets(params: &StudyParams) -> Result<()> {
 
 /// Builds the loop the controller builds for a trial of `spec` (plant, body and compensator
 /// designed at the loop's sample period): a design that has no solution fails here.
-fn check_design(params: &StudyParams, spec: &CompensatorSpec) -> Result<()> {
+pub(super) fn check_design(params: &StudyParams, spec: &CompensatorSpec) -> Result<()> {
     ClosedLoop::new(&super::stability::study_loop(params, spec), 0)
         .map(|_| ())
         .map_err(|e| {

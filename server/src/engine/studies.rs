@@ -44,7 +44,7 @@ pub async fn create(
 }
 
 /// `runnable::check` off the async threads (it designs every compensator and draws targets).
-async fn check_runnable(params: &StudyParams) -> Result<()> {
+pub(super) async fn check_runnable(params: &StudyParams) -> Result<()> {
     let params = params.clone();
     tokio::task::spawn_blocking(move || super::runnable::check(&params))
         .await

@@ -79,9 +79,7 @@ pub async fn answer_survey(
         return Ok(());
     }
     let channel = |name: &str| {
-        bdft_protocol::trial::RECORD_CHANNELS
-            .iter()
-            .position(|c| c.name == name)
+        bdft_protocol::trial::record_channel(name)
             .and_then(|i| record.channels.get(i))
             .map_or(&[][..], Vec::as_slice)
     };

@@ -12,6 +12,8 @@ pub mod error;
 pub mod extract;
 
 mod accounts;
+mod bench;
+mod configs;
 mod controller;
 mod live;
 mod pages;
@@ -72,6 +74,8 @@ pub fn app(state: AppState) -> Router {
         .merge(trials::routes())
         .merge(controller::experimenter())
         .merge(pilot::routes())
+        .merge(bench::routes())
+        .merge(configs::routes())
         .merge(results::routes())
         .merge(workbench::routes())
         .merge(live::experimenter())

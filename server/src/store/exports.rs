@@ -53,14 +53,18 @@ pub struct TrialExportRow {
     pub accepted_reason: Option<String>,
     /// This row is the latest attempt of its test (subject and slot).
     pub latest: bool,
+    /// The configuration version the trial ran, as "name vN" (none: not from a version).
+    pub config_version: Option<String>,
 }
 
 const TRIALS_SQL: &str = "SELECT s.study_id, t.id AS trial_id, s.code, s.enrol_index, s.synthetic, s.starting_station, t.station, t.block, t.position, t.slot, t.attempt, \
      t.controller, t.blinded_label, t.practice, t.status, t.status_reason, t.target_seed, t.target_mean_mm, t.target_std_mm, t.k_bf, t.duration_s, \
      t.mse_tracking_mm2, t.ms_cab_accel, v.accuracy, v.speed, v.smoothness, v.controllability, v.comment, t.protocol_hash, t.started_at, t.finished_at, s.consent_version, \
      t.client_timing_json, t.timing_json, t.accepted_reason, \
-     NOT EXISTS (SELECT 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.slot = t.slot AND u.attempt > t.attempt) AS latest \
+     NOT EXISTS (SELECT 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.slot = t.slot AND u.attempt > t.attempt) AS latest, \
+     c.name || ' v' || c.version AS config_version \
      FROM trials t JOIN subjects s ON s.id = t.subject_id LEFT JOIN surveys v ON v.trial_id = t.id \
+     LEFT JOIN compensator_configs c ON c.id = t.config_id \
      WHERE s.study_id = ?1 AND (?2 OR s.withdrawn_at IS NULL) ORDER BY s.enrol_index, t.slot, t.attempt";
 
 /// Whose tests a query reads.

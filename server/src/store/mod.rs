@@ -7,6 +7,8 @@
 
 pub mod accounts;
 pub mod audit;
+pub mod bench;
+pub mod configs;
 pub mod db;
 pub mod dry_runs;
 pub mod exports;

@@ -15,7 +15,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use bdft_protocol::controller_to_server::LiveSample;
+use bdft_protocol::controller_to_server::{LiveSample, TrialResult};
 use bdft_protocol::framing;
 use bdft_protocol::link_auth::LinkKey;
 use bdft_protocol::server_to_controller::{ServerToController, StartTrial};
@@ -24,6 +24,7 @@ use sqlx::SqlitePool;
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
 use super::filing;
+use crate::store::records::Record;
 use session::frame;
 
 /// Where the controller comes from.
@@ -72,6 +73,8 @@ struct Inner {
     events: broadcast::Sender<ControllerEvent>,
     connected: watch::Sender<bool>,
     pending: Mutex<HashMap<TrialId, oneshot::Sender<Result<(), String>>>>,
+    /// Bench trials (not rows of `trials`) waiting for their result and record.
+    bench: Mutex<HashMap<TrialId, oneshot::Sender<(TrialResult, Record)>>>,
     /// Process id of the controller this server started, if any.
     pid: Mutex<Option<u32>>,
     /// The connected controller's rig: "sim" or "udp".
@@ -112,6 +115,7 @@ impl ControllerLink {
                 events,
                 connected,
                 pending: Mutex::new(HashMap::new()),
+                bench: Mutex::new(HashMap::new()),
                 pid: Mutex::new(None),
                 rig: Mutex::new(None),
                 estop: std::sync::atomic::AtomicBool::new(false),
@@ -298,6 +302,33 @@ impl ControllerLink {
         }
     }
 
+    /// Runs a bench trial, which is not a row of `trials`: its result and record come back
+    /// here instead of being filed. Fails if the link goes down before the result.
+    pub async fn run_bench_trial(&self, st: &StartTrial) -> Result<(TrialResult, Record), String> {
+        let (done, result) = oneshot::channel();
+        self.bench_waiters().insert(st.trial_id, done);
+        if let Err(e) = self.start_trial(st).await {
+            self.bench_waiters().remove(&st.trial_id);
+            return Err(e);
+        }
+        // The trial runs in real time; the record follows its end within seconds.
+        let limit = Duration::from_secs_f64(st.duration_s + 30.0);
+        match tokio::time::timeout(limit, result).await {
+            Ok(Ok(r)) => Ok(r),
+            Ok(Err(_)) => Err("the controller link went down during the run".into()),
+            Err(_) => {
+                self.bench_waiters().remove(&st.trial_id);
+                Err("the controller sent no result".into())
+            }
+        }
+    }
+
+    fn bench_waiters(
+        &self,
+    ) -> std::sync::MutexGuard<'_, HashMap<TrialId, oneshot::Sender<(TrialResult, Record)>>> {
+        self.inner.bench.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
     fn resolve(&self, trial_id: TrialId, r: Result<(), String>) {
         if let Some(done) = self
             .inner
@@ -385,6 +416,8 @@ async fn supervise(
         for (_, done) in pending {
             let _ = done.send(Err(why.clone()));
         }
+        // A bench run waiting for a result that cannot come learns it now.
+        link.bench_waiters().clear();
         match filing::interrupt_running(&pool, &format!("controller lost: {why}")).await {
             Ok(ids) => {
                 for id in ids {

@@ -318,6 +318,12 @@ pub fn trials(survey: &SurveyParams) -> Vec<Column> {
             TEXT,
             "the experimenter's reason for accepting a failed attempt as incomplete",
         ),
+        col(
+            "config_version",
+            "",
+            TEXT,
+            "the controller configuration version the trial ran (\"name vN\"; empty: a design not from a version)",
+        ),
     ]);
     c
 }

@@ -155,6 +155,7 @@ async fn trials<W: AsyncWrite + Unpin>(
             opt_text(&r.consent_version),
         ];
         cells.extend(validity_cells(&r));
+        cells.push(opt_text(&r.config_version));
         t.row(&cells).await?;
     }
     Ok(())

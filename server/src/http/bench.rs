@@ -1,0 +1,105 @@
+//! Bench runs: start one (in the background, one at a time), its progress, the stored runs
+//! with their metrics, reductions and traces, and a run as CSV.
+
+use axum::extract::{DefaultBodyLimit, Path, State};
+use axum::http::header;
+use axum::response::{IntoResponse, Response};
+use serde::Serialize;
+use serde_json::json;
+use utoipa::ToSchema;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::error::{ApiResult, AppError, AppJson};
+use super::extract::Experimenter;
+use crate::engine::bench::{self, BenchRequest, BenchStatus, RunView};
+use crate::state::AppState;
+use crate::store::bench::BenchRun;
+use crate::store::{self, Change};
+
+/// Largest bench request: an uploaded reference of `MAX_SAMPLES` lines fits.
+const MAX_BENCH_BODY: usize = 4 * 1024 * 1024;
+/// Runs listed, newest first.
+const LIST_LIMIT: i64 = 50;
+
+pub fn routes() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(start_bench, bench_status))
+        .layer(DefaultBodyLimit::max(MAX_BENCH_BODY))
+        .routes(routes!(list_runs))
+        .routes(routes!(get_run))
+        .routes(routes!(export_run))
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct BenchStarted {
+    pub run_id: i64,
+}
+
+/// Starts a bench run in the background (progress at GET /api/bench); 409 while one runs.
+#[utoipa::path(post, path = "/api/bench", tag = "bench", request_body = BenchRequest,
+    responses((status = 200, body = BenchStarted)))]
+async fn start_bench(
+    State(s): State<AppState>,
+    who: Experimenter,
+    AppJson(req): AppJson<BenchRequest>,
+) -> ApiResult<BenchStarted> {
+    let run_id = s
+        .bench
+        .start(&s.pool, &s.controller, &who.username, &req)
+        .await?;
+    Ok(AppJson(BenchStarted { run_id }))
+}
+
+/// Whether a bench run is going, and how far it is.
+#[utoipa::path(get, path = "/api/bench", tag = "bench", responses((status = 200, body = BenchStatus)))]
+async fn bench_status(State(s): State<AppState>, _who: Experimenter) -> AppJson<BenchStatus> {
+    AppJson(s.bench.status())
+}
+
+/// The newest 50 bench runs.
+#[utoipa::path(get, path = "/api/bench/runs", tag = "bench", responses((status = 200, body = Vec<BenchRun>)))]
+async fn list_runs(State(s): State<AppState>, _who: Experimenter) -> ApiResult<Vec<BenchRun>> {
+    Ok(AppJson(store::bench::runs(&s.pool, LIST_LIMIT).await?))
+}
+
+/// A run with its results (metrics, reductions against each design's twin) and traces.
+#[utoipa::path(get, path = "/api/bench/runs/{id}", tag = "bench", params(("id" = i64, Path)),
+    responses((status = 200, body = RunView)))]
+async fn get_run(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<RunView> {
+    Ok(AppJson(bench::view(&s.pool, id).await?))
+}
+
+/// A run as CSV: its results' metrics and reductions, and the decimated traces.
+#[utoipa::path(get, path = "/api/bench/runs/{id}/export", tag = "bench", params(("id" = i64, Path)),
+    responses((status = 200, description = "CSV", content_type = "text/csv")))]
+async fn export_run(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(id): Path<i64>,
+) -> Result<Response, AppError> {
+    let view = bench::view(&s.pool, id).await?;
+    Change::begin(&s.pool, who.username.as_str())
+        .await?
+        .commit(
+            "export",
+            Some(format!("bench_run:{id}")),
+            json!({ "kind": "bench" }),
+        )
+        .await?;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "text/csv; charset=utf-8".to_string()),
+            (
+                header::CONTENT_DISPOSITION,
+                format!("attachment; filename=\"bdft-bench{id}.csv\""),
+            ),
+        ],
+        bench::csv(&view),
+    )
+        .into_response())
+}
