@@ -41,9 +41,6 @@ impl Loop for ClosedLoop {
 }
 
 /// Where the intended hand position comes from.
-// One per trial, built once: its size costs nothing, a box would add an indirection to
-// every tick.
-#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone)]
 // A trial holds one for its whole life inside a slot the loop keeps on the heap already;
 // boxing the operator would add a pointer chase to every tick of a synthetic trial.
