@@ -177,7 +177,7 @@ fn design_aids_are_validated_followed_by_enrolment_and_drawn_from_the_export() {
                 && u[col("attempt")].parse::<u32>().unwrap()
                     > r[col("attempt")].parse::<u32>().unwrap()
         });
-        if r[col("practice")] == "1" || r[col("status")] != "complete" || later {
+        if r[col("phase")] == "practice" || r[col("status")] != "complete" || later {
             continue;
         }
         let position = (r[col("block")].parse::<u32>().unwrap() - 1) * 5

@@ -147,6 +147,32 @@ impl Api {
         )
     }
 
+    /// The status a POST to `path` announcing a JSON body of `length` bytes gets before any
+    /// of the body is sent: a limit refused from the header alone, answered without a race
+    /// against a client still writing.
+    pub fn status_of_announced_post(&self, path: &str, length: usize) -> u16 {
+        use std::io::{Read, Write};
+        let host = self.base.trim_start_matches("http://");
+        let mut s = std::net::TcpStream::connect(host).unwrap();
+        // A server that waited for the body instead would hang the test: fail it instead.
+        s.set_read_timeout(Some(std::time::Duration::from_secs(60)))
+            .unwrap();
+        let csrf = self
+            .csrf
+            .as_deref()
+            .map(|c| format!("x-csrf-token: {c}\r\n"))
+            .unwrap_or_default();
+        write!(
+            s,
+            "POST {path} HTTP/1.1\r\nhost: {host}\r\ncookie: {}\r\n{csrf}content-type: application/json\r\ncontent-length: {length}\r\n\r\n",
+            self.cookie_header()
+        )
+        .unwrap();
+        let mut head = [0u8; 12];
+        s.read_exact(&mut head).unwrap();
+        std::str::from_utf8(&head[9..12]).unwrap().parse().unwrap()
+    }
+
     /// The session cookie as a `Cookie:` header value (for raw-socket requests).
     pub fn cookie_header(&self) -> String {
         self.agent

@@ -40,14 +40,20 @@ struct Run<R> {
     outcome: Option<std::result::Result<R, String>>,
 }
 
-/// Where a job stands: running or not, for which study, how far, and how it ended.
-#[derive(Debug, Clone)]
-pub struct Snapshot<R> {
+/// Where a job stands: running or not, for which study, how far (steps done of how many),
+/// and how it ended (its report or the error).
+#[derive(Debug, Clone, serde::Serialize, utoipa::ToSchema)]
+pub struct JobStatus<R> {
     pub running: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub study_id: Option<i64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub done: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub total: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub report: Option<R>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
 }
 
@@ -71,15 +77,32 @@ impl<R: Clone> Job<R> {
         Ok(progress)
     }
 
-    pub fn finish(&self, outcome: std::result::Result<R, String>) {
+    /// Claims the job for `study_id` (refused while one is running) and runs `work` in the
+    /// background; `work` is handed the progress to count its steps in.
+    pub fn spawn<F, Fut>(self: &Arc<Self>, study_id: i64, what: &str, work: F) -> Result<()>
+    where
+        R: Send + 'static,
+        F: FnOnce(Arc<Progress>) -> Fut,
+        Fut: std::future::Future<Output = std::result::Result<R, String>> + Send + 'static,
+    {
+        let running = work(self.begin(study_id, what)?);
+        let job = Arc::clone(self);
+        tokio::spawn(async move {
+            let outcome = running.await;
+            job.finish(outcome);
+        });
+        Ok(())
+    }
+
+    fn finish(&self, outcome: std::result::Result<R, String>) {
         if let Some(run) = self.run().as_mut() {
             run.outcome = Some(outcome);
         }
     }
 
-    pub fn snapshot(&self) -> Snapshot<R> {
+    pub fn status(&self) -> JobStatus<R> {
         match self.run().clone() {
-            None => Snapshot {
+            None => JobStatus {
                 running: false,
                 study_id: None,
                 done: None,
@@ -87,7 +110,7 @@ impl<R: Clone> Job<R> {
                 report: None,
                 error: None,
             },
-            Some(r) => Snapshot {
+            Some(r) => JobStatus {
                 running: r.outcome.is_none(),
                 study_id: Some(r.study_id),
                 done: Some(r.progress.done.load(Ordering::Relaxed)),

@@ -12,7 +12,7 @@ use serde_json::json;
 
 use super::enrolment::enrol;
 use super::filing::file_result;
-use super::job::{Job, Progress};
+use super::job::{Job, JobStatus, Progress};
 use super::orchestrator::{Operator, start_message};
 use super::schedule::default_params;
 use crate::store::records::Record;
@@ -230,30 +230,17 @@ pub async fn run_with_progress(
 /// The one pilot run the dashboard may have going, with its progress and outcome.
 #[derive(Debug, Default)]
 pub struct PilotJob {
-    job: Job<PilotReport>,
+    job: Arc<Job<PilotReport>>,
 }
 
 /// Where the dashboard's pilot run stands.
-#[derive(Debug, Clone, serde::Serialize, utoipa::ToSchema)]
-pub struct PilotStatus {
-    pub running: bool,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub study_id: Option<i64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub done: Option<usize>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub total: Option<usize>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub report: Option<PilotReport>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub error: Option<String>,
-}
+pub type PilotStatus = JobStatus<PilotReport>;
 
 impl PilotJob {
     /// Starts a pilot of `subjects` synthetic subjects into `study_id` in the background;
     /// refused while another runs.
     pub async fn start(
-        self: &Arc<Self>,
+        &self,
         pool: &SqlitePool,
         actor: &str,
         study_id: i64,
@@ -265,28 +252,25 @@ impl PilotJob {
         }
         // Resolved now, so the dashboard names the dry run the data goes to.
         let study_id = super::dry_run::for_pilot(pool, actor, study_id).await?;
-        let progress = self.job.begin(study_id, "a pilot run")?;
-        let (job, pool, actor) = (Arc::clone(self), pool.clone(), actor.to_string());
-        tokio::spawn(async move {
-            let outcome =
+        let (pool, actor) = (pool.clone(), actor.to_string());
+        self.job
+            .spawn(study_id, "a pilot run", move |progress| async move {
                 // In the server's own process: it files the trials when it restarts.
-                run_with_progress(&pool, &actor, Some(study_id), subjects, None, progress, None)
-                    .await
-                    .map_err(|e| format!("{e:#}"));
-            job.job.finish(outcome);
-        });
-        Ok(())
+                run_with_progress(
+                    &pool,
+                    &actor,
+                    Some(study_id),
+                    subjects,
+                    None,
+                    progress,
+                    None,
+                )
+                .await
+                .map_err(|e| format!("{e:#}"))
+            })
     }
 
     pub fn status(&self) -> PilotStatus {
-        let s = self.job.snapshot();
-        PilotStatus {
-            running: s.running,
-            study_id: s.study_id,
-            done: s.done,
-            total: s.total,
-            report: s.report,
-            error: s.error,
-        }
+        self.job.status()
     }
 }

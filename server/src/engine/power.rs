@@ -19,7 +19,7 @@ use bdft_protocol::study::StudyParams;
 
 use super::inference::nonparametric::{EXACT_MAX_N, holm, wilcoxon, wilcoxon_floor};
 use super::inference_table::StudyData;
-use super::job::{Job, Progress};
+use super::job::{Job, JobStatus, Progress};
 use super::stats::SUMMARY_VARIABLES;
 use crate::error::{AppError, Result};
 use crate::store;
@@ -249,61 +249,33 @@ pub async fn plan_study(
 /// The one power plan the dashboard may have going in the background, with its progress.
 #[derive(Debug, Default)]
 pub struct PlanJob {
-    job: Job<PlanReport>,
+    job: Arc<Job<PlanReport>>,
 }
 
-/// Where the dashboard's power plan stands.
-#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
-pub struct PlanStatus {
-    pub running: bool,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub study_id: Option<i64>,
-    /// Simulated trials run so far, of how many (a pilot's model: 0 of 0).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub done: Option<usize>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub total: Option<usize>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub report: Option<PlanReport>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub error: Option<String>,
-}
+/// Where the dashboard's power plan stands (steps: simulated trials; a pilot's model has
+/// none).
+pub type PlanStatus = JobStatus<PlanReport>;
 
 impl PlanJob {
     /// Checks `req` and starts planning `study_id` in the background; refused while another
     /// plan runs.
-    pub async fn start(
-        self: &Arc<Self>,
-        pool: &SqlitePool,
-        study_id: i64,
-        req: PlanRequest,
-    ) -> Result<()> {
+    pub async fn start(&self, pool: &SqlitePool, study_id: i64, req: PlanRequest) -> Result<()> {
         req.check()?;
         let study = store::studies::get(pool, study_id).await?;
         if req.source == PlanSource::Population {
             check_population_work(&study.params, &req)?;
         }
-        let progress = self.job.begin(study_id, "a power plan")?;
-        let (job, pool) = (Arc::clone(self), pool.clone());
-        tokio::spawn(async move {
-            let outcome = plan_study(&pool, study_id, req, progress)
-                .await
-                .map_err(|e| e.to_string());
-            job.job.finish(outcome);
-        });
-        Ok(())
+        let pool = pool.clone();
+        self.job
+            .spawn(study_id, "a power plan", move |progress| async move {
+                plan_study(&pool, study_id, req, progress)
+                    .await
+                    .map_err(|e| e.to_string())
+            })
     }
 
     pub fn status(&self) -> PlanStatus {
-        let s = self.job.snapshot();
-        PlanStatus {
-            running: s.running,
-            study_id: s.study_id,
-            done: s.done,
-            total: s.total,
-            report: s.report,
-            error: s.error,
-        }
+        self.job.status()
     }
 }
 

@@ -26,9 +26,28 @@ pub fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(start_bench, bench_status))
         .layer(DefaultBodyLimit::max(MAX_BENCH_BODY))
+        .route_layer(axum::middleware::from_fn(refuse_announced_oversize))
         .routes(routes!(list_runs))
         .routes(routes!(get_run))
         .routes(routes!(export_run))
+}
+
+/// A request that announces a body beyond the limit is refused from its header, before any
+/// of it is read: the client learns at once, and nothing is buffered. (The body limit alone
+/// would read up to the limit first.)
+async fn refuse_announced_oversize(
+    req: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    let announced = req
+        .headers()
+        .get(axum::http::header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    if announced.is_some_and(|n| n > MAX_BENCH_BODY as u64) {
+        return AppError::TooLarge.into_response();
+    }
+    next.run(req).await
 }
 
 #[derive(Debug, Serialize, ToSchema)]

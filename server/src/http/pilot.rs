@@ -11,7 +11,8 @@ use utoipa_axum::routes;
 use super::error::{ApiResult, AppJson};
 use super::extract::Experimenter;
 use crate::engine::dry_run::{self, DryRunInfo};
-use crate::engine::pilot::PilotStatus;
+use crate::engine::job::JobStatus;
+use crate::engine::pilot::{PilotReport, PilotStatus};
 use crate::state::AppState;
 
 pub fn routes() -> OpenApiRouter<AppState> {
@@ -75,7 +76,7 @@ async fn start_pilot(
 }
 
 /// Where the dashboard's pilot run stands.
-#[utoipa::path(get, path = "/api/pilot", tag = "pilot", responses((status = 200, body = PilotStatus)))]
+#[utoipa::path(get, path = "/api/pilot", tag = "pilot", responses((status = 200, body = JobStatus<PilotReport>)))]
 async fn pilot_status(State(s): State<AppState>, _who: Experimenter) -> AppJson<PilotStatus> {
     AppJson(s.pilot.status())
 }

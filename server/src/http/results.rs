@@ -15,6 +15,7 @@ use super::error::{ApiResult, AppError, AppJson};
 use super::extract::Experimenter;
 use crate::engine::export::{self, ExportFormat, ExportKind, ExportRequest, SampleCut};
 use crate::engine::inference_table::{StatsRow, study_table};
+use crate::engine::job::JobStatus;
 use crate::engine::learning::{LearningCurve, learning_curve};
 use crate::engine::power::{PlanReport, PlanRequest, PlanSource, PlanStatus, plan_study};
 use crate::engine::results::{parse_file, plot as draw_plot};
@@ -107,7 +108,7 @@ async fn start_plan_job(
 
 /// Where the background power plan stands: progress (simulated trials), then its report or
 /// error.
-#[utoipa::path(get, path = "/api/plan-job", tag = "results", responses((status = 200, body = PlanStatus)))]
+#[utoipa::path(get, path = "/api/plan-job", tag = "results", responses((status = 200, body = JobStatus<PlanReport>)))]
 async fn plan_job_status(State(s): State<AppState>, _who: Experimenter) -> AppJson<PlanStatus> {
     AppJson(s.plan.status())
 }
