@@ -180,6 +180,12 @@ fn design_aids_are_validated_followed_by_enrolment_and_drawn_from_the_export() {
         if r[col("phase")] == "practice" || r[col("status")] != "complete" || later {
             continue;
         }
+        // The export carries each test's realized step change: matched, 2·std².
+        let ms_step: f64 = r[col("target_ms_step_mm2")].parse().unwrap();
+        assert!(
+            (ms_step / (2.0 * std * std) - 1.0).abs() < 1e-8,
+            "{ms_step}"
+        );
         let position = (r[col("block")].parse::<u32>().unwrap() - 1) * 5
             + r[col("position")].parse::<u32>().unwrap();
         exported

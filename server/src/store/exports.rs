@@ -33,6 +33,7 @@ pub struct TrialExportRow {
     pub target_seed: i64,
     pub target_mean_mm: f64,
     pub target_std_mm: f64,
+    pub target_ms_step_mm2: Option<f64>,
     pub k_bf: f64,
     pub duration_s: f64,
     pub mse_tracking_mm2: Option<f64>,
@@ -58,7 +59,7 @@ pub struct TrialExportRow {
 }
 
 const TRIALS_SQL: &str = "SELECT s.study_id, t.id AS trial_id, s.code, s.enrol_index, s.synthetic, s.starting_station, t.station, t.block, t.position, t.slot, t.attempt, \
-     t.controller, t.blinded_label, t.practice, t.status, t.status_reason, t.target_seed, t.target_mean_mm, t.target_std_mm, t.k_bf, t.duration_s, \
+     t.controller, t.blinded_label, t.practice, t.status, t.status_reason, t.target_seed, t.target_mean_mm, t.target_std_mm, t.target_ms_step_mm2, t.k_bf, t.duration_s, \
      t.mse_tracking_mm2, t.ms_cab_accel, v.accuracy, v.speed, v.smoothness, v.controllability, v.comment, t.protocol_hash, t.started_at, t.finished_at, s.consent_version, \
      t.client_timing_json, t.timing_json, t.accepted_reason, \
      NOT EXISTS (SELECT 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.slot = t.slot AND u.attempt > t.attempt) AS latest, \

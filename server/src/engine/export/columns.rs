@@ -207,6 +207,12 @@ pub fn trials(survey: &SurveyParams) -> Vec<Column> {
             MM,
             "standard deviation of the target over the attempt",
         ),
+        col(
+            "target_ms_step_mm2",
+            "mm²",
+            MM,
+            "mean-squared step change of the target, Σ(level[i] − level[i−1])²/n from 0 (equal across a difficulty-matched study; empty for tests scheduled before it was recorded)",
+        ),
         col("k_bf", "1", num(6), "device-to-cylinder gain K_BF"),
         col("duration_s", "s", num(3), "planned length of the attempt"),
         col(

@@ -140,6 +140,7 @@ async fn trials<W: AsyncWrite + Unpin>(
             Cell::Int(Some(r.target_seed)),
             Cell::Num(Some(r.target_mean_mm)),
             Cell::Num(Some(r.target_std_mm)),
+            Cell::Num(r.target_ms_step_mm2),
             Cell::Num(Some(r.k_bf)),
             Cell::Num(Some(r.duration_s)),
             Cell::Num(r.mse_tracking_mm2),
