@@ -138,6 +138,10 @@ fn a_short_study_runs_end_to_end_in_a_real_browser() {
     // flow, so the limits are the widest allowed.
     st["params"]["max_hidden_ms"] = json!(60_000.0);
     st["params"]["max_frame_gap_ms"] = json!(60_000.0);
+    // Nor of the stale-input stop (tested in station_safety.rs and the controller's tests):
+    // a browser starved of CPU for more than 100 ms stopped a test here and re-queued it
+    // behind the block's next one, which the flow below does not expect.
+    st["params"]["stale_input_ms"] = json!(5_000.0);
     let (code, body) = api.call(
         "PUT",
         &format!("/api/studies/{study}"),
