@@ -68,13 +68,7 @@ mod tests {
                     f_hz: 5.0,
                     zeta: 0.3,
                 },
-                BodyModel::Seated {
-                    k_h: 0.56,
-                    torso_f_hz: 1.1,
-                    torso_zeta: 0.4,
-                    arm_f_hz: 2.5,
-                    arm_zeta: 0.35,
-                },
+                crate::model::SEATED_FOR_TESTS,
             ] {
                 let setup = LoopSetup {
                     compensator: variants::variant(&name, &plant, 1e-3).unwrap(),

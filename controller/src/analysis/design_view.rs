@@ -495,16 +495,7 @@ mod tests {
         // (0.2 rad per sample) are moved by sampling by up to 25 rad/s.
         // With each body model: the seated body's four states (torso and arm) written
         // continuously here must be the sampled body's.
-        for body in [
-            BodyModel::default(),
-            BodyModel::Seated {
-                k_h: 0.56,
-                torso_f_hz: 1.1,
-                torso_zeta: 0.4,
-                arm_f_hz: 2.5,
-                arm_zeta: 0.35,
-            },
-        ] {
+        for body in [BodyModel::default(), crate::model::SEATED_FOR_TESTS] {
             let mut s = setup(CompensatorKind::LqrCabvel);
             s.body = body;
             let lqr = lqr_of(&s).unwrap().unwrap();

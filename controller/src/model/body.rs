@@ -125,6 +125,17 @@ impl LinearState for Body {
     }
 }
 
+/// A typical seated body (torso 1.1 Hz, arm 2.5 Hz, the thesis's K_H) for the tests that run
+/// every body model.
+#[cfg(test)]
+pub(crate) const SEATED_FOR_TESTS: BodyModel = BodyModel::Seated {
+    k_h: 0.56,
+    torso_f_hz: 1.1,
+    torso_zeta: 0.4,
+    arm_f_hz: 2.5,
+    arm_zeta: 0.35,
+};
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -201,13 +212,7 @@ mod tests {
 
     #[test]
     fn a_stiffer_grip_raises_the_arm_frequency_and_a_relaxed_one_restores_it() {
-        let model = BodyModel::Seated {
-            k_h: 0.56,
-            torso_f_hz: 1.1,
-            torso_zeta: 0.4,
-            arm_f_hz: 2.5,
-            arm_zeta: 0.35,
-        };
+        let model = SEATED_FOR_TESTS;
         let dt = 1e-3;
         let mut body = Body::new(model, dt);
         let stiff = Body::new(

@@ -5,6 +5,8 @@ mod body;
 mod plant;
 
 pub use body::Body;
+#[cfg(test)]
+pub(crate) use body::SEATED_FOR_TESTS;
 pub use plant::{
     Measurement, Plant, continuous_plant, design_model, idx, saturate, structure_polynomials,
 };
