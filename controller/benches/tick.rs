@@ -6,7 +6,10 @@
 //!   there (python-control's `forced_response`) in the same run, with the ratio;
 //! - the real-time loop's work for the 8 trials of `bench-rt` in one tick, with warm caches
 //!   and with caches evicted between ticks as the other processes of a busy machine do
-//!   (`cargo bench -p bdft-controller --bench tick -- loop` runs only this part).
+//!   (`cargo bench -p bdft-controller --bench tick -- loop` runs only this part);
+//! - the power planner's batched trials (`batch::metrics`, `LANES` subjects per batch)
+//!   against the same trials one at a time (`runtime::local::metrics`), per compensator
+//!   (`-- batch` runs only this part).
 //!
 //! Medians over repeated runs: the machines are shared and noisy.
 
@@ -14,15 +17,18 @@ use std::hint::black_box;
 use std::process::Command;
 use std::time::Instant;
 
+use bdft_controller::batch::{self, LANES};
 use bdft_controller::closed_loop::{ClosedLoop, Drive, LoopSetup};
 use bdft_controller::compensator::{CompensatorKind, default_spec};
 use bdft_controller::operator::OperatorParams;
 use bdft_controller::params::{BodyModel, LoopParams, PlantParams, Seat};
 use bdft_controller::runtime::histogram::Histogram;
+use bdft_controller::runtime::local;
 use bdft_controller::runtime::rt_loop::Event;
 use bdft_controller::runtime::slot::SlotTick;
 use bdft_controller::signals::StepParams;
 use bdft_controller::simulate::{SignalKind, SimConfig, simulate};
+use bdft_protocol::trial::InputSource;
 
 const RUNS: usize = 9;
 
@@ -123,14 +129,86 @@ fn loop_cost(report: &mut serde_json::Map<String, serde_json::Value>) {
     }
 }
 
+/// `LANES` planner trials of `kind`: 140 s, station on, each with its own subject drawn
+/// from the default population (seated body, learning and fatigue as at test 3 after half
+/// an hour), target and seeds.
+fn planner_trials(kind: CompensatorKind) -> Vec<bdft_protocol::server_to_controller::StartTrial> {
+    use bdft_controller::population;
+    use bdft_protocol::params::PopulationParams;
+    (0..LANES)
+        .map(|i| {
+            let mut st = bdft_controller::runtime::bench_trial(i, 140.0).expect("trial");
+            let d = population::draw(&PopulationParams::default(), i as u64);
+            st.compensator = bdft_controller::compensator::study_spec(kind, &st.plant);
+            st.body = population::body(&d, st.body);
+            st.input = InputSource::Synthetic {
+                operator: population::operator(&d, 3, 0.5),
+                seed: i as u64,
+            };
+            st
+        })
+        .collect()
+}
+
+/// Nanoseconds per trial tick (one core) of the batched planner trials and of the same
+/// trials one at a time, medians of `RUNS`, per study compensator.
+fn batch_cost(report: &mut serde_json::Map<String, serde_json::Value>) {
+    println!(
+        "planner trials: {LANES} subjects × 140 s per compensator, ns per trial tick (one core), median of {RUNS}"
+    );
+    let dt = 1e-3;
+    let mut rows = serde_json::Map::new();
+    for kind in CompensatorKind::STUDY {
+        let starts = planner_trials(kind);
+        let ticks = (starts.len() * 140_000) as f64;
+        let time = |f: &dyn Fn()| {
+            median(
+                (0..RUNS)
+                    .map(|_| {
+                        let start = Instant::now();
+                        f();
+                        start.elapsed().as_nanos() as f64 / ticks
+                    })
+                    .collect(),
+            )
+        };
+        let batched = time(&|| {
+            black_box(batch::metrics(black_box(&starts), dt).expect("batch"));
+        });
+        let scalar = time(&|| {
+            for st in &starts {
+                black_box(local::metrics(black_box(st), dt).expect("trial"));
+            }
+        });
+        println!(
+            "  {:<12} batched {batched:5.2} ns, one at a time {scalar:5.2} ns: {:.1}×",
+            kind.name(),
+            scalar / batched
+        );
+        rows.insert(
+            kind.name().into(),
+            serde_json::json!({ "batched_ns": batched, "scalar_ns": scalar }),
+        );
+    }
+    report.insert("planner_trial_tick_ns".into(), rows.into());
+}
+
 fn main() {
     let mut report = serde_json::Map::new();
-    if std::env::args().skip(1).any(|a| a == "loop") {
-        loop_cost(&mut report);
+    let only = std::env::args()
+        .skip(1)
+        .find(|a| a == "loop" || a == "batch");
+    match only.as_deref() {
+        Some("loop") => loop_cost(&mut report),
+        Some(_) => batch_cost(&mut report),
+        None => {}
+    }
+    if only.is_some() {
         println!("{}", serde_json::Value::Object(report));
         return;
     }
     loop_cost(&mut report);
+    batch_cost(&mut report);
     println!(
         "tick cost (plant + accelerometer noise + body + compensator), median of {RUNS} × 200,000 ticks"
     );

@@ -49,11 +49,11 @@ pub struct TickRecord {
 
 #[derive(Debug, Clone)]
 pub struct ClosedLoop {
-    plant: Plant,
-    body: Body,
-    compensator: Compensator,
-    k_bf: f64,
-    station: Seat,
+    pub(crate) plant: Plant,
+    pub(crate) body: Body,
+    pub(crate) compensator: Compensator,
+    pub(crate) k_bf: f64,
+    pub(crate) station: Seat,
     last: Measurement,
 }
 

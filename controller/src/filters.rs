@@ -20,10 +20,10 @@ fn tustin_constant(dt: f64, prewarp: Option<f64>) -> f64 {
 /// y[k] = b₀u[k] + b₁u[k−1] − a₁y[k−1].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FirstOrder {
-    b0: f64,
-    b1: f64,
-    a1: f64,
-    z: f64,
+    pub(crate) b0: f64,
+    pub(crate) b1: f64,
+    pub(crate) a1: f64,
+    pub(crate) z: f64,
 }
 
 impl FirstOrder {
@@ -89,7 +89,7 @@ impl LinearState for FirstOrder {
 pub struct Biquad {
     b: [f64; 3],
     a: [f64; 2],
-    z: [f64; 2],
+    pub(crate) z: [f64; 2],
 }
 
 impl Biquad {

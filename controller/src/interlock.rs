@@ -18,14 +18,14 @@ pub const DEFAULT_LIMIT_MM_S2: f64 = bdft_protocol::server_to_controller::DEFAUL
 
 #[derive(Debug, Clone)]
 pub struct VibrationInterlock {
-    squares: Vec<f64>,
+    pub(crate) squares: Vec<f64>,
     next: usize,
     filled: bool,
     sum: f64,
     /// Sum of the squares written since the ring last wrapped, added in ring order: at the
     /// wrap it equals the ring's sum added from scratch, bit for bit.
     pass_sum: f64,
-    limit_sq: f64,
+    pub(crate) limit_sq: f64,
 }
 
 impl VibrationInterlock {

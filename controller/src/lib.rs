@@ -11,6 +11,7 @@
 //! [`closed_loop`] (one tick) → [`simulate`] and [`analysis`].
 
 pub mod analysis;
+pub mod batch;
 pub mod closed_loop;
 pub mod compensator;
 pub mod error;

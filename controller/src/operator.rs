@@ -52,33 +52,33 @@ pub fn shake_filter(dt: f64) -> Biquad {
 const IMPRESSION_S: f64 = 1.0;
 /// The grip is re-evaluated every this many ticks: it changes over seconds, and retuning
 /// the arm's filter costs a tangent.
-const GRIP_EVERY: u32 = 50;
+pub(crate) const GRIP_EVERY: u32 = 50;
 
 #[derive(Debug, Clone)]
 pub struct SyntheticOperator {
-    params: OperatorParams,
-    dt: f64,
-    k_bf: f64,
+    pub(crate) params: OperatorParams,
+    pub(crate) dt: f64,
+    pub(crate) k_bf: f64,
     /// Ring buffers of what the display showed: target and cylinder position.
-    seen_target: Vec<f64>,
+    pub(crate) seen_target: Vec<f64>,
     seen_y: Vec<f64>,
     head: usize,
     integral: f64,
     /// The neuromuscular lag.
-    arm: Biquad,
+    pub(crate) arm: Biquad,
     /// Seen y above `SHAKE_CORNER`, and the running mean squares of it and of the felt cab
     /// acceleration (exponential, `IMPRESSION_S`).
-    shake_filter: Biquad,
+    pub(crate) shake_filter: Biquad,
     shake_ms: f64,
     felt_ms: f64,
-    impression_a: f64,
+    pub(crate) impression_a: f64,
     grip: f64,
     /// The remnant's factor from felt vibration, re-evaluated with the grip.
     shaken: f64,
     grip_countdown: u32,
     /// White-noise standard deviation before the lag that gives remnant_std_mm after it.
-    remnant_in_std: f64,
-    rng: Rng,
+    pub(crate) remnant_in_std: f64,
+    pub(crate) rng: Rng,
 }
 
 /// Σh² of the discrete lag's impulse response: the fraction of a white input's variance it

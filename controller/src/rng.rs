@@ -9,7 +9,7 @@
 /// xoshiro256++ generator. Copy, fixed-size, never allocates: usable inside the 1 kHz tick.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Rng {
-    s: [u64; 4],
+    pub(crate) s: [u64; 4],
     /// Second normal deviate of the last polar-method pair, if unused.
     spare_normal: Option<u64>,
 }

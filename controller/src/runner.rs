@@ -117,14 +117,14 @@ impl MetricsAccumulator {
 
 #[derive(Debug, Clone)]
 pub struct TrialRunner<L> {
-    signal: Signal,
-    lp: L,
-    hand: HandSource,
+    pub(crate) signal: Signal,
+    pub(crate) lp: L,
+    pub(crate) hand: HandSource,
     metrics: MetricsAccumulator,
-    dt: f64,
+    pub(crate) dt: f64,
     k: u64,
-    total: u64,
-    interlock: Option<VibrationInterlock>,
+    pub(crate) total: u64,
+    pub(crate) interlock: Option<VibrationInterlock>,
     tripped: bool,
 }
 

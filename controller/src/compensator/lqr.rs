@@ -21,7 +21,7 @@ fn cab_state_index(cab: CabOutput) -> usize {
 
 /// The cab signal as the observer receives it.
 #[derive(Debug, Clone)]
-enum CabSignal {
+pub(crate) enum CabSignal {
     /// Accelerometer → high-pass (offset) → leaky integrator = cab velocity.
     Velocity {
         highpass: FirstOrder,
@@ -118,19 +118,19 @@ pub fn kalman_gain(
 pub struct Lqr {
     design: LqrDesign,
     params: LqrParams,
-    k: RowSVector<f64, 7>,
-    nx: SVector<f64, 7>,
+    pub(crate) k: RowSVector<f64, 7>,
+    pub(crate) nx: SVector<f64, 7>,
     /// Observer x̂[k+1] = Φx̂[k] + Γ_u u[k] + Γ_z z[k]: the continuous observer
     /// ẋ̂ = (A − LC)x̂ + Bu + Lz discretized by zero-order hold, so its poles are exactly
     /// e^{p·dt} for the placed p.
-    phi: SMatrix<f64, 7, 7>,
-    gamma_u: SVector<f64, 7>,
-    gamma_z: SMatrix<f64, 7, 2>,
-    xhat: SVector<f64, 7>,
-    rate: FirstOrder,
-    cab: CabSignal,
-    k_p: f64,
-    v_max: f64,
+    pub(crate) phi: SMatrix<f64, 7, 7>,
+    pub(crate) gamma_u: SVector<f64, 7>,
+    pub(crate) gamma_z: SMatrix<f64, 7, 2>,
+    pub(crate) xhat: SVector<f64, 7>,
+    pub(crate) rate: FirstOrder,
+    pub(crate) cab: CabSignal,
+    pub(crate) k_p: f64,
+    pub(crate) v_max: f64,
 }
 
 impl Lqr {

@@ -10,6 +10,7 @@ mod pid;
 pub mod variants;
 
 pub use bdft_protocol::params::{CompensatorKind, CompensatorSpec};
+pub(crate) use lqr::CabSignal;
 pub use lqr::{CabOutput, Lqr, LqrDesign, LqrParams, ObserverDesign, kalman_gain};
 pub use pid::{NotchParams, Pid, PidParams, notch_filter, tyreus_luyben_pi, ziegler_nichols};
 

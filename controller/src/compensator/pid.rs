@@ -48,11 +48,11 @@ pub fn ultimate_gain(p: &PlantParams) -> (f64, f64) {
 /// the error pushes), Tustin-discretized filtered derivative, all on e = r − y.
 #[derive(Debug, Clone)]
 pub struct Pid {
-    kp: f64,
-    ki_dt: f64,
-    derivative: FirstOrder,
-    integral: f64,
-    v_max: f64,
+    pub(crate) kp: f64,
+    pub(crate) ki_dt: f64,
+    pub(crate) derivative: FirstOrder,
+    pub(crate) integral: f64,
+    pub(crate) v_max: f64,
 }
 
 impl Pid {

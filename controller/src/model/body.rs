@@ -8,20 +8,20 @@ use std::f64::consts::PI;
 /// A body model ready to run at the loop rate.
 #[derive(Debug, Clone)]
 pub struct Body {
-    model: BodyModel,
-    dt: f64,
+    pub(crate) model: BodyModel,
+    pub(crate) dt: f64,
     /// Present for models with dynamics; the rigid mass is a pure gain. For the seated body
     /// the torso's transmissibility.
-    filter: Option<Biquad>,
+    pub(crate) filter: Option<Biquad>,
     /// The seated body's arm on the device (hand per torso motion).
-    arm: Option<Biquad>,
+    pub(crate) arm: Option<Biquad>,
     /// The arm's frequency now as a multiple of the model's (the grip: 1 = relaxed).
-    grip: f64,
+    pub(crate) grip: f64,
 }
 
 /// The base-excitation transmissibility k·(2ζωs + ω²)/(s² + 2ζωs + ω²), pre-warped at its
 /// peak.
-fn transmissibility(k: f64, f_hz: f64, zeta: f64, dt: f64) -> Biquad {
+pub(crate) fn transmissibility(k: f64, f_hz: f64, zeta: f64, dt: f64) -> Biquad {
     let w = 2.0 * PI * f_hz;
     Biquad::tustin(
         [0.0, k * 2.0 * zeta * w, k * w * w],

@@ -7,6 +7,7 @@ mod plant;
 pub use body::Body;
 #[cfg(test)]
 pub(crate) use body::SEATED_FOR_TESTS;
+pub(crate) use body::transmissibility;
 pub use plant::{
     Measurement, Plant, continuous_plant, design_model, idx, saturate, structure_polynomials,
 };

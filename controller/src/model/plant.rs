@@ -107,7 +107,7 @@ pub struct Plant {
     x: PlantVector,
     params: PlantParams,
     dt: f64,
-    noise: Rng,
+    pub(crate) noise: Rng,
 }
 
 impl Plant {

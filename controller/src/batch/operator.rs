@@ -1,0 +1,125 @@
+//! `SyntheticOperator` for every lane: each lane its own subject (delay, gains, lags,
+//! remnant), stepped with the scalar operator's operations in its order.
+
+use crate::operator::{GRIP_EVERY, SyntheticOperator};
+
+use super::rig::BiquadLanes;
+use super::{LANES, Lanes, ZERO};
+
+#[derive(Debug, Clone)]
+pub(crate) struct OperatorLanes {
+    error_gain: Lanes,
+    shake_aversion: Lanes,
+    integral_gain: Lanes,
+    grip_stiffening: Lanes,
+    vibration_remnant: Lanes,
+    remnant_in_std: Lanes,
+    k_bf: Lanes,
+    dt: f64,
+    impression_a: f64,
+    /// One ring of what the display showed for all lanes, as long as the longest delay
+    /// needs.
+    /// Where each lane reads in the ring this tick: `delay[l]` entries behind the head,
+    /// kept incrementally (an integer division per lane per tick costs more than the rest
+    /// of the operator).
+    read: [usize; LANES],
+    seen_target: Vec<Lanes>,
+    seen_y: Vec<Lanes>,
+    head: usize,
+    integral: Lanes,
+    arm: BiquadLanes,
+    shake_filter: BiquadLanes,
+    shake_ms: Lanes,
+    felt_ms: Lanes,
+    pub(crate) grip: Lanes,
+    shaken: Lanes,
+    grip_countdown: u32,
+}
+
+impl OperatorLanes {
+    /// From fresh operators (nothing seen yet) built for one sample period.
+    pub(crate) fn new(ops: &[&SyntheticOperator; LANES]) -> Self {
+        let lanes =
+            |f: fn(&SyntheticOperator) -> f64| -> Lanes { std::array::from_fn(|l| f(ops[l])) };
+        let delay: [usize; LANES] = std::array::from_fn(|l| ops[l].seen_target.len() - 1);
+        let ring = delay.iter().max().copied().unwrap_or(0) + 1;
+        Self {
+            error_gain: lanes(|o| o.params.error_gain),
+            shake_aversion: lanes(|o| o.params.shake_aversion_per_mm),
+            integral_gain: lanes(|o| o.params.error_integral_gain),
+            grip_stiffening: lanes(|o| o.params.grip_stiffening_per_m_s2),
+            vibration_remnant: lanes(|o| o.params.vibration_remnant_per_m_s2),
+            remnant_in_std: lanes(|o| o.remnant_in_std),
+            k_bf: lanes(|o| o.k_bf),
+            dt: ops[0].dt,
+            impression_a: ops[0].impression_a,
+            read: std::array::from_fn(|l| (ring - delay[l]) % ring),
+            seen_target: vec![ZERO; ring],
+            seen_y: vec![ZERO; ring],
+            head: 0,
+            integral: ZERO,
+            arm: BiquadLanes::new(&std::array::from_fn(|l| ops[l].arm)),
+            shake_filter: BiquadLanes::new(&std::array::from_fn(|l| ops[l].shake_filter)),
+            shake_ms: ZERO,
+            felt_ms: ZERO,
+            grip: [1.0; LANES],
+            shaken: [1.0; LANES],
+            grip_countdown: GRIP_EVERY,
+        }
+    }
+
+    /// `SyntheticOperator::step` for every lane, with this tick's remnant deviates; returns
+    /// the intended hand positions and whether the grip was re-evaluated this tick.
+    #[inline(always)]
+    pub(crate) fn step(
+        &mut self,
+        target: &Lanes,
+        y: &Lanes,
+        felt_accel: &Lanes,
+        deviates: &Lanes,
+    ) -> (Lanes, bool) {
+        let ring = self.seen_target.len();
+        self.seen_target[self.head] = *target;
+        self.seen_y[self.head] = *y;
+        let (mut t_seen, mut y_seen) = (ZERO, ZERO);
+        for l in 0..LANES {
+            let at = self.read[l];
+            t_seen[l] = self.seen_target[at][l];
+            y_seen[l] = self.seen_y[at][l];
+            self.read[l] = if at + 1 == ring { 0 } else { at + 1 };
+        }
+        self.head = if self.head + 1 == ring {
+            0
+        } else {
+            self.head + 1
+        };
+
+        let shake = self.shake_filter.step(&y_seen);
+        let a = self.impression_a;
+        for l in 0..LANES {
+            self.shake_ms[l] += a * (shake[l] * shake[l] - self.shake_ms[l]);
+            self.felt_ms[l] += a * (felt_accel[l] * felt_accel[l] - self.felt_ms[l]);
+        }
+        self.grip_countdown -= 1;
+        let regripped = self.grip_countdown == 0;
+        if regripped {
+            self.grip_countdown = GRIP_EVERY;
+            for l in 0..LANES {
+                let felt = self.felt_ms[l].sqrt() * 1e-3;
+                self.grip[l] = 1.0 + self.grip_stiffening[l] * felt;
+                self.shaken[l] = 1.0 + self.vibration_remnant[l] * felt;
+            }
+        }
+
+        let mut input = ZERO;
+        for l in 0..LANES {
+            let e = t_seen[l] - y_seen[l];
+            let gain =
+                self.error_gain[l] / (1.0 + self.shake_aversion[l] * self.shake_ms[l].sqrt());
+            self.integral[l] += self.integral_gain[l] * e * self.dt;
+            let command = (t_seen[l] + gain * e + self.integral[l]) / self.k_bf[l];
+            input[l] = command + self.shaken[l] * self.remnant_in_std[l] * deviates[l];
+        }
+        (self.arm.step(&input), regripped)
+    }
+}
