@@ -155,9 +155,12 @@ impl NormalLanes {
 
     #[inline(always)]
     fn refill(&mut self) {
+        // The generator on a local copy: its state in `self` next to stores into the block
+        // (heap) would be reloaded and stored around every pair.
+        let mut rng = self.rng.clone();
         for pair in self.block.chunks_exact_mut(2) {
-            let radius_bits = self.rng.next();
-            let angle_bits = self.rng.next();
+            let radius_bits = rng.next();
+            let angle_bits = rng.next();
             let (mut z0, mut z1) = ([0.0; LANES], [0.0; LANES]);
             for l in 0..LANES {
                 let u = 1.0 - unit(radius_bits[l]);
@@ -174,6 +177,7 @@ impl NormalLanes {
             pair[0] = z0;
             pair[1] = z1;
         }
+        self.rng = rng;
     }
 }
 

@@ -96,11 +96,46 @@ impl FirstOrderLanes {
     }
 }
 
+/// A 7×7 matrix applied to a 7-vector per lane, as nalgebra's `m * x` adds: column by
+/// column from the first. Each row starts at its first non-zero entry: the plant's
+/// cylinder rows do not see the structure's states, and a sum that starts with exact zeros
+/// times finite states has the same value without them.
+#[derive(Debug, Clone)]
+struct MatrixLanes {
+    m: [[f64; 7]; 7],
+    first: [usize; 7],
+}
+
+impl MatrixLanes {
+    fn new(entry: impl Fn(usize, usize) -> f64) -> Self {
+        Self {
+            m: std::array::from_fn(|i| std::array::from_fn(|j| entry(i, j))),
+            first: std::array::from_fn(|i| (0..7).find(|&j| entry(i, j) != 0.0).unwrap_or(6)),
+        }
+    }
+
+    #[inline(always)]
+    fn apply(&self, x: &[Lanes; 7]) -> [Lanes; 7] {
+        let mut out = [ZERO; 7];
+        for (i, (row, acc)) in self.m.iter().zip(&mut out).enumerate() {
+            let from = self.first[i];
+            for l in 0..LANES {
+                acc[l] = row[from] * x[from][l];
+            }
+            for j in from + 1..7 {
+                for l in 0..LANES {
+                    acc[l] += row[j] * x[j][l];
+                }
+            }
+        }
+        out
+    }
+}
+
 /// `Plant` for every lane: one discretized model, a state per lane.
 #[derive(Debug, Clone)]
 pub(crate) struct PlantLanes {
-    /// Ad by rows, and Bd.
-    ad: [[f64; 7]; 7],
+    ad: MatrixLanes,
     bd: [f64; 7],
     pub(crate) x: [Lanes; 7],
     v_max: f64,
@@ -121,7 +156,7 @@ impl PlantLanes {
             }
         }
         Self {
-            ad: std::array::from_fn(|i| std::array::from_fn(|j| ad[(i, j)])),
+            ad: MatrixLanes::new(|i, j| ad[(i, j)]),
             bd: std::array::from_fn(|i| bd[i]),
             x,
             v_max: p.v_max,
@@ -154,19 +189,10 @@ impl PlantLanes {
                 past_band
             };
         }
-        let mut next = [ZERO; 7];
-        for (i, row) in self.ad.iter().enumerate() {
-            let acc = &mut next[i];
+        let mut next = self.ad.apply(&self.x);
+        for (acc, bd) in next.iter_mut().zip(self.bd) {
             for l in 0..LANES {
-                acc[l] = row[0] * self.x[0][l];
-            }
-            for j in 1..7 {
-                for l in 0..LANES {
-                    acc[l] += row[j] * self.x[j][l];
-                }
-            }
-            for l in 0..LANES {
-                acc[l] += self.bd[i] * applied[l];
+                acc[l] += bd * applied[l];
             }
         }
         // Hard end stops, as selects.
@@ -390,7 +416,7 @@ enum CabLanes {
 pub(crate) struct LqrLanes {
     k: [f64; 7],
     nx: [f64; 7],
-    phi: [[f64; 7]; 7],
+    phi: MatrixLanes,
     gamma_u: [f64; 7],
     gamma_z: [[f64; 2]; 7],
     xhat: [Lanes; 7],
@@ -415,7 +441,7 @@ impl LqrLanes {
         Self {
             k: std::array::from_fn(|j| q.k[j]),
             nx: std::array::from_fn(|j| q.nx[j]),
-            phi: std::array::from_fn(|i| std::array::from_fn(|j| q.phi[(i, j)])),
+            phi: MatrixLanes::new(|i, j| q.phi[(i, j)]),
             gamma_u: std::array::from_fn(|i| q.gamma_u[i]),
             gamma_z: std::array::from_fn(|i| [q.gamma_z[(i, 0)], q.gamma_z[(i, 1)]]),
             xhat: std::array::from_fn(|i| [q.xhat[i]; LANES]),
@@ -455,17 +481,8 @@ impl LqrLanes {
             v[l] = saturate_lane(self.k_p * (-u[l] - y_rate[l]), self.v_max);
             u_applied[l] = v[l] / self.k_p + y_rate[l];
         }
-        let mut next = [ZERO; 7];
-        for (i, row) in self.phi.iter().enumerate() {
-            let acc = &mut next[i];
-            for l in 0..LANES {
-                acc[l] = row[0] * self.xhat[0][l];
-            }
-            for j in 1..7 {
-                for l in 0..LANES {
-                    acc[l] += row[j] * self.xhat[j][l];
-                }
-            }
+        let mut next = self.phi.apply(&self.xhat);
+        for (i, acc) in next.iter_mut().enumerate() {
             let [gy, gc] = self.gamma_z[i];
             for l in 0..LANES {
                 acc[l] = acc[l] + self.gamma_u[i] * u_applied[l] + (gy * y[l] + gc * cab[l]);
@@ -546,15 +563,19 @@ impl InterlockLanes {
     /// `VibrationInterlock::update`: which lanes trip on this sample.
     #[inline(always)]
     pub(crate) fn update(&mut self, accel_mm_s2: &Lanes) -> [bool; LANES] {
-        let mut sq = ZERO;
-        let slot = &mut self.squares[self.next];
+        // On local copies: stores into the ring (heap) between loads of the sums would make
+        // the compiler assume they alias and keep it from vectorizing.
+        let old = self.squares[self.next];
+        let (mut sq, mut sum, mut pass_sum) = (ZERO, self.sum, self.pass_sum);
         for l in 0..LANES {
             let a = accel_mm_s2[l];
             sq[l] = if a.is_finite() { a * a } else { f64::INFINITY };
-            self.sum[l] += sq[l] - slot[l];
-            self.pass_sum[l] += sq[l];
+            sum[l] += sq[l] - old[l];
+            pass_sum[l] += sq[l];
         }
-        *slot = sq;
+        self.squares[self.next] = sq;
+        self.sum = sum;
+        self.pass_sum = pass_sum;
         self.next += 1;
         if self.next == self.squares.len() {
             self.next = 0;

@@ -334,18 +334,31 @@ impl BatchTrial {
 }
 
 /// Runs the batch with the widest vector instructions this CPU has: the same code compiled
-/// for AVX2 where the CPU has it (checked at run time), for the baseline otherwise. Both
-/// compute the same IEEE operations in the same order (no fused multiply–add), so their
-/// results are bit for bit the same.
+/// for AVX-512 or AVX2 where the CPU has them (checked at run time), for the baseline
+/// otherwise. All compute the same IEEE operations in the same order (no fused
+/// multiply–add), so their results are bit for bit the same.
 #[allow(unsafe_code)]
 pub(crate) fn run<D: Deviates>(batch: &mut BatchTrial, deviates: &mut D) {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the one requirement for calling a function compiled with a target
-        // feature is that the CPU has it, which the line above checked.
-        return unsafe { run_avx2(batch, deviates) };
+    {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the one requirement for calling a function compiled with a target
+            // feature is that the CPU has it, which the line above checked.
+            return unsafe { run_avx512(batch, deviates) };
+        }
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: as above, for AVX2.
+            return unsafe { run_avx2(batch, deviates) };
+        }
     }
     run_baseline(batch, deviates)
+}
+
+/// One 512-bit register holds a quantity of all eight lanes.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn run_avx512<D: Deviates>(batch: &mut BatchTrial, deviates: &mut D) {
+    batch.run_lanes(deviates)
 }
 
 #[cfg(target_arch = "x86_64")]
