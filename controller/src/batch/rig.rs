@@ -96,46 +96,13 @@ impl FirstOrderLanes {
     }
 }
 
-/// A 7×7 matrix applied to a 7-vector per lane, as nalgebra's `m * x` adds: column by
-/// column from the first. Each row starts at its first non-zero entry: the plant's
-/// cylinder rows do not see the structure's states, and a sum that starts with exact zeros
-/// times finite states has the same value without them.
-#[derive(Debug, Clone)]
-struct MatrixLanes {
-    m: [[f64; 7]; 7],
-    first: [usize; 7],
-}
-
-impl MatrixLanes {
-    fn new(entry: impl Fn(usize, usize) -> f64) -> Self {
-        Self {
-            m: std::array::from_fn(|i| std::array::from_fn(|j| entry(i, j))),
-            first: std::array::from_fn(|i| (0..7).find(|&j| entry(i, j) != 0.0).unwrap_or(6)),
-        }
-    }
-
-    #[inline(always)]
-    fn apply(&self, x: &[Lanes; 7]) -> [Lanes; 7] {
-        let mut out = [ZERO; 7];
-        for (i, (row, acc)) in self.m.iter().zip(&mut out).enumerate() {
-            let from = self.first[i];
-            for l in 0..LANES {
-                acc[l] = row[from] * x[from][l];
-            }
-            for j in from + 1..7 {
-                for l in 0..LANES {
-                    acc[l] += row[j] * x[j][l];
-                }
-            }
-        }
-        out
-    }
-}
-
 /// `Plant` for every lane: one discretized model, a state per lane.
 #[derive(Debug, Clone)]
 pub(crate) struct PlantLanes {
-    ad: MatrixLanes,
+    /// Ad by rows; its rows 4–6 (the cylinder) are zero in columns 0–3 (the structure's
+    /// states), and their sums start at column 4: a sum that starts with exact zeros times
+    /// finite states has the same value without them.
+    ad: [[f64; 7]; 7],
     bd: [f64; 7],
     pub(crate) x: [Lanes; 7],
     v_max: f64,
@@ -146,8 +113,11 @@ pub(crate) struct PlantLanes {
 
 impl PlantLanes {
     /// From the lanes' plants, which must share one model (the caller checks the params).
-    pub(crate) fn new(plants: &[&Plant; LANES]) -> Self {
+    pub(crate) fn new(plants: &[&Plant; LANES]) -> Result<Self, String> {
         let (ad, bd) = plants[0].discrete();
+        if (idx::Y..7).any(|i| (0..idx::Y).any(|j| ad[(i, j)] != 0.0)) {
+            return Err("the discretized cylinder sees the structure's states".into());
+        }
         let p = plants[0].params();
         let mut x = [ZERO; 7];
         for (l, pl) in plants.iter().enumerate() {
@@ -155,15 +125,15 @@ impl PlantLanes {
                 xi[l] = pl.state()[i];
             }
         }
-        Self {
-            ad: MatrixLanes::new(|i, j| ad[(i, j)]),
+        Ok(Self {
+            ad: std::array::from_fn(|i| std::array::from_fn(|j| ad[(i, j)])),
             bd: std::array::from_fn(|i| bd[i]),
             x,
             v_max: p.v_max,
             dead_band: p.dead_band,
             stroke_mm: p.stroke_mm,
             accel_noise_std: p.accel_noise_std,
-        }
+        })
     }
 
     /// `Plant::measure`'s accelerometer reading given this tick's deviates.
@@ -176,38 +146,45 @@ impl PlantLanes {
         a
     }
 
-    /// `Plant::step`.
+    /// `Plant::step`. One loop over the lanes around the whole update, each lane's
+    /// arithmetic inside it: the form the loop vectorizer takes reliably.
     #[inline(always)]
     pub(crate) fn step(&mut self, v: &Lanes) {
-        let mut applied = ZERO;
+        let s = self.stroke_mm;
         for l in 0..LANES {
             let v = saturate_lane(v[l], self.v_max);
             let past_band = v - self.dead_band.copysign(v);
-            applied[l] = if v.abs() <= self.dead_band {
+            let applied = if v.abs() <= self.dead_band {
                 0.0
             } else {
                 past_band
             };
-        }
-        let mut next = self.ad.apply(&self.x);
-        for (acc, bd) in next.iter_mut().zip(self.bd) {
-            for l in 0..LANES {
-                acc[l] += bd * applied[l];
+            let x: [f64; 7] = std::array::from_fn(|j| self.x[j][l]);
+            let mut next = [0.0; 7];
+            for (i, row) in self.ad.iter().enumerate() {
+                let from = if i < idx::Y { 0 } else { idx::Y };
+                let mut acc = row[from] * x[from];
+                for j in from + 1..7 {
+                    acc += row[j] * x[j];
+                }
+                next[i] = acc + self.bd[i] * applied;
             }
-        }
-        // Hard end stops, as selects.
-        let s = self.stroke_mm;
-        for l in 0..LANES {
-            let y = next[idx::Y][l];
+            // Hard end stops, as selects.
+            let y = next[idx::Y];
             let stopped = y.abs() > s;
             let dir = y.signum();
-            next[idx::Y][l] = if stopped { s * dir } else { y };
+            next[idx::Y] = if stopped { s * dir } else { y };
             for i in [idx::Y_D, idx::Y_DD] {
-                let x = next[i][l];
-                next[i][l] = if stopped && x * dir > 0.0 { 0.0 } else { x };
+                next[i] = if stopped && next[i] * dir > 0.0 {
+                    0.0
+                } else {
+                    next[i]
+                };
+            }
+            for (state, value) in self.x.iter_mut().zip(next) {
+                state[l] = value;
             }
         }
-        self.x = next;
     }
 }
 
@@ -416,7 +393,7 @@ enum CabLanes {
 pub(crate) struct LqrLanes {
     k: [f64; 7],
     nx: [f64; 7],
-    phi: MatrixLanes,
+    phi: [[f64; 7]; 7],
     gamma_u: [f64; 7],
     gamma_z: [[f64; 2]; 7],
     xhat: [Lanes; 7],
@@ -441,7 +418,7 @@ impl LqrLanes {
         Self {
             k: std::array::from_fn(|j| q.k[j]),
             nx: std::array::from_fn(|j| q.nx[j]),
-            phi: MatrixLanes::new(|i, j| q.phi[(i, j)]),
+            phi: std::array::from_fn(|i| std::array::from_fn(|j| q.phi[(i, j)])),
             gamma_u: std::array::from_fn(|i| q.gamma_u[i]),
             gamma_z: std::array::from_fn(|i| [q.gamma_z[(i, 0)], q.gamma_z[(i, 1)]]),
             xhat: std::array::from_fn(|i| [q.xhat[i]; LANES]),
@@ -466,29 +443,28 @@ impl LqrLanes {
             CabLanes::Velocity { highpass, leak } => leak.step(&highpass.step(&a)),
             CabLanes::Acceleration => a,
         };
+        // One loop over the lanes around the whole update, each lane's arithmetic inside it
+        // (the loop vectorizer's form): split into a loop per operation, the compiler
+        // vectorized this step across rows and scalarized the division.
         let mut v = ZERO;
-        let mut u_applied = ZERO;
-        let mut u = ZERO;
         for l in 0..LANES {
-            u[l] = self.k[0] * (self.xhat[0][l] - self.nx[0] * r_c[l]);
-        }
-        for j in 1..7 {
-            for l in 0..LANES {
-                u[l] += self.k[j] * (self.xhat[j][l] - self.nx[j] * r_c[l]);
+            let x: [f64; 7] = std::array::from_fn(|j| self.xhat[j][l]);
+            let mut u = self.k[0] * (x[0] - self.nx[0] * r_c[l]);
+            for j in 1..7 {
+                u += self.k[j] * (x[j] - self.nx[j] * r_c[l]);
+            }
+            v[l] = saturate_lane(self.k_p * (-u - y_rate[l]), self.v_max);
+            let u_applied = v[l] / self.k_p + y_rate[l];
+            for i in 0..7 {
+                let row = &self.phi[i];
+                let mut acc = row[0] * x[0];
+                for j in 1..7 {
+                    acc += row[j] * x[j];
+                }
+                let [gy, gc] = self.gamma_z[i];
+                self.xhat[i][l] = acc + self.gamma_u[i] * u_applied + (gy * y[l] + gc * cab[l]);
             }
         }
-        for l in 0..LANES {
-            v[l] = saturate_lane(self.k_p * (-u[l] - y_rate[l]), self.v_max);
-            u_applied[l] = v[l] / self.k_p + y_rate[l];
-        }
-        let mut next = self.phi.apply(&self.xhat);
-        for (i, acc) in next.iter_mut().enumerate() {
-            let [gy, gc] = self.gamma_z[i];
-            for l in 0..LANES {
-                acc[l] = acc[l] + self.gamma_u[i] * u_applied[l] + (gy * y[l] + gc * cab[l]);
-            }
-        }
-        self.xhat = next;
         v
     }
 }

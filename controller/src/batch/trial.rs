@@ -227,7 +227,7 @@ impl BatchTrial {
             .ok_or("the trials of a batch share one body model kind")?;
         let batch = Self {
             targets: Targets::new(lanes.iter().map(|l| l.runner.signal.clone()).collect()),
-            plant: PlantLanes::new(&std::array::from_fn(|l| &each(l).rig.plant)),
+            plant: PlantLanes::new(&std::array::from_fn(|l| &each(l).rig.plant))?,
             body,
             compensator: CompensatorLanes::new(&lanes[0].rig.compensator),
             operator: OperatorLanes::new(&std::array::from_fn(|l| each(l).operator)),
