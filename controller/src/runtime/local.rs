@@ -40,8 +40,8 @@ pub fn run(start: &StartTrial, dt: f64) -> Result<(TrialResult, Vec<Vec<f32>>), 
 }
 
 /// Runs `start` like `run` but keeps no record: its metrics, if it ran to its end (None when
-/// the cab-vibration interlock stopped it). The power planner runs thousands of trials this
-/// way; a trial here ticks exactly as in `run`, so its metrics are `run`'s.
+/// the cab-vibration interlock stopped it). A trial here ticks exactly as in `run`, so its
+/// metrics are `run`'s; the batched planner trials (`batch`) are held to it.
 pub fn metrics(start: &StartTrial, dt: f64) -> Result<Option<Metrics>, String> {
     offline(start)?;
     let (mut runner, _) = build_runner(start, dt, false)?;
