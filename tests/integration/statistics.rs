@@ -93,7 +93,26 @@ fn a_pilots_statistics_agree_with_its_export_and_state_the_small_n_floor() {
         head.starts_with("test,metric,station,a,b,n,statistic,p_value,p_adjusted,effect_size"),
         "{head}"
     );
-    assert_eq!(lines.count(), rows.len());
+    let stats_rows: Vec<&str> = lines.collect();
+    assert_eq!(stats_rows.len(), rows.len());
+    // Every variable the stats and summary exports name is a column of the trials export
+    // (its unit in its name), or the logarithm of one.
+    let (code, summary_csv) = api.get_text(&format!("/api/studies/{copy}/export/summary"));
+    assert_eq!(code, 200);
+    let summary_rows: Vec<&str> = summary_csv.lines().skip(1).collect();
+    assert!(!summary_rows.is_empty());
+    let named: Vec<&str> = stats_rows
+        .iter()
+        .map(|r| r.split(',').nth(1).unwrap())
+        .chain(summary_rows.iter().map(|r| r.split(',').nth(2).unwrap()))
+        .collect();
+    for name in &named {
+        let column = name.strip_prefix("log_").unwrap_or(name);
+        assert!(header.contains(&column), "{name} is no trials column");
+    }
+    for want in ["ms_cab_accel_mm2_s4", "rating_accuracy_1to7"] {
+        assert!(named.contains(&want), "{want} missing from {named:?}");
+    }
     // The planner on the pilot's spread: 8 subjects cannot make any of the 10 pairs
     // significant (2/2^8 × 10 > 0.05), 12 can be simulated; bad requests (422) name the field.
     let (code, plan) = api.post(

@@ -83,6 +83,28 @@ const STAT: ColumnType = num(12);
 
 /// The keys that join the exports: the study and the subject's pseudonym.
 const STUDY_ID: Column = col("study_id", "", INT, "the study's id");
+
+/// The trials export's name of the mean-squared cab acceleration (with its unit).
+const MS_CAB_ACCEL: &str = "ms_cab_accel_mm2_s4";
+
+/// The trials export's name of rating `key` on a `points`-point scale.
+fn rating_column(key: &str, points: u8) -> String {
+    format!("rating_{key}_1to{points}")
+}
+
+/// The trials export's column a summary or statistics variable (`stats::SUMMARY_VARIABLES`,
+/// or `log_` one of them) is computed from: the summary and stats exports name each
+/// variable as the trials export names its column, unit included.
+pub fn variable_column(variable: &str, survey: &SurveyParams) -> String {
+    if let Some(inner) = variable.strip_prefix("log_") {
+        return format!("log_{}", variable_column(inner, survey));
+    }
+    match variable.strip_prefix("rating_") {
+        Some(key) => rating_column(key, survey.scale_points),
+        None if variable == "ms_cab_accel" => MS_CAB_ACCEL.into(),
+        None => variable.into(),
+    }
+}
 const SUBJECT_CODE: Column = col("subject_code", "", TEXT, "the subject's pseudonym (S01, …)");
 const SUBJECT_INDEX: Column = col(
     "subject_index",
@@ -222,7 +244,7 @@ pub fn trials(survey: &SurveyParams) -> Vec<Column> {
             "mean-squared tracking error, target − cylinder position",
         ),
         col(
-            "ms_cab_accel_mm2_s4",
+            MS_CAB_ACCEL,
             "(mm/s²)²",
             num(3),
             "mean-squared measured cab acceleration",
@@ -237,7 +259,7 @@ pub fn trials(survey: &SurveyParams) -> Vec<Column> {
             .map(|i| i.label.clone())
             .unwrap_or_default();
         c.push(Column {
-            name: format!("rating_{key}_1to{points}").into(),
+            name: rating_column(key, points).into(),
             unit: format!("1–{points}").into(),
             ty: INT,
             meaning: format!("the subject's rating (ordinal, higher is better): {label}").into(),
@@ -422,7 +444,12 @@ pub fn summary() -> Vec<Column> {
     vec![
         col("controller", "", TEXT, "the compensator"),
         STATION,
-        col("variable", "", TEXT, "the trials export's metric or rating"),
+        col(
+            "variable",
+            "",
+            TEXT,
+            "the trials export's column summarized (its name carries the unit)",
+        ),
         col("n", "", INT, "subjects with a valid latest attempt"),
         stat("mean", "mean"),
         stat("median", "median"),
@@ -441,7 +468,12 @@ pub fn stats() -> Vec<Column> {
             TEXT,
             "friedman, wilcoxon, wilcoxon_on_off or rm_anova",
         ),
-        col("metric", "", TEXT, "the metric or rating analysed"),
+        col(
+            "metric",
+            "",
+            TEXT,
+            "the trials export's column analysed (log_: its logarithm)",
+        ),
         col(
             "station",
             "",

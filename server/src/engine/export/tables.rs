@@ -81,8 +81,8 @@ pub async fn write_rows<W: AsyncWrite + Unpin>(
         ExportKind::Samples => samples(pool, study_id, &req.cut, t).await,
         ExportKind::Subjects => subjects(pool, study_id, t).await,
         ExportKind::Codebook => codebook(cx, t).await,
-        ExportKind::Summary => summary(pool, study_id, t).await,
-        ExportKind::Stats => stats(pool, study_id, t).await,
+        ExportKind::Summary => summary(pool, study_id, &cx.survey, t).await,
+        ExportKind::Stats => stats(pool, study_id, &cx.survey, t).await,
         ExportKind::Notes => notes(pool, study_id, t).await,
         ExportKind::Audit => audit(pool, t).await,
     }
@@ -313,13 +313,14 @@ async fn codebook<W: AsyncWrite + Unpin>(
 async fn summary<W: AsyncWrite + Unpin>(
     pool: &SqlitePool,
     study_id: i64,
+    survey: &SurveyParams,
     t: Table<'_, W>,
 ) -> Result<(), ExportError> {
     for s in summary_stats(pool, study_id).await? {
         t.row(&[
             Cell::text(s.controller),
             Cell::text(s.station),
-            Cell::text(s.variable),
+            Cell::text(columns::variable_column(&s.variable, survey)),
             Cell::Int(Some(s.n as i64)),
             Cell::Num(Some(s.mean)),
             Cell::Num(Some(s.median)),
@@ -336,12 +337,13 @@ async fn summary<W: AsyncWrite + Unpin>(
 async fn stats<W: AsyncWrite + Unpin>(
     pool: &SqlitePool,
     study_id: i64,
+    survey: &SurveyParams,
     t: Table<'_, W>,
 ) -> Result<(), ExportError> {
     for r in study_table(pool, study_id).await? {
         t.row(&[
             Cell::text(r.test),
-            Cell::text(r.metric),
+            Cell::text(columns::variable_column(&r.metric, survey)),
             Cell::text(r.station),
             Cell::text(r.a),
             Cell::text(r.b),
