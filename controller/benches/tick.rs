@@ -150,8 +150,8 @@ fn planner_trials(kind: CompensatorKind) -> Vec<bdft_protocol::server_to_control
         .collect()
 }
 
-/// Nanoseconds per trial tick (one core) of the batched planner trials and of the same
-/// trials one at a time, medians of `RUNS`, per study compensator.
+/// Nanoseconds per trial tick (one core) of the batched planner trials, in every build this
+/// CPU runs, and of the same trials one at a time, medians of `RUNS`, per study compensator.
 fn batch_cost(report: &mut serde_json::Map<String, serde_json::Value>) {
     println!(
         "planner trials: {LANES} subjects × 140 s per compensator, ns per trial tick (one core), median of {RUNS}"
@@ -172,23 +172,23 @@ fn batch_cost(report: &mut serde_json::Map<String, serde_json::Value>) {
                     .collect(),
             )
         };
-        let batched = time(&|| {
-            black_box(batch::metrics(black_box(&starts), dt).expect("batch"));
-        });
+        let mut row = serde_json::Map::new();
+        let mut line = format!("  {:<12}", kind.name());
+        for build in batch::Build::ALL.into_iter().filter(|b| b.available()) {
+            let ns = time(&|| {
+                black_box(batch::metrics_with(build, black_box(&starts), dt).expect("batch"));
+            });
+            line += &format!(" {build:?} {ns:5.2} ns,");
+            row.insert(format!("{build:?}_ns"), ns.into());
+        }
         let scalar = time(&|| {
             for st in &starts {
                 black_box(local::metrics(black_box(st), dt).expect("trial"));
             }
         });
-        println!(
-            "  {:<12} batched {batched:5.2} ns, one at a time {scalar:5.2} ns: {:.1}×",
-            kind.name(),
-            scalar / batched
-        );
-        rows.insert(
-            kind.name().into(),
-            serde_json::json!({ "batched_ns": batched, "scalar_ns": scalar }),
-        );
+        println!("{line} one at a time {scalar:5.2} ns");
+        row.insert("scalar_ns".into(), scalar.into());
+        rows.insert(kind.name().into(), row.into());
     }
     report.insert("planner_trial_tick_ns".into(), rows.into());
 }

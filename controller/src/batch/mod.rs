@@ -33,6 +33,8 @@ mod trial;
 use bdft_protocol::server_to_controller::StartTrial;
 use bdft_protocol::trial::Metrics;
 
+pub use trial::Build;
+
 /// Trials per batch: two AVX2 vectors of f64 per quantity, enough independent work per
 /// operation to keep the vector units busy.
 pub const LANES: usize = 8;
@@ -43,15 +45,29 @@ pub(crate) const ZERO: Lanes = [0.0; LANES];
 /// Runs the trials `starts` describe (synthetic operators on the simulated rig; trials of
 /// one batch — consecutive runs of `LANES` — must share design, plant, seat, K_BF, length
 /// and interlock limit) without records, and returns each one's metrics in order: None
-/// where the cab-vibration interlock stopped it, as `runtime::local::metrics`.
+/// where the cab-vibration interlock stopped it, as `runtime::local::metrics`. Runs the
+/// widest build this CPU has.
 pub fn metrics(starts: &[StartTrial], dt: f64) -> Result<Vec<Option<Metrics>>, String> {
+    Ok(metrics_with(Build::widest(), starts, dt)?.unwrap_or_default())
+}
+
+/// `metrics` with the given build (the benchmark compares them); None where this CPU lacks
+/// it. Every build gives the same bits.
+pub fn metrics_with(
+    build: Build,
+    starts: &[StartTrial],
+    dt: f64,
+) -> Result<Option<Vec<Option<Metrics>>>, String> {
+    if !build.available() {
+        return Ok(None);
+    }
     let mut out = Vec::with_capacity(starts.len());
     for chunk in starts.chunks(LANES) {
         // A short last batch fills its spare lanes with its last trial and drops them.
         let lanes = std::array::from_fn(|l| &chunk[l.min(chunk.len() - 1)]);
         let (mut batch, mut deviates) = trial::BatchTrial::build(&lanes, dt)?;
-        trial::run(&mut batch, &mut deviates);
+        trial::run_with(build, &mut batch, &mut deviates);
         out.extend(batch.results().into_iter().take(chunk.len()));
     }
-    Ok(out)
+    Ok(Some(out))
 }

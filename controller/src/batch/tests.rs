@@ -4,7 +4,7 @@ use bdft_protocol::params::{BodyModel, CompensatorKind, OperatorParams, PlantPar
 use bdft_protocol::server_to_controller::{DEFAULT_MAX_CAB_RMS_MM_S2, StartTrial};
 use bdft_protocol::trial::{InputSource, Metrics, TargetSpec};
 
-use super::trial::{BatchTrial, run, run_baseline};
+use super::trial::{BatchTrial, Build, run_with};
 use super::{LANES, metrics};
 use crate::compensator::{default_spec, study_spec};
 use crate::runtime::local;
@@ -83,7 +83,7 @@ fn start(l: usize, comp: CompensatorKind, seat: Seat, body: BodyModel, secs: f64
 fn batch_and_scalar(starts: &[StartTrial]) -> (Vec<Option<Metrics>>, Vec<Option<Metrics>>) {
     let lanes = std::array::from_fn(|l| &starts[l]);
     let (mut batch, mut deviates, _) = BatchTrial::build_scalar(&lanes, DT).unwrap();
-    run(&mut batch, &mut deviates);
+    assert!(run_with(Build::widest(), &mut batch, &mut deviates));
     let scalar = starts
         .iter()
         .map(|st| local::metrics(st, DT).unwrap())
@@ -142,7 +142,7 @@ fn lanes_the_interlock_stops_are_reported_stopped_and_the_others_run_on() {
 }
 
 #[test]
-fn the_vector_and_baseline_builds_give_the_same_bits() {
+fn every_build_this_cpu_runs_gives_the_baseline_s_bits() {
     let starts: Vec<StartTrial> = (0..LANES)
         .map(|l| {
             start(
@@ -155,11 +155,19 @@ fn the_vector_and_baseline_builds_give_the_same_bits() {
         })
         .collect();
     let lanes = std::array::from_fn(|l| &starts[l]);
-    let (mut a, mut da) = BatchTrial::build(&lanes, DT).unwrap();
-    let (mut b, mut db) = (a.clone(), da.clone());
-    run(&mut a, &mut da);
-    run_baseline(&mut b, &mut db);
-    assert_eq!(a.results(), b.results());
+    let (batch, deviates) = BatchTrial::build(&lanes, DT).unwrap();
+    let run = |build: Build| {
+        let (mut b, mut d) = (batch.clone(), deviates.clone());
+        run_with(build, &mut b, &mut d).then(|| b.results())
+    };
+    let baseline = run(Build::Baseline).expect("every CPU runs the baseline");
+    assert!(baseline.iter().all(Option::is_some));
+    for build in Build::ALL {
+        match run(build) {
+            Some(results) => assert_eq!(results, baseline, "{build:?}"),
+            None => assert!(!build.available(), "{build:?}"),
+        }
+    }
 }
 
 #[test]

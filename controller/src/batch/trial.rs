@@ -333,28 +333,69 @@ impl BatchTrial {
     }
 }
 
-/// Runs the batch with the widest vector instructions this CPU has: the same code compiled
-/// for AVX-512 or AVX2 where the CPU has them (checked at run time), for the baseline
-/// otherwise. All compute the same IEEE operations in the same order (no fused
-/// multiply–add), so their results are bit for bit the same.
-#[allow(unsafe_code)]
-pub(crate) fn run<D: Deviates>(batch: &mut BatchTrial, deviates: &mut D) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the one requirement for calling a function compiled with a target
-            // feature is that the CPU has it, which the line above checked.
-            return unsafe { run_avx512(batch, deviates) };
-        }
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: as above, for AVX2.
-            return unsafe { run_avx2(batch, deviates) };
-        }
-    }
-    run_baseline(batch, deviates)
+/// A build of the batch's tick loop: the same code compiled for a set of vector
+/// instructions. All compute the same IEEE operations in the same order (no fused
+/// multiply–add), so their results are bit for bit the same (tested).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Build {
+    /// One 512-bit register holds a quantity of all eight lanes.
+    Avx512,
+    Avx2,
+    /// What every x86-64 (or other) CPU runs.
+    Baseline,
 }
 
-/// One 512-bit register holds a quantity of all eight lanes.
+impl Build {
+    /// Widest first.
+    pub const ALL: [Build; 3] = [Build::Avx512, Build::Avx2, Build::Baseline];
+
+    /// The widest build this CPU runs.
+    pub fn widest() -> Build {
+        Build::ALL
+            .into_iter()
+            .find(|b| b.available())
+            .unwrap_or(Build::Baseline)
+    }
+
+    /// Whether this CPU (and its operating system) runs this build.
+    pub fn available(self) -> bool {
+        match self {
+            Build::Baseline => true,
+            #[cfg(target_arch = "x86_64")]
+            Build::Avx512 => std::arch::is_x86_feature_detected!("avx512f"),
+            #[cfg(target_arch = "x86_64")]
+            Build::Avx2 => std::arch::is_x86_feature_detected!("avx2"),
+            #[cfg(not(target_arch = "x86_64"))]
+            _ => false,
+        }
+    }
+}
+
+/// Runs the batch with `build`; false, and nothing run, where this CPU lacks it.
+#[allow(unsafe_code)]
+pub(crate) fn run_with<D: Deviates>(
+    build: Build,
+    batch: &mut BatchTrial,
+    deviates: &mut D,
+) -> bool {
+    if !build.available() {
+        return false;
+    }
+    match build {
+        Build::Baseline => batch.run_lanes(deviates),
+        // SAFETY: the one requirement for calling a function compiled with a target feature
+        // is that the CPU has it, which `available` checked above.
+        #[cfg(target_arch = "x86_64")]
+        Build::Avx512 => unsafe { run_avx512(batch, deviates) },
+        // SAFETY: as above.
+        #[cfg(target_arch = "x86_64")]
+        Build::Avx2 => unsafe { run_avx2(batch, deviates) },
+        #[cfg(not(target_arch = "x86_64"))]
+        _ => unreachable!("no such build on this architecture"),
+    }
+    true
+}
+
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 fn run_avx512<D: Deviates>(batch: &mut BatchTrial, deviates: &mut D) {
@@ -364,9 +405,5 @@ fn run_avx512<D: Deviates>(batch: &mut BatchTrial, deviates: &mut D) {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn run_avx2<D: Deviates>(batch: &mut BatchTrial, deviates: &mut D) {
-    batch.run_lanes(deviates)
-}
-
-pub(crate) fn run_baseline<D: Deviates>(batch: &mut BatchTrial, deviates: &mut D) {
     batch.run_lanes(deviates)
 }
