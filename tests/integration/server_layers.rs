@@ -259,6 +259,17 @@ fn the_stability_gate_keeps_unstable_designs_off_the_machine() {
         assert_eq!(v["stable_off"], true, "{v}");
         assert_eq!(v["has_margin"], true, "{v}");
     }
+    // The PID family's margins are the ones the slow tuning documents (found by
+    // eigenvalues, `tyreus_luyben_pi`); the shaper's now comes from its frequency response.
+    let margin = |name: &str| {
+        verdicts.iter().find(|v| v["controller"] == name).unwrap()["max_stable_kbf"]
+            .as_f64()
+            .unwrap()
+    };
+    for (name, documented) in [("pid", 2.13), ("pid-notch", 4.0), ("pid-shaper", 5.4)] {
+        let m = margin(name);
+        assert!((m - documented).abs() < 0.05, "{name}: {m} vs {documented}");
+    }
     // The bench PID on the real machine: the study cannot be locked, nor acknowledged.
     let real = api.ok(
         "/api/studies",

@@ -144,9 +144,22 @@ impl LinearizedLoop {
         Ok(poles)
     }
 
-    /// Largest K with the loop stable on all of [0, K] (see [`CompensatorAnalysis`]).
+    /// Largest K with the loop stable on all of [0, K] (see [`CompensatorAnalysis`]), from
+    /// eigenvalues.
     pub fn max_stable_kbf(&self) -> Result<Option<f64>, DesignError> {
         self.max_stable_up_to(MAX_KBF)
+    }
+
+    /// The same margin by the quickest sound route for `setup`, the setup this loop was
+    /// linearized from: the shaper's loop from its frequency response (the FIR split off,
+    /// `nyquist`) — the same first loss of stability without ~100 eigenvalue problems of
+    /// ~210 states —, every other loop from eigenvalues.
+    pub fn margin(&self, setup: &LoopSetup) -> Result<Option<f64>, DesignError> {
+        if self.has_delays {
+            Ok(nyquist::OpenLoop::new(setup)?.max_stable_up_to(MAX_KBF))
+        } else {
+            self.max_stable_kbf()
+        }
     }
 
     /// Largest K ≤ `limit` with the loop stable on all of [0, K]; `None` when stable on all
@@ -228,13 +241,7 @@ pub fn analyze_loop(
         name: setup.compensator.kind().name().to_string(),
         stable: rho < 1.0 - 1e-12,
         spectral_radius: rho,
-        // The shaper's loop from its frequency response (the FIR split off, `nyquist`): the
-        // same first loss of stability without ~100 eigenvalue problems of ~210 states.
-        max_stable_kbf: if lin.has_delays {
-            nyquist::OpenLoop::new(setup)?.max_stable_up_to(MAX_KBF)
-        } else {
-            lin.max_stable_kbf()?
-        },
+        max_stable_kbf: lin.margin(setup)?,
         poles: if lin.has_delays {
             Vec::new()
         } else {

@@ -134,7 +134,8 @@ impl PlanRequest {
 }
 
 /// Most loop ticks a population plan may simulate: the benchmark's size, 1,000 studies of 8
-/// subjects × 10 trials of 140 s (docs/benchmarks.md: minutes of both cores).
+/// subjects × 10 trials of 140 s (docs/benchmarks.md: under a minute of both cores with
+/// AVX-512, about a minute and a half with AVX2).
 const MAX_POPULATION_TICKS: f64 = 1.12e10;
 
 /// Refuses a population plan larger than `MAX_POPULATION_TICKS`; the largest candidate n.

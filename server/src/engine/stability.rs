@@ -4,7 +4,7 @@
 //! locked; a simulated one needs an explicit, audited acknowledgement.
 //!
 //! The analysis reads the one-tick map off the loop that runs (`bdft_controller::analysis`)
-//! and takes seconds, so reports are computed off the async threads, once per distinct set
+//! and can take a second or more, so reports are computed off the async threads, once per distinct set
 //! of the parameters it depends on, and kept in a small cache.
 
 use std::collections::HashMap;
@@ -83,7 +83,7 @@ fn verdict(params: &StudyParams, spec: &bdft_protocol::params::CompensatorSpec) 
         AppError::BadRequest(format!("{}: the design cannot be built: {e}", spec.kind()))
     };
     let lin = LinearizedLoop::new(&setup).map_err(design)?;
-    let max_stable_kbf = lin.max_stable_kbf().map_err(design)?;
+    let max_stable_kbf = lin.margin(&setup).map_err(design)?;
     Ok(Verdict {
         compensator: spec.kind(),
         stable_on: lin.is_stable(params.k_bf).map_err(design)?,
@@ -94,7 +94,7 @@ fn verdict(params: &StudyParams, spec: &bdft_protocol::params::CompensatorSpec) 
 }
 
 /// Analyses every compensator, one thread each (they are independent, and each takes
-/// eigenvalues of a few hundred states many times over).
+/// eigenvalues of up to a few hundred states many times over).
 fn analyse(params: &StudyParams) -> Result<StabilityReport> {
     let verdicts = std::thread::scope(|s| {
         let handles: Vec<_> = params
