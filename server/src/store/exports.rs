@@ -123,7 +123,10 @@ pub async fn recorded_trials<'c>(
 }
 
 /// A subject as the subjects export reads it, with the parameters drawn for a synthetic
-/// subject (`drawn_json`: a flat object of name → number; NULL for a person).
+/// subject (`drawn_json`: a flat object of name → number; NULL for a person). Not
+/// `subjects::Subject`, which parses the draw into today's `SubjectDraw`: the export takes
+/// it as an open map, so a subject drawn with another version's parameters still exports
+/// (and so does the rest of its study).
 #[derive(Debug, sqlx::FromRow)]
 pub struct SubjectExportRow {
     pub code: String,
