@@ -118,6 +118,23 @@ fn on_the_scalar_deviates_a_batch_reproduces_the_scalar_trials_bit_for_bit() {
 }
 
 #[test]
+fn targets_other_than_steps_are_read_lane_by_lane_and_reproduced_too() {
+    let starts: Vec<StartTrial> = (0..LANES)
+        .map(|l| {
+            let mut st = start(l, CompensatorKind::PidNotch, Seat::On, body(2, l, 1.0), 8.0);
+            st.target = TargetSpec::SweptSine {
+                amplitude_mm: 10.0 + l as f64,
+                f0_hz: 0.1,
+                f1_hz: 1.0 + 0.1 * l as f64,
+            };
+            st
+        })
+        .collect();
+    let (batch, scalar) = batch_and_scalar(&starts);
+    assert_eq!(batch, scalar);
+}
+
+#[test]
 fn lanes_the_interlock_stops_are_reported_stopped_and_the_others_run_on() {
     // Plain LQR on the machine is pushed past its margin by a large feedthrough gain: the
     // lanes with the stiffest bodies trip, the others complete, as in the scalar trials.
