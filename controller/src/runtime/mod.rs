@@ -155,11 +155,16 @@ impl ServeArgs {
 pub fn serve_announcing(args: &ServeArgs) -> anyhow::Result<()> {
     use std::io::Write;
     serve(args.config()?, |addr, input| {
-        if let Some(input) = input {
-            println!("input udp on {input}");
+        // A supervisor that is already gone has closed the pipe: nobody reads the lines, and
+        // the loop stops when its stdin closes (`exit_with_stdin`). Writing must not panic.
+        let mut out = std::io::stdout().lock();
+        let written = input
+            .map_or(Ok(()), |input| writeln!(out, "input udp on {input}"))
+            .and_then(|()| writeln!(out, "listening on {addr}"))
+            .and_then(|()| out.flush());
+        if let Err(e) = written {
+            tracing::warn!(error = %e, "the addresses could not be announced on standard output");
         }
-        println!("listening on {addr}");
-        let _ = std::io::stdout().flush();
     })
 }
 
