@@ -7,10 +7,14 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 
 use crate::config::{DbConfig, ServeConfig};
-use crate::engine::export::{ExportFormat, ExportKind, ExportRequest, SampleCut};
-use crate::engine::login_limiter::LoginLimiter;
-use crate::engine::power::{self, PlanRequest, PlanSource};
-use crate::engine::{accounts, controller_link, export, filing, pilot};
+use crate::engine::accounts;
+use crate::engine::accounts::login_limiter::LoginLimiter;
+use crate::engine::dry_runs::pilot;
+use crate::engine::dry_runs::power::{self, PlanRequest, PlanSource};
+use crate::engine::machine::controller_link;
+use crate::engine::procedure::filing;
+use crate::engine::results::export;
+use crate::engine::results::export::{ExportFormat, ExportKind, ExportRequest, SampleCut};
 use crate::store;
 use crate::store::accounts::Role;
 use bdft_protocol::link_auth::LinkKey;
@@ -209,7 +213,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
                 alpha,
                 seed,
             };
-            let progress = std::sync::Arc::new(crate::engine::job::Progress::default());
+            let progress = std::sync::Arc::new(crate::engine::dry_runs::job::Progress::default());
             let ticker = {
                 let progress = progress.clone();
                 tokio::spawn(async move {
@@ -276,7 +280,7 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     if !interrupted.is_empty() {
         tracing::warn!(trials = ?interrupted, "trials that were running when the server stopped are marked incomplete");
     }
-    crate::engine::bench::fail_interrupted(&pool).await?;
+    crate::engine::machine::bench::fail_interrupted(&pool).await?;
     // A pilot process killed while it ran leaves its trials running: they are filed as soon
     // as its heartbeat stops, not at the next restart.
     tokio::spawn(filing::watch_pilots(pool.clone()));
@@ -328,6 +332,7 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
         source,
         key,
         std::time::Duration::from_millis(config.controller_silence_ms),
+        std::sync::Arc::new(filing::LinkFiling(pool.clone())),
     );
     let mut state = crate::state::AppState::new(pool, link);
     state.web_dir = config.web_dir;

@@ -5,7 +5,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use crate::engine::login_limiter::LoginLimits;
+use crate::engine::accounts::login_limiter::LoginLimits;
 
 /// Where the data live.
 #[derive(Debug, Clone, clap::Args)]
@@ -46,7 +46,7 @@ pub struct ServeConfig {
     pub admin_password: Option<String>,
     /// The controller counts as lost after this long without a message from it (ms); it
     /// heartbeats every 50 ms.
-    #[arg(long, env = "BDFT_CONTROLLER_SILENCE_MS", default_value_t = crate::engine::controller_link::DEFAULT_SILENCE.as_millis() as u64, value_parser = clap::value_parser!(u64).range(60..=10_000))]
+    #[arg(long, env = "BDFT_CONTROLLER_SILENCE_MS", default_value_t = crate::engine::machine::controller_link::DEFAULT_SILENCE.as_millis() as u64, value_parser = clap::value_parser!(u64).range(60..=10_000))]
     pub controller_silence_ms: u64,
     /// Serve the pages from this directory instead of the copy built into the binary
     /// (for developing them).

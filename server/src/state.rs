@@ -5,14 +5,14 @@ use std::sync::Arc;
 
 use sqlx::SqlitePool;
 
-use crate::engine::bench::BenchJob;
-use crate::engine::controller_link::ControllerLink;
-use crate::engine::login_limiter::LoginLimiter;
-use crate::engine::pilot::PilotJob;
-use crate::engine::power::PlanJob;
-use crate::engine::stability::StabilityCache;
-use crate::engine::station_sockets::StationSockets;
-use crate::engine::stations::Pairing;
+use crate::engine::accounts::login_limiter::LoginLimiter;
+use crate::engine::dry_runs::pilot::PilotJob;
+use crate::engine::dry_runs::power::PlanJob;
+use crate::engine::machine::bench::BenchJob;
+use crate::engine::machine::controller_link::ControllerLink;
+use crate::engine::procedure::station_sockets::StationSockets;
+use crate::engine::procedure::stations::Pairing;
+use crate::engine::study::stability::StabilityCache;
 
 #[derive(Clone, Debug)]
 pub struct AppState {

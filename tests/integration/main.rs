@@ -13,6 +13,7 @@ mod server_api;
 mod server_layers;
 mod station_safety;
 mod statistics;
+mod structure;
 mod study_params;
 mod subject_page;
 mod validity;

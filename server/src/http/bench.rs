@@ -12,7 +12,7 @@ use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppError, AppJson};
 use super::extract::Experimenter;
-use crate::engine::bench::{self, BenchRequest, BenchStatus, RunView};
+use crate::engine::machine::bench::{self, BenchRequest, BenchStatus, RunView};
 use crate::state::AppState;
 use crate::store::bench::BenchRun;
 use crate::store::{self, Change};
@@ -118,7 +118,7 @@ async fn export_run(
                 format!("attachment; filename=\"bdft-bench{id}.csv\""),
             ),
         ],
-        bench::csv(&view),
+        crate::engine::results::export::bench::csv(&view),
     )
         .into_response())
 }

@@ -11,7 +11,7 @@ use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppError, AppJson};
 use super::extract::Experimenter;
-use crate::engine::workbench_analysis::{
+use crate::engine::machine::workbench_analysis::{
     FrequencyReport, RobustnessQuery, RobustnessReport, frequency_report, robustness_report,
 };
 use crate::state::AppState;
