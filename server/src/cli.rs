@@ -288,6 +288,15 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
         .await
         .with_context(|| format!("listening on {}", config.listen))?;
     let addr = listener.local_addr()?;
+    let tls = match (&config.tls.tls_cert, &config.tls.tls_key) {
+        (Some(cert), Some(key)) => Some(crate::tls::from_files(cert, key)?),
+        _ if config.tls.tls_self_signed => Some(crate::tls::self_signed(
+            &config.db.db,
+            &crate::tls::machine_names(addr),
+        )?),
+        _ => None,
+    };
+    let scheme = if tls.is_some() { "https" } else { "http" };
     if store::accounts::experimenter_count(&pool).await? == 0 {
         match &config.admin_password {
             Some(pw) => {
@@ -299,7 +308,7 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
             None => {
                 let token = accounts::new_setup_token(&pool).await?;
                 println!(
-                    "First start: create the experimenter account at http://{addr}/setup?token={token}"
+                    "First start: create the experimenter account at {scheme}://{addr}/setup?token={token}"
                 );
             }
         }
@@ -337,10 +346,15 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     let mut state = crate::state::AppState::new(pool, link);
     state.web_dir = config.web_dir;
     state.login = std::sync::Arc::new(LoginLimiter::new(config.login.limits()));
-    println!("bdft-lab server on http://{addr}");
+    state.https = tls.is_some();
+    if let Some(t) = &tls {
+        // Printed before the address line: whoever reads the address has the fingerprint.
+        println!("TLS certificate SHA-256 fingerprint: {}", t.fingerprint);
+    }
+    println!("bdft-lab server on {scheme}://{addr}");
     use std::io::Write;
     let _ = std::io::stdout().flush();
-    crate::run(state, listener, &config.connections, shutdown_signal()).await?;
+    crate::run(state, listener, &config.connections, tls, shutdown_signal()).await?;
     Ok(())
 }
 

@@ -56,6 +56,29 @@ pub struct ServeConfig {
     pub connections: ConnectionConfig,
     #[command(flatten)]
     pub login: LoginConfig,
+    #[command(flatten)]
+    pub tls: TlsConfig,
+}
+
+/// HTTPS (off by default: a server on loopback needs none; one on a lab network does).
+#[derive(Debug, Clone, clap::Args)]
+pub struct TlsConfig {
+    /// Serve HTTPS with this certificate chain (PEM file); needs --tls-key.
+    #[arg(
+        long,
+        env = "BDFT_TLS_CERT",
+        requires = "tls_key",
+        conflicts_with = "tls_self_signed"
+    )]
+    pub tls_cert: Option<PathBuf>,
+    /// The private key of --tls-cert (PEM file: PKCS#8, PKCS#1 or SEC1).
+    #[arg(long, env = "BDFT_TLS_KEY", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
+    /// Serve HTTPS with a self-signed certificate for this machine's names, made at the first
+    /// start and kept beside the database (`<db>.tls-cert.pem`, `<db>.tls-key.pem`); its
+    /// fingerprint is printed at every start for the stations to check.
+    #[arg(long, env = "BDFT_TLS_SELF_SIGNED")]
+    pub tls_self_signed: bool,
 }
 
 /// What one client may hold of the server's connections.

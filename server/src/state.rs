@@ -29,6 +29,9 @@ pub struct AppState {
     pub stability: Arc<StabilityCache>,
     /// Serve the pages from this directory instead of the embedded copy (development).
     pub web_dir: Option<std::path::PathBuf>,
+    /// Whether the server speaks HTTPS: cookies are then `Secure` and every answer carries
+    /// HSTS.
+    pub https: bool,
 }
 
 impl AppState {
@@ -44,6 +47,7 @@ impl AppState {
             bench: Arc::default(),
             stability: Arc::default(),
             web_dir: None,
+            https: false,
         }
     }
 }

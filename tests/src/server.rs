@@ -20,6 +20,8 @@ pub struct Server {
     pub dir: TempDir,
     /// Its arguments after `serve --db … --listen …`.
     args: Vec<String>,
+    /// Its self-signed certificate (PEM) when it serves HTTPS: clients trust exactly it.
+    pub cert: Option<PathBuf>,
 }
 
 impl Server {
@@ -34,13 +36,42 @@ impl Server {
         let db = dir.path().join("bdft-lab.db");
         let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
         let proc = Self::spawn(&db, &args);
-        Self {
-            base: format!("http://{}", proc.addr),
+        let cert = args
+            .iter()
+            .any(|a| a == "--tls-self-signed")
+            .then(|| db.with_extension("tls-cert.pem"));
+        let mut server = Self {
+            base: String::new(),
             proc,
             db,
             dir,
             args,
-        }
+            cert,
+        };
+        server.base = server.base_url();
+        server
+    }
+
+    /// A server over HTTPS with a self-signed certificate it makes at its first start, and
+    /// the account "admin".
+    pub fn start_https(tag: &str) -> Self {
+        Self::start_with(
+            tag,
+            &["--admin-password", ADMIN_PASSWORD, "--tls-self-signed"],
+        )
+    }
+
+    fn scheme(&self) -> &'static str {
+        if self.cert.is_some() { "https" } else { "http" }
+    }
+
+    fn base_url(&self) -> String {
+        format!("{}://{}", self.scheme(), self.proc.addr)
+    }
+
+    /// A client with no session that trusts this server's certificate, if it has one.
+    pub fn anonymous(&self) -> Api {
+        Api::with_agent(&self.base, agent(self.cert.as_deref()))
     }
 
     fn spawn(db: &Path, extra: &[String]) -> Proc {
@@ -52,7 +83,13 @@ impl Server {
             "127.0.0.1:0",
         ];
         args.extend(extra.iter().map(String::as_str));
-        Proc::spawn("bdft-server", &args, "bdft-lab server on http://")
+        let https = extra.iter().any(|a| a == "--tls-self-signed");
+        let prefix = if https {
+            "bdft-lab server on https://"
+        } else {
+            "bdft-lab server on http://"
+        };
+        Proc::spawn("bdft-server", &args, prefix)
     }
 
     /// Kills the server (SIGKILL: no clean shutdown) and starts it again on the same
@@ -60,7 +97,7 @@ impl Server {
     pub fn crash_and_restart(&mut self) {
         self.proc.kill();
         self.proc = Self::spawn(&self.db, &self.args);
-        self.base = format!("http://{}", self.proc.addr);
+        self.base = self.base_url();
     }
 
     /// A client logged in as the admin experimenter.
@@ -70,7 +107,7 @@ impl Server {
 
     /// A client logged in as `username`.
     pub fn login(&self, username: &str, password: &str) -> Api {
-        let mut api = Api::anonymous(&self.base);
+        let mut api = self.anonymous();
         let (code, body) = api.post(
             "/api/login",
             json!({ "username": username, "password": password }),
@@ -103,12 +140,40 @@ pub struct Api {
     pub bearer: Option<String>,
 }
 
+/// An HTTP agent; over HTTPS it trusts only the certificate in `cert` (PEM).
+pub fn agent(cert: Option<&Path>) -> ureq::Agent {
+    let builder = ureq::AgentBuilder::new().timeout(Duration::from_secs(60));
+    match cert {
+        None => builder.build(),
+        Some(cert) => {
+            use rustls::pki_types::CertificateDer;
+            use rustls::pki_types::pem::PemObject;
+            let mut roots = rustls::RootCertStore::empty();
+            for c in CertificateDer::pem_file_iter(cert).expect("the server's certificate") {
+                roots
+                    .add(c.expect("a PEM certificate"))
+                    .expect("a usable certificate");
+            }
+            let config = rustls::ClientConfig::builder_with_provider(std::sync::Arc::new(
+                rustls::crypto::ring::default_provider(),
+            ))
+            .with_safe_default_protocol_versions()
+            .expect("TLS versions")
+            .with_root_certificates(roots)
+            .with_no_client_auth();
+            builder.tls_config(std::sync::Arc::new(config)).build()
+        }
+    }
+}
+
 impl Api {
     pub fn anonymous(base: &str) -> Self {
+        Self::with_agent(base, agent(None))
+    }
+
+    fn with_agent(base: &str, agent: ureq::Agent) -> Self {
         Self {
-            agent: ureq::AgentBuilder::new()
-                .timeout(Duration::from_secs(60))
-                .build(),
+            agent,
             base: base.to_string(),
             csrf: None,
             bearer: None,
