@@ -3,8 +3,14 @@
 mod accounts;
 mod browser;
 mod controller_cli;
+mod controller_estop;
+mod controller_input_udp;
 mod controller_link_auth;
-mod controller_serve;
+mod controller_link_loss;
+mod controller_messages;
+mod controller_rig_udp;
+mod controller_starts;
+mod controller_trials;
 mod design_aids;
 mod exports_analyst;
 mod exports_audit;
