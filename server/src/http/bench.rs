@@ -5,7 +5,6 @@ use axum::extract::{DefaultBodyLimit, Path, State};
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use serde::Serialize;
-use serde_json::json;
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
@@ -13,6 +12,7 @@ use utoipa_axum::routes;
 use super::error::{ApiResult, AppError, AppJson};
 use super::extract::Experimenter;
 use crate::engine::machine::bench::{self, BenchRequest, BenchStatus, RunView};
+use crate::engine::results::export::ExportedAll;
 use crate::state::AppState;
 use crate::store::bench::BenchRun;
 use crate::store::{self, Change};
@@ -107,7 +107,7 @@ async fn export_run(
         .commit(
             "export",
             Some(format!("bench_run:{id}")),
-            json!({ "kind": "bench" }),
+            ExportedAll { kind: "bench" },
         )
         .await?;
     Ok((

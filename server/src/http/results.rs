@@ -6,7 +6,6 @@ use axum::extract::{Path, Query, State};
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
-use serde_json::json;
 use utoipa::IntoParams;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
@@ -15,7 +14,9 @@ use super::error::{ApiResult, AppError, AppJson};
 use super::extract::Experimenter;
 use crate::engine::dry_runs::job::JobStatus;
 use crate::engine::dry_runs::power::{PlanReport, PlanRequest, PlanSource, PlanStatus, plan_study};
-use crate::engine::results::export::{self, ExportFormat, ExportKind, ExportRequest, SampleCut};
+use crate::engine::results::export::{
+    self, ExportFormat, ExportKind, ExportRequest, ExportedAll, SampleCut,
+};
 use crate::engine::results::inference_table::{StatsRow, study_table};
 use crate::engine::results::learning::{LearningCurve, learning_curve};
 use crate::engine::results::page::{parse_file, plot as draw_plot};
@@ -215,18 +216,9 @@ async fn download(
     }
     let study = store::studies::get(&s.pool, id).await?;
     export::check(&s.pool, id, &req).await?;
-    let cut = match &req.cut {
-        SampleCut::All => json!(null),
-        SampleCut::Subject(code) => json!({ "subject": code }),
-        SampleCut::Trial(t) => json!({ "trial": t }),
-    };
     Change::begin(&s.pool, who.username.as_str())
         .await?
-        .commit(
-            "export",
-            Some(format!("study:{id}")),
-            json!({ "kind": req.kind.name(), "format": req.format.extension(), "cut": cut }),
-        )
+        .commit("export", Some(format!("study:{id}")), req.audited())
         .await?;
     let filename = req.file_name(study.id, study.protocol_hash.as_deref());
     let format = req.format;
@@ -266,7 +258,13 @@ fn attachment(body: Body, format: ExportFormat, filename: &str) -> Response {
 async fn audit_export(State(s): State<AppState>, who: Experimenter) -> Result<Response, AppError> {
     Change::begin(&s.pool, who.username.as_str())
         .await?
-        .commit("export", None, json!({ "kind": "audit" }))
+        .commit(
+            "export",
+            None,
+            ExportedAll {
+                kind: ExportKind::Audit.name(),
+            },
+        )
         .await?;
     let body = stream(&s, 0, ExportRequest::new(ExportKind::Audit));
     Ok(attachment(body, ExportFormat::Csv, "bdft-audit.csv"))
