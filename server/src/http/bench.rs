@@ -95,7 +95,7 @@ async fn get_run(
 
 /// A run as CSV: its results' metrics and reductions, and the decimated traces.
 #[utoipa::path(get, path = "/api/bench/runs/{id}/export", tag = "bench", params(("id" = i64, Path)),
-    responses((status = 200, description = "CSV", content_type = "text/csv")))]
+    responses((status = 200, description = "CSV", body = String, content_type = "text/csv")))]
 async fn export_run(
     State(s): State<AppState>,
     who: Experimenter,

@@ -118,7 +118,8 @@ async fn plan_job_status(State(s): State<AppState>, _who: Experimenter) -> AppJs
 /// `.png`), or the learning curve (`learning_curve.svg` or `.png`).
 #[utoipa::path(get, path = "/api/studies/{id}/plots/{file}", tag = "results",
     params(("id" = i64, Path), ("file" = String, Path, description = "e.g. mse_tracking_mm2.svg or learning_curve.png")),
-    responses((status = 200, description = "SVG or PNG image", content_type = "image/svg+xml")))]
+    responses((status = 200, description = "the figure as SVG (`.svg`) or PNG (`.png`)",
+        content((String = "image/svg+xml"), ("image/png")))))]
 async fn plot(
     State(s): State<AppState>,
     _who: Experimenter,
@@ -200,7 +201,8 @@ impl ExportQuery {
 /// read.
 #[utoipa::path(get, path = "/api/studies/{id}/export/{kind}", tag = "results",
     params(("id" = i64, Path), ("kind" = String, Path, description = "trials, samples, subjects, codebook, summary, stats or notes"), ExportQuery),
-    responses((status = 200, description = "CSV or Parquet", content_type = "text/csv"),
+    responses((status = 200, description = "the table as CSV (`format=csv`, the default) or Parquet (`format=parquet`)",
+            content((String = "text/csv"), ("application/vnd.apache.parquet"))),
         (status = 422, description = "a kind, format or cut that is not allowed, named with what is")))]
 async fn download(
     State(s): State<AppState>,
@@ -254,7 +256,7 @@ fn attachment(body: Body, format: ExportFormat, filename: &str) -> Response {
 /// The whole audit log as CSV, oldest first (`id, at, actor, action, target, detail` with
 /// the detail as JSON), streamed.
 #[utoipa::path(get, path = "/api/audit/export", tag = "results",
-    responses((status = 200, description = "CSV", content_type = "text/csv")))]
+    responses((status = 200, description = "CSV", body = String, content_type = "text/csv")))]
 async fn audit_export(State(s): State<AppState>, who: Experimenter) -> Result<Response, AppError> {
     Change::begin(&s.pool, who.username.as_str())
         .await?
