@@ -152,6 +152,7 @@ async fn learning(
 }
 
 #[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
 struct ExportQuery {
     /// `csv` (default) or `parquet`.
     format: Option<String>,
@@ -273,6 +274,7 @@ async fn audit_export(State(s): State<AppState>, who: Experimenter) -> Result<Re
 }
 
 #[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
 struct AuditQuery {
     /// How many of the newest rows: 1 to 10000 (default 200).
     limit: Option<i64>,
