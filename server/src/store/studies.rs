@@ -26,9 +26,9 @@ pub struct Study {
     pub instability_ack: Option<InstabilityAck>,
 }
 
-/// Who acknowledged that a study's design is unstable on the machine, when and why. The
-/// fields are in alphabetical order, the order the stored text and the API's answer have had
-/// since the acknowledgement was an untyped JSON object.
+/// Who acknowledged that a study's design is unstable on the machine, when and why.
+// The fields are in alphabetical order, the order the stored text and the API's answer have
+// had since the acknowledgement was an untyped JSON object.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct InstabilityAck {
     /// When, in ms since the Unix epoch.

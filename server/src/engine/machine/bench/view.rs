@@ -45,10 +45,10 @@ pub struct RunView {
     pub traces: Vec<Trace>,
 }
 
-/// A result's stored trace: the `TRACE_CHANNELS` of its record at every `DECIMATION`-th
-/// tick (null where a value was not finite). The fields are in alphabetical order, the
-/// order the stored text and the API's answer have had since the trace was an untyped JSON
-/// object.
+/// A result's stored trace: the reference, cylinder position and cab acceleration of its
+/// record at every `DECIMATION`-th tick, `dt_s` apart (null where a value was not finite).
+// The fields are in alphabetical order, the order the stored text and the API's answer have
+// had since the trace was an untyped JSON object.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct Trace {
     /// Cab acceleration (mm/s²).
