@@ -258,6 +258,18 @@ impl Api {
         }
     }
 
+    /// Status and `Content-Type` of a GET (the body is read and dropped).
+    pub fn content_type(&self, path: &str) -> (u16, String) {
+        let (code, resp) = match self.agent.get(&format!("{}{path}", self.base)).call() {
+            Ok(r) => (r.status(), r),
+            Err(ureq::Error::Status(c, r)) => (c, r),
+            Err(e) => panic!("GET {path}: {e}"),
+        };
+        let content_type = resp.header("content-type").unwrap_or_default().to_string();
+        std::io::copy(&mut resp.into_reader(), &mut std::io::sink()).unwrap();
+        (code, content_type)
+    }
+
     /// Raw bytes of a GET (Parquet downloads).
     pub fn get_bytes(&self, path: &str) -> (u16, Vec<u8>) {
         use std::io::Read;

@@ -140,8 +140,7 @@ async fn setup(
         id,
         &req.username,
         Role::Admin,
-        "login",
-        serde_json::json!({ "after": "setup" }),
+        accounts::Login::Setup,
     )
     .await?;
     Ok(started(&req.username, session, state.https))

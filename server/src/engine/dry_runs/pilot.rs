@@ -8,18 +8,38 @@ use anyhow::Context;
 use sqlx::SqlitePool;
 
 use bdft_protocol::records::ConsentDecision;
-use serde_json::json;
+use serde::Serialize;
 
 use super::job::{Job, JobStatus, Progress};
 use crate::engine::procedure::enrolment::enrol;
 use crate::engine::procedure::filing::file_result;
 use crate::engine::procedure::orchestrator::{Operator, start_message};
 use crate::engine::study::schedule::default_params;
+use crate::store::audit::NoDetail;
 use crate::store::records::Record;
 use crate::store::{self, Change};
 
 /// Who the audit log names for starting a pilot from the command line.
 const COMMAND_LINE: &str = "system:pilot-command";
+
+/// What `pilot.process` records: the process that runs the pilot.
+#[derive(Debug, Serialize)]
+struct Process {
+    pid: u32,
+}
+
+/// What `pilot.start` records: how many synthetic subjects.
+#[derive(Debug, Serialize)]
+struct Started {
+    subjects: u32,
+}
+
+/// What a synthetic subject's `consent` records: always agreed, and synthetic.
+#[derive(Debug, Serialize)]
+struct SyntheticConsent {
+    decision: ConsentDecision,
+    synthetic: bool,
+}
 
 #[derive(Debug, Clone, serde::Serialize, utoipa::ToSchema)]
 pub struct PilotReport {
@@ -54,7 +74,9 @@ pub async fn run(
         .commit(
             "pilot.process",
             Some(format!("pilot_run:{run_id}")),
-            json!({ "pid": std::process::id() }),
+            Process {
+                pid: std::process::id(),
+            },
         )
         .await?;
     let beating = {
@@ -121,7 +143,7 @@ pub async fn run_with_progress(
         .commit(
             "pilot.start",
             Some(format!("study:{study_id}")),
-            json!({ "subjects": subjects }),
+            Started { subjects },
         )
         .await?;
     let mut report = PilotReport {
@@ -145,7 +167,10 @@ pub async fn run_with_progress(
             .commit(
                 "consent",
                 Some(format!("subject:{}", subject.id)),
-                json!({ "decision": "agreed", "synthetic": true }),
+                SyntheticConsent {
+                    decision: ConsentDecision::Agreed,
+                    synthetic: true,
+                },
             )
             .await?;
         report.subjects.push(subject.code.clone());
@@ -187,7 +212,7 @@ pub async fn run_with_progress(
                         .commit(
                             "trial.start",
                             Some(format!("trial:{}", trial.id)),
-                            json!({}),
+                            NoDetail {},
                         )
                         .await?;
                     let start = start_message(&study, &trial, Operator::Synthetic(subject.drawn))?;
@@ -220,11 +245,7 @@ pub async fn run_with_progress(
     }
     Change::begin(pool, actor)
         .await?
-        .commit(
-            "pilot.finish",
-            Some(format!("study:{study_id}")),
-            serde_json::to_value(&report)?,
-        )
+        .commit("pilot.finish", Some(format!("study:{study_id}")), &report)
         .await?;
     Ok(report)
 }
