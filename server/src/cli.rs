@@ -265,13 +265,13 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             let pool = store::db::open(&db.db).await?;
             let made = backup::make(&pool, &out, backup::COMMAND_LINE)
                 .await
-                .map_err(|e| anyhow::anyhow!(backup::describe(&e)))?;
+                .map_err(|e| anyhow::anyhow!(e.describe()))?;
             println!("{}", serde_json::to_string_pretty(&made)?);
         }
         Command::Restore { from, db } => {
             let restored = restore::restore(&from, &db.db)
                 .await
-                .map_err(|e| anyhow::anyhow!(backup::describe(&e)))?;
+                .map_err(|e| anyhow::anyhow!(e.describe()))?;
             println!("{}", serde_json::to_string_pretty(&restored)?);
         }
         Command::Export {

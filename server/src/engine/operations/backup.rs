@@ -41,7 +41,7 @@ pub async fn make(pool: &SqlitePool, out: &Path, made_by: &str) -> Result<Manife
             let _ = std::fs::remove_file(&partial);
             (
                 "backup.fail",
-                json!({ "file": out.display().to_string(), "error": describe(e) }),
+                json!({ "file": out.display().to_string(), "error": e.describe() }),
             )
         }
     };
@@ -50,15 +50,6 @@ pub async fn make(pool: &SqlitePool, out: &Path, made_by: &str) -> Result<Manife
         .commit(action, None, detail)
         .await?;
     outcome
-}
-
-/// The words of an error, the inner cause of an internal one included (the audit row and
-/// the operator's log need it).
-pub fn describe(e: &AppError) -> String {
-    match e {
-        AppError::Internal(inner) => format!("{inner:#}"),
-        other => other.to_string(),
-    }
 }
 
 fn refuse_to_overwrite(out: &Path) -> Result<()> {

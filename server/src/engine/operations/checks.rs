@@ -31,7 +31,7 @@ pub async fn check_file(file: &Path, named: &Path) -> Result<Checked> {
     let unreadable = |e: AppError| {
         AppError::BadRequest(format!(
             "{shown} is damaged or not a database: {}",
-            super::backup::describe(&e)
+            e.describe()
         ))
     };
     let mut db = store::db::open_read_only(file)

@@ -9,7 +9,7 @@ use std::time::Duration;
 use serde::Serialize;
 use sqlx::SqlitePool;
 
-use super::backup::{self, describe};
+use super::backup;
 use super::manifest::{self, Manifest};
 use crate::error::{AppError, Result};
 use crate::store::db::{now_ms, rfc3339};
@@ -173,7 +173,7 @@ impl Backups {
                     tracing::info!(file = %m.file, bytes = m.bytes, took_ms = m.took_ms, "scheduled backup made")
                 }
                 Err(e) => {
-                    tracing::error!("scheduled backup failed: {}", describe(&e));
+                    tracing::error!("scheduled backup failed: {}", e.describe());
                     // Try again after a period, not in a tight loop.
                     tokio::time::sleep(policy.every).await;
                 }
