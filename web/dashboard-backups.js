@@ -40,6 +40,7 @@ export async function refresh() {
   syncRows($('backups').tBodies[0], v.backups, {
     key: (m) => m.file,
     sig: (m) => JSON.stringify(m),
+    attrs: () => ({}),
     cells: (m) => [
       el('td', { class: 'nowrap' }, when(Date.parse(m.created_at))),
       el('td', {}, m.file),
