@@ -1,5 +1,6 @@
 //! Backups and restores, end to end: backups taken while a pilot files its trials (the
-//! dashboard's "Back up now" in the server, and `bdft-server backup` from another process),
+//! dashboard's "Back up now" in the server — by the API, then in Chromium —, and
+//! `bdft-server backup` from another process),
 //! each restored into a new path, whose exports equal the original's up to the backup's
 //! moment; the schedule and how many it keeps; who may see backups; and every refusal of a
 //! restore (a running server, a damaged file, a newer program's file, no manifest).
@@ -21,6 +22,7 @@ use std::time::Duration;
 
 use bdft_tests::exports::parse_csv;
 use bdft_tests::server::{ADMIN_PASSWORD, Server, eventually, short_study};
+use bdft_tests::webdriver::{Driver, artifacts_dir};
 use bdft_tests::{TempDir, binary};
 use serde_json::{Value, json};
 use sha2::{Digest, Sha256};
@@ -277,6 +279,32 @@ fn backups_taken_while_a_pilot_runs_restore_to_the_exports_of_their_moment() {
     assert_eq!(
         creates, 3,
         "the scheduled one, the dashboard's and the command's"
+    );
+
+    // The dashboard's panel, in Chromium: the directory's backups with their manifests, and
+    // "Back up now".
+    let downloads = TempDir::new("backups-browser");
+    let driver = Driver::start();
+    let dash = driver.session(downloads.path());
+    dash.log_in_to_dashboard(&server.base);
+    dash.find(&format!("#backups tr[data-row-key='{file}']"));
+    dash.click("#backup-now");
+    let said = dash.wait_until(
+        "const s = document.querySelector('#backups-status'); return s.classList.contains('ok') || s.classList.contains('err') ? s.textContent : null",
+        json!([]),
+    );
+    assert!(said.as_str().unwrap().contains("checked"), "{said}");
+    dash.exec(
+        "document.getElementById('sec-backups').scrollIntoView()",
+        json!([]),
+    );
+    dash.screenshot(&artifacts_dir().join("dashboard-backups.png"));
+    assert_eq!(
+        api.get("/api/backups").1["backups"]
+            .as_array()
+            .unwrap()
+            .len(),
+        4
     );
 
     for (backup, manifest) in [(dir.path().join(file), &by_dashboard), (by_hand, &beside)] {
