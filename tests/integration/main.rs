@@ -1,6 +1,7 @@
 //! End-to-end tests, one binary: each module drives real processes of the product.
 
 mod accounts;
+mod backups;
 mod browser;
 mod controller_cli;
 mod controller_estop;
@@ -23,6 +24,7 @@ mod statistics;
 mod structure;
 mod study_params;
 mod subject_page;
+mod upgrade;
 mod validity;
 mod workbench_analysis;
 mod workbench_bench;

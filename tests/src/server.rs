@@ -32,7 +32,20 @@ impl Server {
 
     /// A server started with `args` (no account unless they make one).
     pub fn start_with(tag: &str, args: &[&str]) -> Self {
+        Self::start_in(TempDir::new(tag), args)
+    }
+
+    /// A server started with `args` on a copy of the database `source` (the copy is the
+    /// server's `db`; `source` is never touched).
+    pub fn start_on_copy(tag: &str, source: &Path, args: &[&str]) -> Self {
         let dir = TempDir::new(tag);
+        std::fs::copy(source, dir.path().join("bdft-lab.db"))
+            .unwrap_or_else(|e| panic!("copying {}: {e}", source.display()));
+        Self::start_in(dir, args)
+    }
+
+    /// A server on `dir`'s `bdft-lab.db`.
+    fn start_in(dir: TempDir, args: &[&str]) -> Self {
         let db = dir.path().join("bdft-lab.db");
         let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
         let proc = Self::spawn(&db, &args);

@@ -12,6 +12,7 @@ pub mod error;
 pub mod extract;
 
 mod accounts;
+mod backups;
 mod bench;
 mod configs;
 mod controller;
@@ -68,6 +69,7 @@ pub fn app(state: AppState) -> Router {
     let experimenter = OpenApiRouter::new()
         .merge(session::experimenter())
         .merge(accounts::routes())
+        .merge(backups::routes())
         .merge(studies::routes())
         .merge(subjects::experimenter())
         .merge(stations::routes())

@@ -7,6 +7,7 @@
 
 pub mod accounts;
 pub mod audit;
+pub mod backups;
 pub mod bench;
 pub mod configs;
 pub mod db;
@@ -15,6 +16,7 @@ pub mod exports;
 pub mod latch;
 pub mod pilot_runs;
 pub mod records;
+pub mod server_runs;
 pub mod stations;
 pub mod studies;
 pub mod subjects;

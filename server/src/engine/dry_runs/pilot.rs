@@ -81,14 +81,9 @@ pub async fn run(
         .await?;
     let beating = {
         let pool = pool.clone();
-        tokio::spawn(async move {
-            let mut tick = tokio::time::interval(BEAT);
-            loop {
-                tick.tick().await;
-                if let Err(e) = store::pilot_runs::beat(&pool, run_id).await {
-                    tracing::warn!("pilot heartbeat: {e}");
-                }
-            }
+        crate::engine::beat_every(BEAT, "pilot", move || {
+            let pool = pool.clone();
+            async move { store::pilot_runs::beat(&pool, run_id).await }
         })
     };
     let outcome = run_with_progress(
