@@ -13,7 +13,7 @@ use std::process::{Command, Output};
 use bdft_tests::exports::parse_csv;
 
 use crate::exports_audit::column;
-use bdft_tests::server::{Server, run_pilot, short_study};
+use bdft_tests::server::{Server, pilot_copy, short_study};
 use bdft_tests::{TempDir, binary};
 use serde_json::{Value, json};
 
@@ -109,10 +109,7 @@ fn a_pilots_bids_export_passes_the_validator_and_holds_every_run() {
     let server = Server::start("bids");
     let api = server.experimenter();
     let study = short_study(&api, 3.0, 1.0);
-    let status = run_pilot(&api, study, 2);
-    let copy = status["report"]["study_id"]
-        .as_i64()
-        .expect("the pilot ran");
+    let copy = pilot_copy(&api, study, 2);
     let dir = TempDir::new("bids-out");
     let dataset = dir.path().join("dataset");
     let db = server.db.to_str().unwrap().to_string();
