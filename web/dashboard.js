@@ -15,6 +15,8 @@ import * as plan from './dashboard-plan.js';
 import * as accounts from './dashboard-accounts.js';
 import * as configs from './dashboard-configs.js';
 import * as bench from './dashboard-bench.js';
+import * as protocol from './dashboard-protocol.js';
+import * as erasure from './dashboard-erasure.js';
 
 const $ = (id) => document.getElementById(id);
 
@@ -58,8 +60,11 @@ async function showApp(me) {
     accounts.init();
     bench.init();
     configs.init();
+    protocol.init();
+    erasure.init();
   }
   accounts.applyRole(me.role);
+  erasure.refresh();
   // The page shows once the study list and the form are filled, so that nothing typed
   // into it is overwritten by data still on its way.
   await study.loadStudies();

@@ -336,6 +336,7 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     );
     let mut state = crate::state::AppState::new(pool, link);
     state.web_dir = config.web_dir;
+    state.backup_dir = config.backup_dir;
     state.login = std::sync::Arc::new(LoginLimiter::new(config.login.limits()));
     println!("bdft-lab server on http://{addr}");
     use std::io::Write;

@@ -52,6 +52,11 @@ pub struct ServeConfig {
     /// (for developing them).
     #[arg(long, env = "BDFT_WEB_DIR")]
     pub web_dir: Option<PathBuf>,
+    /// The directory of the lab's backups, each with a `NAME.manifest.json` saying when it
+    /// was made (`created_at`): an erasure lists the backups older than it, which still hold
+    /// the erased data.
+    #[arg(long, env = "BDFT_BACKUP_DIR")]
+    pub backup_dir: Option<PathBuf>,
     #[command(flatten)]
     pub connections: ConnectionConfig,
     #[command(flatten)]

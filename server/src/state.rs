@@ -29,6 +29,8 @@ pub struct AppState {
     pub stability: Arc<StabilityCache>,
     /// Serve the pages from this directory instead of the embedded copy (development).
     pub web_dir: Option<std::path::PathBuf>,
+    /// Where the lab's backups and their manifests are (`--backup-dir`), if anywhere.
+    pub backup_dir: Option<std::path::PathBuf>,
 }
 
 impl AppState {
@@ -44,6 +46,7 @@ impl AppState {
             bench: Arc::default(),
             stability: Arc::default(),
             web_dir: None,
+            backup_dir: None,
         }
     }
 }

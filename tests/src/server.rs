@@ -1,6 +1,7 @@
 //! A test client for `bdft-server`: starts the real server (which starts the real
 //! controller) on a fresh database and random port, and calls its API as a browser would.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -191,6 +192,29 @@ impl Api {
             Err(ureq::Error::Status(c, r)) => (c, r.into_string().unwrap_or_default()),
             Err(e) => panic!("GET {path}: {e}"),
         }
+    }
+
+    /// Status, headers (lower-case names) and text of a GET (a page with its security
+    /// headers).
+    pub fn get_page(&self, path: &str) -> (u16, BTreeMap<String, String>, String) {
+        let resp = match self.agent.get(&format!("{}{path}", self.base)).call() {
+            Ok(r) => r,
+            Err(ureq::Error::Status(_, r)) => r,
+            Err(e) => panic!("GET {path}: {e}"),
+        };
+        let headers = resp
+            .headers_names()
+            .into_iter()
+            .filter_map(|n| {
+                let v = resp.header(&n)?.to_string();
+                Some((n.to_ascii_lowercase(), v))
+            })
+            .collect();
+        (
+            resp.status(),
+            headers,
+            resp.into_string().unwrap_or_default(),
+        )
     }
 
     /// Raw bytes of a GET (Parquet downloads).

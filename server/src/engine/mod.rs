@@ -1,9 +1,12 @@
-//! The protocol engine: the study's rules with no HTTP in them, in six rooms. Each room is a
-//! folder with a module doc saying what it holds and which rooms it may use; imports between
-//! rooms run one way only (checked by the integration test `structure`, drawn in ARCHITECTURE.md):
+//! The protocol engine: the study's rules with no HTTP in them, in seven rooms. Each room is
+//! a folder with a module doc saying what it holds and which rooms it may use; imports
+//! between rooms run one way only (checked by the integration test `structure`, drawn in
+//! ARCHITECTURE.md):
 //!
 //! ```text
-//! dry_runs   → results, procedure, machine, study      (the top room)
+//! operations → every other room                        (a lab's duties: erasure, the
+//!                                                        ethics board's package)
+//! dry_runs   → results, procedure, machine, study
 //! results    → machine, study
 //! procedure  → machine, study
 //! machine    → study
@@ -18,6 +21,7 @@
 pub mod accounts;
 pub mod dry_runs;
 pub mod machine;
+pub mod operations;
 pub mod procedure;
 pub mod results;
 pub mod study;

@@ -57,8 +57,10 @@ fn same(a: &str, b: &str) -> bool {
             == 0
 }
 
-/// The routes only admins may call (account management), by path prefix.
+/// The routes only admins may call: account management (by path prefix), and erasing a
+/// subject's data and the list of erasures.
 const ADMIN_ONLY: &str = "/api/accounts";
+const ADMIN_ONLY_ROUTES: &[&str] = &["/api/subjects/{id}/erase", "/api/erasures"];
 
 /// The state-changing routes an analyst may call. The E-stop is among them on purpose: in a
 /// lab anyone logged in who sees a person in danger must be able to stop the machine, the
@@ -74,10 +76,12 @@ const ANALYST_MAY_CHANGE: &[&str] = &[
 /// What `role` may do on the route `path` (as registered) with `method`: anything not
 /// listed for it is refused, so a new route fails closed.
 fn role_allows(role: Role, method: &Method, path: &str) -> Result<(), AppError> {
-    let admin_only = path == ADMIN_ONLY || path.starts_with("/api/accounts/");
+    let admin_only = path == ADMIN_ONLY
+        || path.starts_with("/api/accounts/")
+        || ADMIN_ONLY_ROUTES.contains(&path);
     if admin_only && role != Role::Admin {
         return Err(AppError::Forbidden(format!(
-            "your role is {}: only an admin manages accounts",
+            "your role is {}: only an admin manages accounts and erases a subject's data",
             role.name()
         )));
     }
@@ -188,12 +192,17 @@ mod tests {
     }
 
     #[test]
-    fn only_an_admin_manages_accounts() {
+    fn only_an_admin_manages_accounts_and_erases() {
         for role in [Role::Experimenter, Role::Analyst] {
             assert!(role_allows(role, &Method::GET, "/api/accounts").is_err());
             assert!(role_allows(role, &Method::POST, "/api/accounts/{id}/role").is_err());
         }
         assert!(role_allows(Role::Admin, &Method::POST, "/api/accounts/{id}/role").is_ok());
+        for role in [Role::Experimenter, Role::Analyst] {
+            assert!(role_allows(role, &Method::POST, "/api/subjects/{id}/erase").is_err());
+            assert!(role_allows(role, &Method::GET, "/api/erasures").is_err());
+        }
+        assert!(role_allows(Role::Admin, &Method::POST, "/api/subjects/{id}/erase").is_ok());
         assert!(role_allows(Role::Experimenter, &Method::POST, "/api/studies").is_ok());
     }
 }
