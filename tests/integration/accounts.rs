@@ -69,6 +69,11 @@ fn concrete(path: &str, id: i64) -> String {
         .replace("{file}", "mse_tracking_mm2.svg")
 }
 
+/// The routes only an admin may call: account management and erasing a subject's data.
+fn admin_only(path: &str) -> bool {
+    path.starts_with("/api/accounts") || path == "/api/erasures" || path.ends_with("/erase")
+}
+
 #[test]
 fn an_analyst_changes_nothing_but_reads_everything_and_may_press_the_estop() {
     let server = Server::start("accounts-analyst");
@@ -89,9 +94,8 @@ fn an_analyst_changes_nothing_but_reads_everything_and_may_press_the_estop() {
             continue;
         }
         let (code, body) = call_alone(&analyst, method, &concrete(path, study));
-        let admin_only = path.starts_with("/api/accounts");
         match method.as_str() {
-            _ if admin_only => assert_eq!(code, 403, "{method} {path}: {body}"),
+            _ if admin_only(path) => assert_eq!(code, 403, "{method} {path}: {body}"),
             "GET" => assert!(
                 ![401, 403].contains(&code),
                 "an analyst reads {path}: {code} {body}"
@@ -136,9 +140,9 @@ fn an_analyst_changes_nothing_but_reads_everything_and_may_press_the_estop() {
     }
     admin.ok("/api/estop/reset", json!({}));
 
-    // An experimenter runs studies but does not manage accounts.
+    // An experimenter runs studies but does not manage accounts nor erase.
     let (_, experimenter) = server.account(&admin, "exp", "experimenter");
-    for (method, path) in ops.iter().filter(|(_, p)| p.starts_with("/api/accounts")) {
+    for (method, path) in ops.iter().filter(|(_, p)| admin_only(p)) {
         let (code, body) = call_alone(&experimenter, method, &concrete(path, 1));
         assert_eq!(code, 403, "{method} {path}: {body}");
         assert!(body["error"].as_str().unwrap().contains("admin"), "{body}");

@@ -15,7 +15,7 @@ use std::time::Duration;
 
 use bdft_tests::TempDir;
 use bdft_tests::server::{
-    ADMIN_PASSWORD, Api, Server, dry_run, eventually, pair_station, run_trial, short_study,
+    ADMIN_PASSWORD, Api, Server, dry_run, eventually, pair_station, run_trial, short_study, with_db,
 };
 use serde_json::{Value, json};
 
@@ -100,19 +100,10 @@ impl Table {
 
 /// Every table of the database, by name, as `sqlite_master` lists them.
 fn every_table(db: &Path) -> BTreeMap<String, Table> {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    rt.block_on(async {
-        let opts = sqlx::sqlite::SqliteConnectOptions::new()
-            .filename(db)
-            .read_only(true)
-            .busy_timeout(Duration::from_secs(10));
-        let pool = sqlx::SqlitePool::connect_with(opts).await.unwrap();
+    with_db(db, async |pool| {
         let names: Vec<String> =
             sqlx::query_scalar("SELECT name FROM sqlite_master WHERE type = 'table' ORDER BY name")
-                .fetch_all(&pool)
+                .fetch_all(pool)
                 .await
                 .unwrap();
         let mut out = BTreeMap::new();
@@ -120,13 +111,13 @@ fn every_table(db: &Path) -> BTreeMap<String, Table> {
             let columns: Vec<String> = sqlx::query_scalar(&format!(
                 "SELECT name FROM pragma_table_info('{t}') ORDER BY cid"
             ))
-            .fetch_all(&pool)
+            .fetch_all(pool)
             .await
             .unwrap();
             let refers: Vec<(String, String)> = sqlx::query_as(&format!(
                 "SELECT \"from\", \"table\" FROM pragma_foreign_key_list('{t}')"
             ))
-            .fetch_all(&pool)
+            .fetch_all(pool)
             .await
             .unwrap();
             let select = columns
@@ -135,7 +126,7 @@ fn every_table(db: &Path) -> BTreeMap<String, Table> {
                 .collect::<Vec<_>>()
                 .join(" || char(31) || ");
             let rows: Vec<String> = sqlx::query_scalar(&format!("SELECT {select} FROM \"{t}\""))
-                .fetch_all(&pool)
+                .fetch_all(pool)
                 .await
                 .unwrap();
             let rows = rows
@@ -151,7 +142,6 @@ fn every_table(db: &Path) -> BTreeMap<String, Table> {
                 },
             );
         }
-        pool.close().await;
         out
     })
 }

@@ -248,6 +248,24 @@ impl Api {
     }
 }
 
+/// Runs `f` on a pool of the database file `db` — beside its running server, as WAL allows —
+/// and closes the pool: for what no API does (write a value in, read every table back).
+pub fn with_db<T>(db: &Path, f: impl AsyncFnOnce(&sqlx::SqlitePool) -> T) -> T {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let opts = sqlx::sqlite::SqliteConnectOptions::new()
+            .filename(db)
+            .busy_timeout(Duration::from_secs(10));
+        let pool = sqlx::SqlitePool::connect_with(opts).await.unwrap();
+        let out = f(&pool).await;
+        pool.close().await;
+        out
+    })
+}
+
 /// Polls `f` until it returns `Some`, failing after `limit`.
 pub fn eventually<T>(limit: Duration, mut f: impl FnMut() -> Option<T>) -> T {
     let start = Instant::now();
