@@ -92,7 +92,7 @@ async function erase(ev) {
   const r = await act(`Erase ${code}`, status, () => post(`/api/subjects/${id}/erase`, { reason }), (d) => {
     const held = d.backups_holding_data.length;
     const backups = d.backup_dir ? `${held} backup${held === 1 ? '' : 's'} made before it still hold the data` : 'no backup directory set, backups not checked';
-    return `erased (${d.removed.trials} tests, ${d.removed.surveys} surveys, ${d.removed.notes} notes removed; ${backups})`;
+    return `erased (${d.removed.trials} test attempts, ${d.removed.surveys} surveys, ${d.removed.notes} notes removed; ${backups})`;
   });
   $('erase-submit').disabled = false;
   if (r.ok) $('erase-reason').value = '';

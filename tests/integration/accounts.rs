@@ -341,7 +341,12 @@ fn every_audit_row_names_the_acting_account_or_says_what_acted() {
 }
 
 /// A dashboard in Chromium, logged in as `username` (password [`ADMIN_PASSWORD`]).
-fn dashboard(driver: &Driver, downloads: &TempDir, base: &str, username: &str) -> Session {
+pub(crate) fn dashboard(
+    driver: &Driver,
+    downloads: &TempDir,
+    base: &str,
+    username: &str,
+) -> Session {
     let dash = driver.session(downloads.path());
     dash.goto(&format!("{base}/"));
     dash.type_into("#login-username", username);
@@ -352,7 +357,7 @@ fn dashboard(driver: &Driver, downloads: &TempDir, base: &str, username: &str) -
 }
 
 /// Whether the element `css` is displayed.
-fn shown(dash: &Session, css: &str) -> bool {
+pub(crate) fn shown(dash: &Session, css: &str) -> bool {
     dash.exec(
         "const n = document.querySelector(arguments[0]); return !!n && n.offsetParent !== null;",
         json!([css]),

@@ -17,9 +17,15 @@ use bdft_tests::TempDir;
 use bdft_tests::server::{
     ADMIN_PASSWORD, Api, Server, dry_run, eventually, pair_station, run_trial, short_study, with_db,
 };
+use bdft_tests::webdriver::{Driver, Session, artifacts_dir};
 use serde_json::{Value, json};
 
+use crate::accounts::{dashboard, shown};
 use crate::exports_audit::{column, parse_csv};
+
+fn shot(s: &Session, name: &str) {
+    s.screenshot(&artifacts_dir().join(format!("{name}.png")));
+}
 
 /// What the erased subject wrote or was written about them; none of it may survive.
 const MARK: &str = "ERASE-ME";
@@ -570,4 +576,87 @@ fn erasure_is_refused_to_strangers_bad_reasons_and_a_running_test() {
     assert_eq!(report["removed"]["trials"], 12, "{report}");
     // No backup directory: nothing could be checked, and the answer says so.
     assert!(report["backup_dir"].is_null() && report["backups_holding_data"] == json!([]));
+}
+
+#[test]
+fn in_chromium_an_admin_erases_after_confirming_and_the_study_links_its_package() {
+    let server = Server::start("erasure-browser");
+    let admin = server.experimenter();
+    let study = short_study(&admin, 60.0, 60.0);
+    let enrolled = admin.ok(&format!("/api/studies/{study}/subjects"), json!({}));
+    let subject = enrolled["subject"]["id"].as_i64().unwrap();
+    let code = enrolled["subject"]["code"].as_str().unwrap();
+    server.account(&admin, "ana", "analyst");
+    let downloads = TempDir::new("erasure-browser-downloads");
+    let driver = Driver::start();
+    let erased =
+        || admin.get(&format!("/api/subjects/{subject}")).1["subject"]["erased_at"].is_i64();
+
+    let dash = dashboard(&driver, &downloads, &server.base, "admin");
+    assert!(shown(&dash, "#sec-erasure"), "an admin sees the erasure");
+    dash.find(&format!("#erase-subject option[value='{subject}']"));
+    dash.choose("#erase-subject", &subject.to_string());
+    // No reason, no erasure: the form says what is missing.
+    dash.click("#erase-submit");
+    dash.wait_until(
+        "const s = document.querySelector('#erase-status'); return s.textContent.includes('reason') ? true : null",
+        json!([]),
+    );
+    dash.type_into("#erase-reason", "the subject asked (request 3)");
+    // It asks first, naming the subject; Cancel erases nothing.
+    dash.click("#erase-submit");
+    dash.find("#confirm-dialog");
+    assert!(dash.text("#confirm-title").contains(code));
+    assert!(dash.text("#confirm-text").contains("cannot be undone"));
+    shot(&dash, "erasure-confirm");
+    dash.click("#confirm-cancel");
+    dash.wait_until(
+        "return document.querySelector('#confirm-dialog').open ? null : true",
+        json!([]),
+    );
+    assert!(!erased(), "Cancel does not erase");
+    dash.click("#erase-submit");
+    dash.find("#confirm-dialog");
+    dash.click("#confirm-ok");
+    eventually(Duration::from_secs(20), || erased().then_some(()));
+    // The erasures list it; the subject list says the data were erased.
+    dash.wait_until(
+        "const t = document.querySelector('#erasures tbody'); return t && t.textContent.includes(arguments[0]) && t.textContent.includes('request 3') ? true : null",
+        json!([code]),
+    );
+    dash.wait_until(
+        "const r = document.querySelector(`#subjects tr[data-subject-id='${arguments[0]}']`); return r && r.textContent.includes('data erased') ? true : null",
+        json!([subject]),
+    );
+    shot(&dash, "erasure-done");
+
+    // The study's ethics-board package: linked, and styled by its stylesheet (the head and
+    // foot that carry the hash repeat on printed pages).
+    let href = dash.exec(
+        "return document.querySelector('#protocol-package').getAttribute('href')",
+        json!([]),
+    );
+    assert_eq!(href, format!("/api/studies/{study}/protocol.html"));
+    dash.goto(&format!("{}{}", server.base, href.as_str().unwrap()));
+    dash.find("#print");
+    assert_eq!(
+        dash.exec(
+            "return document.querySelectorAll('table.pages .running code.hash').length",
+            json!([])
+        ),
+        2
+    );
+    assert_eq!(
+        dash.exec(
+            "return getComputedStyle(document.querySelector('table.pages > tfoot')).display",
+            json!([])
+        ),
+        "table-footer-group"
+    );
+    shot(&dash, "protocol-package");
+
+    // An analyst sees no erasure.
+    let ana = dashboard(&driver, &downloads, &server.base, "ana");
+    ana.find("#subjects");
+    assert!(!shown(&ana, "#sec-erasure"), "an analyst sees the erasure");
 }
