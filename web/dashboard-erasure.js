@@ -42,7 +42,7 @@ function backupsText(e, dir) {
   if (!dir) return el('span', { class: 'muted' }, 'no backup directory set (--backup-dir): not checked');
   if (!e.backups_holding_data.length) return el('span', { class: 'muted' }, 'none');
   return e.backups_holding_data.map((b) =>
-    el('div', {}, b.manifest, ' — ', b.created_at ? `made ${when(Date.parse(b.created_at))}` : `age unknown (${b.problem})`),
+    el('div', {}, b.backup, ' — ', b.created_at ? `made ${when(Date.parse(b.created_at))}` : `age unknown (${b.problem})`),
   );
 }
 

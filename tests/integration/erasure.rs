@@ -264,19 +264,19 @@ fn an_erased_subject_leaves_only_the_erasure_in_every_table_and_no_count() {
         + 3_600_000;
     for (name, manifest) in [
         (
-            "old",
+            "old.db",
             json!({ "created_at": "2020-01-01T00:00:00Z", "sha256": "00" }),
         ),
-        ("unknown", json!({ "sha256": "00" })),
-        ("after", json!({ "created_at": in_an_hour })),
+        ("unknown.db", json!({ "sha256": "00" })),
+        ("after.db", json!({ "created_at": in_an_hour })),
     ] {
         std::fs::write(
             backups.path().join(format!("{name}.manifest.json")),
             manifest.to_string(),
         )
         .unwrap();
+        std::fs::write(backups.path().join(name), "a backup").unwrap();
     }
-    std::fs::write(backups.path().join("old.db"), "not a manifest").unwrap();
 
     // The audit rows about the subject, read before the erasure: by their target, or by
     // their details naming the subject (a station's assignment).
@@ -323,16 +323,9 @@ fn an_erased_subject_leaves_only_the_erasure_in_every_table_and_no_count() {
         .as_array()
         .unwrap()
         .iter()
-        .map(|b| (b["manifest"].as_str().unwrap(), b["problem"].is_null()))
+        .map(|b| (b["backup"].as_str().unwrap(), b["problem"].is_null()))
         .collect();
-    assert_eq!(
-        held,
-        [
-            ("old.manifest.json", true),
-            ("unknown.manifest.json", false)
-        ],
-        "{report}"
-    );
+    assert_eq!(held, [("old.db", true), ("unknown.db", false)], "{report}");
     let listed = api.get("/api/erasures").1;
     assert_eq!(listed["erasures"].as_array().unwrap().len(), 1, "{listed}");
     assert_eq!(listed["erasures"][0]["code"], code.as_str());

@@ -6,9 +6,9 @@
 //! nothing else. Exports and statistics are computed on read, so they leave the subject out
 //! from then on.
 //!
-//! A backup made before the erasure still holds the data: [`backups_holding`] lists them,
-//! from the manifests (`*.manifest.json`, each with its `created_at`) in the backup directory,
-//! so the lab can delete or lock them away as its rules say.
+//! A backup made before the erasure still holds the data: each erasure lists them, from the
+//! manifests in the backup directory (`FILE.manifest.json` beside each backup `FILE`, with
+//! its `created_at`), so the lab can delete or lock them away as its rules say.
 //!
 //! Refused: an unknown subject (404), a reason missing or over 500 characters (422), a
 //! subject with a running test (409: stop it first), a subject erased already (409). Only an
@@ -47,7 +47,10 @@ pub struct Erasure {
 /// A backup that may still hold an erased subject's data.
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct BackupHolding {
-    /// The manifest's file name in the backup directory.
+    /// The backup's file name in the backup directory (its manifest's name without
+    /// `.manifest.json`).
+    pub backup: String,
+    /// The manifest's file name.
     pub manifest: String,
     /// RFC 3339 UTC; absent when the manifest does not say (then listed to be safe).
     pub created_at: Option<String>,
@@ -224,6 +227,7 @@ fn held_at(backups: &[Manifest], at: i64) -> Vec<BackupHolding> {
         .iter()
         .filter(|b| b.created_at.as_ref().map_or(true, |&t| t <= at))
         .map(|b| BackupHolding {
+            backup: b.name.trim_end_matches(MANIFEST_SUFFIX).to_string(),
             manifest: b.name.clone(),
             created_at: b.created_at.as_ref().ok().map(|&t| rfc3339(t)),
             problem: b.created_at.as_ref().err().cloned(),
@@ -271,21 +275,21 @@ mod tests {
             created_at: at,
         };
         let backups = [
-            m("a", Ok(999)),
-            m("b", Ok(1000)),
-            m("c", Ok(1001)),
-            m("d", Err("no created_at".into())),
+            m("a.db.manifest.json", Ok(999)),
+            m("b.db.manifest.json", Ok(1000)),
+            m("c.db.manifest.json", Ok(1001)),
+            m("d.db.manifest.json", Err("no created_at".into())),
         ];
         let held: Vec<(String, Option<String>)> = held_at(&backups, 1000)
             .into_iter()
-            .map(|b| (b.manifest, b.problem))
+            .map(|b| (b.backup, b.problem))
             .collect();
         assert_eq!(
             held,
             [
-                ("a".to_string(), None),
-                ("b".to_string(), None),
-                ("d".to_string(), Some("no created_at".to_string())),
+                ("a.db".to_string(), None),
+                ("b.db".to_string(), None),
+                ("d.db".to_string(), Some("no created_at".to_string())),
             ]
         );
     }
