@@ -39,17 +39,17 @@ export async function refresh() {
 }
 
 function backupsText(e, dir) {
-  if (!dir) return el('span', { class: 'muted' }, 'no backup directory set (--backup-dir): not checked');
+  if (!dir) return el('span', { class: 'muted' }, 'no backup directory set (serve --backup-dir): not checked');
   if (!e.backups_holding_data.length) return el('span', { class: 'muted' }, 'none');
   return e.backups_holding_data.map((b) =>
-    el('div', {}, b.backup, ' — ', b.created_at ? `made ${when(Date.parse(b.created_at))}` : `age unknown (${b.problem})`),
+    el('div', {}, b.backup, ' — ', b.created_at ? `made ${when(Date.parse(b.created_at))}` : `its manifest cannot be read (${b.problem}): it may hold the data`),
   );
 }
 
 function render(data) {
   $('erasure-backup-dir').textContent = data.backup_dir
-    ? `Backups are looked for in ${data.backup_dir}: each one listed was made before the erasure and still holds the data until it is deleted.`
-    : 'No backup directory is set (--backup-dir), so no backup was checked for erased data.';
+    ? `Backups are looked for in ${data.backup_dir}: each one listed was copied before the erasure and still holds the data until it is deleted.`
+    : 'No backup directory is set (serve --backup-dir), so no backup was checked for erased data.';
   syncRows($('erasures').tBodies[0], data.erasures, {
     key: (e) => e.subject_id,
     sig: (e) => JSON.stringify([e, data.backup_dir]),
@@ -91,7 +91,11 @@ async function erase(ev) {
   $('erase-submit').disabled = true;
   const r = await act(`Erase ${code}`, status, () => post(`/api/subjects/${id}/erase`, { reason }), (d) => {
     const held = d.backups_holding_data.length;
-    const backups = d.backup_dir ? `${held} backup${held === 1 ? '' : 's'} made before it still hold the data` : 'no backup directory set, backups not checked';
+    const backups = !d.backup_dir
+      ? 'no backup directory set, backups not checked'
+      : d.backups_unchecked
+        ? `the backups could not be checked: ${d.backups_unchecked}`
+        : `${held} backup${held === 1 ? '' : 's'} copied before it still hold${held === 1 ? 's' : ''} the data`;
     return `erased (${d.removed.trials} test attempts, ${d.removed.surveys} surveys, ${d.removed.notes} notes removed; ${backups})`;
   });
   $('erase-submit').disabled = false;

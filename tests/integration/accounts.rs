@@ -69,9 +69,13 @@ fn concrete(path: &str, id: i64) -> String {
         .replace("{file}", "mse_tracking_mm2.svg")
 }
 
-/// The routes only an admin may call: account management and erasing a subject's data.
+/// The routes only an admin may call: account management, backups and erasing a subject's
+/// data.
 fn admin_only(path: &str) -> bool {
-    path.starts_with("/api/accounts") || path == "/api/erasures" || path.ends_with("/erase")
+    path.starts_with("/api/accounts")
+        || path.starts_with("/api/backups")
+        || path == "/api/erasures"
+        || path.ends_with("/erase")
 }
 
 #[test]
@@ -140,7 +144,7 @@ fn an_analyst_changes_nothing_but_reads_everything_and_may_press_the_estop() {
     }
     admin.ok("/api/estop/reset", json!({}));
 
-    // An experimenter runs studies but does not manage accounts nor erase.
+    // An experimenter runs studies but does not manage accounts or backups, nor erase.
     let (_, experimenter) = server.account(&admin, "exp", "experimenter");
     for (method, path) in ops.iter().filter(|(_, p)| admin_only(p)) {
         let (code, body) = call_alone(&experimenter, method, &concrete(path, 1));

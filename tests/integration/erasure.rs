@@ -7,7 +7,7 @@
 //! redacted), neither the file nor its write-ahead log holds a byte of what they wrote, the
 //! other subject is untouched, and the exports and statistics no longer count the erased
 //! one. Also the refusals (404, 422, 403, 409 for a running test) and the backups listed as
-//! still holding the data.
+//! still holding the data (those copied before the erasure, by their manifests).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
@@ -255,28 +255,23 @@ fn an_erased_subject_leaves_only_the_erasure_in_every_table_and_no_count() {
     );
     let kept_before = api.get(&format!("/api/subjects/{kept}")).1;
 
-    // Backups: one made long before, one whose age is unknown, one made after (its clock
-    // says an hour from now).
-    let in_an_hour = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap()
-        .as_millis() as i64
-        + 3_600_000;
-    for (name, manifest) in [
-        (
-            "old.db",
-            json!({ "created_at": "2020-01-01T00:00:00Z", "sha256": "00" }),
-        ),
-        ("unknown.db", json!({ "sha256": "00" })),
-        ("after.db", json!({ "created_at": in_an_hour })),
-    ] {
-        std::fs::write(
-            backups.path().join(format!("{name}.manifest.json")),
-            manifest.to_string(),
-        )
-        .unwrap();
-        std::fs::write(backups.path().join(name), "a backup").unwrap();
-    }
+    // Backups: the schedule's first, made at start, and one made now that holds everything
+    // the subject did; and a file whose manifest cannot be read (what it holds is unknown).
+    let scheduled = eventually(Duration::from_secs(60), || {
+        let (_, v) = api.get("/api/backups");
+        let listed = v["backups"].as_array()?;
+        (listed.len() == 1 && v["running"] == false).then(|| listed[0]["file"].clone())
+    });
+    let before_erasure = api.ok("/api/backups", json!({}))["file"].clone();
+    let holds_mark = |file: &Value| {
+        std::fs::read(backups.path().join(file.as_str().unwrap()))
+            .unwrap()
+            .windows(MARK.len())
+            .any(|w| w == MARK.as_bytes())
+    };
+    assert!(holds_mark(&before_erasure), "the backup holds the data");
+    std::fs::write(backups.path().join("copied-by-hand.db"), "a copy").unwrap();
+    std::fs::write(backups.path().join("copied-by-hand.db.manifest.json"), "{}").unwrap();
 
     // The audit rows about the subject, read before the erasure: by their target, or by
     // their details naming the subject (a station's assignment).
@@ -325,7 +320,19 @@ fn an_erased_subject_leaves_only_the_erasure_in_every_table_and_no_count() {
         .iter()
         .map(|b| (b["backup"].as_str().unwrap(), b["problem"].is_null()))
         .collect();
-    assert_eq!(held, [("old.db", true), ("unknown.db", false)], "{report}");
+    assert_eq!(
+        held,
+        [
+            (scheduled.as_str().unwrap(), true),
+            (before_erasure.as_str().unwrap(), true),
+            ("copied-by-hand.db", false)
+        ],
+        "{report}"
+    );
+    assert!(report["backups_unchecked"].is_null(), "{report}");
+    // A backup made after the erasure holds none of it, and is not listed.
+    let after_erasure = api.ok("/api/backups", json!({}))["file"].clone();
+    assert!(!holds_mark(&after_erasure));
     let listed = api.get("/api/erasures").1;
     assert_eq!(listed["erasures"].as_array().unwrap().len(), 1, "{listed}");
     assert_eq!(listed["erasures"][0]["code"], code.as_str());

@@ -89,6 +89,25 @@ fn the_package_is_the_hashed_protocol_with_its_hash_on_every_page() {
         )
     );
 
+    // Every item the ethics board approves has its section.
+    for section in [
+        "consent",
+        "instructions",
+        "schedule",
+        "randomization",
+        "targets",
+        "compensators",
+        "surveys",
+        "stopping",
+        "data",
+        "appendix",
+    ] {
+        assert!(
+            html.contains(&format!("<h2 id=\"{section}\">")),
+            "{section}"
+        );
+    }
+
     // One source: the parameters printed are the study's, and they hash to the hash shown
     // on the running head and foot.
     let (printed, hash) = printed_protocol(&html);

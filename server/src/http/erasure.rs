@@ -34,21 +34,14 @@ async fn erase(
     AppJson(b): AppJson<ReasonBody>,
 ) -> ApiResult<ErasureReport> {
     Ok(AppJson(
-        erasure::erase(
-            &s.pool,
-            &who.username,
-            id,
-            &b.reason,
-            s.backup_dir.as_deref(),
-        )
-        .await?,
+        erasure::erase(&s.pool, &who.username, id, &b.reason, s.backups.dir()).await?,
     ))
 }
 
 /// The erasures so far, each with the backups that still hold its data.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct Erasures {
-    /// The backup directory looked in (`--backup-dir`); absent when none is set, and then
+    /// The backup directory looked in (`serve --backup-dir`); absent when none is set, and then
     /// no backup could be checked.
     pub backup_dir: Option<String>,
     pub erasures: Vec<Erasure>,
@@ -58,7 +51,7 @@ pub struct Erasures {
 #[utoipa::path(get, path = "/api/erasures", tag = "subjects", responses((status = 200, body = Erasures)))]
 async fn list_erasures(State(s): State<AppState>, _who: Experimenter) -> ApiResult<Erasures> {
     Ok(AppJson(Erasures {
-        backup_dir: s.backup_dir.as_ref().map(|d| d.display().to_string()),
-        erasures: erasure::erasures(&s.pool, s.backup_dir.as_deref()).await?,
+        backup_dir: s.backups.dir().map(|d| d.display().to_string()),
+        erasures: erasure::erasures(&s.pool, s.backups.dir()).await?,
     }))
 }

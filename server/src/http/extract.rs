@@ -57,10 +57,15 @@ fn same(a: &str, b: &str) -> bool {
             == 0
 }
 
-/// The routes only admins may call: account management (by path prefix), and erasing a
-/// subject's data and the list of erasures.
-const ADMIN_ONLY: &str = "/api/accounts";
-const ADMIN_ONLY_ROUTES: &[&str] = &["/api/subjects/{id}/erase", "/api/erasures"];
+/// The routes only admins may call, by path prefix (as registered), with what the refusal
+/// says they do: account management, backups (a backup holds every subject's data), and
+/// erasing a subject's data with the list of erasures.
+const ADMIN_ONLY: &[(&str, &str)] = &[
+    ("/api/accounts", "manages accounts"),
+    ("/api/backups", "manages backups"),
+    ("/api/subjects/{id}/erase", "erases a subject's data"),
+    ("/api/erasures", "erases a subject's data"),
+];
 
 /// The state-changing routes an analyst may call. The E-stop is among them on purpose: in a
 /// lab anyone logged in who sees a person in danger must be able to stop the machine, the
@@ -76,12 +81,15 @@ const ANALYST_MAY_CHANGE: &[&str] = &[
 /// What `role` may do on the route `path` (as registered) with `method`: anything not
 /// listed for it is refused, so a new route fails closed.
 fn role_allows(role: Role, method: &Method, path: &str) -> Result<(), AppError> {
-    let admin_only = path == ADMIN_ONLY
-        || path.starts_with("/api/accounts/")
-        || ADMIN_ONLY_ROUTES.contains(&path);
-    if admin_only && role != Role::Admin {
+    let admin_only = ADMIN_ONLY.iter().find(|(prefix, _)| {
+        path.strip_prefix(prefix)
+            .is_some_and(|rest| rest.is_empty() || rest.starts_with('/'))
+    });
+    if let Some((_, what)) = admin_only
+        && role != Role::Admin
+    {
         return Err(AppError::Forbidden(format!(
-            "your role is {}: only an admin manages accounts and erases a subject's data",
+            "your role is {}: only an admin {what}",
             role.name()
         )));
     }
@@ -192,17 +200,30 @@ mod tests {
     }
 
     #[test]
-    fn only_an_admin_manages_accounts_and_erases() {
+    fn only_an_admin_manages_accounts_and_backups_and_erases() {
         for role in [Role::Experimenter, Role::Analyst] {
             assert!(role_allows(role, &Method::GET, "/api/accounts").is_err());
             assert!(role_allows(role, &Method::POST, "/api/accounts/{id}/role").is_err());
+            let e = role_allows(role, &Method::GET, "/api/backups").unwrap_err();
+            assert!(
+                e.to_string().contains("only an admin manages backups"),
+                "{e}"
+            );
         }
+        assert!(role_allows(Role::Experimenter, &Method::GET, "/api/backupsfoo").is_ok());
         assert!(role_allows(Role::Admin, &Method::POST, "/api/accounts/{id}/role").is_ok());
         for role in [Role::Experimenter, Role::Analyst] {
-            assert!(role_allows(role, &Method::POST, "/api/subjects/{id}/erase").is_err());
+            let e = role_allows(role, &Method::POST, "/api/subjects/{id}/erase").unwrap_err();
+            assert!(
+                e.to_string()
+                    .contains("only an admin erases a subject's data"),
+                "{e}"
+            );
             assert!(role_allows(role, &Method::GET, "/api/erasures").is_err());
         }
+        assert!(role_allows(Role::Experimenter, &Method::GET, "/api/subjects/{id}").is_ok());
         assert!(role_allows(Role::Admin, &Method::POST, "/api/subjects/{id}/erase").is_ok());
+        assert!(role_allows(Role::Admin, &Method::POST, "/api/backups").is_ok());
         assert!(role_allows(Role::Experimenter, &Method::POST, "/api/studies").is_ok());
     }
 }

@@ -23,7 +23,7 @@ pub(super) async fn append(
     actor: &str,
     action: &str,
     target: Option<String>,
-    detail: &Value,
+    detail: &str,
 ) -> Result<i64> {
     Ok(sqlx::query(
         "INSERT INTO audit_log (at, actor, actor_id, action, target, detail_json) VALUES (?, ?, (SELECT id FROM experimenters WHERE username = ?), ?, ?, ?)",
@@ -33,10 +33,21 @@ pub(super) async fn append(
     .bind(actor)
     .bind(action)
     .bind(target)
-    .bind(detail.to_string())
+    .bind(detail)
     .execute(db)
     .await?
     .last_insert_rowid())
+}
+
+/// The detail of an action that records nothing besides who did it and to what: `{}`.
+#[derive(Debug, Serialize)]
+pub struct NoDetail {}
+
+/// The detail of an action whose record is the reason given for it (a trial aborted, found
+/// invalid, accepted incomplete, or not started).
+#[derive(Debug, Serialize)]
+pub struct Reason<'a> {
+    pub reason: &'a str,
 }
 
 /// One row of the audit log as the dashboard shows it.

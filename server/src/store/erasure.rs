@@ -1,6 +1,6 @@
 //! Erasing a subject's data (`engine::operations::erasure` says when it is allowed): the
 //! statements of one erasure, run after its audit row is written (`Change::audit_first`),
-//! since the SQL triggers of migration 0016 let only a recorded erasure mark its subject
+//! since the SQL triggers of migration 0021 let only a recorded erasure mark its subject
 //! erased and redact the subject's older audit rows. Also the erasures recorded so far.
 //!
 //! Deleted rows leave no copy in the file: the database runs with `secure_delete` (`db`), and

@@ -7,8 +7,13 @@
 //! from then on.
 //!
 //! A backup made before the erasure still holds the data: each erasure lists them, from the
-//! manifests in the backup directory (`FILE.manifest.json` beside each backup `FILE`, with
-//! its `created_at`), so the lab can delete or lock them away as its rules say.
+//! manifests of the backup directory (`serve --backup-dir`), so the lab can delete or lock
+//! them away as its rules say. A backup holds the data when its copy does not hold the
+//! erasure's audit row — its manifest counts fewer audit rows than the erasure row's id
+//! (the log is append-only and its ids are given in commit order, so a copy taken before
+//! the erasure committed has only rows with smaller ids): no clock is compared, so a backup
+//! being copied while the erasure runs is judged right. A backup whose manifest cannot be
+//! read is listed too (its content unknown).
 //!
 //! Refused: an unknown subject (404), a reason missing or over 500 characters (422), a
 //! subject with a running test (409: stop it first), a subject erased already (409). Only an
@@ -17,9 +22,9 @@
 use std::path::Path;
 
 use serde::Serialize;
-use serde_json::json;
 use sqlx::SqlitePool;
 
+use super::manifest;
 use crate::error::{AppError, Result};
 use crate::store::db::rfc3339;
 use crate::store::erasure::Removed;
@@ -45,16 +50,16 @@ pub struct Erasure {
 }
 
 /// A backup that may still hold an erased subject's data.
-#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct BackupHolding {
-    /// The backup's file name in the backup directory (its manifest's name without
-    /// `.manifest.json`).
+    /// The backup's file name in the backup directory (its manifest is
+    /// `FILE.manifest.json` beside it).
     pub backup: String,
-    /// The manifest's file name.
-    pub manifest: String,
-    /// RFC 3339 UTC; absent when the manifest does not say (then listed to be safe).
+    /// When it was made (RFC 3339 UTC), as its manifest says; absent when the manifest
+    /// cannot be read.
     pub created_at: Option<String>,
-    /// Why its age is unknown, when it is.
+    /// What is wrong with its manifest, when it cannot be read (then it is listed to be
+    /// safe).
     pub problem: Option<String>,
 }
 
@@ -64,11 +69,21 @@ pub struct ErasureReport {
     #[serde(flatten)]
     pub erasure: Erasure,
     pub removed: Removed,
-    /// The backup directory looked in (`--backup-dir`); absent when none is set, and then
+    /// The backup directory looked in (`serve --backup-dir`); absent when none is set, and then
     /// no backup could be checked.
     pub backup_dir: Option<String>,
+    /// Why the backup directory could not be looked in, when it could not (the erasure is
+    /// done all the same; `GET /api/erasures` lists the backups again).
+    pub backups_unchecked: Option<String>,
     /// The write-ahead log was cleared at once (else at the next checkpoint).
     pub wal_cleared: bool,
+}
+
+/// What the erasure's audit row keeps: the subject's code and why, nothing else.
+#[derive(Debug, Serialize)]
+struct Erased<'a> {
+    code: &'a str,
+    reason: &'a str,
 }
 
 /// Erases subject `subject_id` for `reason`, as the admin `actor`; lists the backups in
@@ -102,45 +117,65 @@ pub async fn erase(
         .audit_first(
             ERASE_ACTION,
             Some(format!("subject:{subject_id}")),
-            json!({ "code": subject.code, "reason": reason }),
+            Erased {
+                code: &subject.code,
+                reason,
+            },
         )
         .await?;
     let erasure_id = audited.audit_id;
     let removed = store::erasure::erase(audited.db(), subject_id, erasure_id).await?;
     let erased = store::subjects::get(audited.db(), subject_id).await?;
     audited.commit().await?;
-    let wal_cleared = store::erasure::clear_wal(pool).await?;
+    // The erasure is committed: what follows reports, and fails nothing.
+    let wal_cleared = match store::erasure::clear_wal(pool).await {
+        Ok(cleared) => cleared,
+        Err(e) => {
+            tracing::warn!(
+                "erasure of subject {subject_id}: clearing the write-ahead log failed: {}",
+                e.describe()
+            );
+            false
+        }
+    };
     if !wal_cleared {
         tracing::warn!(
-            "erasure of subject {subject_id}: a reader kept the write-ahead log from being cleared; the next checkpoint clears it"
+            "erasure of subject {subject_id}: the write-ahead log was not cleared (a reader held it); the next checkpoint clears it"
         );
     }
-    let erased_at = erased.erased_at.unwrap_or_default();
+    // Listed after the commit (a backup being copied now is judged by what it holds), and a
+    // directory that cannot be read does not hide that the erasure is done.
+    let (backups_holding_data, backups_unchecked) = match backup_dir.map(backups).transpose() {
+        Ok(found) => (held_by(&found.unwrap_or_default(), erasure_id), None),
+        Err(e) => {
+            tracing::warn!(
+                "erasure of subject {subject_id}: the backups holding its data could not be listed: {}",
+                e.describe()
+            );
+            (Vec::new(), Some(e.describe()))
+        }
+    };
     Ok(ErasureReport {
         erasure: Erasure {
             subject_id,
             study_id: erased.study_id,
             code: erased.code,
-            erased_at: rfc3339(erased_at),
+            erased_at: rfc3339(erased.erased_at.unwrap_or_default()),
             by: actor.to_string(),
             reason: reason.to_string(),
-            backups_holding_data: match backup_dir {
-                Some(dir) => held_at(&backups(dir).await?, erased_at),
-                None => Vec::new(),
-            },
+            backups_holding_data,
         },
         removed,
         backup_dir: backup_dir.map(|d| d.display().to_string()),
+        backups_unchecked,
         wal_cleared,
     })
 }
 
-/// Every erasure so far, oldest first, each with the backups in `backup_dir` older than it.
+/// Every erasure so far, oldest first, each with the backups in `backup_dir` that still hold
+/// its data.
 pub async fn erasures(pool: &SqlitePool, backup_dir: Option<&Path>) -> Result<Vec<Erasure>> {
-    let backups = match backup_dir {
-        Some(dir) => backups(dir).await?,
-        None => Vec::new(),
-    };
+    let backups = backup_dir.map(backups).transpose()?.unwrap_or_default();
     Ok(store::erasure::erasures(pool)
         .await?
         .into_iter()
@@ -151,86 +186,60 @@ pub async fn erasures(pool: &SqlitePool, backup_dir: Option<&Path>) -> Result<Ve
             erased_at: rfc3339(e.at),
             by: e.by,
             reason: e.reason,
-            backups_holding_data: held_at(&backups, e.at),
+            backups_holding_data: held_by(&backups, e.audit_id),
         })
         .collect())
 }
 
-/// A backup's manifest as far as erasure needs it: its name and when the backup was made
-/// (ms), or why that is unknown.
+/// A backup as erasure needs it: its file, and the audit rows its copy holds (with when it
+/// was made), or what is wrong with its manifest.
 #[derive(Debug, Clone, PartialEq)]
-struct Manifest {
-    name: String,
-    created_at: std::result::Result<i64, String>,
+struct Backup {
+    file: String,
+    copied: std::result::Result<Copied, String>,
 }
 
-/// The suffix of a backup's manifest file.
-pub const MANIFEST_SUFFIX: &str = ".manifest.json";
-
-/// The manifests in `dir`, by name. A directory that does not exist holds none.
-async fn backups(dir: &Path) -> Result<Vec<Manifest>> {
-    let mut entries = match tokio::fs::read_dir(dir).await {
-        Ok(e) => e,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
-        Err(e) => {
-            return Err(AppError::Unavailable(format!(
-                "the backup directory {} cannot be read: {e}",
-                dir.display()
-            )));
-        }
-    };
-    let mut out = Vec::new();
-    while let Some(entry) = entries.next_entry().await.map_err(|e| {
-        AppError::Unavailable(format!(
-            "the backup directory {} cannot be read: {e}",
-            dir.display()
-        ))
-    })? {
-        let name = entry.file_name().to_string_lossy().into_owned();
-        if !name.ends_with(MANIFEST_SUFFIX) {
-            continue;
-        }
-        let created_at = match tokio::fs::read(entry.path()).await {
-            Ok(bytes) => created_at(&bytes),
-            Err(e) => Err(format!("unreadable: {e}")),
-        };
-        out.push(Manifest { name, created_at });
-    }
-    out.sort_by(|a, b| a.name.cmp(&b.name));
-    Ok(out)
+#[derive(Debug, Clone, PartialEq)]
+struct Copied {
+    audit_rows: i64,
+    created_at: String,
 }
 
-/// When a manifest says its backup was made: `created_at` as Unix milliseconds or RFC 3339.
-fn created_at(manifest: &[u8]) -> std::result::Result<i64, String> {
-    let v: serde_json::Value =
-        serde_json::from_slice(manifest).map_err(|e| format!("not JSON: {e}"))?;
-    match &v["created_at"] {
-        serde_json::Value::Number(n) => n
-            .as_i64()
-            .ok_or_else(|| format!("created_at {n} is not whole milliseconds")),
-        serde_json::Value::String(s) => {
-            time::OffsetDateTime::parse(s, &time::format_description::well_known::Rfc3339)
-                .map(|t| (t.unix_timestamp_nanos() / 1_000_000) as i64)
-                .map_err(|e| format!("created_at {s:?} is not RFC 3339: {e}"))
-        }
-        serde_json::Value::Null => Err("no created_at".into()),
-        other => Err(format!(
-            "created_at {other} is neither a time nor milliseconds"
-        )),
-    }
+/// The backups of `dir`, by their manifests.
+fn backups(dir: &Path) -> Result<Vec<Backup>> {
+    Ok(manifest::in_dir(dir)?
+        .into_iter()
+        .map(|(file, m)| Backup {
+            file,
+            copied: m.map_err(|e| e.describe()).and_then(|m| {
+                let audit_rows = *m.row_counts.get("audit_log").ok_or_else(|| {
+                    "the manifest counts no audit_log rows: what the copy holds is unknown"
+                        .to_string()
+                })?;
+                Ok(Copied {
+                    audit_rows,
+                    created_at: m.created_at,
+                })
+            }),
+        })
+        .collect())
 }
 
-/// The backups that may hold data erased at `at` (ms): those made before it — or at the same
-/// millisecond, which cannot be ordered — and those of unknown age.
-fn held_at(backups: &[Manifest], at: i64) -> Vec<BackupHolding> {
+/// The backups that may hold the data of the erasure whose audit row is `erasure_id`: those
+/// whose copy holds fewer audit rows than that id (taken before the erasure committed), and
+/// those whose manifest cannot be read.
+fn held_by(backups: &[Backup], erasure_id: i64) -> Vec<BackupHolding> {
     backups
         .iter()
-        .filter(|b| b.created_at.as_ref().map_or(true, |&t| t <= at))
+        .filter(|b| {
+            b.copied
+                .as_ref()
+                .map_or(true, |c| c.audit_rows < erasure_id)
+        })
         .map(|b| BackupHolding {
-            backup: b.name.trim_end_matches(MANIFEST_SUFFIX).to_string(),
-            manifest: b.name.clone(),
-            created_at: b.created_at.as_ref().ok().map(|&t| rfc3339(t)),
-            problem: b.created_at.as_ref().err().cloned(),
+            backup: b.file.clone(),
+            created_at: b.copied.as_ref().ok().map(|c| c.created_at.clone()),
+            problem: b.copied.as_ref().err().cloned(),
         })
         .collect()
 }
@@ -240,56 +249,37 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_manifest_gives_its_time_in_either_form_or_says_what_is_wrong() {
-        // 2001-09-09T01:46:40Z is Unix time 10⁹ s.
-        assert_eq!(
-            created_at(br#"{"created_at": "2001-09-09T01:46:40.250Z"}"#),
-            Ok(1_000_000_000_250)
-        );
-        assert_eq!(
-            created_at(br#"{"created_at": "2001-09-09T03:46:40+02:00"}"#),
-            Ok(1_000_000_000_000)
-        );
-        assert_eq!(
-            created_at(br#"{"created_at": 1000000000250, "sha256": "ab"}"#),
-            Ok(1_000_000_000_250)
-        );
-        assert!(created_at(b"{").unwrap_err().starts_with("not JSON"));
-        assert_eq!(created_at(b"{}"), Err("no created_at".into()));
-        assert!(
-            created_at(br#"{"created_at": "yesterday"}"#)
-                .unwrap_err()
-                .contains("not RFC 3339")
-        );
-        assert!(
-            created_at(br#"{"created_at": 1.5}"#)
-                .unwrap_err()
-                .contains("whole milliseconds")
-        );
-    }
-
-    #[test]
-    fn backups_older_than_the_erasure_or_of_unknown_age_hold_the_data() {
-        let m = |name: &str, at: std::result::Result<i64, String>| Manifest {
-            name: name.into(),
-            created_at: at,
+    fn backups_copied_before_the_erasure_or_unknown_hold_the_data() {
+        let b = |file: &str, audit_rows: std::result::Result<i64, &str>| Backup {
+            file: file.into(),
+            copied: audit_rows
+                .map(|audit_rows| Copied {
+                    audit_rows,
+                    created_at: format!("made with {audit_rows} rows"),
+                })
+                .map_err(str::to_string),
         };
         let backups = [
-            m("a.db.manifest.json", Ok(999)),
-            m("b.db.manifest.json", Ok(1000)),
-            m("c.db.manifest.json", Ok(1001)),
-            m("d.db.manifest.json", Err("no created_at".into())),
+            b("a.db", Ok(99)),
+            b("b.db", Ok(100)),
+            b("c.db", Ok(101)),
+            b("d.db", Err("not a backup manifest of this program")),
         ];
-        let held: Vec<(String, Option<String>)> = held_at(&backups, 1000)
-            .into_iter()
-            .map(|b| (b.backup, b.problem))
-            .collect();
+        // The erasure is audit row 100: a copy of 99 rows was taken before it committed, one
+        // of 100 or more holds it (and not the data).
         assert_eq!(
-            held,
+            held_by(&backups, 100),
             [
-                ("a.db".to_string(), None),
-                ("b.db".to_string(), None),
-                ("d.db".to_string(), Some("no created_at".to_string())),
+                BackupHolding {
+                    backup: "a.db".into(),
+                    created_at: Some("made with 99 rows".into()),
+                    problem: None,
+                },
+                BackupHolding {
+                    backup: "d.db".into(),
+                    created_at: None,
+                    problem: Some("not a backup manifest of this program".into()),
+                },
             ]
         );
     }

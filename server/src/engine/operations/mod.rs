@@ -1,10 +1,25 @@
-//! Room **operations**: a lab's duties around its studies over the years, beyond running
-//! them — erasing a subject's data on request, with the backups that still hold them
-//! (`erasure`), and the protocol package for the ethics board, rendered from the hashed
-//! parameters (`protocol_package`).
+//! Room **operations**: the lab's duties to its data and its ethics board over the years,
+//! apart from running a study.
 //!
-//! *May use:* every other room (`study`, `machine`, `procedure`, `results`, `dry_runs`,
-//! `accounts`) — it is above them all.
+//! - Backups: `backup` (one consistent, checked copy with its `manifest`), `schedule` (the
+//!   server's backup directory, its period and how many it keeps), `restore` onto a stopped
+//!   server, the `checks` both run on a database file, and the serving process's `presence`
+//!   (its heartbeat, by which a restore knows a server holds the database).
+//! - Erasure on request: `erasure` erases a subject's data and lists the backups (by their
+//!   manifests) that still hold them.
+//! - The ethics board's protocol package: `protocol_package`, rendered from the parameters
+//!   the protocol hash is computed from.
+//!
+//! *May use:* `study` (a study's parameters and protocol hash: to check a copy, to render
+//! the package), `procedure` (the station's texts and the attempts a test allows, for the
+//! package), `results` (the exports' codebook: the data kept, for the package), and what
+//! those use (`machine`).
 
+pub mod backup;
+pub mod checks;
 pub mod erasure;
+pub mod manifest;
+pub mod presence;
 pub mod protocol_package;
+pub mod restore;
+pub mod schedule;

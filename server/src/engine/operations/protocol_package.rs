@@ -15,7 +15,7 @@
 
 use std::fmt::Write;
 
-use bdft_protocol::params::Seat;
+use bdft_protocol::params::{BodyModel, PlantParams, Seat};
 use bdft_protocol::study::{MAX_COMMENT_CHARS, OrderDesign, RigKind, StudyParams};
 use serde_json::Value;
 
@@ -435,8 +435,21 @@ fn compensators(d: &mut Doc, p: &StudyParams) {
         },
         num(p.display_shake_gain)
     ));
-    let models = serde_json::json!({ "plant": p.plant, "body": p.body });
-    d.table(&["Parameter", "Value"], flat(&models));
+    let models = Models {
+        plant: &p.plant,
+        body: &p.body,
+    };
+    d.table(
+        &["Parameter", "Value"],
+        flat(&serde_json::to_value(models).expect("the models serialize")),
+    );
+}
+
+/// The machine's and the body's models, under the names the study's parameters give them.
+#[derive(serde::Serialize)]
+struct Models<'a> {
+    plant: &'a PlantParams,
+    body: &'a BodyModel,
 }
 
 fn surveys(d: &mut Doc, p: &StudyParams) {
@@ -486,8 +499,10 @@ fn stopping_rules(d: &mut Doc, study: &Study) {
     ];
     if let Some(ack) = &study.instability_ack {
         items.push(format!(
-            "An instability on the simulated machine was acknowledged: {}.",
-            ack
+            "An instability on the simulated machine was acknowledged by {} at {}: {}",
+            ack.by,
+            rfc3339(ack.at),
+            ack.reason
         ));
     }
     d.list(items);
