@@ -6,7 +6,8 @@
 //! and synthetic flag; the erasure's audit row; the older audit rows with their details
 //! redacted), neither the file nor its write-ahead log holds a byte of what they wrote, the
 //! other subject is untouched, and the exports and statistics no longer count the erased
-//! one. Also the refusals (404, 422, 403, 409 for a running test) and the backups listed as
+//! one. Also the refusals (404, 422, 403, 409 for a running test; notes racing the erasure
+//! filed before it or refused after it, never a 500) and the backups listed as
 //! still holding the data (those copied before the erasure, by their manifests).
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -560,7 +561,26 @@ fn erasure_is_refused_to_strangers_bad_reasons_and_a_running_test() {
         let (_, s) = admin.get(&format!("/api/subjects/{subject}"));
         (s["trials"][0]["trial"]["status"] != "running").then_some(())
     });
-    let report = admin.ok(&erase, json!({ "reason": "because" }));
+    // Notes racing the erasure: each is filed before it (and erased with it) or refused
+    // after it, never a server error.
+    let note = format!("/api/trials/{practice}/note");
+    let (report, (statuses, refusal)) = std::thread::scope(|s| {
+        let racing = s.spawn(|| {
+            let mut statuses = Vec::new();
+            loop {
+                let (status, body) = experimenter.post(&note, json!({ "text": "racing" }));
+                statuses.push(status);
+                if status != 200 {
+                    return (statuses, body);
+                }
+            }
+        });
+        let report = admin.ok(&erase, json!({ "reason": "because" }));
+        (report, racing.join().unwrap())
+    });
+    let (last, filed) = statuses.split_last().unwrap();
+    assert_eq!(*last, 404, "{refusal}");
+    assert_eq!(report["removed"]["notes"], filed.len(), "{report}");
     // The practice, its new attempt (an aborted test is re-queued) and ten tests.
     assert_eq!(report["removed"]["trials"], 12, "{report}");
     // No backup directory: nothing could be checked, and the answer says so.
