@@ -14,12 +14,12 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::time::Duration;
 
-use bdft_tests::TempDir;
 use bdft_tests::server::{
     ADMIN_PASSWORD, Api, Server, dry_run, eventually, pair_station, person_at_a_station, run_trial,
     short_study, with_db,
 };
 use bdft_tests::webdriver::{Driver, Session, artifacts_dir};
+use bdft_tests::{TempDir, binary};
 use serde_json::{Value, json};
 
 use crate::accounts::{dashboard, shown};
@@ -504,6 +504,48 @@ fn an_erased_subject_leaves_only_the_erasure_in_every_table_and_no_count() {
     assert_eq!(
         (row["tests"].as_i64(), row["tests_complete"].as_i64()),
         (Some(0), Some(0))
+    );
+
+    // Restoring the backup made before the erasure brings the data back, and the restore
+    // says whom to erase again. (Onto a database restored from the backup made after it: a
+    // copy of the live one would be held by this running server's heartbeat.)
+    let restored = TempDir::new("erasure-restored");
+    let db = restored.path().join("bdft-lab.db");
+    let restore = |backup: &Value| {
+        let out = std::process::Command::new(binary("bdft-server"))
+            .arg("restore")
+            .arg("--from")
+            .arg(backups.path().join(backup.as_str().unwrap()))
+            .arg("--db")
+            .arg(&db)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(out.status.success(), "{stderr}");
+        (
+            serde_json::from_slice::<Value>(&out.stdout).unwrap(),
+            stderr,
+        )
+    };
+    let (first, _) = restore(&after_erasure);
+    assert_eq!(first["erasures_undone"], json!([]), "{first}");
+    let (again, warned) = restore(&before_erasure);
+    let undone = &again["erasures_undone"];
+    assert_eq!(undone.as_array().unwrap().len(), 1, "{again}");
+    assert_eq!(
+        (
+            &undone[0]["subject_id"],
+            &undone[0]["code"],
+            &undone[0]["reason"]
+        ),
+        (&json!(erased), &json!(code), &json!(reason)),
+        "{again}"
+    );
+    assert!(again["erasures_unchecked"].is_null(), "{again}");
+    assert!(
+        warned.contains(&format!("the backup predates the erasure of {code}"))
+            && warned.contains("erase them again"),
+        "{warned}"
     );
 }
 

@@ -119,10 +119,11 @@ pub async fn clear_wal(pool: &SqlitePool) -> Result<bool> {
 }
 
 /// One recorded erasure, as its audit row keeps it.
-#[derive(Debug, Clone, sqlx::FromRow)]
+#[derive(Debug, Clone, Serialize, sqlx::FromRow)]
 pub struct ErasureRow {
     /// The `subject.erase` audit row.
     pub audit_id: i64,
+    /// When, in ms since the Unix epoch.
     pub at: i64,
     pub by: String,
     pub subject_id: i64,
