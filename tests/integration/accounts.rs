@@ -368,17 +368,47 @@ pub(crate) fn shown(dash: &Session, css: &str) -> bool {
     ) == true
 }
 
-#[test]
-fn in_chromium_the_dashboard_asks_before_withdrawing_or_disabling_and_follows_the_role() {
-    let server = Server::start("accounts-browser");
+/// What a dashboard test in Chromium starts from: a server with a study of one enrolled
+/// person, the admin's API, an analyst `ana`, and a browser with its download directory.
+pub(crate) struct BrowserLab {
+    pub server: Server,
+    pub admin: Api,
+    pub study: i64,
+    pub subject: i64,
+    pub code: String,
+    pub downloads: TempDir,
+    pub driver: Driver,
+}
+
+pub(crate) fn browser_lab(tag: &str) -> BrowserLab {
+    let server = Server::start(tag);
     let admin = server.experimenter();
     let study = short_study(&admin, 60.0, 60.0);
     let enrolled = admin.ok(&format!("/api/studies/{study}/subjects"), json!({}));
-    let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let code = enrolled["subject"]["code"].as_str().unwrap();
     server.account(&admin, "ana", "analyst");
-    let downloads = TempDir::new("accounts-browser-downloads");
-    let driver = Driver::start();
+    BrowserLab {
+        subject: enrolled["subject"]["id"].as_i64().unwrap(),
+        code: enrolled["subject"]["code"].as_str().unwrap().to_string(),
+        downloads: TempDir::new(&format!("{tag}-downloads")),
+        driver: Driver::start(),
+        server,
+        admin,
+        study,
+    }
+}
+
+#[test]
+fn in_chromium_the_dashboard_asks_before_withdrawing_or_disabling_and_follows_the_role() {
+    let BrowserLab {
+        server,
+        admin,
+        study: _,
+        subject,
+        code,
+        downloads,
+        driver,
+    } = browser_lab("accounts-browser");
+    let code = code.as_str();
 
     let dash = dashboard(&driver, &downloads, &server.base, "admin");
     assert!(shown(&dash, "#sec-accounts"), "an admin sees the accounts");

@@ -18,11 +18,11 @@ use bdft_tests::server::{
     ADMIN_PASSWORD, Api, Server, dry_run, eventually, pair_station, person_at_a_station, run_trial,
     short_study, with_db,
 };
-use bdft_tests::webdriver::{Driver, Session, artifacts_dir};
+use bdft_tests::webdriver::{Session, artifacts_dir};
 use bdft_tests::{TempDir, binary};
 use serde_json::{Value, json};
 
-use crate::accounts::{dashboard, shown};
+use crate::accounts::{BrowserLab, browser_lab, dashboard, shown};
 use crate::exports_audit::{column, parse_csv};
 
 fn shot(s: &Session, name: &str) {
@@ -631,15 +631,16 @@ fn erasure_is_refused_to_strangers_bad_reasons_and_a_running_test() {
 
 #[test]
 fn in_chromium_an_admin_erases_after_confirming_and_the_study_links_its_package() {
-    let server = Server::start("erasure-browser");
-    let admin = server.experimenter();
-    let study = short_study(&admin, 60.0, 60.0);
-    let enrolled = admin.ok(&format!("/api/studies/{study}/subjects"), json!({}));
-    let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let code = enrolled["subject"]["code"].as_str().unwrap();
-    server.account(&admin, "ana", "analyst");
-    let downloads = TempDir::new("erasure-browser-downloads");
-    let driver = Driver::start();
+    let BrowserLab {
+        server,
+        admin,
+        study,
+        subject,
+        code,
+        downloads,
+        driver,
+    } = browser_lab("erasure-browser");
+    let code = code.as_str();
     let erased =
         || admin.get(&format!("/api/subjects/{subject}")).1["subject"]["erased_at"].is_i64();
 

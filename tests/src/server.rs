@@ -418,10 +418,7 @@ pub fn person_at_a_station(server: &Server, api: &Api, study: i64) -> (i64, i64,
     );
     Api::with_bearer(&server.base, &token)
         .ok("/api/station/consent", json!({ "decision": "agreed" }));
-    eventually(Duration::from_secs(30), || {
-        let (_, c) = api.get("/api/controller");
-        (c["connected"] == true && c["estop_latched"] == false).then_some(())
-    });
+    controller_ready(api);
     (subject, station, token)
 }
 
@@ -436,9 +433,23 @@ pub fn pair_station(api: &Api, study: i64, role: &str) -> (i64, String) {
     (st["id"].as_i64().unwrap(), token)
 }
 
-/// Runs `trial` (started by the experimenter) to its end; returns its final row.
+/// Waits until the server's controller is connected and not latched: a test can start.
+pub fn controller_ready(api: &Api) {
+    eventually(Duration::from_secs(30), || {
+        let (_, c) = api.get("/api/controller");
+        (c["connected"] == true && c["estop_latched"] == false).then_some(())
+    });
+}
+
+/// Runs `trial` (started by the experimenter) to its end; returns its final row. A start
+/// the server cannot serve now (503: the controller restarting after its link was lost on a
+/// loaded machine) is tried again once the controller is back.
 pub fn run_trial(api: &Api, subject: i64, trial: i64) -> Value {
-    let (code, body) = api.post(&format!("/api/trials/{trial}/start"), json!({}));
+    let (code, body) = eventually(Duration::from_secs(60), || {
+        controller_ready(api);
+        let (code, body) = api.post(&format!("/api/trials/{trial}/start"), json!({}));
+        (code != 503).then_some((code, body))
+    });
     assert_eq!(code, 200, "start {trial}: {body}");
     eventually(Duration::from_secs(60), || {
         let (_, s) = api.get(&format!("/api/subjects/{subject}"));
