@@ -55,9 +55,10 @@ fn at_a_station(api: &Api, study: i64) -> (i64, String, String, Api) {
     )
 }
 
-/// Runs the subject at `station` through every test, answering each survey with `comment`
-/// (a test that did not complete — a controller lost on a loaded machine — comes back as a
-/// new attempt, as the protocol says).
+/// Runs the subject at `station` through every test, answering each survey with `comment`.
+/// A test that did not complete (a controller lost on a loaded machine) holds a synthetic
+/// subject — the server repeats only a person's tests by itself —: the experimenter redoes
+/// it, as they would.
 fn run_protocol(api: &Api, subject: i64, station: &Api, comment: &str) {
     loop {
         let (_, state) = station.get("/api/station/state");
@@ -65,6 +66,30 @@ fn run_protocol(api: &Api, subject: i64, station: &Api, comment: &str) {
             "ready" => {
                 let t = state["test"]["trial_id"].as_i64().unwrap();
                 run_trial(api, subject, t);
+            }
+            "held" => {
+                let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
+                let trials: Vec<&Value> = detail["trials"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|t| &t["trial"])
+                    .collect();
+                let unsettled = trials
+                    .iter()
+                    .find(|t| {
+                        t["status"] != "complete"
+                            && t["accepted_reason"].is_null()
+                            && !trials.iter().any(|u| {
+                                u["slot"] == t["slot"]
+                                    && u["attempt"].as_i64() > t["attempt"].as_i64()
+                            })
+                    })
+                    .unwrap_or_else(|| panic!("held, but every test is settled: {detail}"));
+                api.ok(
+                    &format!("/api/trials/{}/redo", unsettled["id"]),
+                    json!({ "reason": "it did not complete" }),
+                );
             }
             "survey" => {
                 let t = state["trial_id"].as_i64().unwrap();
