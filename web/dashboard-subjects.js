@@ -132,14 +132,15 @@ function renderList() {
     attrs: ({ subject: s }) => ({
       'data-subject-id': s.id,
       tabindex: 0,
-      class: ['clickable', s.id === selectedSubject ? 'selected' : '', s.withdrawn_at ? 'withdrawn' : ''].join(' '),
+      class: ['clickable', s.id === selectedSubject ? 'selected' : '', s.withdrawn_at || s.erased_at ? 'withdrawn' : ''].join(' '),
       'aria-selected': s.id === selectedSubject ? 'true' : 'false',
       title: 'Show the schedule',
     }),
     cells: ({ subject: s, tests_complete, tests }) => {
       const stations = S.stations.filter((st) => st.subject_id === s.id).map((st) => st.name);
       const st = rowStatus.get(`withdraw-${s.id}`);
-      const withdrawn = !!s.withdrawn_at;
+      // An erased subject's data are gone: nothing left to withdraw.
+      const withdrawn = !!s.withdrawn_at || !!s.erased_at;
       return [
         el('td', { class: 'code' }, s.code),
         el('td', {}, s.synthetic ? el('span', { class: 'tag synthetic' }, 'synthetic') : 'person'),
@@ -147,7 +148,15 @@ function renderList() {
         el('td', { class: `consent-${s.consent_decision || 'pending'}` }, consentText(s)),
         el('td', { class: 'progress-cell' }, `${tests_complete} / ${tests}`, el('progress', { max: tests || 1, value: tests_complete })),
         el('td', {}, stations.join(', ') || el('span', { class: 'muted' }, '—')),
-        el('td', {}, withdrawn ? `${when(s.withdrawn_at)}: ${s.withdraw_reason || ''}` : el('span', { class: 'muted' }, '—')),
+        el(
+          'td',
+          {},
+          s.erased_at
+            ? `data erased ${when(s.erased_at)}`
+            : s.withdrawn_at
+              ? `${when(s.withdrawn_at)}: ${s.withdraw_reason || ''}`
+              : el('span', { class: 'muted' }, '—'),
+        ),
         // An analyst changes nothing: no withdraw column (the server would refuse it).
         mayChange()
           ? el(
@@ -323,6 +332,7 @@ function renderSchedule(d) {
         (next ? ` · next: slot ${next.slot} (${next.practice ? 'practice' : next.blinded_label}, ${SEAT_NAME[next.station]})` : ' · nothing left to run'),
     ),
     s.withdrawn_at ? el('p', { class: 'status err' }, `Withdrawn ${when(s.withdrawn_at)}: ${s.withdraw_reason || ''}`) : '',
+    s.erased_at ? el('p', { class: 'status err' }, `Data erased ${when(s.erased_at)} (the audit log says by whom and why)`) : '',
   );
   box.querySelector('.general-notes').replaceChildren(
     ...(generalNotes.length ? [el('h4', {}, 'Notes on the subject'), ...generalNotes.map(noteLine)] : []),

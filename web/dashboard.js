@@ -16,6 +16,8 @@ import * as accounts from './dashboard-accounts.js';
 import * as backups from './dashboard-backups.js';
 import * as configs from './dashboard-configs.js';
 import * as bench from './dashboard-bench.js';
+import * as protocol from './dashboard-protocol.js';
+import * as erasure from './dashboard-erasure.js';
 
 const $ = (id) => document.getElementById(id);
 
@@ -60,8 +62,11 @@ async function showApp(me) {
     backups.init();
     bench.init();
     configs.init();
+    protocol.init();
+    erasure.init();
   }
   accounts.applyRole(me.role);
+  erasure.refresh();
   backups.refresh();
   // The page shows once the study list and the form are filled, so that nothing typed
   // into it is overwritten by data still on its way.

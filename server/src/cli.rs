@@ -292,6 +292,17 @@ async fn execute(command: Command) -> anyhow::Result<()> {
                 .await
                 .map_err(|e| anyhow::anyhow!(e.describe()))?;
             println!("{}", serde_json::to_string_pretty(&restored)?);
+            for e in &restored.erasures_undone {
+                eprintln!(
+                    "the backup predates the erasure of {} (subject {}, by {}): it holds their data again; erase them again",
+                    e.code, e.subject_id, e.by
+                );
+            }
+            if let Some(why) = &restored.erasures_unchecked {
+                eprintln!(
+                    "the replaced database's erasures could not be read ({why}): look for subject.erase in its audit log and erase those subjects again"
+                );
+            }
         }
         Command::Export {
             db,

@@ -69,6 +69,15 @@ fn concrete(path: &str, id: i64) -> String {
         .replace("{file}", "mse_tracking_mm2.svg")
 }
 
+/// The routes only an admin may call: account management, backups and erasing a subject's
+/// data.
+fn admin_only(path: &str) -> bool {
+    path.starts_with("/api/accounts")
+        || path.starts_with("/api/backups")
+        || path == "/api/erasures"
+        || path.ends_with("/erase")
+}
+
 #[test]
 fn an_analyst_changes_nothing_but_reads_everything_and_may_press_the_estop() {
     let server = Server::start("accounts-analyst");
@@ -89,9 +98,8 @@ fn an_analyst_changes_nothing_but_reads_everything_and_may_press_the_estop() {
             continue;
         }
         let (code, body) = call_alone(&analyst, method, &concrete(path, study));
-        let admin_only = path.starts_with("/api/accounts") || path.starts_with("/api/backups");
         match method.as_str() {
-            _ if admin_only => assert_eq!(code, 403, "{method} {path}: {body}"),
+            _ if admin_only(path) => assert_eq!(code, 403, "{method} {path}: {body}"),
             "GET" => assert!(
                 ![401, 403].contains(&code),
                 "an analyst reads {path}: {code} {body}"
@@ -136,10 +144,9 @@ fn an_analyst_changes_nothing_but_reads_everything_and_may_press_the_estop() {
     }
     admin.ok("/api/estop/reset", json!({}));
 
-    // An experimenter runs studies but does not manage accounts or backups.
+    // An experimenter runs studies but does not manage accounts or backups, nor erase.
     let (_, experimenter) = server.account(&admin, "exp", "experimenter");
-    let admins_only = |p: &str| p.starts_with("/api/accounts") || p.starts_with("/api/backups");
-    for (method, path) in ops.iter().filter(|(_, p)| admins_only(p)) {
+    for (method, path) in ops.iter().filter(|(_, p)| admin_only(p)) {
         let (code, body) = call_alone(&experimenter, method, &concrete(path, 1));
         assert_eq!(code, 403, "{method} {path}: {body}");
         assert!(body["error"].as_str().unwrap().contains("admin"), "{body}");
@@ -338,7 +345,12 @@ fn every_audit_row_names_the_acting_account_or_says_what_acted() {
 }
 
 /// A dashboard in Chromium, logged in as `username` (password [`ADMIN_PASSWORD`]).
-fn dashboard(driver: &Driver, downloads: &TempDir, base: &str, username: &str) -> Session {
+pub(crate) fn dashboard(
+    driver: &Driver,
+    downloads: &TempDir,
+    base: &str,
+    username: &str,
+) -> Session {
     let dash = driver.session(downloads.path());
     dash.goto(&format!("{base}/"));
     dash.type_into("#login-username", username);
@@ -349,24 +361,54 @@ fn dashboard(driver: &Driver, downloads: &TempDir, base: &str, username: &str) -
 }
 
 /// Whether the element `css` is displayed.
-fn shown(dash: &Session, css: &str) -> bool {
+pub(crate) fn shown(dash: &Session, css: &str) -> bool {
     dash.exec(
         "const n = document.querySelector(arguments[0]); return !!n && n.offsetParent !== null;",
         json!([css]),
     ) == true
 }
 
-#[test]
-fn in_chromium_the_dashboard_asks_before_withdrawing_or_disabling_and_follows_the_role() {
-    let server = Server::start("accounts-browser");
+/// What a dashboard test in Chromium starts from: a server with a study of one enrolled
+/// person, the admin's API, an analyst `ana`, and a browser with its download directory.
+pub(crate) struct BrowserLab {
+    pub server: Server,
+    pub admin: Api,
+    pub study: i64,
+    pub subject: i64,
+    pub code: String,
+    pub downloads: TempDir,
+    pub driver: Driver,
+}
+
+pub(crate) fn browser_lab(tag: &str) -> BrowserLab {
+    let server = Server::start(tag);
     let admin = server.experimenter();
     let study = short_study(&admin, 60.0, 60.0);
     let enrolled = admin.ok(&format!("/api/studies/{study}/subjects"), json!({}));
-    let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let code = enrolled["subject"]["code"].as_str().unwrap();
     server.account(&admin, "ana", "analyst");
-    let downloads = TempDir::new("accounts-browser-downloads");
-    let driver = Driver::start();
+    BrowserLab {
+        subject: enrolled["subject"]["id"].as_i64().unwrap(),
+        code: enrolled["subject"]["code"].as_str().unwrap().to_string(),
+        downloads: TempDir::new(&format!("{tag}-downloads")),
+        driver: Driver::start(),
+        server,
+        admin,
+        study,
+    }
+}
+
+#[test]
+fn in_chromium_the_dashboard_asks_before_withdrawing_or_disabling_and_follows_the_role() {
+    let BrowserLab {
+        server,
+        admin,
+        study: _,
+        subject,
+        code,
+        downloads,
+        driver,
+    } = browser_lab("accounts-browser");
+    let code = code.as_str();
 
     let dash = dashboard(&driver, &downloads, &server.base, "admin");
     assert!(shown(&dash, "#sec-accounts"), "an admin sees the accounts");

@@ -21,7 +21,7 @@ use std::process::{Command, Output};
 use std::time::Duration;
 
 use bdft_tests::exports::parse_csv;
-use bdft_tests::server::{ADMIN_PASSWORD, Server, eventually, short_study};
+use bdft_tests::server::{ADMIN_PASSWORD, Server, eventually, short_study, with_db};
 use bdft_tests::webdriver::{Driver, artifacts_dir};
 use bdft_tests::{TempDir, binary};
 use serde_json::{Value, json};
@@ -509,24 +509,13 @@ fn a_restore_refuses_a_running_server_a_damaged_file_and_a_newer_programs() {
 /// Records in the database file `db` a migration it never ran (what a newer program's
 /// database holds).
 fn add_migration(db: &Path, version: i64, description: &str) {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    rt.block_on(async {
-        use sqlx::{ConnectOptions, Connection};
-        let mut conn = sqlx::sqlite::SqliteConnectOptions::new()
-            .filename(db)
-            .connect()
-            .await
-            .unwrap();
+    with_db(db, async |pool| {
         sqlx::query("INSERT INTO _sqlx_migrations (version, description, success, checksum, execution_time) VALUES (?, ?, 1, x'00', 0)")
             .bind(version)
             .bind(description)
-            .execute(&mut conn)
+            .execute(pool)
             .await
             .unwrap();
-        conn.close().await.unwrap();
     });
 }
 

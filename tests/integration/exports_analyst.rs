@@ -13,7 +13,7 @@ use arrow_array::cast::AsArray;
 use arrow_array::types::{Float64Type, Int64Type};
 use arrow_array::{Array, RecordBatch};
 use arrow_schema::DataType;
-use bdft_tests::server::{Server, pilot_copy, short_study};
+use bdft_tests::server::{Server, pilot_copy, short_study, with_db};
 use bdft_tests::{TempDir, binary, controller};
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use serde_json::{Value, json};
@@ -97,25 +97,16 @@ fn values<'a>(rows: &'a [Vec<String>], name: &str) -> Vec<&'a str> {
 /// Writes `drawn_json` of every subject of `study` straight into the server's database
 /// (another part of the platform fills it at enrolment; no API writes it).
 fn set_drawn(db: &Path, study: i64, drawn: &[(&str, Value)]) {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    rt.block_on(async {
-        let opts = sqlx::sqlite::SqliteConnectOptions::new()
-            .filename(db)
-            .busy_timeout(std::time::Duration::from_secs(10));
-        let pool = sqlx::SqlitePool::connect_with(opts).await.unwrap();
+    with_db(db, async |pool| {
         for (code, value) in drawn {
             sqlx::query("UPDATE subjects SET drawn_json = ? WHERE study_id = ? AND code = ?")
                 .bind(value.to_string())
                 .bind(study)
                 .bind(code)
-                .execute(&pool)
+                .execute(pool)
                 .await
                 .unwrap();
         }
-        pool.close().await;
     });
 }
 

@@ -15,7 +15,7 @@ const ROOMS: [(&str, &[&str]); 7] = [
     ("procedure", &["study", "machine"]),
     ("results", &["study", "machine"]),
     ("dry_runs", &["study", "machine", "procedure", "results"]),
-    ("operations", &["study"]),
+    ("operations", &["study", "machine", "procedure", "results"]),
 ];
 
 type Module = Vec<String>;

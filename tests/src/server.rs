@@ -1,6 +1,7 @@
 //! A test client for `bdft-server`: starts the real server (which starts the real
 //! controller) on a fresh database and random port, and calls its API as a browser would.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -271,6 +272,29 @@ impl Api {
         }
     }
 
+    /// Status, headers (lower-case names) and text of a GET (a page with its security
+    /// headers).
+    pub fn get_page(&self, path: &str) -> (u16, BTreeMap<String, String>, String) {
+        let resp = match self.agent.get(&format!("{}{path}", self.base)).call() {
+            Ok(r) => r,
+            Err(ureq::Error::Status(_, r)) => r,
+            Err(e) => panic!("GET {path}: {e}"),
+        };
+        let headers = resp
+            .headers_names()
+            .into_iter()
+            .filter_map(|n| {
+                let v = resp.header(&n)?.to_string();
+                Some((n.to_ascii_lowercase(), v))
+            })
+            .collect();
+        (
+            resp.status(),
+            headers,
+            resp.into_string().unwrap_or_default(),
+        )
+    }
+
     /// Status and `Content-Type` of a GET (the body is read and dropped).
     pub fn content_type(&self, path: &str) -> (u16, String) {
         let (code, resp) = match self.agent.get(&format!("{}{path}", self.base)).call() {
@@ -312,6 +336,24 @@ impl Api {
         assert_eq!(code, 200, "POST {path}: {b}");
         b
     }
+}
+
+/// Runs `f` on a pool of the database file `db` — beside its running server, as WAL allows —
+/// and closes the pool: for what no API does (write a value in, read every table back).
+pub fn with_db<T>(db: &Path, f: impl AsyncFnOnce(&sqlx::SqlitePool) -> T) -> T {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let opts = sqlx::sqlite::SqliteConnectOptions::new()
+            .filename(db)
+            .busy_timeout(Duration::from_secs(10));
+        let pool = sqlx::SqlitePool::connect_with(opts).await.unwrap();
+        let out = f(&pool).await;
+        pool.close().await;
+        out
+    })
 }
 
 /// Polls `f` until it returns `Some`, failing after `limit`.
@@ -385,10 +427,7 @@ pub fn person_at_a_station(server: &Server, api: &Api, study: i64) -> (i64, i64,
     );
     Api::with_bearer(&server.base, &token)
         .ok("/api/station/consent", json!({ "decision": "agreed" }));
-    eventually(Duration::from_secs(30), || {
-        let (_, c) = api.get("/api/controller");
-        (c["connected"] == true && c["estop_latched"] == false).then_some(())
-    });
+    controller_ready(api);
     (subject, station, token)
 }
 
@@ -403,9 +442,23 @@ pub fn pair_station(api: &Api, study: i64, role: &str) -> (i64, String) {
     (st["id"].as_i64().unwrap(), token)
 }
 
-/// Runs `trial` (started by the experimenter) to its end; returns its final row.
+/// Waits until the server's controller is connected and not latched: a test can start.
+pub fn controller_ready(api: &Api) {
+    eventually(Duration::from_secs(30), || {
+        let (_, c) = api.get("/api/controller");
+        (c["connected"] == true && c["estop_latched"] == false).then_some(())
+    });
+}
+
+/// Runs `trial` (started by the experimenter) to its end; returns its final row. A start
+/// the server cannot serve now (503: the controller restarting after its link was lost on a
+/// loaded machine) is tried again once the controller is back.
 pub fn run_trial(api: &Api, subject: i64, trial: i64) -> Value {
-    let (code, body) = api.post(&format!("/api/trials/{trial}/start"), json!({}));
+    let (code, body) = eventually(Duration::from_secs(60), || {
+        controller_ready(api);
+        let (code, body) = api.post(&format!("/api/trials/{trial}/start"), json!({}));
+        (code != 503).then_some((code, body))
+    });
     assert_eq!(code, 200, "start {trial}: {body}");
     eventually(Duration::from_secs(60), || {
         let (_, s) = api.get(&format!("/api/subjects/{subject}"));

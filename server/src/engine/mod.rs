@@ -4,7 +4,8 @@
 //!
 //! ```text
 //! dry_runs   → results, procedure, machine, study      (the top room)
-//! operations → study                                   (the lab's data duties)
+//! operations → results, procedure, machine, study      (the lab's duties to its data and
+//!                                                        its ethics board)
 //! results    → machine, study
 //! procedure  → machine, study
 //! machine    → study

@@ -57,11 +57,14 @@ fn same(a: &str, b: &str) -> bool {
             == 0
 }
 
-/// The routes only admins may call, by path prefix, with what the refusal says they do:
-/// account management, and backups (a backup holds every subject's data).
+/// The routes only admins may call, by path prefix (as registered), with what the refusal
+/// says they do: account management, backups (a backup holds every subject's data), and
+/// erasing a subject's data with the list of erasures.
 const ADMIN_ONLY: &[(&str, &str)] = &[
     ("/api/accounts", "manages accounts"),
     ("/api/backups", "manages backups"),
+    ("/api/subjects/{id}/erase", "erases a subject's data"),
+    ("/api/erasures", "erases a subject's data"),
 ];
 
 /// The state-changing routes an analyst may call. The E-stop is among them on purpose: in a
@@ -197,7 +200,7 @@ mod tests {
     }
 
     #[test]
-    fn only_an_admin_manages_accounts_and_backups() {
+    fn only_an_admin_manages_accounts_and_backups_and_erases() {
         for role in [Role::Experimenter, Role::Analyst] {
             assert!(role_allows(role, &Method::GET, "/api/accounts").is_err());
             assert!(role_allows(role, &Method::POST, "/api/accounts/{id}/role").is_err());
@@ -209,6 +212,17 @@ mod tests {
         }
         assert!(role_allows(Role::Experimenter, &Method::GET, "/api/backupsfoo").is_ok());
         assert!(role_allows(Role::Admin, &Method::POST, "/api/accounts/{id}/role").is_ok());
+        for role in [Role::Experimenter, Role::Analyst] {
+            let e = role_allows(role, &Method::POST, "/api/subjects/{id}/erase").unwrap_err();
+            assert!(
+                e.to_string()
+                    .contains("only an admin erases a subject's data"),
+                "{e}"
+            );
+            assert!(role_allows(role, &Method::GET, "/api/erasures").is_err());
+        }
+        assert!(role_allows(Role::Experimenter, &Method::GET, "/api/subjects/{id}").is_ok());
+        assert!(role_allows(Role::Admin, &Method::POST, "/api/subjects/{id}/erase").is_ok());
         assert!(role_allows(Role::Admin, &Method::POST, "/api/backups").is_ok());
         assert!(role_allows(Role::Experimenter, &Method::POST, "/api/studies").is_ok());
     }

@@ -3,22 +3,25 @@
 //! so the document cannot drift from what is served.
 //!
 //! *Invariants:* an area module imports only the infrastructure beside it (`error`,
-//! `extract`, `bodies`), never another area; the experimenter router carries the
+//! `extract`, `bodies`, `page`), never another area; the experimenter router carries the
 //! authentication layer, so a route added there is protected by default; every API route
 //! is registered with `routes!`, so it is in the document.
 
 pub mod bodies;
 pub mod error;
 pub mod extract;
+pub mod page;
 
 mod accounts;
 mod backups;
 mod bench;
 mod configs;
 mod controller;
+mod erasure;
 mod live;
 mod pages;
 mod pilot;
+mod protocol_package;
 mod results;
 mod session;
 mod station_client;
@@ -72,6 +75,8 @@ pub fn app(state: AppState) -> Router {
         .merge(backups::routes())
         .merge(studies::routes())
         .merge(subjects::experimenter())
+        .merge(erasure::routes())
+        .merge(protocol_package::routes())
         .merge(stations::routes())
         .merge(trials::routes())
         .merge(controller::experimenter())

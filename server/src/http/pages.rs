@@ -5,11 +5,11 @@
 use std::path::PathBuf;
 
 use axum::extract::{Path, State};
-use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use include_dir::{Dir, include_dir};
 
 use super::error::AppError;
+use super::page;
 use crate::state::AppState;
 
 static WEB: Dir<'static> = include_dir!("$CARGO_MANIFEST_DIR/../web");
@@ -42,26 +42,7 @@ async fn file(dir: &Option<PathBuf>, name: &str) -> Option<Vec<u8>> {
 
 async fn serve(s: &AppState, name: &str) -> Response {
     match file(&s.web_dir, name).await {
-        Some(body) => {
-            let mut r = (StatusCode::OK, body).into_response();
-            let h = r.headers_mut();
-            h.insert(
-                header::CONTENT_TYPE,
-                HeaderValue::from_static(content_type(name)),
-            );
-            // Pages change with the server version; never serve a stale one mid-study.
-            h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
-            h.insert(
-                "x-content-type-options",
-                HeaderValue::from_static("nosniff"),
-            );
-            h.insert("x-frame-options", HeaderValue::from_static("DENY"));
-            h.insert(
-                header::CONTENT_SECURITY_POLICY,
-                HeaderValue::from_static("default-src 'self'; img-src 'self' data: blob:; style-src 'self'; script-src 'self'; connect-src 'self'; frame-ancestors 'none'"),
-            );
-            r
-        }
+        Some(body) => page::response(content_type(name), body),
         None => AppError::NotFound("page").into_response(),
     }
 }

@@ -1,5 +1,7 @@
-//! The audit log: append-only (SQL triggers refuse UPDATE and DELETE). Rows are written by
-//! [`super::Change::commit`], inside the transaction of the change they record.
+//! The audit log: append-only (SQL triggers refuse UPDATE and DELETE; the one exception is
+//! an erasure replacing the details of the older rows about its subject by a redaction
+//! marker, `store::erasure`). Rows are written by [`super::Change::commit`] (or
+//! [`super::Change::audit_first`]), inside the transaction of the change they record.
 //!
 //! Every row names who made it. A logged-in account is named by its username, and the row
 //! keeps the account's id (`actor_id`). The other actors say what they are, and each has a
@@ -15,14 +17,15 @@ use sqlx::{SqliteConnection, SqliteExecutor};
 use super::db::{now_ms, rfc3339};
 use crate::error::Result;
 
+/// Appends a row; returns its id.
 pub(super) async fn append(
     db: &mut SqliteConnection,
     actor: &str,
     action: &str,
     target: Option<String>,
     detail: &str,
-) -> Result<()> {
-    sqlx::query(
+) -> Result<i64> {
+    Ok(sqlx::query(
         "INSERT INTO audit_log (at, actor, actor_id, action, target, detail_json) VALUES (?, ?, (SELECT id FROM experimenters WHERE username = ?), ?, ?, ?)",
     )
     .bind(now_ms())
@@ -32,8 +35,8 @@ pub(super) async fn append(
     .bind(target)
     .bind(detail)
     .execute(db)
-    .await?;
-    Ok(())
+    .await?
+    .last_insert_rowid())
 }
 
 /// The detail of an action that records nothing besides who did it and to what: `{}`.

@@ -1,5 +1,5 @@
-//! The SQLite database: one file, WAL mode, created if missing, migrations applied at start;
-//! the time unit of every column.
+//! The SQLite database: one file, WAL mode, deleted content overwritten (`secure_delete`),
+//! created if missing, migrations applied at start; the time unit of every column.
 
 use std::path::Path;
 use std::str::FromStr;
@@ -29,6 +29,9 @@ async fn open_with(path: &Path, connections: u32) -> anyhow::Result<SqlitePool> 
         // NORMAL in WAL mode: a power cut may lose the last transactions but never corrupts.
         .synchronous(SqliteSynchronous::Normal)
         .foreign_keys(true)
+        // Deleted rows are overwritten with zeros, not left in free pages: an erased
+        // subject's data must not stay readable in the file (`erasure`).
+        .pragma("secure_delete", "on")
         .busy_timeout(Duration::from_secs(10));
     let pool = SqlitePoolOptions::new()
         .max_connections(connections)

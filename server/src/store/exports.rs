@@ -140,25 +140,26 @@ pub struct SubjectExportRow {
     pub drawn_json: Option<String>,
 }
 
-/// Every subject of the study, withdrawn or not, in enrolment order.
+/// Every subject of the study, withdrawn or not, in enrolment order; not the erased (whose
+/// tests are gone with their data, so no other export has them either).
 pub async fn subject_rows<'c>(
     db: impl SqliteExecutor<'c>,
     study_id: i64,
 ) -> Result<Vec<SubjectExportRow>> {
     Ok(sqlx::query_as(
         "SELECT code, enrol_index, synthetic, starting_station, consent_version, consent_decision, consent_at, withdrawn_at, drawn_json \
-         FROM subjects WHERE study_id = ? ORDER BY enrol_index",
+         FROM subjects WHERE study_id = ? AND erased_at IS NULL ORDER BY enrol_index",
     )
     .bind(study_id)
     .fetch_all(db)
     .await?)
 }
 
-/// The codes of the study's subjects who have not withdrawn, in enrolment order (what a
-/// per-subject export may name).
+/// The codes of the study's subjects who have not withdrawn (nor been erased), in enrolment
+/// order (what a per-subject export may name).
 pub async fn subject_codes<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<Vec<String>> {
     Ok(sqlx::query_scalar(
-        "SELECT code FROM subjects WHERE study_id = ? AND withdrawn_at IS NULL ORDER BY enrol_index",
+        "SELECT code FROM subjects WHERE study_id = ? AND withdrawn_at IS NULL AND erased_at IS NULL ORDER BY enrol_index",
     )
     .bind(study_id)
     .fetch_all(db)

@@ -12,6 +12,7 @@ pub mod bench;
 pub mod configs;
 pub mod db;
 pub mod dry_runs;
+pub mod erasure;
 pub mod exports;
 pub mod latch;
 pub mod pilot_runs;
@@ -66,6 +67,45 @@ impl Change {
     ) -> Result<()> {
         let detail = json_text(&detail)?;
         audit::append(&mut self.tx, &self.actor, action, target, &detail).await?;
+        self.tx.commit().await?;
+        Ok(())
+    }
+
+    /// Writes the audit row first, for a change whose statements need it to exist (an
+    /// erasure: the SQL triggers let only a recorded erasure mark its subject erased and
+    /// redact the subject's older rows, naming the erasure's row); the rest of the change
+    /// then runs on the returned [`Audited`], which commits without another row.
+    pub async fn audit_first(
+        mut self,
+        action: &str,
+        target: Option<String>,
+        detail: impl Serialize,
+    ) -> Result<Audited> {
+        let detail = json_text(&detail)?;
+        let audit_id = audit::append(&mut self.tx, &self.actor, action, target, &detail).await?;
+        Ok(Audited {
+            tx: self.tx,
+            audit_id,
+        })
+    }
+}
+
+/// A change whose audit row is already written ([`Change::audit_first`]).
+#[derive(Debug)]
+pub struct Audited {
+    tx: Transaction<'static, Sqlite>,
+    /// The id of the change's audit row.
+    pub audit_id: i64,
+}
+
+impl Audited {
+    /// The connection the change's statements run on.
+    pub fn db(&mut self) -> &mut SqliteConnection {
+        &mut self.tx
+    }
+
+    /// Commits everything, the audit row with it.
+    pub async fn commit(self) -> Result<()> {
         self.tx.commit().await?;
         Ok(())
     }

@@ -1,5 +1,5 @@
 //! Subjects (pseudonymous: a code and a page token's hash), their consent and withdrawal, and
-//! the experimenter's notes about them.
+//! the experimenter's notes about them. An erased subject (`erasure`) changes no more.
 
 use bdft_protocol::params::{Seat, SubjectDraw};
 use bdft_protocol::records::ConsentDecision;
@@ -27,6 +27,10 @@ pub struct Subject {
     pub created_at: i64,
     /// A synthetic subject's drawn parameters (`subjects.drawn_json`); none for a person.
     pub drawn: Option<SubjectDraw>,
+    /// When the subject's data were erased (`store::erasure`): then only the id, study,
+    /// code, enrolment index, starting seat and synthetic flag are left, and `created_at` is
+    /// this time too.
+    pub erased_at: Option<i64>,
 }
 
 #[derive(sqlx::FromRow)]
@@ -44,6 +48,7 @@ struct SubjectRow {
     withdraw_reason: Option<String>,
     created_at: i64,
     drawn_json: Option<String>,
+    erased_at: Option<i64>,
 }
 
 impl TryFrom<SubjectRow> for Subject {
@@ -78,11 +83,12 @@ impl TryFrom<SubjectRow> for Subject {
                 .map(serde_json::from_str)
                 .transpose()
                 .map_err(|e| corrupt(format!("drawn parameters: {e}")))?,
+            erased_at: r.erased_at,
         })
     }
 }
 
-const COLUMNS: &str = "id, study_id, code, enrol_index, synthetic, starting_station, consent_version, consent_decision, consent_at, withdrawn_at, withdraw_reason, created_at, drawn_json";
+const COLUMNS: &str = "id, study_id, code, enrol_index, synthetic, starting_station, consent_version, consent_decision, consent_at, withdrawn_at, withdraw_reason, created_at, drawn_json, erased_at";
 
 pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Subject> {
     let row: Option<SubjectRow> =
@@ -154,6 +160,14 @@ pub async fn insert(db: &mut SqliteConnection, s: &NewSubject<'_>) -> Result<i64
     .last_insert_rowid())
 }
 
+/// The refusal of a change to an erased subject (a SQL trigger refuses it as well).
+pub fn refuse_erased(subject: &Subject) -> AppError {
+    AppError::Conflict(format!(
+        "{}'s data were erased; an erased subject takes no further part",
+        subject.code
+    ))
+}
+
 /// Records the subject's decision on the consent form `version`; only the first decision
 /// counts.
 pub async fn record_consent(
@@ -162,14 +176,18 @@ pub async fn record_consent(
     version: &str,
     decision: ConsentDecision,
 ) -> Result<()> {
-    let done = sqlx::query("UPDATE subjects SET consent_version = ?, consent_decision = ?, consent_at = ? WHERE id = ? AND consent_decision IS NULL")
+    let done = sqlx::query("UPDATE subjects SET consent_version = ?, consent_decision = ?, consent_at = ? WHERE id = ? AND consent_decision IS NULL AND erased_at IS NULL")
         .bind(version)
         .bind(decision.as_str())
         .bind(now_ms())
         .bind(subject_id)
-        .execute(db)
+        .execute(&mut *db)
         .await?;
     if done.rows_affected() == 0 {
+        let subject = get(&mut *db, subject_id).await?;
+        if subject.erased_at.is_some() {
+            return Err(refuse_erased(&subject));
+        }
         return Err(AppError::Conflict(
             "consent has already been recorded".into(),
         ));
@@ -178,14 +196,17 @@ pub async fn record_consent(
 }
 
 pub async fn withdraw(db: &mut SqliteConnection, subject_id: i64, reason: &str) -> Result<()> {
-    let done = sqlx::query("UPDATE subjects SET withdrawn_at = ?, withdraw_reason = ? WHERE id = ? AND withdrawn_at IS NULL")
+    let done = sqlx::query("UPDATE subjects SET withdrawn_at = ?, withdraw_reason = ? WHERE id = ? AND withdrawn_at IS NULL AND erased_at IS NULL")
         .bind(now_ms())
         .bind(reason)
         .bind(subject_id)
         .execute(&mut *db)
         .await?;
     if done.rows_affected() == 0 {
-        get(&mut *db, subject_id).await?;
+        let subject = get(&mut *db, subject_id).await?;
+        if subject.erased_at.is_some() {
+            return Err(refuse_erased(&subject));
+        }
         return Err(AppError::Conflict(
             "the subject has already withdrawn".into(),
         ));

@@ -3,7 +3,7 @@
 //! (`power`, with whole simulated studies of the study's population in `power_sim`), and the
 //! one background job of a kind the dashboard watches (`job`).
 //!
-//! *May use:* `study`, `machine`, `procedure`, `results` — it is the top room.
+//! *May use:* `study`, `machine`, `procedure`, `results` (only `operations` is above it).
 
 pub mod job;
 pub mod pilot;

@@ -51,10 +51,13 @@ pub struct ProtocolHashes {
     pub trials: i64,
 }
 
+/// What a backup's file name is followed by in its manifest's.
+const SUFFIX: &str = ".manifest.json";
+
 /// Where the manifest of `file` is: `FILE.manifest.json` beside it.
 pub fn path_of(file: &Path) -> PathBuf {
     let mut name = file.file_name().unwrap_or_default().to_os_string();
-    name.push(".manifest.json");
+    name.push(SUFFIX);
     file.with_file_name(name)
 }
 
@@ -92,6 +95,23 @@ pub fn read(file: &Path) -> Result<Manifest> {
         )));
     }
     Ok(manifest)
+}
+
+/// The backups in `dir`, found by their manifests (`FILE.manifest.json`), in file-name order:
+/// each backup's file name, and its manifest or what is wrong with it.
+pub fn in_dir(dir: &Path) -> Result<Vec<(String, Result<Manifest>)>> {
+    let entries = std::fs::read_dir(dir).map_err(|e| io_error(dir, "listing", e))?;
+    let mut found: Vec<(String, Result<Manifest>)> = entries
+        .filter_map(|e| e.ok())
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let file = name.strip_suffix(SUFFIX)?.to_string();
+            let manifest = read(&dir.join(&file));
+            Some((file, manifest))
+        })
+        .collect();
+    found.sort_by(|a, b| a.0.cmp(&b.0));
+    Ok(found)
 }
 
 /// SHA-256 (hex) and size of a file, read in 1 MiB blocks.

@@ -4,6 +4,10 @@
 //! migrations this program knows, protocol hashes), migrated and given its audit row; only
 //! then does it take the database's name, in one rename. The database it replaces is kept
 //! beside it (`DB.replaced-TIME`), so a restore never destroys what was recorded since.
+//!
+//! A backup taken before an erasure holds the erased subject's data: a restore lists the
+//! erasures of the replaced database whose subjects the restored one holds again
+//! (`erasures_undone`), so that they are erased again.
 
 use std::path::{Path, PathBuf};
 
@@ -13,6 +17,7 @@ use super::checks::check_file;
 use super::manifest::{self, io_error};
 use super::presence::refuse_if_held;
 use crate::error::{AppError, Result};
+use crate::store::erasure::ErasureRow;
 use crate::store::{self, Change};
 
 /// Who the audit log names for a restore (always from the command line, onto a stopped
@@ -31,6 +36,12 @@ pub struct Restored {
     pub schema_version: i64,
     /// Where the database that was replaced is kept (none if there was none).
     pub replaced_kept_as: Option<PathBuf>,
+    /// The erasures recorded in the replaced database whose subjects' data the restored one
+    /// holds again (the backup was taken before them): erase these subjects again.
+    pub erasures_undone: Vec<ErasureRow>,
+    /// Why the replaced database's erasures could not be read, when they could not (then
+    /// check them by hand in the kept file's audit log, action `subject.erase`).
+    pub erasures_unchecked: Option<String>,
 }
 
 /// Restores the backup `from` (with its manifest beside it) as the database `db`.
@@ -76,6 +87,14 @@ pub async fn restore(from: &Path, db: &Path) -> Result<Restored> {
         None
     };
     std::fs::rename(&staging, db).map_err(|e| io_error(db, "renaming the restored copy to", e))?;
+    // The restore is done: what follows reports, and fails nothing.
+    let (erasures_undone, erasures_unchecked) = match &replaced_kept_as {
+        None => (Vec::new(), None),
+        Some(kept) => match undone_erasures(kept, db).await {
+            Ok(undone) => (undone, None),
+            Err(e) => (Vec::new(), Some(e.describe())),
+        },
+    };
     Ok(Restored {
         db: db.to_path_buf(),
         from: from.to_path_buf(),
@@ -84,7 +103,35 @@ pub async fn restore(from: &Path, db: &Path) -> Result<Restored> {
         schema_version_of_backup: manifest.schema_version,
         schema_version,
         replaced_kept_as,
+        erasures_undone,
+        erasures_unchecked,
     })
+}
+
+/// The erasures recorded in the database `replaced` whose subject the database `restored`
+/// holds again, not erased (same id and code).
+async fn undone_erasures(replaced: &Path, restored: &Path) -> Result<Vec<ErasureRow>> {
+    let open = |path: &Path| {
+        let path = path.to_path_buf();
+        async move {
+            store::db::open_read_only(&path)
+                .await
+                .map_err(|e| AppError::Unavailable(format!("{}: {e:#}", path.display())))
+        }
+    };
+    let (mut replaced, mut restored) = (open(replaced).await?, open(restored).await?);
+    let mut undone = Vec::new();
+    for erasure in store::erasure::erasures(&mut replaced).await? {
+        let held = match store::subjects::get(&mut restored, erasure.subject_id).await {
+            Ok(s) => s.code == erasure.code && s.erased_at.is_none(),
+            Err(AppError::NotFound(_)) => false,
+            Err(e) => return Err(e),
+        };
+        if held {
+            undone.push(erasure);
+        }
+    }
+    Ok(undone)
 }
 
 /// `DB` + suffix, in the database's directory (so the final rename stays on one file system).

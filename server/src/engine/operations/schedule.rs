@@ -129,6 +129,11 @@ impl Backups {
         Ok(made)
     }
 
+    /// The backup directory; none when backups are off.
+    pub fn dir(&self) -> Option<&Path> {
+        self.policy.as_ref().map(|p| p.dir.as_path())
+    }
+
     pub fn view(&self) -> Result<BackupsView> {
         let Some(p) = &self.policy else {
             return Ok(BackupsView {
@@ -184,14 +189,9 @@ impl Backups {
 
 /// The backups in `dir` whose manifest can be read, newest first.
 fn listed(dir: &Path) -> Result<Vec<Manifest>> {
-    let entries = std::fs::read_dir(dir).map_err(|e| manifest::io_error(dir, "listing", e))?;
-    let mut found: Vec<Manifest> = entries
-        .filter_map(|e| e.ok())
-        .filter_map(|e| {
-            let name = e.file_name().to_string_lossy().into_owned();
-            let file = name.strip_suffix(".manifest.json")?;
-            manifest::read(&dir.join(file)).ok()
-        })
+    let mut found: Vec<Manifest> = manifest::in_dir(dir)?
+        .into_iter()
+        .filter_map(|(_, m)| m.ok())
         .collect();
     found.sort_by(|a, b| {
         b.created_at_ms

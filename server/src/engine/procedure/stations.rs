@@ -244,6 +244,9 @@ pub async fn assign(
                 "the subject belongs to another study".into(),
             ));
         }
+        if subject.erased_at.is_some() {
+            return Err(store::subjects::refuse_erased(&subject));
+        }
         // One input source per test: a subject may be at a desk station and a machine
         // station, never at two stations that serve the same seat (both would feed it).
         let others = store::stations::of_subject(change.db(), subject_id).await?;
@@ -277,7 +280,7 @@ fn shares_a_seat(a: StationRole, b: StationRole) -> bool {
 /// The consent form and the texts of a study with their placeholders filled in. A study
 /// stored before texts had placeholders may hold a brace that is not one: then its texts are
 /// shown as written.
-fn rendered_texts(params: &StudyParams) -> (ConsentForm, StudyTexts) {
+pub fn rendered_texts(params: &StudyParams) -> (ConsentForm, StudyTexts) {
     params
         .rendered_texts()
         .unwrap_or_else(|_| (params.consent.clone(), params.texts.clone()))

@@ -23,10 +23,11 @@ const OFF: &str = "#0072B2";
 const ON: &str = "#D55E00";
 const FONT: &str = "DejaVu Sans, Verdana, sans-serif";
 
-/// User text (a study's name, a compensator's, a label) as SVG text: escaped, and with the
+/// User text (a study's name, a compensator's, a label) as SVG text — or HTML text or a
+/// double-quoted attribute value (the ethics board's package): escaped, and with the
 /// characters XML 1.0 forbids (control characters, U+FFFE, U+FFFF) made spaces, because one
 /// of them makes the whole document unparseable for the PNG renderer.
-fn esc(s: &str) -> String {
+pub fn esc(s: &str) -> String {
     let mut out = String::with_capacity(s.len());
     for c in s.chars() {
         match c {

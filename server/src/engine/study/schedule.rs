@@ -52,14 +52,19 @@ pub fn default_params() -> StudyParams {
     }
 }
 
-/// SHA-256 (hex) of the parameters' canonical JSON (keys sorted, no whitespace): the same
-/// protocol always hashes the same, whatever order a client sent the fields in.
-pub fn protocol_hash(params: &StudyParams) -> String {
+/// The parameters' canonical JSON (keys sorted, no whitespace): the text the protocol hash
+/// is of, so the same protocol always hashes the same, whatever order a client sent the
+/// fields in.
+pub fn canonical_json(params: &StudyParams) -> String {
     // serde_json's Value keeps object keys in sorted order (no preserve_order feature).
-    let canonical = serde_json::to_value(params)
+    serde_json::to_value(params)
         .expect("params serialize")
-        .to_string();
-    let digest = Sha256::digest(canonical.as_bytes());
+        .to_string()
+}
+
+/// SHA-256 (hex) of the parameters' [`canonical_json`].
+pub fn protocol_hash(params: &StudyParams) -> String {
+    let digest = Sha256::digest(canonical_json(params).as_bytes());
     digest.iter().map(|b| format!("{b:02x}")).collect()
 }
 

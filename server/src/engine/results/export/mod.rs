@@ -15,10 +15,12 @@ mod columns;
 mod sink;
 mod tables;
 
+use bdft_protocol::study::SurveyParams;
 use serde::Serialize;
 use sqlx::SqlitePool;
 use tokio::io::{AsyncWrite, BufWriter};
 
+pub use columns::{Column, ColumnType};
 pub use sink::ExportFormat;
 
 use crate::error::AppError;
@@ -247,6 +249,16 @@ pub async fn write(
     let mut t = TableWriter::start(tables::columns_of(req.kind, &cx), req.format, out).await?;
     tables::write_rows(pool, study_id, req, &cx, &mut t).await?;
     t.finish().await
+}
+
+/// Every export's columns for a study of people with the survey `survey`: what its
+/// codebook lists (the ethics board's package shows it as the data kept).
+pub fn data_kept(survey: &SurveyParams) -> Vec<(ExportKind, Vec<Column>)> {
+    let cx = tables::StudyContext::of_people(survey.clone());
+    ExportKind::ALL
+        .into_iter()
+        .map(|kind| (kind, tables::columns_of(kind, &cx)))
+        .collect()
 }
 
 #[derive(Debug, thiserror::Error)]

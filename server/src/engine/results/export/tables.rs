@@ -26,6 +26,15 @@ pub struct StudyContext {
 }
 
 impl StudyContext {
+    /// The context of a study with the survey `survey` whose subjects are people (no drawn
+    /// parameters).
+    pub fn of_people(survey: SurveyParams) -> Self {
+        Self {
+            survey,
+            drawn_keys: Vec::new(),
+        }
+    }
+
     /// The study's context (none for the audit log, which is no study's).
     pub async fn load(
         pool: &SqlitePool,

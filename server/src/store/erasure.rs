@@ -1,0 +1,145 @@
+//! Erasing a subject's data (`engine::operations::erasure` says when it is allowed): the
+//! statements of one erasure, run after its audit row is written (`Change::audit_first`),
+//! since the SQL triggers of migration 0021 let only a recorded erasure mark its subject
+//! erased and redact the subject's older audit rows. Also the erasures recorded so far.
+//!
+//! Deleted rows leave no copy in the file: the database runs with `secure_delete` (`db`), and
+//! [`clear_wal`] empties the write-ahead log after the erasure.
+
+use serde::Serialize;
+use sqlx::{SqliteConnection, SqliteExecutor, SqlitePool};
+
+use crate::error::{AppError, Result};
+
+/// What one erasure removed, counted.
+#[derive(Debug, Clone, Copy, Default, Serialize, utoipa::ToSchema)]
+pub struct Removed {
+    /// Test attempts (the practice's included), with their results and timing figures.
+    pub trials: u64,
+    /// Full-rate records of those attempts.
+    pub records: u64,
+    /// Survey answers (ratings and comments).
+    pub surveys: u64,
+    /// The experimenters' notes on the subject and their tests.
+    pub notes: u64,
+    /// Older audit rows about the subject whose details were replaced by the redaction
+    /// marker (the rows themselves stay: what was done, when and by whom).
+    pub audit_details_redacted: u64,
+    /// Stations the subject was assigned to, now free.
+    pub stations_released: u64,
+}
+
+/// The subject's running test, if one is running.
+pub async fn running_trial<'c>(
+    db: impl SqliteExecutor<'c>,
+    subject_id: i64,
+) -> Result<Option<i64>> {
+    Ok(sqlx::query_scalar(
+        "SELECT id FROM trials WHERE subject_id = ? AND status = 'running' ORDER BY id LIMIT 1",
+    )
+    .bind(subject_id)
+    .fetch_optional(db)
+    .await?)
+}
+
+/// Erases subject `subject_id` whose erasure is the audit row `erasure_id` (written in this
+/// transaction): the subject's row keeps its id, study, code, enrolment index, starting seat
+/// and synthetic flag, and is marked erased at the audit row's time (its page token no longer
+/// matches anything; `created_at` becomes that time too, so the enrolment time is gone);
+/// the details of the older audit rows about it are redacted; its stations are released;
+/// its notes, surveys, records and trials are deleted.
+pub async fn erase(db: &mut SqliteConnection, subject_id: i64, erasure_id: i64) -> Result<Removed> {
+    let marked = sqlx::query(
+        "UPDATE subjects SET erased_at = (SELECT at FROM audit_log WHERE id = ?1), \
+         created_at = (SELECT at FROM audit_log WHERE id = ?1), token_hash = 'erased:' || id, \
+         consent_version = NULL, consent_decision = NULL, consent_at = NULL, \
+         withdrawn_at = NULL, withdraw_reason = NULL, drawn_json = NULL \
+         WHERE id = ?2 AND erased_at IS NULL",
+    )
+    .bind(erasure_id)
+    .bind(subject_id)
+    .execute(&mut *db)
+    .await?;
+    if marked.rows_affected() != 1 {
+        return Err(AppError::Conflict(
+            "the subject's data were erased already".into(),
+        ));
+    }
+    // Before the trials go: a row is the subject's when it targets one of its trials.
+    let redacted = sqlx::query(
+        "UPDATE audit_log SET detail_json = json_object('erasure', ?1, 'redacted', 'subject.erase') \
+         WHERE id < ?1 AND action IS NOT 'subject.erase' AND (target = 'subject:' || ?2 \
+           OR target IN (SELECT 'trial:' || id FROM trials WHERE subject_id = ?2) \
+           OR json_extract(detail_json, '$.subject_id') = ?2)",
+    )
+    .bind(erasure_id)
+    .bind(subject_id)
+    .execute(&mut *db)
+    .await?
+    .rows_affected();
+    // Children before the trials they name (foreign keys), in this order.
+    let mut counts = [0u64; 6];
+    for (n, sql) in [
+        "UPDATE stations SET subject_id = NULL WHERE subject_id = ?1",
+        "DELETE FROM notes WHERE subject_id = ?1",
+        "DELETE FROM surveys WHERE trial_id IN (SELECT id FROM trials WHERE subject_id = ?1)",
+        "DELETE FROM trial_records WHERE trial_id IN (SELECT id FROM trials WHERE subject_id = ?1)",
+        "DELETE FROM pilot_trials WHERE trial_id IN (SELECT id FROM trials WHERE subject_id = ?1)",
+        "DELETE FROM trials WHERE subject_id = ?1",
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        counts[n] = sqlx::query(sql)
+            .bind(subject_id)
+            .execute(&mut *db)
+            .await?
+            .rows_affected();
+    }
+    let [stations_released, notes, surveys, records, _, trials] = counts;
+    Ok(Removed {
+        trials,
+        records,
+        surveys,
+        notes,
+        audit_details_redacted: redacted,
+        stations_released,
+    })
+}
+
+/// Copies the write-ahead log into the database file and truncates it, so that the pages an
+/// erasure changed no longer exist in their old form anywhere in the files. Waits for readers
+/// (the busy timeout); returns false when one kept it from finishing (the log is then cleared
+/// by a later checkpoint).
+pub async fn clear_wal(pool: &SqlitePool) -> Result<bool> {
+    let (busy, _, _): (i64, i64, i64) = sqlx::query_as("PRAGMA wal_checkpoint(TRUNCATE)")
+        .fetch_one(pool)
+        .await?;
+    Ok(busy == 0)
+}
+
+/// One recorded erasure, as its audit row keeps it.
+#[derive(Debug, Clone, Serialize, sqlx::FromRow)]
+pub struct ErasureRow {
+    /// The `subject.erase` audit row.
+    pub audit_id: i64,
+    /// When, in ms since the Unix epoch.
+    pub at: i64,
+    pub by: String,
+    pub subject_id: i64,
+    pub study_id: i64,
+    pub code: String,
+    pub reason: String,
+}
+
+/// Every erasure, oldest first.
+pub async fn erasures<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<ErasureRow>> {
+    Ok(sqlx::query_as(
+        "SELECT a.id AS audit_id, a.at, a.actor AS by, s.id AS subject_id, s.study_id, s.code, \
+         COALESCE(json_extract(a.detail_json, '$.reason'), '') AS reason \
+         FROM audit_log a JOIN subjects s ON a.target = 'subject:' || s.id \
+         WHERE a.action = 'subject.erase' ORDER BY a.id",
+    )
+    .fetch_all(db)
+    .await?)
+}
