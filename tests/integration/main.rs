@@ -9,6 +9,7 @@ mod design_aids;
 mod exports_analyst;
 mod exports_audit;
 mod hardening;
+mod isolation;
 mod server_api;
 mod server_layers;
 mod station_safety;

@@ -60,4 +60,5 @@ impl Drop for TempDir {
 pub mod controller_link;
 
 pub mod server;
+pub mod station;
 pub mod webdriver;
