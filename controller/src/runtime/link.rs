@@ -615,9 +615,10 @@ async fn pump(io: Shared) {
     }
 }
 
-/// Sends a heartbeat every 50 ms and declares the link lost after the configured silence.
+/// Sends a heartbeat every 25 ms (the server counts 75 ms of silence as a hang) and declares
+/// the link lost after the configured silence.
 async fn heartbeat(io: Shared) {
-    let mut every = tokio::time::interval(Duration::from_millis(50));
+    let mut every = tokio::time::interval(Duration::from_millis(25));
     let mut seq = 0u64;
     loop {
         every.tick().await;
