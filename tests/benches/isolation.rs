@@ -5,7 +5,8 @@
 //! loopback:
 //!
 //! - the victim's input-to-echo latency (p50/p95/p99/max) and whether its test was stopped;
-//! - the dashboard API's latency meanwhile (`GET /api/stations/{id}/state`, every 20 ms);
+//! - the dashboard API's latency meanwhile (`GET /api/stations/{id}/state`, every 20 ms),
+//!   and the CPU the server, its controller and the flooder used meanwhile;
 //! - then, the flood still running, E-stop presses (`POST /api/estop`, reset between):
 //!   the controller's confirmation (`confirmed_ms`) and the answer's time at the client.
 //!
@@ -94,6 +95,14 @@ fn scenario(
 
     let (subject, station, token, trial) = running_test(server, api, study);
     let mut ws = station::connect(&server.base, &token);
+    let controller = api.get("/api/controller").1["pid"].as_u64().unwrap_or(0) as u32;
+    let processes = [
+        ("server", server.proc.child.id()),
+        ("controller", controller),
+        ("flooder", flooder.id()),
+    ];
+    let cpu_before = processes.map(|(_, pid)| cpu_seconds(pid));
+    let phase = Instant::now();
     let polling = Arc::new(AtomicBool::new(true));
     let poller = {
         // The dashboard's own session and connection.
@@ -112,6 +121,15 @@ fn scenario(
     };
     start(api, trial);
     let fed = station::feed(&mut ws, trial, 60.0, seconds);
+    let wall = phase.elapsed().as_secs_f64();
+    let cpu: serde_json::Map<String, Value> = processes
+        .iter()
+        .zip(cpu_before)
+        .map(|((name, pid), before)| {
+            let share = (cpu_seconds(*pid) - before) / wall * 100.0;
+            (name.to_string(), json!((share * 10.0).round() / 10.0))
+        })
+        .collect();
     polling.store(false, Ordering::Relaxed);
     let (api_ms, api_failed) = poller.join().unwrap();
     let row = api.get(&format!("/api/subjects/{subject}")).1["trials"][0]["trial"].clone();
@@ -148,11 +166,29 @@ fn scenario(
             "socket_ended": fed.ended,
             "test_stopped": stopped,
         },
+        "cpu_percent_meanwhile": cpu,
         "api_ms": summary(api_ms),
         "api_failed": api_failed,
         "estop_confirmed_ms": summary(confirmed),
         "estop_answered_ms": summary(answered),
     })
+}
+
+/// CPU seconds (user + system) process `pid` has used (0 if it is gone).
+fn cpu_seconds(pid: u32) -> f64 {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+    // After the command name in parentheses: state is field 3, utime and stime 14 and 15.
+    let fields: Vec<&str> = stat
+        .rsplit_once(')')
+        .map_or(vec![], |(_, rest)| rest.split_whitespace().collect());
+    let ticks = |i: usize| {
+        fields
+            .get(i)
+            .and_then(|f| f.parse::<f64>().ok())
+            .unwrap_or(0.0)
+    };
+    // Clock ticks are 1/100 s on Linux (USER_HZ).
+    (ticks(11) + ticks(12)) / 100.0
 }
 
 fn start_flooder(base: &str, token: &str, trial: i64, sockets: usize) -> Child {

@@ -93,15 +93,21 @@ async fn station_ws(
     Query(q): Query<TokenQuery>,
     ws: WebSocketUpgrade,
 ) -> Result<Response, AppError> {
+    // Refused before the upgrade: a station opening socket after socket (each replacing the
+    // last) costs no query a try once it is over the limit.
+    let too_many = || {
+        AppError::TooManyRequests(format!(
+            "this station opened too many sockets: at most {OPENINGS_PER_SECOND} a second after the first few"
+        ))
+    };
+    if s.sockets.known_over_limit(&q.token, Instant::now()) {
+        return Err(too_many());
+    }
     let station = store::stations::by_token(&s.pool, &q.token)
         .await?
         .ok_or(AppError::Unauthorized)?;
-    // Refused before the upgrade: a station opening socket after socket (each replacing the
-    // last) costs one query a try.
-    if !s.sockets.may_open(station.id, Instant::now()) {
-        return Err(AppError::TooManyRequests(format!(
-            "this station opened too many sockets: at most {OPENINGS_PER_SECOND} a second after the first few"
-        )));
+    if !s.sockets.may_open(station.id, &q.token, Instant::now()) {
+        return Err(too_many());
     }
     Ok(ws
         .max_message_size(TRANSPORT_LIMIT)

@@ -18,6 +18,8 @@ use std::time::{Duration, Instant};
 use bdft_protocol::server_to_browser::StationSocket;
 use tokio::sync::oneshot;
 
+use crate::store::tokens::token_hash;
+
 /// Sustained messages a second a station may send: twice the most its page sends (one per
 /// frame, at most 250 a second), so a page never loses input to the limit.
 pub const INPUT_RATE: f64 = 500.0;
@@ -232,6 +234,11 @@ impl Station {
 #[derive(Debug, Default)]
 pub struct StationSockets {
     stations: Mutex<HashMap<i64, Station>>,
+    /// The station of each token that opened a socket (by the token's hash, as the database
+    /// keeps it; one entry per token that ever opened one): an opening over the limit is
+    /// refused without a query. Used to refuse only, never to let in, so a token revoked
+    /// since is no way in.
+    known: Mutex<HashMap<String, i64>>,
 }
 
 /// A socket that is the station's one live socket until `replaced` fires.
@@ -256,9 +263,28 @@ impl StationSockets {
         self.stations.lock().unwrap_or_else(|p| p.into_inner())
     }
 
-    /// Whether `station_id` may open a socket at `now` ([`OPENING_BURST`],
-    /// [`OPENINGS_PER_SECOND`]); asked before the upgrade, so that one refused costs a query.
-    pub fn may_open(&self, station_id: i64, now: Instant) -> bool {
+    /// Whether an opening with `token` at `now` is refused before its token is looked up: it
+    /// opened a socket before and its station has no opening left ([`OPENING_BURST`],
+    /// [`OPENINGS_PER_SECOND`]). A station trying again and again costs no query a try.
+    pub fn known_over_limit(&self, token: &str, now: Instant) -> bool {
+        let known = self.known.lock().unwrap_or_else(|p| p.into_inner());
+        let Some(&station_id) = known.get(&token_hash(token)) else {
+            return false;
+        };
+        drop(known);
+        let mut stations = self.stations();
+        let openings = &mut Station::of(&mut stations, station_id, now).openings;
+        openings.refill(now);
+        openings.tokens < 1.0
+    }
+
+    /// Whether `station_id`, whose `token` was just looked up, may open a socket at `now`
+    /// ([`OPENING_BURST`], [`OPENINGS_PER_SECOND`]); asked before the upgrade.
+    pub fn may_open(&self, station_id: i64, token: &str, now: Instant) -> bool {
+        self.known
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .insert(token_hash(token), station_id);
         Station::of(&mut self.stations(), station_id, now)
             .openings
             .take(now)
@@ -475,15 +501,22 @@ mod tests {
     fn a_station_opens_a_few_sockets_at_once_then_one_a_second() {
         let sockets = StationSockets::default();
         let t0 = Instant::now();
+        // A token not seen yet is looked up.
+        assert!(!sockets.known_over_limit("seven", t0));
         for i in 0..OPENING_BURST as u64 {
-            assert!(sockets.may_open(7, at(t0, i)), "opening {i}");
+            assert!(!sockets.known_over_limit("seven", at(t0, i)), "opening {i}");
+            assert!(sockets.may_open(7, "seven", at(t0, i)), "opening {i}");
         }
-        assert!(!sockets.may_open(7, at(t0, 10)));
+        // Over the limit: refused before the lookup, and after it.
+        assert!(sockets.known_over_limit("seven", at(t0, 10)));
+        assert!(!sockets.may_open(7, "seven", at(t0, 10)));
         // Another station is not held back by this one.
-        assert!(sockets.may_open(8, at(t0, 10)));
-        assert!(!sockets.may_open(7, at(t0, 900)));
-        assert!(sockets.may_open(7, at(t0, 1010)));
-        assert!(!sockets.may_open(7, at(t0, 1020)));
+        assert!(!sockets.known_over_limit("eight", at(t0, 10)));
+        assert!(sockets.may_open(8, "eight", at(t0, 10)));
+        assert!(!sockets.may_open(7, "seven", at(t0, 900)));
+        assert!(!sockets.known_over_limit("seven", at(t0, 1010)));
+        assert!(sockets.may_open(7, "seven", at(t0, 1010)));
+        assert!(!sockets.may_open(7, "seven", at(t0, 1020)));
         // Asking is no opening: no view before a socket opened.
         assert!(sockets.view(7).is_none());
     }
