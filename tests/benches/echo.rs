@@ -10,22 +10,12 @@
 
 use bdft_tests::server::{Api, Server, person_at_a_station, short_study};
 use bdft_tests::station::{self, summary};
+use bdft_tests::{setting, setting_list};
 use serde_json::json;
 
-fn env<T: std::str::FromStr>(name: &str, default: T) -> T {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
-
 fn main() {
-    let rates: Vec<f64> = std::env::var("RATES")
-        .unwrap_or_else(|_| "60,250".into())
-        .split(',')
-        .filter_map(|r| r.trim().parse().ok())
-        .collect();
-    let seconds: f64 = env("SECONDS", 10.0);
+    let rates: Vec<f64> = setting_list("RATES", "60,250");
+    let seconds: f64 = setting("SECONDS", 10.0);
     let server = Server::start("bench-echo");
     let api = server.experimenter();
     let study = short_study(&api, seconds + 2.0, seconds + 2.0);

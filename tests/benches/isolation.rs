@@ -22,30 +22,20 @@ use std::time::{Duration, Instant};
 
 use bdft_tests::server::{Api, Server, eventually, person_at_a_station, short_study};
 use bdft_tests::station::{self, summary};
+use bdft_tests::{setting, setting_list};
 use serde_json::{Value, json};
 
 /// Set (to "BASE TOKEN TRIAL SOCKETS") in the flooder's environment.
 const FLOOD: &str = "BDFT_FLOOD";
-
-fn env<T: std::str::FromStr>(name: &str, default: T) -> T {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
 
 fn main() {
     if let Ok(spec) = std::env::var(FLOOD) {
         flood(&spec);
         return;
     }
-    let floods: Vec<usize> = std::env::var("SOCKETS")
-        .unwrap_or_else(|_| "1,4,16".into())
-        .split(',')
-        .filter_map(|r| r.trim().parse().ok())
-        .collect();
-    let seconds: f64 = env("SECONDS", 10.0);
-    let presses: usize = env("PRESSES", 20);
+    let floods: Vec<usize> = setting_list("SOCKETS", "1,4,16");
+    let seconds: f64 = setting("SECONDS", 10.0);
+    let presses: usize = setting("PRESSES", 20);
     let server = Server::start("bench-isolation");
     let api = server.experimenter();
     // Tests long enough to outlast the measurement (they end with the E-stop presses).

@@ -393,19 +393,26 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_flood_is_read_at_the_read_rate_and_then_disconnected() {
-        let t0 = Instant::now();
-        let (read, accepted, after) = flood_read_as_allowed(t0, 1);
-        // Disconnected once three whole seconds were held back (at the first message of
-        // the fourth), having read the read budget and accepted the input budget, no more.
+    /// Checks that a flood was disconnected once three whole seconds were held back (at the
+    /// first message of the fourth), having read no more than the read budget; returns the
+    /// most it may have read.
+    fn assert_read_budget_then_disconnected(read: u64, after: Duration) -> f64 {
         assert!(
             after >= Duration::from_secs(3) && after < Duration::from_millis(3100),
             "{after:?}"
         );
-        let secs = after.as_secs_f64();
-        let most_read = READ_BURST + READ_RATE * secs + 1.0;
+        let most_read = READ_BURST + READ_RATE * after.as_secs_f64() + 1.0;
         assert!(read as f64 <= most_read, "{read} read in {after:?}");
+        most_read
+    }
+
+    #[test]
+    fn a_flood_is_read_at_the_read_rate_and_then_disconnected() {
+        let t0 = Instant::now();
+        let (read, accepted, after) = flood_read_as_allowed(t0, 1);
+        // Having read the read budget and accepted the input budget, no more.
+        let most_read = assert_read_budget_then_disconnected(read, after);
+        let secs = after.as_secs_f64();
         assert!(read as f64 >= most_read - READ_BATCH - 2.0, "{read} read");
         let most_accepted = INPUT_BURST + INPUT_RATE * secs;
         assert!(accepted as f64 <= most_accepted, "{accepted} accepted");
@@ -421,15 +428,7 @@ mod tests {
     fn a_station_is_read_at_the_read_rate_whatever_its_sockets() {
         let t0 = Instant::now();
         let (read, accepted, after) = flood_read_as_allowed(t0, 16);
-        assert!(
-            after >= Duration::from_secs(3) && after < Duration::from_millis(3100),
-            "{after:?}"
-        );
-        let secs = after.as_secs_f64();
-        assert!(
-            read as f64 <= READ_BURST + READ_RATE * secs + 1.0,
-            "{read} read in {after:?}"
-        );
+        assert_read_budget_then_disconnected(read, after);
         // Each socket has its own input limit; together they use no more than was read.
         assert!(accepted <= read, "{accepted} accepted");
     }
