@@ -18,6 +18,15 @@ if [ ${#missing[@]} -gt 0 ]; then
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${missing[@]}" >/dev/null
 fi
 
+# The BIDS test checks an export with the BIDS validator (PyPI's bids-validator-deno, which
+# brings deno), run offline in a network namespace; pinned, installed once into target/.
+BIDS_VENV=target/tools/bids-validator
+if [ ! -x "$BIDS_VENV/bin/bids-validator-deno" ]; then
+  echo "installing bids-validator-deno (PyPI) into $BIDS_VENV for the BIDS test"
+  python3 -m venv "$BIDS_VENV"
+  "$BIDS_VENV/bin/pip" install -q "bids-validator-deno==3.0.2"
+fi
+
 # Style and lints first: they are part of the test (and the cheapest to fail).
 cargo fmt --all -- --check
 cargo clippy --workspace --all-targets --locked -- -D warnings

@@ -22,15 +22,19 @@ export function init() {
 }
 
 /**
- * Points every export link (`a[data-export]`, `data-format` csv — the default — or parquet)
- * at study `id`, or disables them without a study.
+ * Points every export link (`a[data-export]`, `data-format` csv — the default — or parquet;
+ * `bids` with zip) at study `id`, or disables them without a study.
  */
 export function setExportLinks(id) {
   for (const a of document.querySelectorAll('a[data-export]')) {
     const kind = a.dataset.export;
     const format = a.dataset.format || 'csv';
     if (id) {
-      a.href = `/api/studies/${id}/export/${kind}${format === 'csv' ? '' : `?format=${format}`}`;
+      // The BIDS dataset is a folder of files, served as one zip.
+      a.href =
+        kind === 'bids'
+          ? `/api/studies/${id}/bids.zip`
+          : `/api/studies/${id}/export/${kind}${format === 'csv' ? '' : `?format=${format}`}`;
       a.setAttribute('download', `bdft-study${id}-${kind}.${format}`);
       a.removeAttribute('aria-disabled');
     } else {

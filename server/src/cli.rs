@@ -16,7 +16,7 @@ use crate::engine::operations::schedule::{Backups, Policy};
 use crate::engine::operations::{backup, presence, restore};
 use crate::engine::procedure::filing;
 use crate::engine::results::export;
-use crate::engine::results::export::{ExportFormat, ExportKind, ExportRequest, SampleCut};
+use crate::engine::results::export::{ExportFormat, ExportKind, ExportRequest, SampleCut, bids};
 use crate::store;
 use crate::store::accounts::Role;
 use bdft_protocol::link_auth::LinkKey;
@@ -106,7 +106,7 @@ enum Command {
         #[command(flatten)]
         db: DbConfig,
     },
-    /// Write an export of a study as CSV or Parquet.
+    /// Write an export of a study as CSV or Parquet, or the study as a BIDS dataset.
     Export {
         #[command(flatten)]
         db: DbConfig,
@@ -118,9 +118,10 @@ enum Command {
         /// drawn parameters), codebook (every column of every export: meaning, unit, type),
         /// summary (statistics per controller × station), stats (Friedman, pairwise exact
         /// Wilcoxon with Holm, on vs off, RM-ANOVA), notes (notes and reasons about tests) or
-        /// audit (the whole audit log; --study is not used).
+        /// audit (the whole audit log; --study is not used), or bids (the study as a BIDS
+        /// dataset: a directory, --out names it; --format, --subject, --trial are not used).
         #[arg(long)]
-        kind: ExportKind,
+        kind: ExportTarget,
         /// csv or parquet.
         #[arg(long, default_value = "csv")]
         format: ExportFormat,
@@ -130,7 +131,8 @@ enum Command {
         /// Samples only: one test attempt's, by its trial_id.
         #[arg(long)]
         trial: Option<i64>,
-        /// Output file (written to a temporary name and renamed when complete).
+        /// Output file, or directory for bids (written under a temporary name and renamed
+        /// when complete).
         #[arg(long)]
         out: PathBuf,
     },
@@ -177,6 +179,23 @@ pub fn run() -> ExitCode {
             eprintln!("error: {e:#}");
             ExitCode::from(2)
         }
+    }
+}
+
+/// What `export --kind` names: one of the tables, or the BIDS dataset.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ExportTarget {
+    Table(ExportKind),
+    Bids,
+}
+
+impl std::str::FromStr for ExportTarget {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s == "bids" {
+            return Ok(Self::Bids);
+        }
+        s.parse().map(Self::Table).map_err(|e| format!("{e}, bids"))
     }
 }
 
@@ -277,7 +296,28 @@ async fn execute(command: Command) -> anyhow::Result<()> {
         Command::Export {
             db,
             study,
-            kind,
+            kind: ExportTarget::Bids,
+            format,
+            subject,
+            trial,
+            out,
+        } => {
+            if format != ExportFormat::Csv || subject.is_some() || trial.is_some() {
+                anyhow::bail!(
+                    "--format, --subject, --trial: a BIDS dataset is every recorded test of the study, as TSV; give none of them with --kind bids"
+                );
+            }
+            let pool = store::db::open(&db.db).await?;
+            let study = newest_study(&pool, study).await?;
+            let mut sink = bids::DirSink::create(&out)?;
+            let written = bids::write(&pool, study, &mut sink).await?;
+            sink.finish()?;
+            println!("{}", serde_json::to_string_pretty(&written)?);
+        }
+        Command::Export {
+            db,
+            study,
+            kind: ExportTarget::Table(kind),
             format,
             subject,
             trial,

@@ -289,6 +289,28 @@ fn a_short_study_runs_end_to_end_in_a_real_browser() {
     assert_eq!(done[1][col("rating_controllability_1to7")], "6");
     assert_eq!(done[1][col("comment")], "felt a bit sluggish");
 
+    // The BIDS dataset downloads as one zip, under the server's name for it.
+    dash.click("a#download-bids");
+    let zip = eventually(Duration::from_secs(30), || {
+        let entry = std::fs::read_dir(downloads.path())
+            .ok()?
+            .filter_map(Result::ok)
+            .find(|e| e.path().extension().is_some_and(|x| x == "zip"))?;
+        let name = entry.file_name().to_string_lossy().into_owned();
+        std::fs::read(entry.path())
+            .ok()
+            .filter(|b| b.len() > 22)
+            .map(|b| (name, b))
+    });
+    assert!(
+        zip.0.starts_with("bdft-study") && zip.0.contains("-bids-"),
+        "{}",
+        zip.0
+    );
+    assert_eq!(&zip.1[..4], b"PK\x03\x04", "a zip");
+    let listed = String::from_utf8_lossy(&zip.1);
+    assert!(listed.contains("/dataset_description.json") && listed.contains("_motion.tsv"));
+
     // A subject's page that tries the dashboard's data is refused.
     machine.goto(&format!("{base}/api/studies"));
     assert!(

@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 use std::time::Duration;
 
 use bdft_tests::TempDir;
-use bdft_tests::server::{Api, Server, eventually, run_pilot};
+use bdft_tests::server::{Api, Server, eventually, pilot_copy};
 use bdft_tests::webdriver::{Driver, artifacts_dir};
 use serde_json::{Value, json};
 
@@ -93,10 +93,7 @@ fn design_aids_are_validated_followed_by_enrolment_and_drawn_from_the_export() {
     let (code, body) = create(&api, &params);
     assert_eq!(code, 200, "{body}");
     let study = body["id"].as_i64().unwrap();
-    let status = run_pilot(&api, study, 4);
-    let copy = status["report"]["study_id"]
-        .as_i64()
-        .expect("the pilot ran");
+    let copy = pilot_copy(&api, study, 4);
     let kinds: Vec<String> = params["controllers"]
         .as_array()
         .unwrap()
@@ -304,10 +301,7 @@ fn the_dashboard_sets_the_design_aids_and_shows_the_learning_curve() {
     assert_eq!(st["params"]["order_design"], "williams");
     assert_eq!(st["params"]["matched_targets"], true);
 
-    let status = run_pilot(&api, study, 2);
-    let copy = status["report"]["study_id"]
-        .as_i64()
-        .expect("the pilot ran");
+    let copy = pilot_copy(&api, study, 2);
     dash.goto(&format!("{base}/"));
     dash.find("#estop");
     dash.wait_until(

@@ -13,7 +13,7 @@ use arrow_array::cast::AsArray;
 use arrow_array::types::{Float64Type, Int64Type};
 use arrow_array::{Array, RecordBatch};
 use arrow_schema::DataType;
-use bdft_tests::server::{Server, run_pilot, short_study};
+use bdft_tests::server::{Server, pilot_copy, short_study};
 use bdft_tests::{TempDir, binary, controller};
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use serde_json::{Value, json};
@@ -124,10 +124,7 @@ fn a_pilots_analyst_exports_are_tidy_and_parquet_equals_csv() {
     let server = Server::start("exports-analyst");
     let api = server.experimenter();
     let study = short_study(&api, 1.0, 0.5);
-    let status = run_pilot(&api, study, 2);
-    let copy = status["report"]["study_id"]
-        .as_i64()
-        .expect("the pilot ran");
+    let copy = pilot_copy(&api, study, 2);
     set_drawn(
         &server.db,
         copy,

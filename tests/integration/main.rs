@@ -2,6 +2,7 @@
 
 mod accounts;
 mod backups;
+mod bids;
 mod browser;
 mod controller_cli;
 mod controller_estop;

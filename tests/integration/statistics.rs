@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 
 use std::time::Duration;
 
-use bdft_tests::server::{Server, eventually, run_pilot, short_study};
+use bdft_tests::server::{Server, eventually, pilot_copy, short_study};
 use serde_json::{Value, json};
 
 #[test]
@@ -14,10 +14,7 @@ fn a_pilots_statistics_agree_with_its_export_and_state_the_small_n_floor() {
     let server = Server::start("statistics");
     let api = server.experimenter();
     let study = short_study(&api, 1.0, 0.3);
-    let status = run_pilot(&api, study, 3);
-    let copy = status["report"]["study_id"]
-        .as_i64()
-        .expect("the pilot ran");
+    let copy = pilot_copy(&api, study, 3);
     let (code, table) = api.get(&format!("/api/studies/{copy}/stats"));
     assert_eq!(code, 200, "{table}");
     let rows = table.as_array().unwrap();

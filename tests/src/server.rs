@@ -364,6 +364,15 @@ pub fn run_pilot(api: &Api, study: i64, subjects: u32) -> Value {
     })
 }
 
+/// Runs the dashboard's pilot of `study` with `subjects` synthetic subjects; returns the
+/// dry-run copy it ran in.
+pub fn pilot_copy(api: &Api, study: i64, subjects: u32) -> i64 {
+    let status = run_pilot(api, study, subjects);
+    status["report"]["study_id"]
+        .as_i64()
+        .unwrap_or_else(|| panic!("the pilot did not run: {status}"))
+}
+
 /// A person enrolled, consented and assigned to a new station serving both seats, with the
 /// controller connected and not latched: (subject id, station id, station token).
 pub fn person_at_a_station(server: &Server, api: &Api, study: i64) -> (i64, i64, String) {

@@ -49,6 +49,7 @@ pub fn experimenter() -> OpenApiRouter<AppState> {
 }
 
 #[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
 struct TokenQuery {
     /// The station's bearer token (browsers cannot set headers on WebSockets).
     token: String,

@@ -15,7 +15,7 @@ use super::extract::Experimenter;
 use crate::engine::dry_runs::job::JobStatus;
 use crate::engine::dry_runs::power::{PlanReport, PlanRequest, PlanSource, PlanStatus, plan_study};
 use crate::engine::results::export::{
-    self, ExportFormat, ExportKind, ExportRequest, ExportedAll, SampleCut,
+    self, ExportFormat, ExportKind, ExportRequest, ExportedAll, SampleCut, bids,
 };
 use crate::engine::results::inference_table::{StatsRow, study_table};
 use crate::engine::results::learning::{LearningCurve, learning_curve};
@@ -35,6 +35,7 @@ pub fn routes() -> OpenApiRouter<AppState> {
         .routes(routes!(plot))
         .routes(routes!(learning))
         .routes(routes!(download))
+        .routes(routes!(bids_zip))
         .routes(routes!(audit_log))
         .routes(routes!(audit_export))
 }
@@ -226,6 +227,55 @@ async fn download(
     let filename = req.file_name(study.id, study.protocol_hash.as_deref());
     let format = req.format;
     Ok(attachment(stream(&s, id, req), format, &filename))
+}
+
+/// The study as a BIDS dataset (motion, beh, events, participants, with sidecars) in a zip,
+/// streamed as it is made; refused with 422 when the study has no recorded test.
+#[utoipa::path(get, path = "/api/studies/{id}/bids.zip", tag = "results",
+    params(("id" = i64, Path)),
+    responses((status = 200, description = "the BIDS dataset as a zip", content_type = "application/zip"),
+        (status = 422, description = "the study has no recorded test to export")))]
+async fn bids_zip(
+    State(s): State<AppState>,
+    who: Experimenter,
+    Path(id): Path<i64>,
+) -> Result<Response, AppError> {
+    let study = store::studies::get(&s.pool, id).await?;
+    bids::check(&s.pool, id).await?;
+    Change::begin(&s.pool, who.username.as_str())
+        .await?
+        .commit(
+            "export",
+            Some(format!("study:{id}")),
+            ExportedAll { kind: "bids" },
+        )
+        .await?;
+    let hash = study.protocol_hash.as_deref().and_then(|h| h.get(..8));
+    let root = format!("bdft-study{id}-bids-{}", hash.unwrap_or("unlocked"));
+    let (w, r) = tokio::io::duplex(1 << 16);
+    let pool = s.pool.clone();
+    let folder = root.clone();
+    tokio::spawn(async move {
+        let mut zip = bids::ZipSink::new(w, &folder);
+        let done = match bids::write(&pool, id, &mut zip).await {
+            Ok(_) => zip.finish().await,
+            Err(e) => Err(e),
+        };
+        if let Err(e) = done {
+            tracing::error!("BIDS export of study {id} failed mid-stream: {e}");
+        }
+    });
+    Ok((
+        [
+            (header::CONTENT_TYPE, "application/zip".to_string()),
+            (
+                header::CONTENT_DISPOSITION,
+                format!("attachment; filename=\"{root}.zip\""),
+            ),
+        ],
+        Body::from_stream(tokio_util::io::ReaderStream::new(r)),
+    )
+        .into_response())
 }
 
 /// The export written into the response as it is read (`study_id` unused for `audit`).

@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use serde_json::json;
+use serde::Serialize;
 use sqlx::SqlitePool;
 
 use super::checks::check_file;
@@ -25,31 +25,49 @@ pub async fn make(pool: &SqlitePool, out: &Path, made_by: &str) -> Result<Manife
     refuse_to_overwrite(out)?;
     let partial = partial_of(out);
     let outcome = write_checked(pool, out, &partial, made_by).await;
-    let (action, detail) = match &outcome {
-        Ok(m) => (
-            "backup.create",
-            json!({
-                "file": out.display().to_string(),
-                "sha256": m.sha256,
-                "bytes": m.bytes,
-                "schema_version": m.schema_version,
-                "took_ms": m.took_ms,
-            }),
-        ),
-        Err(e) => {
-            // Nothing half-written stays behind.
-            let _ = std::fs::remove_file(&partial);
-            (
-                "backup.fail",
-                json!({ "file": out.display().to_string(), "error": e.describe() }),
-            )
+    if outcome.is_err() {
+        // Nothing half-written stays behind.
+        let _ = std::fs::remove_file(&partial);
+    }
+    let file = out.display().to_string();
+    let change = Change::begin(pool, made_by).await?;
+    match &outcome {
+        Ok(m) => {
+            let detail = Made {
+                file,
+                sha256: &m.sha256,
+                bytes: m.bytes,
+                schema_version: m.schema_version,
+                took_ms: m.took_ms,
+            };
+            change.commit("backup.create", None, detail).await?;
         }
-    };
-    Change::begin(pool, made_by)
-        .await?
-        .commit(action, None, detail)
-        .await?;
+        Err(e) => {
+            let detail = Failed {
+                file,
+                error: e.describe(),
+            };
+            change.commit("backup.fail", None, detail).await?;
+        }
+    }
     outcome
+}
+
+/// The audit detail of `backup.create`.
+#[derive(Serialize)]
+struct Made<'a> {
+    file: String,
+    sha256: &'a str,
+    bytes: u64,
+    schema_version: i64,
+    took_ms: u64,
+}
+
+/// The audit detail of `backup.fail`.
+#[derive(Serialize)]
+struct Failed {
+    file: String,
+    error: String,
 }
 
 fn refuse_to_overwrite(out: &Path) -> Result<()> {

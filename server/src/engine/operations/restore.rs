@@ -8,7 +8,6 @@
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
-use serde_json::json;
 
 use super::checks::check_file;
 use super::manifest::{self, io_error};
@@ -147,17 +146,27 @@ async fn stage(
         .commit(
             "backup.restore",
             None,
-            json!({
-                "from": from.display().to_string(),
-                "into": db.display().to_string(),
-                "sha256": manifest.sha256,
-                "backup_created_at": manifest.created_at,
-                "schema_version_of_backup": manifest.schema_version,
-            }),
+            RestoreDetail {
+                from: from.display().to_string(),
+                into: db.display().to_string(),
+                sha256: &manifest.sha256,
+                backup_created_at: &manifest.created_at,
+                schema_version_of_backup: manifest.schema_version,
+            },
         )
         .await?;
     let left = store::db::leave_wal(&pool).await;
     pool.close().await;
     left.map_err(|e| AppError::Internal(e.context("closing the restored copy")))?;
     Ok(schema_version)
+}
+
+/// The audit detail of `backup.restore`.
+#[derive(Serialize)]
+struct RestoreDetail<'a> {
+    from: String,
+    into: String,
+    sha256: &'a str,
+    backup_created_at: &'a str,
+    schema_version_of_backup: i64,
 }

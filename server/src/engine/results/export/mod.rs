@@ -10,6 +10,7 @@
 //! (`bdft_protocol::numbers`), text cells neutralized against spreadsheet formula injection.
 
 pub mod bench;
+pub mod bids;
 mod columns;
 mod sink;
 mod tables;

@@ -175,6 +175,17 @@ fn push_csv_cell(line: &mut String, cell: &Cell<'_>, ty: ColumnType) {
     }
 }
 
+/// A cell of a BIDS TSV file: numbers by the one formatter at the column's resolution,
+/// `n/a` for a missing value, text on one line without tabs (BIDS TSV has no quoting).
+pub fn tsv_cell(cell: &Cell<'_>, ty: ColumnType) -> String {
+    match cell {
+        Cell::Int(Some(v)) => v.to_string(),
+        Cell::Num(Some(v)) if v.is_finite() => format_number(*v, decimals(ty)),
+        Cell::Text(Some(s)) if !s.is_empty() => s.replace(['\t', '\n', '\r'], " "),
+        _ => "n/a".into(),
+    }
+}
+
 fn decimals(ty: ColumnType) -> u8 {
     match ty {
         ColumnType::Number { decimals } => decimals,

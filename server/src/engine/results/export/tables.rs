@@ -117,50 +117,55 @@ async fn trials<W: AsyncWrite + Unpin>(
     t: Table<'_, W>,
 ) -> Result<(), ExportError> {
     for r in store::exports::trial_rows(pool, study_id, Withdrawn::LeftOut).await? {
-        let p = r.practice;
-        let rating = |v: Option<i64>| Cell::Int(v);
-        let mut cells = vec![
-            Cell::Int(Some(r.study_id)),
-            Cell::Int(Some(r.trial_id)),
-            Cell::text(r.code.as_str()),
-            Cell::Int(Some(r.enrol_index + 1)),
-            Cell::flag(r.synthetic),
-            Cell::text(r.starting_station.as_str()),
-            phase(p),
-            Cell::text(r.station.as_str()),
-            test_only(p, Cell::Int(Some(r.block))),
-            test_only(p, Cell::Int(Some(r.position))),
-            Cell::Int(Some(r.slot)),
-            Cell::Int(Some(r.attempt)),
-            Cell::flag(r.latest),
-            Cell::flag(valid(&r)),
-            test_only(p, Cell::text(r.controller.name())),
-            test_only(p, Cell::text(r.blinded_label.as_str())),
-            Cell::text(r.status.as_str()),
-            opt_text(&r.status_reason),
-            Cell::Int(Some(r.target_seed)),
-            Cell::Num(Some(r.target_mean_mm)),
-            Cell::Num(Some(r.target_std_mm)),
-            Cell::Num(r.target_ms_step_mm2),
-            Cell::Num(Some(r.k_bf)),
-            Cell::Num(Some(r.duration_s)),
-            Cell::Num(r.mse_tracking_mm2),
-            Cell::Num(r.ms_cab_accel),
-            rating(r.accuracy),
-            rating(r.speed),
-            rating(r.smoothness),
-            rating(r.controllability),
-            opt_text(&r.comment),
-            opt_text(&r.protocol_hash),
-            time(r.started_at),
-            time(r.finished_at),
-            opt_text(&r.consent_version),
-        ];
-        cells.extend(validity_cells(&r));
-        cells.push(opt_text(&r.config_version));
-        t.row(&cells).await?;
+        t.row(&trial_cells(&r)).await?;
     }
     Ok(())
+}
+
+/// A trials export row: the cells of `columns::trials`, in its order.
+pub fn trial_cells(r: &TrialExportRow) -> Vec<Cell<'_>> {
+    let p = r.practice;
+    let rating = |v: Option<i64>| Cell::Int(v);
+    let mut cells = vec![
+        Cell::Int(Some(r.study_id)),
+        Cell::Int(Some(r.trial_id)),
+        Cell::text(r.code.as_str()),
+        Cell::Int(Some(r.enrol_index + 1)),
+        Cell::flag(r.synthetic),
+        Cell::text(r.starting_station.as_str()),
+        phase(p),
+        Cell::text(r.station.as_str()),
+        test_only(p, Cell::Int(Some(r.block))),
+        test_only(p, Cell::Int(Some(r.position))),
+        Cell::Int(Some(r.slot)),
+        Cell::Int(Some(r.attempt)),
+        Cell::flag(r.latest),
+        Cell::flag(valid(r)),
+        test_only(p, Cell::text(r.controller.name())),
+        test_only(p, Cell::text(r.blinded_label.as_str())),
+        Cell::text(r.status.as_str()),
+        opt_text(&r.status_reason),
+        Cell::Int(Some(r.target_seed)),
+        Cell::Num(Some(r.target_mean_mm)),
+        Cell::Num(Some(r.target_std_mm)),
+        Cell::Num(r.target_ms_step_mm2),
+        Cell::Num(Some(r.k_bf)),
+        Cell::Num(Some(r.duration_s)),
+        Cell::Num(r.mse_tracking_mm2),
+        Cell::Num(r.ms_cab_accel),
+        rating(r.accuracy),
+        rating(r.speed),
+        rating(r.smoothness),
+        rating(r.controllability),
+        opt_text(&r.comment),
+        opt_text(&r.protocol_hash),
+        time(r.started_at),
+        time(r.finished_at),
+        opt_text(&r.consent_version),
+    ];
+    cells.extend(validity_cells(r));
+    cells.push(opt_text(&r.config_version));
+    cells
 }
 
 /// How the test ran (validity): the station's display and input, the controller's timing,
