@@ -45,7 +45,7 @@ pub struct ServeConfig {
     #[arg(long, env = "BDFT_ADMIN_PASSWORD", hide_env_values = true)]
     pub admin_password: Option<String>,
     /// The controller counts as lost after this long without a message from it (ms); it
-    /// heartbeats every 50 ms.
+    /// heartbeats every 25 ms.
     #[arg(long, env = "BDFT_CONTROLLER_SILENCE_MS", default_value_t = crate::engine::machine::controller_link::DEFAULT_SILENCE.as_millis() as u64, value_parser = clap::value_parser!(u64).range(60..=10_000))]
     pub controller_silence_ms: u64,
     /// Serve the pages from this directory instead of the copy built into the binary

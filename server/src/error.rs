@@ -22,8 +22,9 @@ pub enum AppError {
     /// Not allowed in the current state (or another user changed it first).
     #[error("{0}")]
     Conflict(String),
-    #[error("too many attempts; wait a minute and try again")]
-    TooManyRequests,
+    /// Asked too often; the message says the limit.
+    #[error("{0}")]
+    TooManyRequests(String),
     #[error("the request body is too large")]
     TooLarge,
     /// Something the request needs (the controller, the database) cannot serve it now.

@@ -19,6 +19,7 @@ mod exports_analyst;
 mod exports_audit;
 mod hardening;
 mod https;
+mod isolation;
 mod protocol_package;
 mod server_api;
 mod server_layers;

@@ -475,10 +475,13 @@ fn a_hung_controller_is_noticed_within_its_silence_limit() {
             .contains("sent nothing"),
         "{row}"
     );
-    // The limit is 100 ms of silence after the last message (live samples come every
-    // 10 ms): the trial is filed within that and a little scheduling slack.
+    // The link counts as lost 75 ms after the last message (live samples come every 10 ms)
+    // and the trial is filed within 100 ms of the stop (docs/benchmarks.md has the figures);
+    // the bound leaves a loaded machine's scheduling 50 ms more.
     let noticed = row["finished_at"].as_i64().unwrap() - stopped_at;
-    assert!(noticed <= 200, "noticed {noticed} ms after the stop");
+    // (Printed for docs/benchmarks.md, which collects it over runs.)
+    eprintln!("hung controller: its trial filed {noticed} ms after the stop");
+    assert!(noticed <= 150, "noticed {noticed} ms after the stop");
     // The hung process is replaced (the server kills it) and trials run again.
     let new_pid = eventually(Duration::from_secs(20), || {
         let (_, c) = api.get("/api/controller");

@@ -29,6 +29,25 @@ pub fn controller(args: &[&str]) -> Output {
         .expect("spawn bdft-controller")
 }
 
+/// A benchmark's setting: environment variable `name` read as a `T`, or `default` when it
+/// is unset or not one.
+pub fn setting<T: std::str::FromStr>(name: &str, default: T) -> T {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+/// A benchmark's list setting: the comma-separated values of environment variable `name`
+/// (`default` when it is unset), those that are not a `T` left out.
+pub fn setting_list<T: std::str::FromStr>(name: &str, default: &str) -> Vec<T> {
+    std::env::var(name)
+        .unwrap_or_else(|_| default.into())
+        .split(',')
+        .filter_map(|v| v.trim().parse().ok())
+        .collect()
+}
+
 /// A scratch directory unique to one test, removed when dropped.
 #[derive(Debug)]
 pub struct TempDir(PathBuf);
@@ -61,4 +80,5 @@ pub mod controller_link;
 pub mod exports;
 
 pub mod server;
+pub mod station;
 pub mod webdriver;

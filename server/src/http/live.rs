@@ -31,7 +31,8 @@ use super::error::AppError;
 use super::extract::Experimenter;
 use crate::engine::machine::controller_link::ControllerEvent;
 use crate::engine::procedure::station_sockets::{
-    Admit, FLOOD_PER_SECOND, FLOOD_SECONDS, INPUT_RATE, InputLimit, Opened,
+    Admit, FLOOD_SECONDS, INPUT_RATE, InputLimit, OPENINGS_PER_SECOND, Opened, READ_RATE,
+    ReadBudget,
 };
 use crate::engine::procedure::stations::running_trial;
 use crate::engine::procedure::validity::{self, DisplayReport, DisplayWatch};
@@ -93,9 +94,22 @@ async fn station_ws(
     Query(q): Query<TokenQuery>,
     ws: WebSocketUpgrade,
 ) -> Result<Response, AppError> {
+    // Refused before the upgrade: a station opening socket after socket (each replacing the
+    // last) costs no query a try once it is over the limit.
+    let too_many = || {
+        AppError::TooManyRequests(format!(
+            "this station opened too many sockets: at most {OPENINGS_PER_SECOND} a second after the first few"
+        ))
+    };
+    if s.sockets.known_over_limit(&q.token, Instant::now()) {
+        return Err(too_many());
+    }
     let station = store::stations::by_token(&s.pool, &q.token)
         .await?
         .ok_or(AppError::Unauthorized)?;
+    if !s.sockets.may_open(station.id, &q.token, Instant::now()) {
+        return Err(too_many());
+    }
     Ok(ws
         .max_message_size(TRANSPORT_LIMIT)
         .max_frame_size(TRANSPORT_LIMIT)
@@ -166,11 +180,15 @@ async fn station_socket(s: AppState, station_id: i64, socket: WebSocket) {
             let _ = close.send(closing.clone());
         }
         // The closing handshake: what the browser still sends is read and dropped until it
-        // answers the close frame, so that it reads the reason before the connection ends.
+        // answers the close frame, so that it reads the reason before the connection ends
+        // (within the station's read budget: a peer that sends on costs no more closing).
         let _ = tokio::time::timeout(CLOSE_GRACE, async {
-            while let Some(Ok(msg)) = stream.next().await {
-                if matches!(msg, Message::Close(_)) {
-                    break;
+            loop {
+                match next_within(&opened.budget, &mut stream).await {
+                    Some(Ok(Message::Close(_)) | Err(_)) | None => break,
+                    Some(Ok(_)) => {
+                        opened.budget.read(Instant::now());
+                    }
                 }
             }
         })
@@ -182,6 +200,19 @@ async fn station_socket(s: AppState, station_id: i64, socket: WebSocket) {
         writer.abort();
     }
     s.sockets.closed(&opened, closing.map(|(_, why)| why));
+}
+
+/// The socket's next message, within its station's read budget: over the budget the socket
+/// is not read until the budget is back, so the rest waits in the network (TCP flow control
+/// slows the sender) instead of costing the server a read each.
+async fn next_within(
+    budget: &ReadBudget,
+    stream: &mut SplitStream<WebSocket>,
+) -> Option<Result<Message, axum::Error>> {
+    if let Some(until) = budget.hold_until(Instant::now()) {
+        tokio::time::sleep_until(until.into()).await;
+    }
+    stream.next().await
 }
 
 /// The E-stop latch as the station shows it: set when the server's latch or the
@@ -207,24 +238,31 @@ async fn station_reader(
     let mut running = current().await;
     let mut display = Display::default();
     display.follow(s, running).await;
-    let mut limit = InputLimit::new(Instant::now());
+    let mut limit = InputLimit::new(Arc::clone(&opened.budget), Instant::now());
     let mut look = tokio::time::interval(LOOK_EVERY);
     let mut guard = tokio::time::interval(WATCH_EVERY);
     let mut last_recheck = Instant::now();
+    let mut last_heard = tokio::time::Instant::now();
     loop {
         display.follow(s, running).await;
         tokio::select! {
+            // Biased: a replaced socket is not read once more (the newer one is read
+            // instead, never both).
+            biased;
             _ = &mut opened.replaced => {
                 return Some((station_close::REPLACED, "this station was opened again elsewhere; that page is the live one now".into()));
             }
             // The writer ended: the browser stopped reading.
             _ = &mut *writer => return None,
-            msg = tokio::time::timeout(SILENCE_LIMIT, stream.next()) => {
+            () = tokio::time::sleep_until(last_heard + SILENCE_LIMIT) => {
+                return Some((station_close::IDLE, format!("nothing heard for {} s", SILENCE_LIMIT.as_secs())));
+            }
+            msg = next_within(&opened.budget, stream) => {
                 let msg = match msg {
-                    Err(_) => return Some((station_close::IDLE, format!("nothing heard for {} s", SILENCE_LIMIT.as_secs()))),
-                    Ok(None | Some(Err(_)) | Some(Ok(Message::Close(_)))) => return None,
-                    Ok(Some(Ok(msg))) => msg,
+                    None | Some(Err(_)) | Some(Ok(Message::Close(_))) => return None,
+                    Some(Ok(msg)) => msg,
                 };
+                last_heard = tokio::time::Instant::now();
                 let counts = &opened.counts;
                 match limit.admit(Instant::now()) {
                     Admit::Accept => counts.accepted.fetch_add(1, Ordering::Relaxed),
@@ -235,7 +273,7 @@ async fn station_reader(
                     Admit::Disconnect => {
                         counts.dropped.fetch_add(1, Ordering::Relaxed);
                         return Some((station_close::FLOOD, format!(
-                            "input flood: more than {FLOOD_PER_SECOND} messages a second for {FLOOD_SECONDS} s (the limit is {INPUT_RATE} a second)"
+                            "input flood: more than {READ_RATE} messages a second for {FLOOD_SECONDS} s (the limit is {INPUT_RATE} a second)"
                         )));
                     }
                 };
@@ -262,10 +300,12 @@ async fn station_reader(
                     }
                 }
                 match input {
+                    // (A socket replaced while this message was read forwards nothing.)
                     Ok(StationMessage::Input { trial_id, seq, position_mm })
                         if Some(trial_id) == running
                             && position_mm.is_finite()
-                            && position_mm.abs() <= MAX_POSITION_MM =>
+                            && position_mm.abs() <= MAX_POSITION_MM
+                            && !opened.is_replaced() =>
                     {
                         s.controller.send_input(trial_id as u64, seq, position_mm);
                     }

@@ -1,5 +1,5 @@
-//! The link's heartbeat and watchdog: the controller beats every 50 ms, and a server silent
-//! for longer than the link timeout has lost the link (every running trial stops).
+//! The link's heartbeat and watchdog: the controller beats every [`HEARTBEAT`], and a server
+//! silent for longer than the link timeout has lost the link (every running trial stops).
 
 use std::time::Duration;
 
@@ -7,9 +7,15 @@ use bdft_protocol::controller_to_server::ControllerToServer;
 
 use super::state::{Shared, lock};
 
-/// Sends a heartbeat every 50 ms and declares the link lost after the configured silence.
+/// How often the controller beats: the server counts 75 ms of silence as a hang, so that a
+/// hung controller's trials are filed within 100 ms; two beats may go missing and the third
+/// be 25 ms late before a live controller is taken for hung.
+const HEARTBEAT: Duration = Duration::from_millis(25);
+
+/// Sends a heartbeat every [`HEARTBEAT`] and declares the link lost after the configured
+/// silence.
 pub(super) async fn heartbeat(io: Shared) {
-    let mut every = tokio::time::interval(Duration::from_millis(50));
+    let mut every = tokio::time::interval(HEARTBEAT);
     let mut seq = 0u64;
     loop {
         every.tick().await;

@@ -40,11 +40,16 @@ pub enum ControllerSource {
     Connect(SocketAddr),
 }
 
-/// How long the controller may stay silent before the link counts as lost: it sends a
-/// heartbeat every 50 ms, so the default allows one to go missing. A hung controller
-/// (stopped, deadlocked, its machine frozen) is noticed this fast: its trials are filed
-/// incomplete and an E-stop is reported undelivered instead of answering ok.
-pub const DEFAULT_SILENCE: Duration = Duration::from_millis(100);
+/// How often the controller heartbeats (`bdft-controller serve`; it also sends live samples
+/// every 10 ms while a trial runs).
+pub const HEARTBEAT: Duration = Duration::from_millis(25);
+
+/// How long the controller may stay silent before the link counts as lost: two heartbeats
+/// missing and the third 25 ms late. A hung controller (stopped, deadlocked, its machine
+/// frozen) is noticed this long after its last message and its running trials are filed
+/// incomplete within 100 ms of it (the filing takes the rest); an E-stop meanwhile is
+/// reported undelivered instead of answering ok.
+pub const DEFAULT_SILENCE: Duration = Duration::from_millis(75);
 
 /// What the rest of the server hears from the controller.
 #[derive(Debug, Clone)]

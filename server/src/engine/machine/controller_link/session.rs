@@ -13,7 +13,7 @@ use tokio::io::AsyncWriteExt;
 use tokio::sync::mpsc;
 
 use super::connection::{frame, open, read_frame};
-use super::{ControllerEvent, ControllerLink, Partial, estop_path};
+use super::{ControllerEvent, ControllerLink, HEARTBEAT, Partial, estop_path};
 use crate::store::records::Record;
 
 /// Runs the control connection until it fails; returns why.
@@ -84,18 +84,27 @@ pub(super) async fn control(
     };
     let reader = async {
         let mut partial: Partial = HashMap::new();
+        // The watchdog: a deadline `silence` after the last message arrived (not a timeout
+        // started after it was handled, which would add the handling to the silence).
+        let mut heard = tokio::time::Instant::now();
         loop {
-            let msg = match tokio::time::timeout(silence, read_frame(&mut rd)).await {
-                Ok(Ok(m)) => m,
-                Ok(Err(e)) => return e,
-                Err(_) => {
+            let msg = tokio::select! {
+                // Biased: a message that is there counts, however late this task runs.
+                biased;
+                msg = read_frame(&mut rd) => msg,
+                () = tokio::time::sleep_until(heard + silence) => {
                     return format!(
-                        "the controller sent nothing for {} ms (it heartbeats every 50 ms)",
-                        silence.as_millis()
+                        "the controller sent nothing for {} ms (it heartbeats every {} ms)",
+                        silence.as_millis(),
+                        HEARTBEAT.as_millis()
                     );
                 }
             };
-            handle(link, &mut partial, msg).await;
+            heard = tokio::time::Instant::now();
+            match msg {
+                Ok(msg) => handle(link, &mut partial, msg).await,
+                Err(e) => return e,
+            }
         }
     };
     drop(tx);
