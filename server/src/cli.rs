@@ -275,7 +275,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
 /// Opens the database, files trials left running as incomplete, makes sure an account or a
 /// set-up link exists, starts the controller link and serves until a signal.
 async fn serve(config: ServeConfig) -> anyhow::Result<()> {
-    let pool = store::db::open(&config.db.db).await?;
+    let pool = store::db::open_capped(&config.db.db, config.db_max_pages).await?;
     let interrupted = filing::interrupt_running(&pool, "server restart").await?;
     if !interrupted.is_empty() {
         tracing::warn!(trials = ?interrupted, "trials that were running when the server stopped are marked incomplete");
@@ -327,13 +327,15 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
         ),
         (None, controller_link::ControllerSource::Spawn { .. }) => LinkKey::generate()?,
     };
+    let filing = filing::LinkFiling::start(pool.clone());
     let link = controller_link::ControllerLink::start(
         pool.clone(),
         source,
         key,
         std::time::Duration::from_millis(config.controller_silence_ms),
-        std::sync::Arc::new(filing::LinkFiling(pool.clone())),
+        filing.clone(),
     );
+    filing.attach(link.clone());
     let mut state = crate::state::AppState::new(pool, link);
     state.web_dir = config.web_dir;
     state.login = std::sync::Arc::new(LoginLimiter::new(config.login.limits()));

@@ -11,6 +11,7 @@ mod exports_audit;
 mod hardening;
 mod server_api;
 mod server_layers;
+mod soak;
 mod station_safety;
 mod statistics;
 mod structure;

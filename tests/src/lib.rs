@@ -3,15 +3,16 @@
 use std::path::PathBuf;
 use std::process::{Command, Output};
 
-/// Path of a workspace binary built next to this test executable (`cargo test --workspace`
+/// Path of a workspace binary built next to this executable (`cargo test --workspace`
 /// builds every member's binaries into the same target directory).
 pub fn binary(name: &str) -> PathBuf {
-    let exe = std::env::current_exe().expect("current test executable");
-    // target/<profile>/deps/integration-<hash> → target/<profile>/<name>
-    let dir = exe
-        .parent()
-        .and_then(|d| d.parent())
-        .expect("target profile directory");
+    let exe = std::env::current_exe().expect("current executable");
+    // A test: target/<profile>/deps/integration-<hash>; the soak binary:
+    // target/<profile>/soak. Either way the product's binaries are in target/<profile>.
+    let mut dir = exe.parent().expect("target profile directory");
+    if dir.file_name().is_some_and(|n| n == "deps") {
+        dir = dir.parent().expect("target profile directory");
+    }
     let path = dir.join(name);
     assert!(
         path.exists(),
@@ -27,6 +28,23 @@ pub fn controller(args: &[&str]) -> Output {
         .args(args)
         .output()
         .expect("spawn bdft-controller")
+}
+
+/// Sends signal `name` (`KILL`, `STOP`, `CONT`, `TERM`) to process `pid` with kill(1).
+pub fn send_signal(pid: u32, name: &str) -> Result<(), String> {
+    let out = Command::new("kill")
+        .arg(format!("-{name}"))
+        .arg(pid.to_string())
+        .output()
+        .map_err(|e| format!("kill -{name} {pid}: {e}"))?;
+    if out.status.success() {
+        Ok(())
+    } else {
+        Err(format!(
+            "kill -{name} {pid}: {}",
+            String::from_utf8_lossy(&out.stderr).trim()
+        ))
+    }
 }
 
 /// A scratch directory unique to one test, removed when dropped.
@@ -49,6 +67,11 @@ impl TempDir {
     pub fn path(&self) -> &std::path::Path {
         &self.0
     }
+
+    /// Keeps the directory and its files (it is not removed); its path.
+    pub fn keep(self) -> PathBuf {
+        std::mem::ManuallyDrop::new(self).0.clone()
+    }
 }
 
 impl Drop for TempDir {
@@ -58,6 +81,7 @@ impl Drop for TempDir {
 }
 
 pub mod controller_link;
-
+pub mod csv;
 pub mod server;
+pub mod soak;
 pub mod webdriver;
