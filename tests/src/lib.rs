@@ -47,6 +47,15 @@ pub fn send_signal(pid: u32, name: &str) -> Result<(), String> {
     }
 }
 
+/// Whether a WebSocket read failed only because the socket's read timeout passed (nothing
+/// to read yet; the socket is still good).
+pub fn read_timed_out(e: &tungstenite::Error) -> bool {
+    matches!(e, tungstenite::Error::Io(e) if matches!(
+        e.kind(),
+        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+    ))
+}
+
 /// A scratch directory unique to one test, removed when dropped.
 #[derive(Debug)]
 pub struct TempDir(PathBuf);

@@ -222,13 +222,14 @@ pub async fn mark_running(db: &mut SqliteConnection, trial_id: i64) -> Result<()
     Ok(())
 }
 
-/// Puts a trial that could not be started back in the queue.
-pub async fn unmark_running(db: &mut SqliteConnection, trial_id: i64) -> Result<()> {
-    sqlx::query("UPDATE trials SET status = 'scheduled', started_at = NULL WHERE id = ? AND status = 'running'")
+/// Puts a trial that could not be started back in the queue; `false` when it was no longer
+/// running (something filed it meanwhile).
+pub async fn unmark_running(db: &mut SqliteConnection, trial_id: i64) -> Result<bool> {
+    let done = sqlx::query("UPDATE trials SET status = 'scheduled', started_at = NULL WHERE id = ? AND status = 'running'")
         .bind(trial_id)
         .execute(db)
         .await?;
-    Ok(())
+    Ok(done.rows_affected() == 1)
 }
 
 /// The experimenter accepts an attempt as incomplete with `reason`: a scheduled or

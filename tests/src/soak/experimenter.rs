@@ -324,11 +324,7 @@ fn feed_loop(s: &Shared, cookie: &str) {
                 s.live_messages.fetch_add(1, Ordering::Relaxed);
             }
             Ok(_) => {}
-            Err(tungstenite::Error::Io(e))
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                ) => {}
+            Err(e) if crate::read_timed_out(&e) => {}
             Err(_) => ws = None,
         }
     }

@@ -153,7 +153,7 @@ impl Station {
         let page = {
             let s = Arc::clone(&shared);
             let rng = Rng::derive(seed, 0x9a6e_0000 + index);
-            std::thread::spawn(move || page_loop(&s, rng))
+            std::thread::spawn(move || page_loop(&s, rng, seed))
         };
         let socket = {
             let s = Arc::clone(&shared);
@@ -203,7 +203,7 @@ fn until_passed(m: &Mutex<Option<Instant>>, now: Instant) -> bool {
 }
 
 /// The page's requests: its state, consent, surveys and timing figures.
-fn page_loop(s: &Shared, mut rng: Rng) {
+fn page_loop(s: &Shared, mut rng: Rng, seed: u64) {
     let spec = &s.spec;
     let new_api = || {
         Api::with_bearer(
@@ -255,12 +255,11 @@ fn page_loop(s: &Shared, mut rng: Rng) {
                     Some(("consent", who, at)) if who == id => {
                         if now >= at {
                             thinking = None;
-                            // Now and then a subject declines.
-                            let decision = if rng.next_f64() < 0.08 {
-                                "declined"
-                            } else {
-                                "agreed"
-                            };
+                            // Now and then a subject declines (once: a request
+                            // that fails is sent again with the same decision).
+                            let declines =
+                                Rng::derive(seed, 0xc025_e000 + id as u64).next_f64() < 0.08;
+                            let decision = if declines { "declined" } else { "agreed" };
                             let answer = api.try_call(
                                 "POST",
                                 "/api/station/consent",
@@ -653,11 +652,7 @@ impl Page {
             while Instant::now() < until {
                 match ws.read() {
                     Ok(_) => {}
-                    Err(tungstenite::Error::Io(e))
-                        if matches!(
-                            e.kind(),
-                            std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                        ) => {}
+                    Err(e) if crate::read_timed_out(&e) => {}
                     Err(_) => break,
                 }
             }
@@ -708,12 +703,7 @@ impl Page {
                 return self.lost(s, now, close);
             }
             Ok(_) => return,
-            Err(tungstenite::Error::Io(e))
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                ) =>
-            {
+            Err(e) if crate::read_timed_out(&e) => {
                 return;
             }
             Err(_) => return self.lost(s, now, None),
