@@ -61,6 +61,49 @@ pub struct ServeConfig {
     pub connections: ConnectionConfig,
     #[command(flatten)]
     pub login: LoginConfig,
+    #[command(flatten)]
+    pub tls: TlsConfig,
+    #[command(flatten)]
+    pub backup: BackupConfig,
+}
+
+/// HTTPS (off by default: a server on loopback needs none; one on a lab network does).
+#[derive(Debug, Clone, clap::Args)]
+pub struct TlsConfig {
+    /// Serve HTTPS with this certificate chain (PEM file); needs --tls-key.
+    #[arg(
+        long,
+        env = "BDFT_TLS_CERT",
+        requires = "tls_key",
+        conflicts_with = "tls_self_signed"
+    )]
+    pub tls_cert: Option<PathBuf>,
+    /// The private key of --tls-cert (PEM file: PKCS#8, PKCS#1 or SEC1).
+    #[arg(long, env = "BDFT_TLS_KEY", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
+    /// Serve HTTPS with a self-signed certificate for this machine's names, made at the first
+    /// start and kept beside the database (`<db>.tls-cert.pem`, `<db>.tls-key.pem`); its
+    /// fingerprint is printed at every start for the stations to check.
+    #[arg(long, env = "BDFT_TLS_SELF_SIGNED")]
+    pub tls_self_signed: bool,
+}
+
+/// Scheduled backups (`serve`).
+#[derive(Debug, Clone, clap::Args)]
+pub struct BackupConfig {
+    /// Directory of the scheduled backups and the dashboard's "Back up now" (created if
+    /// missing; must be writable). Without it no backup is scheduled.
+    #[arg(long, env = "BDFT_BACKUP_DIR")]
+    pub backup_dir: Option<PathBuf>,
+    /// How often to back up: a whole number and a unit, s, m, h or d (90s, 30m, 6h, 1d), from
+    /// 1s to 30d. The first backup is made at start when the directory holds none this
+    /// recent.
+    #[arg(long, env = "BDFT_BACKUP_EVERY", default_value = "1d", requires = "backup_dir", value_parser = crate::engine::operations::schedule::parse_every)]
+    pub backup_every: Duration,
+    /// How many backups the directory keeps: after a new one has passed its checks, the
+    /// oldest beyond this are deleted.
+    #[arg(long, env = "BDFT_BACKUP_KEEP", default_value_t = 14, requires = "backup_dir", value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    pub backup_keep: u32,
 }
 
 /// What one client may hold of the server's connections.

@@ -35,6 +35,17 @@ pub enum AppError {
 
 pub type Result<T, E = AppError> = std::result::Result<T, E>;
 
+impl AppError {
+    /// The words of the error with the inner cause of an internal one (which a user is only
+    /// shown as "internal error"): for the operator's log, an audit row, the command line.
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Internal(inner) => format!("{inner:#}"),
+            other => other.to_string(),
+        }
+    }
+}
+
 /// SQLite's primary result codes of a state the server is in rather than a bug: another
 /// connection holds the database locked; the disk (or the database's page cap) is full.
 const SQLITE_BUSY: i32 = 5;

@@ -10,6 +10,7 @@ use crate::engine::dry_runs::pilot::PilotJob;
 use crate::engine::dry_runs::power::PlanJob;
 use crate::engine::machine::bench::BenchJob;
 use crate::engine::machine::controller_link::ControllerLink;
+use crate::engine::operations::schedule::Backups;
 use crate::engine::procedure::station_sockets::StationSockets;
 use crate::engine::procedure::stations::Pairing;
 use crate::engine::study::stability::StabilityCache;
@@ -27,8 +28,13 @@ pub struct AppState {
     /// The one bench run at a time.
     pub bench: Arc<BenchJob>,
     pub stability: Arc<StabilityCache>,
+    /// The backup directory and schedule (off unless `serve --backup-dir`).
+    pub backups: Arc<Backups>,
     /// Serve the pages from this directory instead of the embedded copy (development).
     pub web_dir: Option<std::path::PathBuf>,
+    /// Whether the server speaks HTTPS: cookies are then `Secure` and every answer carries
+    /// HSTS.
+    pub https: bool,
 }
 
 impl AppState {
@@ -43,7 +49,9 @@ impl AppState {
             plan: Arc::default(),
             bench: Arc::default(),
             stability: Arc::default(),
+            backups: Arc::default(),
             web_dir: None,
+            https: false,
         }
     }
 }

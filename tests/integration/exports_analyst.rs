@@ -18,7 +18,7 @@ use bdft_tests::{TempDir, binary, controller};
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use serde_json::{Value, json};
 
-use bdft_tests::csv::{column, parse_csv};
+use crate::exports_audit::{column, parse_csv};
 
 /// Every export of a study.
 const STUDY_KINDS: [&str; 7] = [

@@ -5,10 +5,18 @@
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use bdft_tests::csv::{column, parse_csv};
 use bdft_tests::server::{Api, Server, eventually, pair_station};
 use bdft_tests::{TempDir, binary};
 use serde_json::{Value, json};
+
+pub(crate) use bdft_tests::exports::parse_csv;
+
+pub(crate) fn column(rows: &[Vec<String>], name: &str) -> usize {
+    rows[0]
+        .iter()
+        .position(|h| h == name)
+        .unwrap_or_else(|| panic!("no column {name} in {:?}", rows[0]))
+}
 
 #[test]
 fn notes_and_reasons_are_exported_and_the_audit_log_too() {

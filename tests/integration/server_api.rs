@@ -485,7 +485,7 @@ fn controller_death_is_detected_within_100_ms_and_the_controller_restarts() {
 fn a_person_drives_a_test_through_the_station_socket() {
     let server = Server::start("person");
     let api = server.experimenter();
-    // The stale-input limit (its own tests are in controller_serve) is widened here: this
+    // The stale-input limit (its own tests are in controller_trials) is widened here: this
     // test drives input from a test thread, which a loaded 2-core machine can stall for
     // longer than 100 ms while browsers and other servers run beside it.
     let (_, mut params) = api.get("/api/defaults");

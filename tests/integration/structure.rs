@@ -8,13 +8,14 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// The engine's rooms and the rooms each may use (ARCHITECTURE.md draws the same).
-const ROOMS: [(&str, &[&str]); 6] = [
+const ROOMS: [(&str, &[&str]); 7] = [
     ("accounts", &[]),
     ("study", &[]),
     ("machine", &["study"]),
     ("procedure", &["study", "machine"]),
     ("results", &["study", "machine"]),
     ("dry_runs", &["study", "machine", "procedure", "results"]),
+    ("operations", &["study"]),
 ];
 
 type Module = Vec<String>;

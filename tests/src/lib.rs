@@ -90,7 +90,7 @@ impl Drop for TempDir {
 }
 
 pub mod controller_link;
-pub mod csv;
+pub mod exports;
 pub mod server;
 pub mod soak;
 pub mod webdriver;

@@ -20,6 +20,8 @@ pub struct Server {
     pub dir: TempDir,
     /// Its arguments after `serve --db … --listen …`.
     args: Vec<String>,
+    /// Its self-signed certificate (PEM) when it serves HTTPS: clients trust exactly it.
+    pub cert: Option<PathBuf>,
     /// Where its standard error goes (appended at every start), if not to the test's.
     log: Option<PathBuf>,
 }
@@ -41,7 +43,7 @@ impl Server {
 
     /// A server started with `args` (no account unless they make one).
     pub fn start_with(tag: &str, args: &[&str]) -> Self {
-        Self::launch(TempDir::new(tag), args, None)
+        Self::start_in(TempDir::new(tag), args, None)
     }
 
     /// A server in `dir` with the account "admin" and `args`, its standard error appended
@@ -50,22 +52,61 @@ impl Server {
         let log = dir.path().join("server.log");
         let mut all = vec!["--admin-password", ADMIN_PASSWORD];
         all.extend_from_slice(args);
-        Self::launch(dir, &all, Some(log))
+        Self::start_in(dir, &all, Some(log))
     }
 
-    fn launch(dir: TempDir, args: &[&str], log: Option<PathBuf>) -> Self {
+    /// A server started with `args` on a copy of the database `source` (the copy is the
+    /// server's `db`; `source` is never touched).
+    pub fn start_on_copy(tag: &str, source: &Path, args: &[&str]) -> Self {
+        let dir = TempDir::new(tag);
+        std::fs::copy(source, dir.path().join("bdft-lab.db"))
+            .unwrap_or_else(|e| panic!("copying {}: {e}", source.display()));
+        Self::start_in(dir, args, None)
+    }
+
+    /// A server on `dir`'s `bdft-lab.db`.
+    fn start_in(dir: TempDir, args: &[&str], log: Option<PathBuf>) -> Self {
         let db = dir.path().join("bdft-lab.db");
         let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
         let proc = Self::spawn(&db, "127.0.0.1:0", &args, log.as_deref())
             .unwrap_or_else(|e| panic!("{e}"));
-        Self {
-            base: format!("http://{}", proc.addr),
+        let cert = args
+            .iter()
+            .any(|a| a == "--tls-self-signed")
+            .then(|| db.with_extension("tls-cert.pem"));
+        let mut server = Self {
+            base: String::new(),
             proc,
             db,
             dir,
             args,
+            cert,
             log,
-        }
+        };
+        server.base = server.base_url();
+        server
+    }
+
+    /// A server over HTTPS with a self-signed certificate it makes at its first start, and
+    /// the account "admin".
+    pub fn start_https(tag: &str) -> Self {
+        Self::start_with(
+            tag,
+            &["--admin-password", ADMIN_PASSWORD, "--tls-self-signed"],
+        )
+    }
+
+    fn scheme(&self) -> &'static str {
+        if self.cert.is_some() { "https" } else { "http" }
+    }
+
+    fn base_url(&self) -> String {
+        format!("{}://{}", self.scheme(), self.proc.addr)
+    }
+
+    /// A client with no session that trusts this server's certificate, if it has one.
+    pub fn anonymous(&self) -> Api {
+        Api::with_agent(&self.base, agent(self.cert.as_deref()))
     }
 
     fn spawn(
@@ -76,6 +117,12 @@ impl Server {
     ) -> Result<Proc, String> {
         let mut args = vec!["serve", "--db", db.to_str().unwrap(), "--listen", listen];
         args.extend(extra.iter().map(String::as_str));
+        let https = extra.iter().any(|a| a == "--tls-self-signed");
+        let prefix = if https {
+            "bdft-lab server on https://"
+        } else {
+            "bdft-lab server on http://"
+        };
         let stderr = match log {
             Some(path) => std::fs::OpenOptions::new()
                 .create(true)
@@ -85,7 +132,7 @@ impl Server {
                 .into(),
             None => std::process::Stdio::inherit(),
         };
-        Proc::try_spawn("bdft-server", &args, "bdft-lab server on http://", stderr)
+        Proc::try_spawn("bdft-server", &args, prefix, stderr)
     }
 
     /// Kills the server (SIGKILL: no clean shutdown) and starts it again on the same
@@ -94,7 +141,7 @@ impl Server {
         self.proc.kill();
         self.proc = Self::spawn(&self.db, "127.0.0.1:0", &self.args, self.log.as_deref())
             .unwrap_or_else(|e| panic!("{e}"));
-        self.base = format!("http://{}", self.proc.addr);
+        self.base = self.base_url();
     }
 
     /// Stops the server `how` and starts it again on the same database and port, as an
@@ -108,7 +155,7 @@ impl Server {
             Ok(p) => p,
             Err(_) => Self::spawn(&self.db, "127.0.0.1:0", &self.args, self.log.as_deref())?,
         };
-        self.base = format!("http://{}", self.proc.addr);
+        self.base = self.base_url();
         Ok(())
     }
 
@@ -145,7 +192,7 @@ impl Server {
 
     /// A client logged in as `username`.
     pub fn login(&self, username: &str, password: &str) -> Api {
-        let mut api = Api::anonymous(&self.base);
+        let mut api = self.anonymous();
         let (code, body) = api.post(
             "/api/login",
             json!({ "username": username, "password": password }),
@@ -178,12 +225,40 @@ pub struct Api {
     pub bearer: Option<String>,
 }
 
+/// An HTTP agent; over HTTPS it trusts only the certificate in `cert` (PEM).
+pub fn agent(cert: Option<&Path>) -> ureq::Agent {
+    let builder = ureq::AgentBuilder::new().timeout(Duration::from_secs(60));
+    match cert {
+        None => builder.build(),
+        Some(cert) => {
+            use rustls::pki_types::CertificateDer;
+            use rustls::pki_types::pem::PemObject;
+            let mut roots = rustls::RootCertStore::empty();
+            for c in CertificateDer::pem_file_iter(cert).expect("the server's certificate") {
+                roots
+                    .add(c.expect("a PEM certificate"))
+                    .expect("a usable certificate");
+            }
+            let config = rustls::ClientConfig::builder_with_provider(std::sync::Arc::new(
+                rustls::crypto::ring::default_provider(),
+            ))
+            .with_safe_default_protocol_versions()
+            .expect("TLS versions")
+            .with_root_certificates(roots)
+            .with_no_client_auth();
+            builder.tls_config(std::sync::Arc::new(config)).build()
+        }
+    }
+}
+
 impl Api {
     pub fn anonymous(base: &str) -> Self {
+        Self::with_agent(base, agent(None))
+    }
+
+    fn with_agent(base: &str, agent: ureq::Agent) -> Self {
         Self {
-            agent: ureq::AgentBuilder::new()
-                .timeout(Duration::from_secs(60))
-                .build(),
+            agent,
             base: base.to_string(),
             csrf: None,
             bearer: None,
@@ -278,6 +353,18 @@ impl Api {
             Err(ureq::Error::Status(c, r)) => (c, r.into_string().unwrap_or_default()),
             Err(e) => panic!("GET {path}: {e}"),
         }
+    }
+
+    /// Status and `Content-Type` of a GET (the body is read and dropped).
+    pub fn content_type(&self, path: &str) -> (u16, String) {
+        let (code, resp) = match self.agent.get(&format!("{}{path}", self.base)).call() {
+            Ok(r) => (r.status(), r),
+            Err(ureq::Error::Status(c, r)) => (c, r),
+            Err(e) => panic!("GET {path}: {e}"),
+        };
+        let content_type = resp.header("content-type").unwrap_or_default().to_string();
+        std::io::copy(&mut resp.into_reader(), &mut std::io::sink()).unwrap();
+        (code, content_type)
     }
 
     /// Raw bytes of a GET (Parquet downloads).

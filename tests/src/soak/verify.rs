@@ -13,7 +13,7 @@ use super::journal::Journal;
 use super::plan::FaultKind;
 use super::{Soak, disk};
 use crate::binary;
-use crate::csv::parse_csv;
+use crate::exports::parse_csv;
 
 /// What the soak's end says: every broken rule, and the run's figures.
 #[derive(Debug)]

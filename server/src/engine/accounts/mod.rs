@@ -9,12 +9,13 @@ pub mod passwords;
 use std::net::IpAddr;
 use std::time::{Duration, Instant};
 
-use serde_json::json;
+use serde::Serialize;
 use sqlx::SqlitePool;
 
 use self::login_limiter::LoginLimiter;
 use crate::error::{AppError, Result};
 use crate::store::accounts::{Account, Role};
+use crate::store::audit::NoDetail;
 use crate::store::tokens::random_token;
 use crate::store::{self, Change};
 
@@ -54,6 +55,13 @@ fn check_new_credentials(username: &str, password: &str) -> Result<()> {
     Ok(())
 }
 
+/// What `experimenter.create` records.
+#[derive(Debug, Serialize)]
+struct Created<'a> {
+    username: &'a str,
+    role: Role,
+}
+
 /// Creates an account with `role` on behalf of `actor` (an admin, or `system:startup` for
 /// `--admin-password`); returns it.
 pub async fn create_experimenter(
@@ -72,7 +80,7 @@ pub async fn create_experimenter(
         .commit(
             "experimenter.create",
             Some(format!("experimenter:{id}")),
-            json!({ "username": username, "role": role }),
+            Created { username, role },
         )
         .await?;
     Ok(account)
@@ -90,6 +98,14 @@ async fn keep_an_admin(db: &mut sqlx::SqliteConnection, account: &Account) -> Re
     Ok(())
 }
 
+/// What `experimenter.role` records.
+#[derive(Debug, Serialize)]
+struct RoleChanged<'a> {
+    username: &'a str,
+    from: Role,
+    to: Role,
+}
+
 /// Gives an account another role (`admin` is the admin making the change).
 pub async fn set_role(pool: &SqlitePool, admin: &str, id: i64, role: Role) -> Result<Account> {
     let mut change = Change::begin(pool, admin).await?;
@@ -103,10 +119,23 @@ pub async fn set_role(pool: &SqlitePool, admin: &str, id: i64, role: Role) -> Re
         .commit(
             "experimenter.role",
             Some(format!("experimenter:{id}")),
-            json!({ "username": before.username, "from": before.role, "to": role }),
+            RoleChanged {
+                username: &before.username,
+                from: before.role,
+                to: role,
+            },
         )
         .await?;
     Ok(after)
+}
+
+/// What an action on an account names it by: `experimenter.enable`, `setup.first_account`,
+/// and `experimenter.disable` with the sessions that ended.
+#[derive(Debug, Serialize)]
+struct Named<'a> {
+    username: &'a str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sessions_ended: Option<u64>,
 }
 
 /// Disables an account (it cannot log in; its sessions end at once) or enables it again.
@@ -118,25 +147,29 @@ pub async fn set_disabled(
 ) -> Result<Account> {
     let mut change = Change::begin(pool, admin).await?;
     let before = store::accounts::account(change.db(), id).await?;
-    let (action, detail) = if disabled {
+    let (action, sessions_ended) = if disabled {
         keep_an_admin(change.db(), &before).await?;
         let ended = store::accounts::disable(change.db(), id).await?;
-        (
-            "experimenter.disable",
-            json!({ "username": before.username, "sessions_ended": ended }),
-        )
+        ("experimenter.disable", Some(ended))
     } else {
         store::accounts::enable(change.db(), id).await?;
-        (
-            "experimenter.enable",
-            json!({ "username": before.username }),
-        )
+        ("experimenter.enable", None)
+    };
+    let detail = Named {
+        username: &before.username,
+        sessions_ended,
     };
     let after = store::accounts::account(change.db(), id).await?;
     change
         .commit(action, Some(format!("experimenter:{id}")), detail)
         .await?;
     Ok(after)
+}
+
+/// What `setup.link` records: whether an unused link was replaced.
+#[derive(Debug, Serialize)]
+struct SetupLink {
+    replaced_unused: u64,
 }
 
 /// A one-time set-up token (printed at a start with no account); only its hash is stored.
@@ -146,7 +179,13 @@ pub async fn new_setup_token(pool: &SqlitePool) -> Result<String> {
     let mut change = Change::begin(pool, "system:startup").await?;
     let replaced = store::accounts::replace_setup_token(change.db(), &token).await?;
     change
-        .commit("setup.link", None, json!({ "replaced_unused": replaced }))
+        .commit(
+            "setup.link",
+            None,
+            SetupLink {
+                replaced_unused: replaced,
+            },
+        )
         .await?;
     Ok(token)
 }
@@ -203,7 +242,10 @@ pub async fn first_account(
         .commit(
             "setup.first_account",
             Some(format!("experimenter:{id}")),
-            json!({ "username": username }),
+            Named {
+                username,
+                sessions_ended: None,
+            },
         )
         .await?;
     Ok(id)
@@ -219,13 +261,24 @@ pub struct NewSession {
     pub role: Role,
 }
 
+/// How a session began, as its `login` audit row records it.
+#[derive(Debug, Serialize)]
+#[serde(tag = "after", rename_all = "lowercase")]
+pub enum Login {
+    /// The first account's session, opened by the set-up itself: `{"after":"setup"}`.
+    Setup,
+    /// A password checked, from the client's address: `{"from":"127.0.0.1"}`.
+    #[serde(untagged)]
+    Password { from: String },
+}
+
+/// A new session of an account, audited as `login`.
 pub async fn new_session(
     pool: &SqlitePool,
     experimenter_id: i64,
     username: &str,
     role: Role,
-    action: &str,
-    detail: serde_json::Value,
+    how: Login,
 ) -> Result<NewSession> {
     let (token, csrf) = (random_token(), random_token());
     let mut change = Change::begin(pool, username).await?;
@@ -237,7 +290,7 @@ pub async fn new_session(
         SESSION_HOURS * 3_600_000,
     )
     .await?;
-    change.commit(action, None, detail).await?;
+    change.commit("login", None, how).await?;
     Ok(NewSession { token, csrf, role })
 }
 
@@ -246,7 +299,16 @@ pub async fn end_session(pool: &SqlitePool, username: &str, token: Option<&str>)
     if let Some(token) = token {
         store::accounts::delete_session(change.db(), token).await?;
     }
-    change.commit("logout", None, json!({})).await
+    change.commit("logout", None, NoDetail {}).await
+}
+
+/// What `login.failed` records: the name tried, from where, and whether the account is
+/// disabled (only when the password was right).
+#[derive(Debug, Serialize)]
+struct LoginFailed<'a> {
+    username: &'a str,
+    from: String,
+    disabled: bool,
 }
 
 /// Checks a password, rate-limited per username and client address and per address (the
@@ -281,15 +343,8 @@ pub async fn login(
     match (row, ok) {
         (Some(c), true) if !c.disabled => {
             limiter.succeeded(reservation);
-            new_session(
-                pool,
-                c.id,
-                username,
-                c.role,
-                "login",
-                json!({ "from": peer.to_string() }),
-            )
-            .await
+            let from = peer.to_string();
+            new_session(pool, c.id, username, c.role, Login::Password { from }).await
         }
         (row, ok) => {
             // Only someone who knows the password learns that the account is disabled.
@@ -299,7 +354,11 @@ pub async fn login(
                 .commit(
                     "login.failed",
                     row.map(|c| format!("experimenter:{}", c.id)),
-                    json!({ "username": username, "from": peer.to_string(), "disabled": disabled }),
+                    LoginFailed {
+                        username,
+                        from: peer.to_string(),
+                        disabled,
+                    },
                 )
                 .await?;
             Err(AppError::Forbidden(if disabled {
@@ -314,4 +373,17 @@ pub async fn login(
 /// Every account, for the admin.
 pub async fn list(pool: &SqlitePool) -> Result<Vec<Account>> {
     store::accounts::accounts(pool).await
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_login_records_how_the_session_began() {
+        let text = |how: Login| store::json_text(&how).unwrap();
+        assert_eq!(text(Login::Setup), r#"{"after":"setup"}"#);
+        let from = "127.0.0.1".to_string();
+        assert_eq!(text(Login::Password { from }), r#"{"from":"127.0.0.1"}"#);
+    }
 }

@@ -8,18 +8,38 @@ use anyhow::Context;
 use sqlx::SqlitePool;
 
 use bdft_protocol::records::ConsentDecision;
-use serde_json::json;
+use serde::Serialize;
 
 use super::job::{Job, JobStatus, Progress};
 use crate::engine::procedure::enrolment::enrol;
 use crate::engine::procedure::filing::file_result;
 use crate::engine::procedure::orchestrator::{Operator, start_message};
 use crate::engine::study::schedule::default_params;
+use crate::store::audit::NoDetail;
 use crate::store::records::Record;
 use crate::store::{self, Change};
 
 /// Who the audit log names for starting a pilot from the command line.
 const COMMAND_LINE: &str = "system:pilot-command";
+
+/// What `pilot.process` records: the process that runs the pilot.
+#[derive(Debug, Serialize)]
+struct Process {
+    pid: u32,
+}
+
+/// What `pilot.start` records: how many synthetic subjects.
+#[derive(Debug, Serialize)]
+struct Started {
+    subjects: u32,
+}
+
+/// What a synthetic subject's `consent` records: always agreed, and synthetic.
+#[derive(Debug, Serialize)]
+struct SyntheticConsent {
+    decision: ConsentDecision,
+    synthetic: bool,
+}
 
 #[derive(Debug, Clone, serde::Serialize, utoipa::ToSchema)]
 pub struct PilotReport {
@@ -54,19 +74,16 @@ pub async fn run(
         .commit(
             "pilot.process",
             Some(format!("pilot_run:{run_id}")),
-            json!({ "pid": std::process::id() }),
+            Process {
+                pid: std::process::id(),
+            },
         )
         .await?;
     let beating = {
         let pool = pool.clone();
-        tokio::spawn(async move {
-            let mut tick = tokio::time::interval(BEAT);
-            loop {
-                tick.tick().await;
-                if let Err(e) = store::pilot_runs::beat(&pool, run_id).await {
-                    tracing::warn!("pilot heartbeat: {e}");
-                }
-            }
+        crate::engine::beat_every(BEAT, "pilot", move || {
+            let pool = pool.clone();
+            async move { store::pilot_runs::beat(&pool, run_id).await }
         })
     };
     let outcome = run_with_progress(
@@ -121,7 +138,7 @@ pub async fn run_with_progress(
         .commit(
             "pilot.start",
             Some(format!("study:{study_id}")),
-            json!({ "subjects": subjects }),
+            Started { subjects },
         )
         .await?;
     let mut report = PilotReport {
@@ -145,7 +162,10 @@ pub async fn run_with_progress(
             .commit(
                 "consent",
                 Some(format!("subject:{}", subject.id)),
-                json!({ "decision": "agreed", "synthetic": true }),
+                SyntheticConsent {
+                    decision: ConsentDecision::Agreed,
+                    synthetic: true,
+                },
             )
             .await?;
         report.subjects.push(subject.code.clone());
@@ -187,7 +207,7 @@ pub async fn run_with_progress(
                         .commit(
                             "trial.start",
                             Some(format!("trial:{}", trial.id)),
-                            json!({}),
+                            NoDetail {},
                         )
                         .await?;
                     let start = start_message(&study, &trial, Operator::Synthetic(subject.drawn))?;
@@ -220,11 +240,7 @@ pub async fn run_with_progress(
     }
     Change::begin(pool, actor)
         .await?
-        .commit(
-            "pilot.finish",
-            Some(format!("study:{study_id}")),
-            serde_json::to_value(&report)?,
-        )
+        .commit("pilot.finish", Some(format!("study:{study_id}")), &report)
         .await?;
     Ok(report)
 }

@@ -19,11 +19,10 @@ use bdft_controller::error::DesignError;
 use bdft_protocol::params::{CompensatorSpec, MAX_KBF, check};
 use bdft_protocol::study::StudyParams;
 use serde::Deserialize;
-use serde_json::json;
 use sqlx::SqlitePool;
 
 use crate::engine::COMPUTE;
-use crate::engine::study::stability::study_loop;
+use crate::engine::study::stability::{analysis_key, study_loop};
 use crate::error::{AppError, Result};
 use crate::store;
 
@@ -167,11 +166,7 @@ pub async fn frequency_report(
     let params = study.params;
     let k_bf = kbf.unwrap_or(params.k_bf);
     check("kbf", k_bf, 0.0, MAX_KBF)?;
-    let key = json!({
-        "plant": params.plant, "body": params.body, "k_bf": k_bf,
-        "controllers": params.controllers,
-    })
-    .to_string();
+    let key = analysis_key(&params, k_bf);
     let cached = || {
         REPORTS
             .lock()

@@ -2,7 +2,7 @@
 //! trial); the subject's schedule and every test's target are drawn from the study seed and
 //! stored, all in one immediate transaction with the audit row.
 
-use serde_json::json;
+use serde::Serialize;
 use sqlx::SqlitePool;
 
 use crate::engine::study::schedule::{protocol_hash, schedule, starting_station, target};
@@ -11,6 +11,13 @@ use crate::error::{AppError, Result};
 use crate::store::subjects::{NewSubject, Subject};
 use crate::store::trials::NewTrial;
 use crate::store::{self, Change};
+
+/// What `subject.enrol` records: the subject's code, and whether it is synthetic.
+#[derive(Debug, Serialize)]
+struct Enrolled<'a> {
+    code: &'a str,
+    synthetic: bool,
+}
 
 /// Enrols the study's next subject; returns it and the token of its own page. The first
 /// enrolment passes the stability gate before it locks the protocol.
@@ -115,7 +122,10 @@ pub async fn enrol(
         .commit(
             "subject.enrol",
             Some(format!("subject:{subject_id}")),
-            json!({ "code": code, "synthetic": synthetic }),
+            Enrolled {
+                code: &code,
+                synthetic,
+            },
         )
         .await?;
     Ok((subject, token))

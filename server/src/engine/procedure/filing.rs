@@ -10,8 +10,8 @@ use std::time::Duration;
 
 use bdft_protocol::controller_to_server::TrialResult;
 use bdft_protocol::records::TrialStatus;
-use bdft_protocol::trial::{FaultKind, Outcome};
-use serde_json::json;
+use bdft_protocol::trial::{FaultKind, Metrics, Outcome};
+use serde::Serialize;
 use sqlx::SqlitePool;
 
 use super::queue::requeue_failed;
@@ -34,6 +34,16 @@ pub fn filing(outcome: &Outcome) -> (TrialStatus, Option<String>) {
     }
 }
 
+/// What `trial.finish` records: how the trial was filed, its metrics, and the attempt that
+/// re-queued it (if it failed).
+#[derive(Debug, Serialize)]
+struct Finished<'a> {
+    status: TrialStatus,
+    reason: Option<String>,
+    metrics: &'a Metrics,
+    requeued: Option<i64>,
+}
+
 /// Files a finished trial's result and record with its audit row. `false` when the trial
 /// was no longer running (then nothing is stored).
 pub async fn file_result(
@@ -54,7 +64,12 @@ pub async fn file_result(
         .commit(
             "trial.finish",
             Some(format!("trial:{}", result.trial_id)),
-            json!({ "status": status, "reason": reason, "metrics": result.metrics, "requeued": requeued }),
+            Finished {
+                status,
+                reason,
+                metrics: &result.metrics,
+                requeued,
+            },
         )
         .await?;
     Ok(true)
@@ -205,6 +220,15 @@ impl Filing for LinkFiling {
     }
 }
 
+/// What `trial.interrupt` records: the trials marked incomplete, why, and their re-queued
+/// attempts.
+#[derive(Debug, Serialize)]
+struct Interrupted<'a> {
+    trials: &'a [i64],
+    reason: &'a str,
+    requeued: Vec<i64>,
+}
+
 /// Marks every running trial of this server's controller incomplete with `reason` (server
 /// restart, controller lost); returns their ids. A pilot process's trials run on its own
 /// controller: they end with its heartbeat (`end_lost_pilots`), not with this server's.
@@ -227,7 +251,11 @@ async fn interrupt(pool: &SqlitePool, trials: &[i64], reason: &str) -> Result<Ve
             .commit(
                 "trial.interrupt",
                 None,
-                json!({ "trials": ids, "reason": reason, "requeued": requeued }),
+                Interrupted {
+                    trials: &ids,
+                    reason,
+                    requeued,
+                },
             )
             .await?;
     }
@@ -238,6 +266,13 @@ async fn interrupt(pool: &SqlitePool, trials: &[i64], reason: &str) -> Result<Ve
 /// `pilot::BEAT`; the margin covers a loaded machine's stalls).
 pub const PILOT_SILENCE: std::time::Duration = std::time::Duration::from_secs(10);
 
+/// What `pilot.end` records: the trials the run left running, marked incomplete, and why.
+#[derive(Debug, Serialize)]
+struct PilotEnded<'a> {
+    interrupted_trials: &'a [i64],
+    reason: &'a str,
+}
+
 /// Ends the pilot run `run_id`: the trials it left running are marked incomplete with
 /// `reason`, audited with the run; returns their ids.
 pub async fn end_pilot_run(pool: &SqlitePool, run_id: i64, reason: &str) -> Result<Vec<i64>> {
@@ -247,7 +282,10 @@ pub async fn end_pilot_run(pool: &SqlitePool, run_id: i64, reason: &str) -> Resu
         .commit(
             "pilot.end",
             Some(format!("pilot_run:{run_id}")),
-            json!({ "interrupted_trials": ids, "reason": reason }),
+            PilotEnded {
+                interrupted_trials: &ids,
+                reason,
+            },
         )
         .await?;
     Ok(ids)

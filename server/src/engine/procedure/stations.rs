@@ -10,7 +10,7 @@ use bdft_protocol::records::{ConsentDecision, DoneReason, StationRole, TrialStat
 use bdft_protocol::server_to_browser::{
     MonitorStation, MonitorTest, MonitorView, Phase, StationInfo, StationView, TestView,
 };
-use serde_json::json;
+use serde::Serialize;
 use sqlx::SqlitePool;
 
 use bdft_protocol::study::{ConsentForm, StudyParams, StudyTexts};
@@ -183,6 +183,13 @@ fn new_code() -> String {
         .collect()
 }
 
+/// What `station.pair` records: the station's name and role.
+#[derive(Debug, Serialize)]
+struct Paired<'a> {
+    name: &'a str,
+    role: StationRole,
+}
+
 /// Pairs the station showing `pairing_code` with a study; returns its id.
 pub async fn pair(
     pool: &SqlitePool,
@@ -207,12 +214,18 @@ pub async fn pair(
         .commit(
             "station.pair",
             Some(format!("station:{id}")),
-            json!({ "name": name, "role": role }),
+            Paired { name, role },
         )
         .await?;
     pairing.forget(&code);
     pairing.paired.notify_waiters();
     Ok(id)
+}
+
+/// What `station.assign` records: the subject now at the station (null: none).
+#[derive(Debug, Serialize)]
+struct Assigned {
+    subject_id: Option<i64>,
 }
 
 /// Assigns a subject of the station's study to it (or none).
@@ -249,7 +262,7 @@ pub async fn assign(
         .commit(
             "station.assign",
             Some(format!("station:{station_id}")),
-            json!({ "subject_id": subject_id }),
+            Assigned { subject_id },
         )
         .await
 }

@@ -2,11 +2,10 @@
 //! figures, withdrawal, progress, and the views of a subject for the experimenter and for
 //! the subject's own page.
 
-use bdft_protocol::browser_to_server::{SurveySubmission, TimingReport};
+use bdft_protocol::browser_to_server::{RttPercentiles, SurveySubmission, TimingReport};
 use bdft_protocol::records::{ConsentDecision, TrialStatus};
 use bdft_protocol::server_to_controller::ServerToController;
 use serde::Serialize;
-use serde_json::json;
 use sqlx::SqlitePool;
 
 use crate::engine::machine::controller_link::ControllerLink;
@@ -14,6 +13,14 @@ use crate::error::{AppError, Result};
 use crate::store::subjects::{Note, Subject};
 use crate::store::trials::{Survey, Trial, latest_attempts};
 use crate::store::{self, Change};
+
+/// What `consent` records: the decision, on which version of the form, at which station.
+#[derive(Debug, Serialize)]
+struct Consented<'a> {
+    decision: ConsentDecision,
+    version: &'a str,
+    station: &'a str,
+}
 
 /// Records the subject's consent decision on the study's current form.
 pub async fn consent(
@@ -31,9 +38,21 @@ pub async fn consent(
         .commit(
             "consent",
             Some(format!("subject:{subject_id}")),
-            json!({ "decision": decision, "version": version, "station": station_name }),
+            Consented {
+                decision,
+                version,
+                station: station_name,
+            },
         )
         .await
+}
+
+/// What a person's `survey.submit` records: the ratings in item order, and how long the
+/// comment is (not what it says).
+#[derive(Debug, Serialize)]
+struct Answered {
+    ratings: [u8; 4],
+    comment_chars: usize,
 }
 
 /// Stores the survey of a completed test of the subject; every bad field is reported and
@@ -60,9 +79,24 @@ pub async fn answer_survey(
         .commit(
             "survey.submit",
             Some(format!("trial:{}", trial.id)),
-            json!({ "ratings": ratings, "comment_chars": answer.answer.comment.chars().count() }),
+            Answered {
+                ratings,
+                comment_chars: answer.answer.comment.chars().count(),
+            },
         )
         .await
+}
+
+/// The station's figures of how its display kept up during a test, as the trial keeps them
+/// (`client_timing_json`) and `trial.timing` records them: the report without its trial.
+#[derive(Debug, Serialize)]
+struct StationTiming<'a> {
+    frames: u64,
+    long_frames: u64,
+    longest_gap_ms: f64,
+    hidden_ms: f64,
+    input_hz: f64,
+    rtt_ms: &'a RttPercentiles,
 }
 
 /// Keeps the station's figures of how its display kept up during a test.
@@ -72,23 +106,33 @@ pub async fn report_timing(
     report: &TimingReport,
 ) -> Result<()> {
     report.validate().map_err(AppError::BadRequest)?;
-    let json = json!({
-        "frames": report.frames,
-        "long_frames": report.long_frames,
-        "longest_gap_ms": report.longest_gap_ms,
-        "hidden_ms": report.hidden_ms,
-        "input_hz": report.input_hz,
-        "rtt_ms": report.rtt_ms,
-    });
+    let timing = StationTiming {
+        frames: report.frames,
+        long_frames: report.long_frames,
+        longest_gap_ms: report.longest_gap_ms,
+        hidden_ms: report.hidden_ms,
+        input_hz: report.input_hz,
+        rtt_ms: &report.rtt_ms,
+    };
     let mut change = Change::begin(pool, format!("station:{station_name}")).await?;
-    store::trials::set_client_timing(change.db(), report.trial_id, &json.to_string()).await?;
+    store::trials::set_client_timing(change.db(), report.trial_id, &store::json_text(&timing)?)
+        .await?;
     change
         .commit(
             "trial.timing",
             Some(format!("trial:{}", report.trial_id)),
-            json,
+            timing,
         )
         .await
+}
+
+/// What `subject.withdraw` records: why, the test that was running, and whether its stop
+/// reached the controller.
+#[derive(Debug, Serialize)]
+struct Withdrawn<'a> {
+    reason: &'a str,
+    running_trial: Option<i64>,
+    stop_sent: Option<bool>,
 }
 
 /// Records the withdrawal and stops the subject's running test at once (the controller
@@ -119,7 +163,11 @@ pub async fn withdraw(
         .commit(
             "subject.withdraw",
             Some(format!("subject:{subject_id}")),
-            json!({ "reason": reason, "running_trial": running, "stop_sent": stopped }),
+            Withdrawn {
+                reason,
+                running_trial: running,
+                stop_sent: stopped,
+            },
         )
         .await?;
     Ok(running)

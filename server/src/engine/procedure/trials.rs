@@ -2,15 +2,17 @@
 //! when it may be redone (queued again by hand: `queue` re-queues failed tests by itself),
 //! aborted or accepted as incomplete, and the E-stop. Every change is committed with its audit row.
 
+use bdft_protocol::params::{CompensatorKind, Seat};
 use bdft_protocol::records::{ConsentDecision, TrialStatus};
 use bdft_protocol::server_to_controller::ServerToController;
 use bdft_protocol::study::RigKind;
-use serde_json::json;
+use serde::Serialize;
 use sqlx::SqlitePool;
 
 use super::orchestrator::{Operator, start_message};
 use crate::engine::machine::controller_link::{ControllerEvent, ControllerLink};
 use crate::error::{AppError, Result};
+use crate::store::audit::{NoDetail, Reason};
 use crate::store::trials::Trial;
 use crate::store::{self, Change};
 
@@ -20,6 +22,15 @@ fn rig_name(rig: RigKind) -> &'static str {
         RigKind::Simulated => "sim",
         RigKind::Real => "udp",
     }
+}
+
+/// What `trial.start` records: the compensator and the seat, by their wire names.
+#[derive(Debug, Serialize)]
+struct Started {
+    #[serde(rename = "controller")]
+    compensator: CompensatorKind,
+    #[serde(rename = "station")]
+    seat: Seat,
 }
 
 /// Checks that `trial` may start now and starts it on the controller.
@@ -93,7 +104,10 @@ pub async fn start(
         .commit(
             "trial.start",
             Some(format!("trial:{}", trial.id)),
-            json!({ "controller": trial.compensator, "station": trial.seat }),
+            Started {
+                compensator: trial.compensator,
+                seat: trial.seat,
+            },
         )
         .await?;
     if let Err(reason) = link.start_trial(&msg).await {
@@ -109,7 +123,7 @@ pub async fn start(
             .commit(
                 "trial.start_failed",
                 Some(format!("trial:{}", trial.id)),
-                json!({ "reason": reason }),
+                Reason { reason: &reason },
             )
             .await?;
         return Err(AppError::Unavailable(format!(
@@ -147,9 +161,16 @@ pub async fn abort(
         .commit(
             "trial.abort",
             Some(format!("trial:{trial_id}")),
-            json!({ "reason": reason }),
+            Reason { reason },
         )
         .await
+}
+
+/// What `trial.redo` records: the new attempt and why.
+#[derive(Debug, Serialize)]
+struct Redone<'a> {
+    new_trial: i64,
+    reason: &'a str,
 }
 
 /// Adds the next attempt of a finished test (the latest attempt only), queued at the end of
@@ -176,7 +197,10 @@ pub async fn redo(pool: &SqlitePool, actor: &str, trial_id: i64, reason: &str) -
         .commit(
             "trial.redo",
             Some(format!("trial:{trial_id}")),
-            json!({ "new_trial": new_id, "reason": reason }),
+            Redone {
+                new_trial: new_id,
+                reason,
+            },
         )
         .await?;
     Ok(new)
@@ -206,10 +230,17 @@ pub async fn accept_incomplete(
         .commit(
             "trial.accept_incomplete",
             Some(format!("trial:{trial_id}")),
-            json!({ "reason": reason }),
+            Reason { reason },
         )
         .await?;
     Ok(t)
+}
+
+/// What `trial.note` records: the note's id and its text.
+#[derive(Debug, Serialize)]
+struct Noted<'a> {
+    note: i64,
+    text: &'a str,
 }
 
 /// A note about a test, by its author; returns the note's id.
@@ -224,10 +255,17 @@ pub async fn add_note(pool: &SqlitePool, author: &str, trial_id: i64, text: &str
         .commit(
             "trial.note",
             Some(format!("trial:{trial_id}")),
-            json!({ "note": note, "text": text }),
+            Noted { note, text },
         )
         .await?;
     Ok(note)
+}
+
+/// What `estop` records: whether the controller confirmed the stop, and how fast.
+#[derive(Debug, Serialize)]
+struct EStopped {
+    delivered: bool,
+    confirmed_ms: Option<f64>,
 }
 
 /// The E-stop: sent first (the stop itself waits for nothing that could fail), then the
@@ -246,10 +284,10 @@ pub async fn estop(
         .commit(
             "estop",
             Some("controller".into()),
-            json!({
-                "delivered": sent.is_ok(),
-                "confirmed_ms": sent.as_ref().ok().map(|d| d.as_secs_f64() * 1e3),
-            }),
+            EStopped {
+                delivered: sent.is_ok(),
+                confirmed_ms: sent.as_ref().ok().map(|d| d.as_secs_f64() * 1e3),
+            },
         )
         .await?;
     sent.map_err(|why| {
@@ -269,7 +307,7 @@ pub async fn reset_estop(pool: &SqlitePool, link: &ControllerLink, actor: &str) 
     let mut change = Change::begin(pool, actor).await?;
     store::latch::set(change.db(), false).await?;
     change
-        .commit("estop.reset", Some("controller".into()), json!({}))
+        .commit("estop.reset", Some("controller".into()), NoDetail {})
         .await?;
     link.send(&ServerToController::ResetEStop {})
         .map_err(AppError::Unavailable)?;

@@ -9,11 +9,11 @@ use std::time::{Duration, Instant};
 
 use bdft_protocol::server_to_controller::ServerToController;
 use bdft_protocol::study::StudyParams;
-use serde_json::json;
 use sqlx::SqlitePool;
 
 use crate::engine::machine::controller_link::{ControllerEvent, ControllerLink};
 use crate::error::Result;
+use crate::store::audit::Reason;
 use crate::store::{self, Change};
 
 /// How long a test that just started may go without a display report: the page hears of
@@ -139,7 +139,7 @@ pub async fn invalidate(
         .commit(
             "trial.invalid",
             Some(format!("trial:{trial_id}")),
-            json!({ "reason": reason }),
+            Reason { reason },
         )
         .await?;
     // Marked first, so that whatever the controller answers the trial is filed invalid; a

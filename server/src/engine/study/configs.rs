@@ -3,8 +3,8 @@
 //! design its parameters hold — so the protocol hash and the controller's messages are those
 //! of a study that names the designs itself.
 
-use bdft_protocol::params::CompensatorSpec;
-use serde_json::json;
+use bdft_protocol::params::{CompensatorKind, CompensatorSpec};
+use serde::Serialize;
 use sqlx::SqlitePool;
 
 use super::schedule::default_params;
@@ -16,6 +16,14 @@ use crate::store::{self, Change};
 
 /// Most versions a study picks at once: one per compensator kind.
 const MAX_PICKS: usize = bdft_protocol::params::CompensatorKind::ALL.len();
+
+/// What `config.create` records: the version made and its design.
+#[derive(Debug, Serialize)]
+struct Created<'a> {
+    name: &'a str,
+    version: i64,
+    spec: &'a CompensatorSpec,
+}
 
 /// Adds the next version of `name` with design `spec`.
 pub async fn create(
@@ -38,10 +46,30 @@ pub async fn create(
         .commit(
             "config.create",
             Some(format!("config:{id}")),
-            json!({ "name": name, "version": version, "spec": spec }),
+            Created {
+                name,
+                version,
+                spec,
+            },
         )
         .await?;
     store::configs::get(pool, id).await
+}
+
+/// What `study.configs` records: the versions picked, and the study version they make.
+#[derive(Debug, Serialize)]
+struct Picked<'a> {
+    picked: Vec<PickedVersion<'a>>,
+    version: i64,
+}
+
+/// One version picked, by its id, name, number and kind.
+#[derive(Debug, Serialize)]
+struct PickedVersion<'a> {
+    config_id: i64,
+    name: &'a str,
+    version: i64,
+    kind: CompensatorKind,
 }
 
 /// Puts each of `config_ids` in place of the study's design of the same kind (a new study
@@ -90,15 +118,23 @@ pub async fn pick(pool: &SqlitePool, actor: &str, study_id: i64, config_ids: &[i
     for v in &versions {
         store::configs::pick(change.db(), study_id, v.kind, v.id).await?;
     }
-    let picked: Vec<_> = versions
+    let picked = versions
         .iter()
-        .map(|v| json!({ "config_id": v.id, "name": v.name, "version": v.version, "kind": v.kind }))
+        .map(|v| PickedVersion {
+            config_id: v.id,
+            name: &v.name,
+            version: v.version,
+            kind: v.kind,
+        })
         .collect();
     change
         .commit(
             "study.configs",
             Some(format!("study:{study_id}")),
-            json!({ "picked": picked, "version": study.version + 1 }),
+            Picked {
+                picked,
+                version: study.version + 1,
+            },
         )
         .await
 }

@@ -3,8 +3,10 @@
 //! subject's (averages, plots, exports). A pilot of a study runs in its dry-run copy (same
 //! parameters and seed, linked to it), made on the first pilot.
 
-use serde_json::json;
+use serde::Serialize;
 use sqlx::{SqliteConnection, SqlitePool};
+
+use super::studies::Created;
 
 use crate::error::{AppError, Result};
 use crate::store::{self, Change};
@@ -52,6 +54,14 @@ pub async fn check_enrolment(
     }
 }
 
+/// What `study.dry_run` records: the study copied, and the copy's name and seed.
+#[derive(Debug, Serialize)]
+struct Copied<'a> {
+    copy_of: i64,
+    name: &'a str,
+    seed: u64,
+}
+
 /// The dry run a pilot of `study_id` writes into: the study itself if it is one, else its
 /// dry-run copy (made now, in one transaction with its audit row, if there is none).
 pub async fn for_pilot(pool: &SqlitePool, actor: &str, study_id: i64) -> Result<i64> {
@@ -70,7 +80,11 @@ pub async fn for_pilot(pool: &SqlitePool, actor: &str, study_id: i64) -> Result<
         .commit(
             "study.dry_run",
             Some(format!("study:{copy}")),
-            json!({ "copy_of": study_id, "name": name, "seed": study.seed }),
+            Copied {
+                copy_of: study_id,
+                name: &name,
+                seed: study.seed,
+            },
         )
         .await?;
     Ok(copy)
@@ -94,7 +108,11 @@ pub async fn create(
         .commit(
             "study.create",
             Some(format!("study:{id}")),
-            json!({ "name": name, "seed": seed, "dry_run": true }),
+            Created {
+                name,
+                seed,
+                dry_run: true,
+            },
         )
         .await?;
     Ok(id)

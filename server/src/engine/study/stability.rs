@@ -12,10 +12,11 @@ use std::sync::{Arc, Mutex};
 
 use bdft_controller::analysis::LinearizedLoop;
 use bdft_controller::closed_loop::LoopSetup;
-use bdft_protocol::params::{CompensatorKind, LoopParams, Seat};
+use bdft_protocol::params::{
+    BodyModel, CompensatorKind, CompensatorSpec, LoopParams, PlantParams, Seat,
+};
 use bdft_protocol::study::{RigKind, StudyParams};
 use serde::Serialize;
-use serde_json::json;
 use tokio::sync::OnceCell;
 
 use crate::error::{AppError, Result};
@@ -118,15 +119,25 @@ fn analyse(params: &StudyParams) -> Result<StabilityReport> {
     })
 }
 
-/// What the analysis depends on, as a cache key.
-fn key(params: &StudyParams) -> String {
-    json!({
-        "plant": params.plant,
-        "body": params.body,
-        "k_bf": params.k_bf,
-        "controllers": params.controllers,
+/// What an analysis of a study's loops depends on: its plant, body and designs at `k_bf`.
+#[derive(Serialize)]
+struct AnalysisInput<'a> {
+    plant: &'a PlantParams,
+    body: &'a BodyModel,
+    k_bf: f64,
+    controllers: &'a [CompensatorSpec],
+}
+
+/// What an analysis of the study's loops at `k_bf` depends on, as a cache key (the gate's
+/// here, the workbench's frequency reports').
+pub fn analysis_key(params: &StudyParams, k_bf: f64) -> String {
+    serde_json::to_string(&AnalysisInput {
+        plant: &params.plant,
+        body: &params.body,
+        k_bf,
+        controllers: &params.controllers,
     })
-    .to_string()
+    .expect("study parameters serialize")
 }
 
 /// A report once computed (or the reason it could not be), shared by everyone who waits.
@@ -152,7 +163,7 @@ impl StabilityCache {
 
     /// The report for `params`, computed once.
     pub async fn report(&self, params: &StudyParams) -> Result<StabilityReport> {
-        let cell = self.cell(key(params));
+        let cell = self.cell(analysis_key(params, params.k_bf));
         let params = params.clone();
         let r = cell
             .get_or_init(|| async move {

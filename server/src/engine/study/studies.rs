@@ -2,17 +2,27 @@
 //! (`runnable`), and a study whose protocol is locked (a subject enrolled) cannot change.
 
 use bdft_protocol::study::StudyParams;
-use serde_json::json;
+use serde::Serialize;
 use sqlx::SqlitePool;
 
-use super::stability::{StabilityCache, StabilityReport};
+use super::stability::{StabilityCache, StabilityReport, Verdict};
 use crate::engine::check_name;
 use crate::error::{AppError, Result};
-use crate::store::studies::Edit;
+use crate::store::studies::{Edit, InstabilityAck};
 use crate::store::{self, Change};
 
 /// Seeds are kept below 2^53 so they survive JSON and JavaScript unchanged.
 const SEED_LIMIT: u64 = 1 << 53;
+
+/// What `study.create` records: the name and seed, and `"dry_run": true` for a stand-alone
+/// dry run (absent for a study of people).
+#[derive(Debug, Serialize)]
+pub(super) struct Created<'a> {
+    pub name: &'a str,
+    pub seed: u64,
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub dry_run: bool,
+}
 
 /// Creates a study (default seed: a random one); returns its id.
 pub async fn create(
@@ -37,7 +47,11 @@ pub async fn create(
         .commit(
             "study.create",
             Some(format!("study:{id}")),
-            json!({ "name": name, "seed": seed }),
+            Created {
+                name,
+                seed,
+                dry_run: false,
+            },
         )
         .await?;
     Ok(id)
@@ -49,6 +63,14 @@ pub(super) async fn check_runnable(params: &StudyParams) -> Result<()> {
     tokio::task::spawn_blocking(move || super::runnable::check(&params))
         .await
         .map_err(|e| AppError::Internal(anyhow::anyhow!("the runnable check failed: {e}")))?
+}
+
+/// What `study.update` records: the new name and parameters, and the version they make.
+#[derive(Debug, Serialize)]
+struct Updated<'a> {
+    name: &'a str,
+    params: &'a StudyParams,
+    version: i64,
 }
 
 /// Replaces the name and parameters of a study that has not started, if nobody changed it
@@ -73,10 +95,21 @@ pub async fn update(
         .commit(
             "study.update",
             Some(format!("study:{id}")),
-            json!({ "name": name, "params": params, "version": version + 1 }),
+            Updated {
+                name,
+                params,
+                version: version + 1,
+            },
         )
         .await?;
     Ok(edit)
+}
+
+/// What `study.acknowledge_instability` records: why, and the verdicts acknowledged.
+#[derive(Debug, Serialize)]
+struct Acknowledged<'a> {
+    reason: &'a str,
+    unstable: Vec<&'a Verdict>,
 }
 
 /// Records that `actor` knows the study's design is unstable on the machine and wants it run
@@ -101,14 +134,21 @@ pub async fn acknowledge_instability(
             "the study runs on the real machine: an unstable design cannot be acknowledged, only changed".into(),
         ));
     }
-    let ack = json!({ "by": actor, "at": store::db::now_ms(), "reason": reason });
+    let ack = InstabilityAck {
+        at: store::db::now_ms(),
+        by: actor.to_string(),
+        reason: reason.to_string(),
+    };
     let mut change = Change::begin(pool, actor).await?;
     store::studies::acknowledge_instability(change.db(), id, &ack).await?;
     change
         .commit(
             "study.acknowledge_instability",
             Some(format!("study:{id}")),
-            json!({ "reason": reason, "unstable": report.unstable() }),
+            Acknowledged {
+                reason,
+                unstable: report.unstable(),
+            },
         )
         .await?;
     Ok(report)

@@ -8,7 +8,7 @@ use bdft_controller::rng::Rng;
 use bdft_protocol::params::{BodyModel, OperatorParams, SubjectDraw};
 use bdft_protocol::records::TrialStatus;
 use bdft_protocol::study::{StudyParams, SurveyAnswer};
-use serde_json::json;
+use serde::Serialize;
 use sqlx::SqlitePool;
 
 use crate::error::{AppError, Result};
@@ -58,6 +58,24 @@ pub fn operator_and_body(
             population::body(d, params.body),
         ),
     }
+}
+
+/// What a synthetic subject's `survey.submit` records: its ratings in item order, and what it
+/// perceived of the test (the ratings' cause).
+#[derive(Debug, Serialize)]
+struct SyntheticAnswer {
+    ratings: [u8; 4],
+    synthetic: bool,
+    perceived: Perceived,
+}
+
+/// `population::Perception` as the audit log names it.
+#[derive(Debug, Serialize)]
+struct Perceived {
+    rms_error_mm: f64,
+    felt_rms_m_s2: f64,
+    response_lag_s: f64,
+    seen_shake_mm: f64,
 }
 
 /// Files the survey a synthetic subject gives after its completed test `trial`, from the
@@ -114,16 +132,16 @@ pub async fn answer_survey(
         .commit(
             "survey.submit",
             Some(format!("trial:{}", trial.id)),
-            json!({
-                "ratings": ratings,
-                "synthetic": true,
-                "perceived": {
-                    "rms_error_mm": perceived.rms_error_mm,
-                    "felt_rms_m_s2": perceived.felt_rms_m_s2,
-                    "response_lag_s": perceived.response_lag_s,
-                    "seen_shake_mm": perceived.seen_shake_mm,
+            SyntheticAnswer {
+                ratings,
+                synthetic: true,
+                perceived: Perceived {
+                    rms_error_mm: perceived.rms_error_mm,
+                    felt_rms_m_s2: perceived.felt_rms_m_s2,
+                    response_lag_s: perceived.response_lag_s,
+                    seen_shake_mm: perceived.seen_shake_mm,
                 },
-            }),
+            },
         )
         .await
 }

@@ -15,7 +15,7 @@ mod view;
 
 pub use request::{BenchChoice, BenchRequest, BenchSignal, parse_csv};
 use request::{Resolved, resolve, target};
-pub use view::{ResultView, RunView, twin, view, with_reductions};
+pub use view::{ResultView, RunView, Trace, twin, view, with_reductions};
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -24,9 +24,8 @@ use bdft_controller::rng::Rng;
 use bdft_protocol::params::Seat;
 use bdft_protocol::server_to_controller::StartTrial;
 use bdft_protocol::study::RigKind;
-use bdft_protocol::trial::{InputSource, Outcome, TargetSpec, record_channel};
+use bdft_protocol::trial::{InputSource, Metrics, Outcome, TargetSpec};
 use serde::Serialize;
-use serde_json::json;
 use sqlx::SqlitePool;
 use utoipa::ToSchema;
 
@@ -51,6 +50,38 @@ pub const TRACE_CHANNELS: [&str; 3] = ["target_mm", "cyl_pos_mm", "cab_accel_mm_
 /// The simulated bench has nobody in the cab, so its interlock limit is the highest a trial
 /// may carry (as `simulate` runs bench signals without one).
 const NO_PERSON_CAB_RMS: f64 = 1e6;
+
+/// What `bench.start` records: the run's compensators (labels), signal and study.
+#[derive(Debug, Serialize)]
+struct Started<'a> {
+    compensators: Vec<&'a str>,
+    signal: &'static str,
+    duration_s: f64,
+    seed: u64,
+    study_id: Option<i64>,
+}
+
+/// What `bench.finish` and `bench.fail` record: why the run failed (null: it did not).
+#[derive(Debug, Serialize)]
+struct Ended<'a> {
+    error: Option<&'a str>,
+}
+
+/// What `bench.fail` records when a restart ended the runs that were going.
+#[derive(Debug, Serialize)]
+struct Abandoned {
+    runs: u64,
+    error: &'static str,
+}
+
+/// What `bench.result` records: a compensator's outcome and metrics in its run.
+#[derive(Debug, Serialize)]
+struct Measured<'a> {
+    run_id: i64,
+    label: &'a str,
+    outcome: &'a str,
+    metrics: Metrics,
+}
 
 /// The one bench run the server may have going, and how far it is.
 #[derive(Debug, Default)]
@@ -170,12 +201,17 @@ impl BenchJob {
             },
         )
         .await?;
-        let labels: Vec<&str> = compensators.iter().map(|c| c.label.as_str()).collect();
         change
             .commit(
                 "bench.start",
                 Some(format!("bench_run:{run_id}")),
-                json!({ "compensators": labels, "signal": signal_kind(&target), "duration_s": duration_s, "seed": seed, "study_id": req.study_id }),
+                Started {
+                    compensators: compensators.iter().map(|c| c.label.as_str()).collect(),
+                    signal: signal_kind(&target),
+                    duration_s,
+                    seed,
+                    study_id: req.study_id,
+                },
             )
             .await?;
         self.run_id.store(run_id, Ordering::SeqCst);
@@ -197,7 +233,9 @@ impl BenchJob {
                             "bench.finish"
                         },
                         Some(format!("bench_run:{run_id}")),
-                        json!({ "error": error }),
+                        Ended {
+                            error: error.as_deref(),
+                        },
                     )
                     .await
             };
@@ -210,17 +248,23 @@ impl BenchJob {
     }
 }
 
+/// Why the runs a restart found going failed.
+const RESTART: &str = "server restart";
+
 /// Runs the server left running when it stopped are failed (audited), so none shows as
 /// running forever.
 pub async fn fail_interrupted(pool: &SqlitePool) -> Result<()> {
     let mut change = Change::begin(pool, "system:startup").await?;
-    let n = store::bench::fail_unfinished(change.db(), "server restart").await?;
+    let n = store::bench::fail_unfinished(change.db(), RESTART).await?;
     if n > 0 {
         change
             .commit(
                 "bench.fail",
                 None,
-                json!({ "runs": n, "error": "server restart" }),
+                Abandoned {
+                    runs: n,
+                    error: RESTART,
+                },
             )
             .await?;
     }
@@ -309,7 +353,7 @@ async fn run_all(
                 (r, record.channels)
             }
         };
-        let trace = trace_json(&channels, result.dt);
+        let trace = store::json_text(&Trace::decimated(&channels, result.dt))?;
         let outcome = match &result.outcome {
             Outcome::Complete => "complete".to_string(),
             Outcome::Aborted { reason } => format!("aborted: {reason}"),
@@ -340,25 +384,15 @@ async fn run_all(
             .commit(
                 "bench.result",
                 Some(format!("bench_result:{result_id}")),
-                json!({ "run_id": run_id, "label": c.label, "outcome": outcome, "metrics": m }),
+                Measured {
+                    run_id,
+                    label: &c.label,
+                    outcome: &outcome,
+                    metrics: m,
+                },
             )
             .await?;
         job.done.fetch_add(1, Ordering::SeqCst);
     }
     Ok(())
-}
-
-/// The stored trace: `TRACE_CHANNELS` at every `DECIMATION`-th tick.
-fn trace_json(channels: &[Vec<f32>], dt: f64) -> String {
-    let mut trace = serde_json::Map::new();
-    trace.insert("dt_s".into(), json!(dt * DECIMATION as f64));
-    for name in TRACE_CHANNELS {
-        let k = record_channel(name).expect("trace channels are record channels");
-        let kept: Vec<f32> = channels
-            .get(k)
-            .map(|c| c.iter().step_by(DECIMATION).copied().collect())
-            .unwrap_or_default();
-        trace.insert(name.into(), json!(kept));
-    }
-    serde_json::Value::Object(trace).to_string()
 }

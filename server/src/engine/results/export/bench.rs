@@ -2,7 +2,7 @@
 //! result's metrics and reductions repeated on each.
 
 use super::text_cell;
-use crate::engine::machine::bench::{DECIMATION, DT, RunView, TRACE_CHANNELS};
+use crate::engine::machine::bench::{RunView, TRACE_CHANNELS};
 
 /// The run as CSV: one line per result and kept tick (`t_s`, the trace channels), with the
 /// result's metrics and reductions repeated, so one file holds everything.
@@ -27,17 +27,14 @@ pub fn csv(v: &RunView) -> String {
             num(r.tracking_reduction_pct),
             num(r.cab_accel_reduction_pct),
         );
-        let dt = trace["dt_s"].as_f64().unwrap_or(DT * DECIMATION as f64);
-        let cols: Vec<&Vec<serde_json::Value>> = TRACE_CHANNELS
-            .iter()
-            .filter_map(|c| trace[*c].as_array())
-            .collect();
-        for k in 0..cols.first().map_or(0, |c| c.len()) {
+        let cols = trace.columns();
+        for k in 0..cols[0].len() {
             out.push_str(&prefix);
-            out.push_str(&format!(",{:.3}", k as f64 * dt));
+            out.push_str(&format!(",{:.3}", k as f64 * trace.dt_s));
             for c in &cols {
                 out.push(',');
-                out.push_str(&c[k].to_string());
+                // As the stored JSON writes it: shortest round-trip digits, null if not finite.
+                out.push_str(&serde_json::Value::from(c[k]).to_string());
             }
             out.push('\n');
         }

@@ -14,6 +14,7 @@ mod columns;
 mod sink;
 mod tables;
 
+use serde::Serialize;
 use sqlx::SqlitePool;
 use tokio::io::{AsyncWrite, BufWriter};
 
@@ -104,6 +105,31 @@ impl SampleCut {
     }
 }
 
+/// What the `export` audit row of a study's export records: its kind, format and cut
+/// (null: every sample).
+#[derive(Debug, Serialize)]
+pub struct Exported<'a> {
+    kind: &'static str,
+    format: &'static str,
+    cut: Option<Cut<'a>>,
+}
+
+/// The samples an export was cut to, as its audit row names them: `{"subject":"S01"}` or
+/// `{"trial":12}`.
+#[derive(Debug, Serialize)]
+#[serde(rename_all = "lowercase")]
+enum Cut<'a> {
+    Subject(&'a str),
+    Trial(i64),
+}
+
+/// What the `export` audit row of a file that is all of its kind records (the audit log, a
+/// bench run): `{"kind":"audit"}`.
+#[derive(Debug, Serialize)]
+pub struct ExportedAll {
+    pub kind: &'static str,
+}
+
 /// What to export and how.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ExportRequest {
@@ -118,6 +144,19 @@ impl ExportRequest {
             kind,
             format: ExportFormat::Csv,
             cut: SampleCut::All,
+        }
+    }
+
+    /// What its audit row records.
+    pub fn audited(&self) -> Exported<'_> {
+        Exported {
+            kind: self.kind.name(),
+            format: self.format.extension(),
+            cut: match &self.cut {
+                SampleCut::All => None,
+                SampleCut::Subject(code) => Some(Cut::Subject(code)),
+                SampleCut::Trial(id) => Some(Cut::Trial(*id)),
+            },
         }
     }
 

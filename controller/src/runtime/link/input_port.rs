@@ -7,8 +7,9 @@ use std::sync::atomic::Ordering;
 use bdft_protocol::rig::InputDatagram;
 use tokio::net::UdpSocket;
 
-use super::handoff::{InputCell, InputSample};
-use super::link::{MAX_INPUT_MM, Shared, lock};
+use super::requests::MAX_INPUT_MM;
+use super::state::{Shared, lock};
+use crate::runtime::handoff::{InputCell, InputSample};
 
 /// Who feeds a channel's current trial: the first sender (pinned) and its newest sequence.
 struct Peer {
