@@ -1,8 +1,23 @@
 #!/usr/bin/env bash
 # Runs every test of bdft-lab on a fresh Debian machine with the Rust toolchain.
 # The README's test command; CI (.ci/run) calls exactly this.
+# `--slow` adds the slow set (the tests marked #[ignore], e.g. the 20-minute soak); any
+# other argument goes to `cargo test` (a test name, `-- --nocapture`, …).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+
+slow=0
+args=()
+for a in "$@"; do
+  if [ "$a" = "--slow" ]; then slow=1; else args+=("$a"); fi
+done
+if [ "$slow" = 1 ]; then
+  # The harness's flag goes after `--` (one is added unless the arguments hold it).
+  case " ${args[*]-} " in
+    *" -- "*) args+=(--include-ignored) ;;
+    *) args+=(-- --include-ignored) ;;
+  esac
+fi
 
 # The browser tests drive Debian's headless Chromium through chromedriver; the HTTPS test
 # reads the server's certificate with openssl (an independent reading of its fingerprint).
@@ -34,4 +49,4 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 # The end-to-end tests (tests/) run the product's binaries as real processes; cargo test
 # does not rebuild another package's binaries, so build them first.
 cargo build --workspace --bins --locked
-cargo test --workspace --locked "$@"
+cargo test --workspace --locked ${args[@]+"${args[@]}"}

@@ -373,7 +373,7 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
         })?),
         None => std::sync::Arc::default(),
     };
-    let pool = store::db::open(&config.db.db).await?;
+    let pool = store::db::open_capped(&config.db.db, config.db_max_pages).await?;
     let interrupted = filing::interrupt_running(&pool, "server restart").await?;
     if !interrupted.is_empty() {
         tracing::warn!(trials = ?interrupted, "trials that were running when the server stopped are marked incomplete");
@@ -434,13 +434,15 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
         ),
         (None, controller_link::ControllerSource::Spawn { .. }) => LinkKey::generate()?,
     };
+    let filing = filing::LinkFiling::start(pool.clone());
     let link = controller_link::ControllerLink::start(
         pool.clone(),
         source,
         key,
         std::time::Duration::from_millis(config.controller_silence_ms),
-        std::sync::Arc::new(filing::LinkFiling(pool.clone())),
+        filing.clone(),
     );
+    filing.attach(link.clone());
     tokio::spawn(backups.clone().run_schedule(pool.clone()));
     // A restore refuses to replace the database while this beats.
     let presence = presence::announce(&pool, &addr.to_string()).await?;

@@ -52,6 +52,11 @@ pub struct ServeConfig {
     /// (for developing them).
     #[arg(long, env = "BDFT_WEB_DIR")]
     pub web_dir: Option<PathBuf>,
+    /// For tests: the database may grow to at most this many pages (SQLite's
+    /// `max_page_count`, 4 KiB pages), so that writes beyond it fail as on a full disk
+    /// (`bdft-tests`' soak fills the room up to it and frees it again). Unlimited by default.
+    #[arg(long, env = "BDFT_DB_MAX_PAGES", value_parser = clap::value_parser!(u32).range(1024..))]
+    pub db_max_pages: Option<u32>,
     #[command(flatten)]
     pub connections: ConnectionConfig,
     #[command(flatten)]

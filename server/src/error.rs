@@ -47,8 +47,14 @@ impl AppError {
     }
 }
 
-/// SQLite's primary result code for a database another connection holds locked.
-const SQLITE_BUSY: &str = "5";
+/// SQLite's primary result codes of a state the server is in rather than a bug: another
+/// connection holds the database locked; the disk (or the database's page cap) is full.
+const SQLITE_BUSY: i32 = 5;
+const SQLITE_FULL: i32 = 13;
+
+/// What the server answers while its disk is full.
+pub const DISK_FULL: &str =
+    "the server's disk is full: nothing can be stored until there is room on it again";
 
 /// How the SQL triggers refusing any change to an erased subject begin their message.
 const ERASED: &str = "the subject's data were erased";
@@ -63,8 +69,17 @@ impl From<sqlx::Error> for AppError {
                         .into(),
                 );
             }
-            if db.code().as_deref() == Some(SQLITE_BUSY) {
-                return Self::Unavailable("the database is busy; try again".into());
+            // sqlx gives the extended code; its low byte is the primary one.
+            match db
+                .code()
+                .and_then(|c| c.parse::<i32>().ok())
+                .map(|c| c & 0xff)
+            {
+                Some(SQLITE_BUSY) => {
+                    return Self::Unavailable("the database is busy; try again".into());
+                }
+                Some(SQLITE_FULL) => return Self::Unavailable(DISK_FULL.into()),
+                _ => {}
             }
             // A row this change refers to was deleted since it was read (an erasure removed
             // the subject's trials while a survey or a note was on its way): a race.

@@ -23,6 +23,7 @@ mod isolation;
 mod protocol_package;
 mod server_api;
 mod server_layers;
+mod soak;
 mod station_safety;
 mod statistics;
 mod structure;

@@ -34,6 +34,17 @@ impl Proc {
     /// Starts `binary` with `args` and waits for the line announcing its address
     /// (`prefix ADDR` on stdout).
     pub fn spawn(bin: &str, args: &[&str], prefix: &str) -> Self {
+        Self::try_spawn(bin, args, prefix, Stdio::inherit()).unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    /// [`Proc::spawn`] with the process's standard error going to `stderr`; an error when
+    /// it exits before announcing its address (e.g. its port is taken).
+    pub fn try_spawn(
+        bin: &str,
+        args: &[&str],
+        prefix: &str,
+        stderr: Stdio,
+    ) -> Result<Self, String> {
         let key = LinkKey::generate().expect("random key");
         let child = Command::new(binary(bin))
             .args(args)
@@ -43,9 +54,9 @@ impl Proc {
                 std::env::var("RUST_LOG").unwrap_or_else(|_| "warn".into()),
             )
             .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
+            .stderr(stderr)
             .spawn()
-            .expect("spawn");
+            .map_err(|e| format!("spawn {bin}: {e}"))?;
         // Owned by a Proc from here on, so a failed start still kills the process.
         let mut proc = Self {
             child,
@@ -56,10 +67,13 @@ impl Proc {
         };
         let mut lines = BufReader::new(proc.child.stdout.take().expect("stdout")).lines();
         loop {
-            let line = lines
-                .next()
-                .expect("the process printed its address")
-                .expect("utf-8 line");
+            let Some(Ok(line)) = lines.next() else {
+                return Err(format!(
+                    "{bin} {} exited before announcing its address; it printed {:?}",
+                    args.join(" "),
+                    proc.banner
+                ));
+            };
             if let Some(a) = line.strip_prefix("input udp on ") {
                 proc.input_udp = Some(a.parse().expect("address"));
             }
@@ -67,7 +81,7 @@ impl Proc {
                 proc.addr = a.trim().parse().expect("address");
                 // Keep draining stdout so the process never blocks on a full pipe.
                 std::thread::spawn(move || for _ in lines {});
-                return proc;
+                return Ok(proc);
             }
             proc.banner.push(line);
         }

@@ -3,15 +3,16 @@
 use std::path::PathBuf;
 use std::process::{Command, Output};
 
-/// Path of a workspace binary built next to this test executable (`cargo test --workspace`
+/// Path of a workspace binary built next to this executable (`cargo test --workspace`
 /// builds every member's binaries into the same target directory).
 pub fn binary(name: &str) -> PathBuf {
-    let exe = std::env::current_exe().expect("current test executable");
-    // target/<profile>/deps/integration-<hash> → target/<profile>/<name>
-    let dir = exe
-        .parent()
-        .and_then(|d| d.parent())
-        .expect("target profile directory");
+    let exe = std::env::current_exe().expect("current executable");
+    // A test: target/<profile>/deps/integration-<hash>; the soak binary:
+    // target/<profile>/soak. Either way the product's binaries are in target/<profile>.
+    let mut dir = exe.parent().expect("target profile directory");
+    if dir.file_name().is_some_and(|n| n == "deps") {
+        dir = dir.parent().expect("target profile directory");
+    }
     let path = dir.join(name);
     assert!(
         path.exists(),
@@ -48,6 +49,32 @@ pub fn setting_list<T: std::str::FromStr>(name: &str, default: &str) -> Vec<T> {
         .collect()
 }
 
+/// Sends signal `name` (`KILL`, `STOP`, `CONT`, `TERM`) to process `pid` with kill(1).
+pub fn send_signal(pid: u32, name: &str) -> Result<(), String> {
+    let out = Command::new("kill")
+        .arg(format!("-{name}"))
+        .arg(pid.to_string())
+        .output()
+        .map_err(|e| format!("kill -{name} {pid}: {e}"))?;
+    if out.status.success() {
+        Ok(())
+    } else {
+        Err(format!(
+            "kill -{name} {pid}: {}",
+            String::from_utf8_lossy(&out.stderr).trim()
+        ))
+    }
+}
+
+/// Whether a WebSocket read failed only because the socket's read timeout passed (nothing
+/// to read yet; the socket is still good).
+pub fn read_timed_out(e: &tungstenite::Error) -> bool {
+    matches!(e, tungstenite::Error::Io(e) if matches!(
+        e.kind(),
+        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+    ))
+}
+
 /// A scratch directory unique to one test, removed when dropped.
 #[derive(Debug)]
 pub struct TempDir(PathBuf);
@@ -68,6 +95,11 @@ impl TempDir {
     pub fn path(&self) -> &std::path::Path {
         &self.0
     }
+
+    /// Keeps the directory and its files (it is not removed); its path.
+    pub fn keep(self) -> PathBuf {
+        std::mem::ManuallyDrop::new(self).0.clone()
+    }
 }
 
 impl Drop for TempDir {
@@ -78,7 +110,7 @@ impl Drop for TempDir {
 
 pub mod controller_link;
 pub mod exports;
-
 pub mod server;
+pub mod soak;
 pub mod station;
 pub mod webdriver;

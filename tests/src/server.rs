@@ -23,6 +23,17 @@ pub struct Server {
     args: Vec<String>,
     /// Its self-signed certificate (PEM) when it serves HTTPS: clients trust exactly it.
     pub cert: Option<PathBuf>,
+    /// Where its standard error goes (appended at every start), if not to the test's.
+    log: Option<PathBuf>,
+}
+
+/// How a server is stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stop {
+    /// SIGKILL: a crash, nothing cleaned up.
+    Kill,
+    /// SIGTERM: the server's own shutdown.
+    Term,
 }
 
 impl Server {
@@ -33,7 +44,16 @@ impl Server {
 
     /// A server started with `args` (no account unless they make one).
     pub fn start_with(tag: &str, args: &[&str]) -> Self {
-        Self::start_in(TempDir::new(tag), args)
+        Self::start_in(TempDir::new(tag), args, None)
+    }
+
+    /// A server in `dir` with the account "admin" and `args`, its standard error appended
+    /// to `server.log` there.
+    pub fn start_logged(dir: TempDir, args: &[&str]) -> Self {
+        let log = dir.path().join("server.log");
+        let mut all = vec!["--admin-password", ADMIN_PASSWORD];
+        all.extend_from_slice(args);
+        Self::start_in(dir, &all, Some(log))
     }
 
     /// A server started with `args` on a copy of the database `source` (the copy is the
@@ -42,14 +62,15 @@ impl Server {
         let dir = TempDir::new(tag);
         std::fs::copy(source, dir.path().join("bdft-lab.db"))
             .unwrap_or_else(|e| panic!("copying {}: {e}", source.display()));
-        Self::start_in(dir, args)
+        Self::start_in(dir, args, None)
     }
 
     /// A server on `dir`'s `bdft-lab.db`.
-    fn start_in(dir: TempDir, args: &[&str]) -> Self {
+    fn start_in(dir: TempDir, args: &[&str], log: Option<PathBuf>) -> Self {
         let db = dir.path().join("bdft-lab.db");
         let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
-        let proc = Self::spawn(&db, &args);
+        let proc = Self::spawn(&db, "127.0.0.1:0", &args, log.as_deref())
+            .unwrap_or_else(|e| panic!("{e}"));
         let cert = args
             .iter()
             .any(|a| a == "--tls-self-signed")
@@ -61,6 +82,7 @@ impl Server {
             dir,
             args,
             cert,
+            log,
         };
         server.base = server.base_url();
         server
@@ -88,14 +110,13 @@ impl Server {
         Api::with_agent(&self.base, agent(self.cert.as_deref()))
     }
 
-    fn spawn(db: &Path, extra: &[String]) -> Proc {
-        let mut args = vec![
-            "serve",
-            "--db",
-            db.to_str().unwrap(),
-            "--listen",
-            "127.0.0.1:0",
-        ];
+    fn spawn(
+        db: &Path,
+        listen: &str,
+        extra: &[String],
+        log: Option<&Path>,
+    ) -> Result<Proc, String> {
+        let mut args = vec!["serve", "--db", db.to_str().unwrap(), "--listen", listen];
         args.extend(extra.iter().map(String::as_str));
         let https = extra.iter().any(|a| a == "--tls-self-signed");
         let prefix = if https {
@@ -103,15 +124,66 @@ impl Server {
         } else {
             "bdft-lab server on http://"
         };
-        Proc::spawn("bdft-server", &args, prefix)
+        let stderr = match log {
+            Some(path) => std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(path)
+                .map_err(|e| format!("{}: {e}", path.display()))?
+                .into(),
+            None => std::process::Stdio::inherit(),
+        };
+        Proc::try_spawn("bdft-server", &args, prefix, stderr)
     }
 
     /// Kills the server (SIGKILL: no clean shutdown) and starts it again on the same
     /// database.
     pub fn crash_and_restart(&mut self) {
         self.proc.kill();
-        self.proc = Self::spawn(&self.db, &self.args);
+        self.proc = Self::spawn(&self.db, "127.0.0.1:0", &self.args, self.log.as_deref())
+            .unwrap_or_else(|e| panic!("{e}"));
         self.base = self.base_url();
+    }
+
+    /// Stops the server `how` and starts it again on the same database and port, as an
+    /// operator restarting it would (the stations' pages keep their address). If another
+    /// process took the port meanwhile, on a new one (`base` changes). An error when it
+    /// does not stop within `limit` after SIGTERM, or does not start.
+    pub fn restart(&mut self, how: Stop, limit: Duration) -> Result<(), String> {
+        self.stop(how, limit)?;
+        let addr = self.proc.addr.to_string();
+        self.proc = match Self::spawn(&self.db, &addr, &self.args, self.log.as_deref()) {
+            Ok(p) => p,
+            Err(_) => Self::spawn(&self.db, "127.0.0.1:0", &self.args, self.log.as_deref())?,
+        };
+        self.base = self.base_url();
+        Ok(())
+    }
+
+    /// Stops the server `how` and waits for it to exit; an error when SIGTERM did not stop
+    /// it within `limit` (it is killed then).
+    pub fn stop(&mut self, how: Stop, limit: Duration) -> Result<(), String> {
+        if how == Stop::Kill {
+            self.proc.kill();
+            return Ok(());
+        }
+        crate::send_signal(self.proc.child.id(), "TERM")?;
+        let start = Instant::now();
+        while start.elapsed() < limit {
+            if let Ok(Some(_)) = self.proc.child.try_wait() {
+                return Ok(());
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        self.proc.kill();
+        Err(format!(
+            "the server did not stop within {limit:?} of SIGTERM (killed)"
+        ))
+    }
+
+    /// Where its standard error goes, when not to the test's.
+    pub fn log(&self) -> Option<&Path> {
+        self.log.as_deref()
     }
 
     /// A client logged in as the admin experimenter.
@@ -202,6 +274,18 @@ impl Api {
     }
 
     pub fn call(&self, method: &str, path: &str, body: Option<Value>) -> (u16, Value) {
+        self.try_call(method, path, body)
+            .unwrap_or_else(|e| panic!("{method} {path}: {e}"))
+    }
+
+    /// The status and body, or the transport's error (refused, reset, timed out): whether
+    /// the server acted on it is then unknown.
+    pub fn try_call(
+        &self,
+        method: &str,
+        path: &str,
+        body: Option<Value>,
+    ) -> Result<(u16, Value), String> {
         let mut req = self.agent.request(method, &format!("{}{path}", self.base));
         if let Some(c) = &self.csrf {
             req = req.set("x-csrf-token", c);
@@ -216,14 +300,14 @@ impl Api {
         let resp = match res {
             Ok(r) => r,
             Err(ureq::Error::Status(_, r)) => r,
-            Err(e) => panic!("{method} {path}: {e}"),
+            Err(e) => return Err(e.to_string()),
         };
         let code = resp.status();
-        let text = resp.into_string().unwrap_or_default();
-        (
+        let text = resp.into_string().map_err(|e| e.to_string())?;
+        Ok((
             code,
             serde_json::from_str(&text).unwrap_or(Value::String(text)),
-        )
+        ))
     }
 
     /// The status a POST to `path` announcing a JSON body of `length` bytes gets before any
@@ -392,7 +476,6 @@ pub fn dry_run(api: &Api, study: i64) -> i64 {
         .unwrap()
 }
 
-/// Pairs a new station with `role` to `study`; returns (station id, station token).
 /// Runs the dashboard's pilot of `study` with `subjects` synthetic subjects and waits for
 /// it to end; returns the pilot's final status (its report names the dry-run copy it ran in).
 pub fn run_pilot(api: &Api, study: i64, subjects: u32) -> Value {
@@ -431,13 +514,19 @@ pub fn person_at_a_station(server: &Server, api: &Api, study: i64) -> (i64, i64,
     (subject, station, token)
 }
 
+/// Pairs a new station with `role` to `study`; returns (station id, station token).
 pub fn pair_station(api: &Api, study: i64, role: &str) -> (i64, String) {
+    pair_named(api, study, &format!("station-{role}"), role)
+}
+
+/// Pairs a new station called `name` with `role` to `study`: (station id, station token).
+pub fn pair_named(api: &Api, study: i64, name: &str, role: &str) -> (i64, String) {
     let reg = Api::anonymous(&api.base).ok("/api/station/register", json!({}));
     let token = reg["token"].as_str().unwrap().to_string();
     let code = reg["pairing_code"].as_str().unwrap();
     let st = api.ok(
         &format!("/api/studies/{study}/stations"),
-        json!({ "pairing_code": code, "name": format!("station-{role}"), "role": role }),
+        json!({ "pairing_code": code, "name": name, "role": role }),
     );
     (st["id"].as_i64().unwrap(), token)
 }

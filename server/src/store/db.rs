@@ -11,16 +11,27 @@ use sqlx::{ConnectOptions, Connection, SqliteConnection, SqlitePool};
 
 /// Opens (creating if needed) the database at `path` and brings its schema up to date.
 pub async fn open(path: &Path) -> anyhow::Result<SqlitePool> {
-    open_with(path, 8).await
+    open_with(path, 8, None).await
+}
+
+/// [`open`], every connection refusing to grow the file beyond `max_pages` pages when given
+/// (SQLite's `max_page_count`: a write that needs another page fails with "database or disk
+/// is full", as on a full disk; the soak test's full disk).
+pub async fn open_capped(path: &Path, max_pages: Option<u32>) -> anyhow::Result<SqlitePool> {
+    open_with(path, 8, max_pages).await
 }
 
 /// As [`open`], with one connection: a database only this process works on (a restore's
 /// copy), whose journal mode [`leave_wal`] can then change.
 pub async fn open_alone(path: &Path) -> anyhow::Result<SqlitePool> {
-    open_with(path, 1).await
+    open_with(path, 1, None).await
 }
 
-async fn open_with(path: &Path, connections: u32) -> anyhow::Result<SqlitePool> {
+async fn open_with(
+    path: &Path,
+    connections: u32,
+    max_pages: Option<u32>,
+) -> anyhow::Result<SqlitePool> {
     let url = format!("sqlite://{}", path.display());
     let opts = SqliteConnectOptions::from_str(&url)
         .with_context(|| format!("database path {}", path.display()))?
@@ -33,6 +44,10 @@ async fn open_with(path: &Path, connections: u32) -> anyhow::Result<SqlitePool> 
         // subject's data must not stay readable in the file (`erasure`).
         .pragma("secure_delete", "on")
         .busy_timeout(Duration::from_secs(10));
+    let opts = match max_pages {
+        Some(n) => opts.pragma("max_page_count", n.to_string()),
+        None => opts,
+    };
     let pool = SqlitePoolOptions::new()
         .max_connections(connections)
         .connect_with(opts)
@@ -120,6 +135,40 @@ pub fn rfc3339(ms: i64) -> String {
 
 #[cfg(test)]
 mod tests {
+    use crate::error::{AppError, DISK_FULL};
+
+    /// A database capped at 1024 pages (4 MiB) takes 3 MiB, then refuses the next 3 MiB
+    /// with the full disk's answer; what fits after a delete is taken again.
+    #[tokio::test]
+    async fn a_capped_database_refuses_to_grow_as_a_full_disk_does() {
+        let path = std::env::temp_dir().join(format!("bdft-capped-{}.db", std::process::id()));
+        let pool = super::open_capped(&path, Some(1024)).await.unwrap();
+        sqlx::query("CREATE TABLE fill (b BLOB)")
+            .execute(&pool)
+            .await
+            .unwrap();
+        let insert = |mib: i64| {
+            sqlx::query("INSERT INTO fill VALUES (zeroblob(?))")
+                .bind(mib * 1024 * 1024)
+                .execute(&pool)
+        };
+        insert(3).await.unwrap();
+        let full = AppError::from(insert(3).await.unwrap_err());
+        assert!(
+            matches!(&full, AppError::Unavailable(m) if m == DISK_FULL),
+            "{full:?}"
+        );
+        sqlx::query("DELETE FROM fill")
+            .execute(&pool)
+            .await
+            .unwrap();
+        insert(3).await.unwrap();
+        pool.close().await;
+        for suffix in ["", "-wal", "-shm"] {
+            let _ = std::fs::remove_file(format!("{}{suffix}", path.display()));
+        }
+    }
+
     #[test]
     fn times_have_fixed_width_and_sort_as_text() {
         assert_eq!(super::rfc3339(0), "1970-01-01T00:00:00.000Z");

@@ -26,7 +26,8 @@ pub mod trials;
 
 use anyhow::Context;
 use serde::Serialize;
-use sqlx::{Sqlite, SqliteConnection, SqlitePool, Transaction};
+use sqlx::pool::PoolConnection;
+use sqlx::{Sqlite, SqliteConnection, SqlitePool};
 
 use crate::error::Result;
 
@@ -35,25 +36,35 @@ use crate::error::Result;
 /// The transaction is `BEGIN IMMEDIATE`: it takes SQLite's write lock at the start, so two
 /// changes racing wait for each other (up to the busy timeout) instead of one failing with
 /// "database is locked" when it upgrades a read to a write.
+///
+/// A change dropped before it committed (a refusal, an error on the way) is rolled back by
+/// closing its connection rather than handing it back to the pool: after some errors (a
+/// full disk, an I/O error) SQLite rolls the transaction back by itself, and a connection
+/// whose transaction sqlx's own bookkeeping still counted open would refuse every later
+/// change ("non-zero transaction depth") until it was recycled.
 #[derive(Debug)]
 pub struct Change {
-    tx: Transaction<'static, Sqlite>,
+    conn: PoolConnection<Sqlite>,
     actor: String,
+    committed: bool,
 }
 
 impl Change {
     /// Starts a change made by `actor`: a username, or a non-person actor as `audit` lists
     /// them (`subject:S01`, `station:NAME`, `system:WHAT`, `pilot (by NAME)`).
     pub async fn begin(pool: &SqlitePool, actor: impl Into<String>) -> Result<Self> {
+        let mut conn = pool.acquire().await?;
+        sqlx::query("BEGIN IMMEDIATE").execute(&mut *conn).await?;
         Ok(Self {
-            tx: pool.begin_with("BEGIN IMMEDIATE").await?,
+            conn,
             actor: actor.into(),
+            committed: false,
         })
     }
 
     /// The connection the change's statements run on.
     pub fn db(&mut self) -> &mut SqliteConnection {
-        &mut self.tx
+        &mut self.conn
     }
 
     /// Writes the audit row and commits everything. `detail` is what the action records (a
@@ -66,8 +77,9 @@ impl Change {
         detail: impl Serialize,
     ) -> Result<()> {
         let detail = json_text(&detail)?;
-        audit::append(&mut self.tx, &self.actor, action, target, &detail).await?;
-        self.tx.commit().await?;
+        audit::append(&mut self.conn, &self.actor, action, target, &detail).await?;
+        sqlx::query("COMMIT").execute(&mut *self.conn).await?;
+        self.committed = true;
         Ok(())
     }
 
@@ -119,4 +131,50 @@ pub fn json_text(detail: &impl Serialize) -> Result<String> {
     Ok(serde_json::to_value(detail)
         .context("a detail to store as JSON")?
         .to_string())
+}
+
+impl Drop for Change {
+    fn drop(&mut self) {
+        if !self.committed {
+            // Closing the connection rolls back whatever is left of the transaction.
+            self.conn.close_on_drop();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Change;
+
+    /// A change that fails on a full disk (SQLite may roll the whole transaction back by
+    /// itself then) leaves no connection behind in a transaction: the next changes work.
+    #[tokio::test]
+    async fn a_change_that_failed_on_a_full_disk_leaves_the_pool_usable() {
+        let path = std::env::temp_dir().join(format!("bdft-change-{}.db", std::process::id()));
+        let pool = super::db::open_capped(&path, Some(1024)).await.unwrap();
+        sqlx::query("CREATE TABLE fill (b BLOB)")
+            .execute(&pool)
+            .await
+            .unwrap();
+        for _ in 0..3 {
+            let mut change = Change::begin(&pool, "system:test").await.unwrap();
+            let full = sqlx::query("INSERT INTO fill VALUES (zeroblob(8388608))")
+                .execute(change.db())
+                .await;
+            assert!(full.is_err(), "8 MiB do not fit under a 4 MiB cap");
+        }
+        let mut change = Change::begin(&pool, "system:test").await.unwrap();
+        sqlx::query("INSERT INTO fill VALUES (zeroblob(1024))")
+            .execute(change.db())
+            .await
+            .unwrap();
+        change
+            .commit("test.fill", None, super::audit::NoDetail {})
+            .await
+            .unwrap();
+        pool.close().await;
+        for suffix in ["", "-wal", "-shm"] {
+            let _ = std::fs::remove_file(format!("{}{suffix}", path.display()));
+        }
+    }
 }

@@ -222,13 +222,14 @@ pub async fn mark_running(db: &mut SqliteConnection, trial_id: i64) -> Result<()
     Ok(())
 }
 
-/// Puts a trial that could not be started back in the queue.
-pub async fn unmark_running(db: &mut SqliteConnection, trial_id: i64) -> Result<()> {
-    sqlx::query("UPDATE trials SET status = 'scheduled', started_at = NULL WHERE id = ? AND status = 'running'")
+/// Puts a trial that could not be started back in the queue; `false` when it was no longer
+/// running (something filed it meanwhile).
+pub async fn unmark_running(db: &mut SqliteConnection, trial_id: i64) -> Result<bool> {
+    let done = sqlx::query("UPDATE trials SET status = 'scheduled', started_at = NULL WHERE id = ? AND status = 'running'")
         .bind(trial_id)
         .execute(db)
         .await?;
-    Ok(())
+    Ok(done.rows_affected() == 1)
 }
 
 /// The experimenter accepts an attempt as incomplete with `reason`: a scheduled or
@@ -276,16 +277,27 @@ pub async fn mark_invalid(db: &mut SqliteConnection, trial_id: i64, reason: &str
     Ok(done.rows_affected() == 1)
 }
 
-/// Marks every running trial of this server's controller incomplete (after a server restart
-/// or a controller death), or invalid when it was found so; returns their ids. A pilot
-/// process's trials (`pilot_trials`) run on its own controller and are left to its heartbeat.
-pub async fn interrupt_running(db: &mut SqliteConnection, reason: &str) -> Result<Vec<i64>> {
-    let ids: Vec<(i64,)> = sqlx::query_as("UPDATE trials SET status = CASE WHEN invalid_reason IS NULL THEN 'incomplete' ELSE 'invalid' END, status_reason = COALESCE(invalid_reason, ?), finished_at = MAX(?, COALESCE(started_at, 0)) WHERE status = 'running' AND id NOT IN (SELECT trial_id FROM pilot_trials) RETURNING id")
+/// The running trials of this server's controller, by id. A pilot process's trials
+/// (`pilot_trials`) run on its own controller and are left to its heartbeat.
+pub async fn running_ids<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<i64>> {
+    let ids: Vec<(i64,)> = sqlx::query_as(
+        "SELECT id FROM trials WHERE status = 'running' AND id NOT IN (SELECT trial_id FROM pilot_trials) ORDER BY id",
+    )
+    .fetch_all(db)
+    .await?;
+    Ok(ids.into_iter().map(|r| r.0).collect())
+}
+
+/// Marks those of `ids` that still run incomplete with `reason` (after a server restart or a
+/// controller death), or invalid when they were found so; returns the ids marked.
+pub async fn interrupt(db: &mut SqliteConnection, ids: &[i64], reason: &str) -> Result<Vec<i64>> {
+    let marked: Vec<(i64,)> = sqlx::query_as("UPDATE trials SET status = CASE WHEN invalid_reason IS NULL THEN 'incomplete' ELSE 'invalid' END, status_reason = COALESCE(invalid_reason, ?), finished_at = MAX(?, COALESCE(started_at, 0)) WHERE status = 'running' AND id IN (SELECT value FROM json_each(?)) RETURNING id")
         .bind(reason)
         .bind(now_ms())
+        .bind(serde_json::to_string(ids).expect("ids serialize"))
         .fetch_all(db)
         .await?;
-    Ok(ids.into_iter().map(|r| r.0).collect())
+    Ok(marked.into_iter().map(|r| r.0).collect())
 }
 
 /// The station's figures of how the display kept up (JSON), kept with the trial.

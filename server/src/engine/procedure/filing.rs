@@ -1,7 +1,12 @@
 //! How a trial's end is filed: the outcome decides the status (a trial found invalid while
 //! it ran stays invalid); the result, the record, the re-queue of a failed test and the
 //! audit row are committed together. Trials nobody will finish (the server restarted, the
-//! controller or a pilot process was lost) are filed incomplete with the reason.
+//! controller or a pilot process was lost) are filed incomplete with the reason. What the
+//! controller link hands over and cannot be written now (the disk full) is written again
+//! every second until it is ([`LinkFiling`]).
+
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::Duration;
 
 use bdft_protocol::controller_to_server::TrialResult;
 use bdft_protocol::records::TrialStatus;
@@ -10,7 +15,7 @@ use serde::Serialize;
 use sqlx::SqlitePool;
 
 use super::queue::requeue_failed;
-use crate::engine::machine::controller_link::{BoxFuture, Filing};
+use crate::engine::machine::controller_link::{BoxFuture, ControllerEvent, ControllerLink, Filing};
 use crate::error::Result;
 use crate::store::records::Record;
 use crate::store::{self, Change};
@@ -70,10 +75,93 @@ pub async fn file_result(
     Ok(true)
 }
 
+/// How often [`LinkFiling`] writes again what it could not.
+const RETRY_EVERY: Duration = Duration::from_secs(1);
+
 /// The controller link's filing (`controller_link::Filing`): results as the controller's,
-/// lost trials marked incomplete.
+/// lost trials marked incomplete. What cannot be written now (the disk full, the database
+/// locked past its timeout) is kept and written again every second until it is, so that no
+/// result is lost and no trial is left running while this server lives (a restart files
+/// what it still held as it files every trial running then). A test whose result waits
+/// shows as running meanwhile: nothing else can be stored either.
 #[derive(Debug)]
-pub struct LinkFiling(pub SqlitePool);
+pub struct LinkFiling {
+    pool: SqlitePool,
+    unfiled: Mutex<Vec<Unfiled>>,
+    /// Told about a trial filed late, so that its station and the dashboards show it.
+    link: OnceLock<ControllerLink>,
+}
+
+/// What the link handed over and could not be written yet.
+#[derive(Debug)]
+enum Unfiled {
+    Result(Box<TrialResult>, Record),
+    /// Trials of a lost controller, to be filed incomplete with the reason.
+    Lost {
+        trials: Vec<i64>,
+        reason: String,
+    },
+}
+
+/// Who files what the controller link hands over (the audit log's actor).
+const LINK_ACTOR: &str = "system:controller";
+
+impl LinkFiling {
+    /// A filing on `pool`; what it could not write is written again every second.
+    pub fn start(pool: SqlitePool) -> Arc<Self> {
+        let filing = Arc::new(Self {
+            pool,
+            unfiled: Mutex::new(Vec::new()),
+            link: OnceLock::new(),
+        });
+        let weak = Arc::downgrade(&filing);
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(RETRY_EVERY);
+            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            loop {
+                tick.tick().await;
+                let Some(filing) = weak.upgrade() else { return };
+                filing.retry().await;
+            }
+        });
+        filing
+    }
+
+    /// The link to tell when a trial is filed late.
+    pub fn attach(&self, link: ControllerLink) {
+        let _ = self.link.set(link);
+    }
+
+    fn unfiled(&self) -> std::sync::MutexGuard<'_, Vec<Unfiled>> {
+        self.unfiled.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Writes what waits; keeps what still cannot be written.
+    async fn retry(&self) {
+        let waiting = std::mem::take(&mut *self.unfiled());
+        for item in waiting {
+            let filed = match &item {
+                Unfiled::Result(result, record) => {
+                    file_result(&self.pool, LINK_ACTOR, result, record)
+                        .await
+                        .map(|_| vec![result.trial_id as i64])
+                }
+                Unfiled::Lost { trials, reason } => interrupt(&self.pool, trials, reason).await,
+            };
+            match filed {
+                Ok(ids) => {
+                    tracing::warn!(trials = ?ids, "filed late: the database takes writes again");
+                    if let Some(link) = self.link.get() {
+                        for trial_id in ids {
+                            link.emit(ControllerEvent::TrialChanged { trial_id });
+                        }
+                    }
+                }
+                Err(_) => self.unfiled().push(item),
+            }
+        }
+    }
+}
 
 impl Filing for LinkFiling {
     fn result<'a>(
@@ -81,11 +169,54 @@ impl Filing for LinkFiling {
         result: &'a TrialResult,
         record: &'a Record,
     ) -> BoxFuture<'a, Result<bool>> {
-        Box::pin(file_result(&self.0, "system:controller", result, record))
+        Box::pin(async move {
+            let filed = file_result(&self.pool, LINK_ACTOR, result, record).await;
+            if let Err(e) = &filed {
+                tracing::error!(
+                    trial = result.trial_id,
+                    "the result is kept and written again every second: {e}"
+                );
+                self.unfiled()
+                    .push(Unfiled::Result(Box::new(result.clone()), record.clone()));
+            }
+            filed
+        })
     }
 
     fn interrupted<'a>(&'a self, reason: &'a str) -> BoxFuture<'a, Result<Vec<i64>>> {
-        Box::pin(interrupt_running(&self.0, reason))
+        Box::pin(async move {
+            // A trial whose result waits to be written is not lost.
+            let held: Vec<i64> = self
+                .unfiled()
+                .iter()
+                .filter_map(|u| match u {
+                    Unfiled::Result(r, _) => Some(r.trial_id as i64),
+                    Unfiled::Lost { .. } => None,
+                })
+                .collect();
+            let trials: Vec<i64> = store::trials::running_ids(&self.pool)
+                .await?
+                .into_iter()
+                .filter(|id| !held.contains(id))
+                .collect();
+            if trials.is_empty() {
+                return Ok(trials);
+            }
+            match interrupt(&self.pool, &trials, reason).await {
+                Ok(marked) => Ok(marked),
+                Err(e) => {
+                    tracing::error!(
+                        ?trials,
+                        "filing the lost controller's trials is tried again every second: {e}"
+                    );
+                    self.unfiled().push(Unfiled::Lost {
+                        trials: trials.clone(),
+                        reason: reason.to_string(),
+                    });
+                    Ok(trials)
+                }
+            }
+        })
     }
 }
 
@@ -102,8 +233,15 @@ struct Interrupted<'a> {
 /// restart, controller lost); returns their ids. A pilot process's trials run on its own
 /// controller: they end with its heartbeat (`end_lost_pilots`), not with this server's.
 pub async fn interrupt_running(pool: &SqlitePool, reason: &str) -> Result<Vec<i64>> {
+    let trials = store::trials::running_ids(pool).await?;
+    interrupt(pool, &trials, reason).await
+}
+
+/// Marks those of `trials` that still run incomplete with `reason`, re-queues them and audits
+/// it; returns the ids marked.
+async fn interrupt(pool: &SqlitePool, trials: &[i64], reason: &str) -> Result<Vec<i64>> {
     let mut change = Change::begin(pool, "system:trial-filing").await?;
-    let ids = store::trials::interrupt_running(change.db(), reason).await?;
+    let ids = store::trials::interrupt(change.db(), trials, reason).await?;
     if !ids.is_empty() {
         let mut requeued = Vec::new();
         for &id in &ids {

@@ -112,7 +112,13 @@ pub async fn start(
         .await?;
     if let Err(reason) = link.start_trial(&msg).await {
         let mut change = Change::begin(pool, actor).await?;
-        store::trials::unmark_running(change.db(), trial.id).await?;
+        if !store::trials::unmark_running(change.db(), trial.id).await? {
+            // The controller was lost while it started: the loss filed the trial first
+            // (incomplete, to be repeated), and so it stays.
+            return Err(AppError::Unavailable(format!(
+                "the controller was lost as the trial started ({reason}); it is filed incomplete and will be repeated"
+            )));
+        }
         change
             .commit(
                 "trial.start_failed",
