@@ -12,6 +12,7 @@ import * as workbench from './dashboard-workbench.js';
 import * as audit from './dashboard-audit.js';
 import * as pilot from './dashboard-pilot.js';
 import * as plan from './dashboard-plan.js';
+import * as calibrate from './dashboard-calibrate.js';
 import * as accounts from './dashboard-accounts.js';
 import * as configs from './dashboard-configs.js';
 import * as bench from './dashboard-bench.js';
@@ -55,6 +56,7 @@ async function showApp(me) {
     audit.init();
     pilot.init();
     plan.init();
+    calibrate.init();
     accounts.init();
     bench.init();
     configs.init();

@@ -6,6 +6,7 @@ use std::sync::Arc;
 use sqlx::SqlitePool;
 
 use crate::engine::bench::BenchJob;
+use crate::engine::calibration::run::CalibrationJob;
 use crate::engine::controller_link::ControllerLink;
 use crate::engine::login_limiter::LoginLimiter;
 use crate::engine::pilot::PilotJob;
@@ -24,6 +25,8 @@ pub struct AppState {
     pub sockets: Arc<StationSockets>,
     pub pilot: Arc<PilotJob>,
     pub plan: Arc<PlanJob>,
+    /// The one calibration at a time.
+    pub calibration: Arc<CalibrationJob>,
     /// The one bench run at a time.
     pub bench: Arc<BenchJob>,
     pub stability: Arc<StabilityCache>,
@@ -41,6 +44,7 @@ impl AppState {
             sockets: Arc::default(),
             pilot: Arc::default(),
             plan: Arc::default(),
+            calibration: Arc::default(),
             bench: Arc::default(),
             stability: Arc::default(),
             web_dir: None,

@@ -7,6 +7,7 @@
 
 pub mod accounts;
 pub mod bench;
+pub mod calibration;
 pub mod configs;
 pub mod controller_link;
 pub mod dry_run;

@@ -13,6 +13,7 @@ pub mod extract;
 
 mod accounts;
 mod bench;
+mod calibration;
 mod configs;
 mod controller;
 mod live;
@@ -74,6 +75,7 @@ pub fn app(state: AppState) -> Router {
         .merge(trials::routes())
         .merge(controller::experimenter())
         .merge(pilot::routes())
+        .merge(calibration::routes())
         .merge(bench::routes())
         .merge(configs::routes())
         .merge(results::routes())

@@ -14,6 +14,7 @@ pub mod dry_runs;
 pub mod exports;
 pub mod latch;
 pub mod pilot_runs;
+pub mod populations;
 pub mod records;
 pub mod stations;
 pub mod studies;
