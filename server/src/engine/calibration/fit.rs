@@ -201,6 +201,20 @@ impl Problem<'_> {
             .expect("a simulated cell")
     }
 
+    /// The Jacobian of the moments `m` at `theta` in log-parameter space, by forward
+    /// differences of `JACOBIAN_STEP`.
+    fn jacobian(&self, theta: &[f64], m: &DVector<f64>) -> Result<DMatrix<f64>> {
+        let p = self.knobs.len();
+        let mut jac = DMatrix::zeros(m.len(), p);
+        for k in 0..p {
+            let mut th = theta.to_vec();
+            th[k] += JACOBIAN_STEP;
+            let (mk, _) = self.moments(&self.run(&th)?);
+            jac.set_column(k, &((mk - m) / JACOBIAN_STEP));
+        }
+        Ok(jac)
+    }
+
     /// Moments of an evaluation, and their Monte-Carlo variances: per target cell the mean
     /// log metric over subjects where the target knows its spread (else the log of the
     /// mean), then the mean over those cells of the sd of the log metric.
@@ -290,6 +304,9 @@ pub fn check_enough(target: &Target) -> Result<()> {
     Ok(())
 }
 
+/// Forward-difference step of the Jacobian (log units: 16 %).
+const JACOBIAN_STEP: f64 = 0.15;
+
 /// Bootstrap resamples for the intervals.
 const BOOTSTRAP: usize = 400;
 
@@ -349,18 +366,10 @@ pub fn fit(
     let mut iterations = 0;
     let mut jac;
     let mut identified: Vec<usize>;
-    const H: f64 = 0.15;
     loop {
         iterations += 1;
-        // The Jacobian of the moments in log-parameter space, by forward differences.
+        jac = problem.jacobian(&theta, &m)?;
         let p = problem.knobs.len();
-        jac = DMatrix::zeros(m.len(), p);
-        for k in 0..p {
-            let mut th = theta.clone();
-            th[k] += H;
-            let (mk, _) = problem.moments(&problem.run(&th)?);
-            jac.set_column(k, &((mk - &m) / H));
-        }
         // Identified: half an e-fold of the parameter moves the moments by at least one
         // standard error (weighted norm of the column).
         identified = (0..p)
@@ -406,16 +415,12 @@ pub fn fit(
             }
             lambda *= 10.0;
         }
-        if !accepted || current < 1e-3 {
-            // Recompute the Jacobian at the optimum for the intervals.
-            let p = problem.knobs.len();
-            jac = DMatrix::zeros(m.len(), p);
-            for k in 0..p {
-                let mut th = theta.clone();
-                th[k] += H;
-                let (mk, _) = problem.moments(&problem.run(&th)?);
-                jac.set_column(k, &((mk - &m) / H));
-            }
+        if !accepted {
+            // The Jacobian is the optimum's already.
+            break;
+        }
+        if current < 1e-3 {
+            jac = problem.jacobian(&theta, &m)?;
             break;
         }
     }
