@@ -14,6 +14,7 @@ import * as pilot from './dashboard-pilot.js';
 import * as plan from './dashboard-plan.js';
 import * as calibrate from './dashboard-calibrate.js';
 import * as accounts from './dashboard-accounts.js';
+import * as backups from './dashboard-backups.js';
 import * as configs from './dashboard-configs.js';
 import * as bench from './dashboard-bench.js';
 
@@ -58,10 +59,12 @@ async function showApp(me) {
     plan.init();
     calibrate.init();
     accounts.init();
+    backups.init();
     bench.init();
     configs.init();
   }
   accounts.applyRole(me.role);
+  backups.refresh();
   // The page shows once the study list and the form are filled, so that nothing typed
   // into it is overwritten by data still on its way.
   await study.loadStudies();

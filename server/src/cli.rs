@@ -7,11 +7,17 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 
 use crate::config::{DbConfig, ServeConfig};
-use crate::engine::calibration::run::{CalibrateRequest, calibrate};
-use crate::engine::export::{ExportFormat, ExportKind, ExportRequest, SampleCut};
-use crate::engine::login_limiter::LoginLimiter;
-use crate::engine::power::{self, PlanRequest, PlanSource};
-use crate::engine::{accounts, controller_link, export, filing, pilot};
+use crate::engine::accounts;
+use crate::engine::accounts::login_limiter::LoginLimiter;
+use crate::engine::dry_runs::calibration::run::{CalibrateRequest, calibrate};
+use crate::engine::dry_runs::pilot;
+use crate::engine::dry_runs::power::{self, PlanRequest, PlanSource};
+use crate::engine::machine::controller_link;
+use crate::engine::operations::schedule::{Backups, Policy};
+use crate::engine::operations::{backup, presence, restore};
+use crate::engine::procedure::filing;
+use crate::engine::results::export;
+use crate::engine::results::export::{ExportFormat, ExportKind, ExportRequest, SampleCut};
 use crate::store;
 use crate::store::accounts::Role;
 use bdft_protocol::link_auth::LinkKey;
@@ -116,6 +122,26 @@ enum Command {
         #[arg(long, default_value_t = 140.0)]
         trial_s: f64,
     },
+    /// Back the database up to FILE, also while a server uses it: a consistent copy,
+    /// checked (SQLite's integrity check, row counts, protocol hashes), with its manifest
+    /// FILE.manifest.json beside it (printed too).
+    Backup {
+        #[command(flatten)]
+        db: DbConfig,
+        /// The backup to write (must not exist).
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Put a backup back as the database of a stopped server: checked against its manifest
+    /// and by SQLite first, then migrated; the database it replaces is kept beside it as
+    /// DB.replaced-TIME.
+    Restore {
+        /// The backup (its manifest FILE.manifest.json beside it).
+        #[arg(long)]
+        from: PathBuf,
+        #[command(flatten)]
+        db: DbConfig,
+    },
     /// Write an export of a study as CSV or Parquet.
     Export {
         #[command(flatten)]
@@ -151,7 +177,7 @@ const COMMAND_LINE_CALIBRATION: &str = "system:calibrate-command";
 
 /// Prints `what`'s progress (simulated trials) on standard error every 2 s until aborted.
 fn progress_ticker(
-    progress: std::sync::Arc<crate::engine::job::Progress>,
+    progress: std::sync::Arc<crate::engine::dry_runs::job::Progress>,
     what: &'static str,
 ) -> tokio::task::JoinHandle<()> {
     tokio::spawn(async move {
@@ -268,7 +294,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
                 alpha,
                 seed,
             };
-            let progress = std::sync::Arc::new(crate::engine::job::Progress::default());
+            let progress = std::sync::Arc::new(crate::engine::dry_runs::job::Progress::default());
             let ticker = progress_ticker(progress.clone(), "planning");
             let started = std::time::Instant::now();
             let report = power::plan_study(&pool, study, req, progress).await;
@@ -297,7 +323,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
                 simulated_subjects: subjects,
                 seed,
             };
-            let progress = std::sync::Arc::new(crate::engine::job::Progress::default());
+            let progress = std::sync::Arc::new(crate::engine::dry_runs::job::Progress::default());
             let ticker = progress_ticker(progress.clone(), "calibrating");
             let started = std::time::Instant::now();
             let report = calibrate(
@@ -324,17 +350,35 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             let params = bdft_protocol::study::StudyParams {
                 trial_s,
                 practice_s: trial_s.min(120.0),
-                ..crate::engine::schedule::default_params()
+                ..crate::engine::study::schedule::default_params()
             };
             params.validate()?;
-            let progress = std::sync::Arc::new(crate::engine::job::Progress::default());
+            let progress = std::sync::Arc::new(crate::engine::dry_runs::job::Progress::default());
             let ticker = progress_ticker(progress.clone(), "simulating");
             let table = tokio::task::spawn_blocking(move || {
-                crate::engine::calibration::findings::table(&params, subjects, seed, &progress)
+                crate::engine::dry_runs::calibration::findings::table(
+                    &params, subjects, seed, &progress,
+                )
             })
             .await?;
             ticker.abort();
             println!("{}", table?);
+        }
+        Command::Backup { db, out } => {
+            if !db.db.is_file() {
+                anyhow::bail!("--db {}: no such database", db.db.display());
+            }
+            let pool = store::db::open(&db.db).await?;
+            let made = backup::make(&pool, &out, backup::COMMAND_LINE)
+                .await
+                .map_err(|e| anyhow::anyhow!(e.describe()))?;
+            println!("{}", serde_json::to_string_pretty(&made)?);
+        }
+        Command::Restore { from, db } => {
+            let restored = restore::restore(&from, &db.db)
+                .await
+                .map_err(|e| anyhow::anyhow!(e.describe()))?;
+            println!("{}", serde_json::to_string_pretty(&restored)?);
         }
         Command::Export {
             db,
@@ -375,12 +419,21 @@ async fn execute(command: Command) -> anyhow::Result<()> {
 /// Opens the database, files trials left running as incomplete, makes sure an account or a
 /// set-up link exists, starts the controller link and serves until a signal.
 async fn serve(config: ServeConfig) -> anyhow::Result<()> {
+    // The backup directory is checked before anything starts.
+    let backups = match config.backup.backup_dir {
+        Some(dir) => std::sync::Arc::new(Backups::new(Policy {
+            dir,
+            every: config.backup.backup_every,
+            keep: config.backup.backup_keep as usize,
+        })?),
+        None => std::sync::Arc::default(),
+    };
     let pool = store::db::open(&config.db.db).await?;
     let interrupted = filing::interrupt_running(&pool, "server restart").await?;
     if !interrupted.is_empty() {
         tracing::warn!(trials = ?interrupted, "trials that were running when the server stopped are marked incomplete");
     }
-    crate::engine::bench::fail_interrupted(&pool).await?;
+    crate::engine::machine::bench::fail_interrupted(&pool).await?;
     // A pilot process killed while it ran leaves its trials running: they are filed as soon
     // as its heartbeat stops, not at the next restart.
     tokio::spawn(filing::watch_pilots(pool.clone()));
@@ -388,6 +441,15 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
         .await
         .with_context(|| format!("listening on {}", config.listen))?;
     let addr = listener.local_addr()?;
+    let tls = match (&config.tls.tls_cert, &config.tls.tls_key) {
+        (Some(cert), Some(key)) => Some(crate::tls::from_files(cert, key)?),
+        _ if config.tls.tls_self_signed => Some(crate::tls::self_signed(
+            &config.db.db,
+            &crate::tls::machine_names(addr),
+        )?),
+        _ => None,
+    };
+    let scheme = if tls.is_some() { "https" } else { "http" };
     if store::accounts::experimenter_count(&pool).await? == 0 {
         match &config.admin_password {
             Some(pw) => {
@@ -399,7 +461,7 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
             None => {
                 let token = accounts::new_setup_token(&pool).await?;
                 println!(
-                    "First start: create the experimenter account at http://{addr}/setup?token={token}"
+                    "First start: create the experimenter account at {scheme}://{addr}/setup?token={token}"
                 );
             }
         }
@@ -432,14 +494,25 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
         source,
         key,
         std::time::Duration::from_millis(config.controller_silence_ms),
+        std::sync::Arc::new(filing::LinkFiling(pool.clone())),
     );
+    tokio::spawn(backups.clone().run_schedule(pool.clone()));
+    // A restore refuses to replace the database while this beats.
+    let presence = presence::announce(&pool, &addr.to_string()).await?;
     let mut state = crate::state::AppState::new(pool, link);
     state.web_dir = config.web_dir;
     state.login = std::sync::Arc::new(LoginLimiter::new(config.login.limits()));
-    println!("bdft-lab server on http://{addr}");
+    state.https = tls.is_some();
+    state.backups = backups;
+    if let Some(t) = &tls {
+        // Printed before the address line: whoever reads the address has the fingerprint.
+        println!("TLS certificate SHA-256 fingerprint: {}", t.fingerprint);
+    }
+    println!("bdft-lab server on {scheme}://{addr}");
     use std::io::Write;
     let _ = std::io::stdout().flush();
-    crate::run(state, listener, &config.connections, shutdown_signal()).await?;
+    crate::run(state, listener, &config.connections, tls, shutdown_signal()).await?;
+    presence.end().await?;
     Ok(())
 }
 

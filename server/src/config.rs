@@ -5,7 +5,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use crate::engine::login_limiter::LoginLimits;
+use crate::engine::accounts::login_limiter::LoginLimits;
 
 /// Where the data live.
 #[derive(Debug, Clone, clap::Args)]
@@ -46,7 +46,7 @@ pub struct ServeConfig {
     pub admin_password: Option<String>,
     /// The controller counts as lost after this long without a message from it (ms); it
     /// heartbeats every 50 ms.
-    #[arg(long, env = "BDFT_CONTROLLER_SILENCE_MS", default_value_t = crate::engine::controller_link::DEFAULT_SILENCE.as_millis() as u64, value_parser = clap::value_parser!(u64).range(60..=10_000))]
+    #[arg(long, env = "BDFT_CONTROLLER_SILENCE_MS", default_value_t = crate::engine::machine::controller_link::DEFAULT_SILENCE.as_millis() as u64, value_parser = clap::value_parser!(u64).range(60..=10_000))]
     pub controller_silence_ms: u64,
     /// Serve the pages from this directory instead of the copy built into the binary
     /// (for developing them).
@@ -56,6 +56,49 @@ pub struct ServeConfig {
     pub connections: ConnectionConfig,
     #[command(flatten)]
     pub login: LoginConfig,
+    #[command(flatten)]
+    pub tls: TlsConfig,
+    #[command(flatten)]
+    pub backup: BackupConfig,
+}
+
+/// HTTPS (off by default: a server on loopback needs none; one on a lab network does).
+#[derive(Debug, Clone, clap::Args)]
+pub struct TlsConfig {
+    /// Serve HTTPS with this certificate chain (PEM file); needs --tls-key.
+    #[arg(
+        long,
+        env = "BDFT_TLS_CERT",
+        requires = "tls_key",
+        conflicts_with = "tls_self_signed"
+    )]
+    pub tls_cert: Option<PathBuf>,
+    /// The private key of --tls-cert (PEM file: PKCS#8, PKCS#1 or SEC1).
+    #[arg(long, env = "BDFT_TLS_KEY", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
+    /// Serve HTTPS with a self-signed certificate for this machine's names, made at the first
+    /// start and kept beside the database (`<db>.tls-cert.pem`, `<db>.tls-key.pem`); its
+    /// fingerprint is printed at every start for the stations to check.
+    #[arg(long, env = "BDFT_TLS_SELF_SIGNED")]
+    pub tls_self_signed: bool,
+}
+
+/// Scheduled backups (`serve`).
+#[derive(Debug, Clone, clap::Args)]
+pub struct BackupConfig {
+    /// Directory of the scheduled backups and the dashboard's "Back up now" (created if
+    /// missing; must be writable). Without it no backup is scheduled.
+    #[arg(long, env = "BDFT_BACKUP_DIR")]
+    pub backup_dir: Option<PathBuf>,
+    /// How often to back up: a whole number and a unit, s, m, h or d (90s, 30m, 6h, 1d), from
+    /// 1s to 30d. The first backup is made at start when the directory holds none this
+    /// recent.
+    #[arg(long, env = "BDFT_BACKUP_EVERY", default_value = "1d", requires = "backup_dir", value_parser = crate::engine::operations::schedule::parse_every)]
+    pub backup_every: Duration,
+    /// How many backups the directory keeps: after a new one has passed its checks, the
+    /// oldest beyond this are deleted.
+    #[arg(long, env = "BDFT_BACKUP_KEEP", default_value_t = 14, requires = "backup_dir", value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    pub backup_keep: u32,
 }
 
 /// What one client may hold of the server's connections.

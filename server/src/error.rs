@@ -35,6 +35,17 @@ pub enum AppError {
 
 pub type Result<T, E = AppError> = std::result::Result<T, E>;
 
+impl AppError {
+    /// The words of the error with the inner cause of an internal one (which a user is only
+    /// shown as "internal error"): for the operator's log, an audit row, the command line.
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Internal(inner) => format!("{inner:#}"),
+            other => other.to_string(),
+        }
+    }
+}
+
 /// SQLite's primary result code for a database another connection holds locked.
 const SQLITE_BUSY: &str = "5";
 

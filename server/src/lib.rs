@@ -15,6 +15,7 @@ pub mod http;
 pub mod serve;
 pub mod state;
 pub mod store;
+pub mod tls;
 
 pub use http::app;
 use state::AppState;
@@ -24,7 +25,15 @@ pub async fn run(
     state: AppState,
     listener: tokio::net::TcpListener,
     limits: &config::ConnectionConfig,
+    tls: Option<tls::Tls>,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    serve::serve(app(state), listener, limits, shutdown).await
+    serve::serve(
+        app(state),
+        listener,
+        limits,
+        tls.map(|t| t.acceptor),
+        shutdown,
+    )
+    .await
 }

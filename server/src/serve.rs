@@ -16,24 +16,28 @@ use std::task::{Context, Poll};
 use axum::Router;
 use axum::extract::ConnectInfo;
 use hyper::body::Incoming;
+use hyper::server::conn::http1::Builder;
 use hyper_util::rt::{TokioIo, TokioTimer};
 use hyper_util::service::TowerToHyperService;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
-use tokio::net::{TcpListener, TcpStream};
+use tokio::net::TcpListener;
 use tokio::sync::{OwnedSemaphorePermit, Semaphore, watch};
+use tokio_rustls::TlsAcceptor;
 use tower::ServiceExt;
 
 use crate::config::ConnectionConfig;
 
-/// Serves `app` on `listener` until `shutdown` resolves, then lets open requests finish.
+/// Serves `app` on `listener` until `shutdown` resolves, then lets open requests finish;
+/// over TLS when `tls` is given (every connection, no plain HTTP on the same port).
 pub async fn serve(
     app: Router,
     listener: TcpListener,
     limits: &ConnectionConfig,
+    tls: Option<TlsAcceptor>,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
     let slots = Arc::new(Semaphore::new(limits.max_connections as usize));
-    let mut http = hyper::server::conn::http1::Builder::new();
+    let mut http = Builder::new();
     http.timer(TokioTimer::new())
         .header_read_timeout(limits.header_timeout());
     // Connection tasks hold a receiver; `stop` tells them to finish, and its `closed()`
@@ -69,28 +73,34 @@ pub async fn serve(
         if let Err(e) = stream.set_nodelay(true) {
             tracing::debug!("TCP_NODELAY on {peer}: {e}");
         }
-        let service = TowerToHyperService::new(app.clone().map_request(
-            move |mut req: axum::http::Request<Incoming>| {
-                req.extensions_mut().insert(ConnectInfo::<SocketAddr>(peer));
-                req
-            },
-        ));
-        let io = TokioIo::new(Counted {
-            stream,
-            _slot: slot,
-        });
-        let conn = http.serve_connection(io, service).with_upgrades();
-        let mut stopped = stopped.clone();
-        tokio::spawn(async move {
-            let mut conn = pin!(conn);
-            tokio::select! {
-                _ = conn.as_mut() => {}
-                _ = stopped.changed() => {
-                    conn.as_mut().graceful_shutdown();
-                    let _ = conn.await;
-                }
+        let (http, app, stopped) = (http.clone(), app.clone(), stopped.clone());
+        match tls.clone() {
+            None => {
+                let io = Counted {
+                    stream,
+                    _slot: slot,
+                };
+                tokio::spawn(connection(http, app, peer, io, stopped));
             }
-        });
+            // The handshake runs in the connection's task, bounded like a request head, so
+            // a client that never finishes it holds one slot for that long and nothing else.
+            Some(acceptor) => {
+                let handshake = limits.header_timeout();
+                tokio::spawn(async move {
+                    match tokio::time::timeout(handshake, acceptor.accept(stream)).await {
+                        Ok(Ok(stream)) => {
+                            let io = Counted {
+                                stream,
+                                _slot: slot,
+                            };
+                            connection(http, app, peer, io, stopped).await;
+                        }
+                        Ok(Err(e)) => tracing::debug!("TLS handshake with {peer}: {e}"),
+                        Err(_) => tracing::debug!("TLS handshake with {peer}: timed out"),
+                    }
+                });
+            }
+        }
     }
     drop(listener);
     drop(stopped);
@@ -99,15 +109,45 @@ pub async fn serve(
     Ok(())
 }
 
+/// Serves one connection until it closes, or until `stopped` says the server is stopping
+/// (then open requests finish).
+async fn connection<S>(
+    http: Builder,
+    app: Router,
+    peer: SocketAddr,
+    io: Counted<S>,
+    mut stopped: watch::Receiver<()>,
+) where
+    S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+{
+    let service = TowerToHyperService::new(app.map_request(
+        move |mut req: axum::http::Request<Incoming>| {
+            req.extensions_mut().insert(ConnectInfo::<SocketAddr>(peer));
+            req
+        },
+    ));
+    let conn = http
+        .serve_connection(TokioIo::new(io), service)
+        .with_upgrades();
+    let mut conn = pin!(conn);
+    tokio::select! {
+        _ = conn.as_mut() => {}
+        _ = stopped.changed() => {
+            conn.as_mut().graceful_shutdown();
+            let _ = conn.await;
+        }
+    }
+}
+
 /// An accepted socket holding its connection slot: the slot is free again when the socket
 /// is dropped, also after an upgrade to a WebSocket (hyper hands this same object over).
 #[derive(Debug)]
-struct Counted {
-    stream: TcpStream,
+struct Counted<S> {
+    stream: S,
     _slot: OwnedSemaphorePermit,
 }
 
-impl AsyncRead for Counted {
+impl<S: AsyncRead + Unpin> AsyncRead for Counted<S> {
     fn poll_read(
         self: Pin<&mut Self>,
         cx: &mut Context<'_>,
@@ -117,7 +157,7 @@ impl AsyncRead for Counted {
     }
 }
 
-impl AsyncWrite for Counted {
+impl<S: AsyncWrite + Unpin> AsyncWrite for Counted<S> {
     fn poll_write(
         self: Pin<&mut Self>,
         cx: &mut Context<'_>,

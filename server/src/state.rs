@@ -5,15 +5,16 @@ use std::sync::Arc;
 
 use sqlx::SqlitePool;
 
-use crate::engine::bench::BenchJob;
-use crate::engine::calibration::run::CalibrationJob;
-use crate::engine::controller_link::ControllerLink;
-use crate::engine::login_limiter::LoginLimiter;
-use crate::engine::pilot::PilotJob;
-use crate::engine::power::PlanJob;
-use crate::engine::stability::StabilityCache;
-use crate::engine::station_sockets::StationSockets;
-use crate::engine::stations::Pairing;
+use crate::engine::accounts::login_limiter::LoginLimiter;
+use crate::engine::dry_runs::calibration::run::CalibrationJob;
+use crate::engine::dry_runs::pilot::PilotJob;
+use crate::engine::dry_runs::power::PlanJob;
+use crate::engine::machine::bench::BenchJob;
+use crate::engine::machine::controller_link::ControllerLink;
+use crate::engine::operations::schedule::Backups;
+use crate::engine::procedure::station_sockets::StationSockets;
+use crate::engine::procedure::stations::Pairing;
+use crate::engine::study::stability::StabilityCache;
 
 #[derive(Clone, Debug)]
 pub struct AppState {
@@ -30,8 +31,13 @@ pub struct AppState {
     /// The one bench run at a time.
     pub bench: Arc<BenchJob>,
     pub stability: Arc<StabilityCache>,
+    /// The backup directory and schedule (off unless `serve --backup-dir`).
+    pub backups: Arc<Backups>,
     /// Serve the pages from this directory instead of the embedded copy (development).
     pub web_dir: Option<std::path::PathBuf>,
+    /// Whether the server speaks HTTPS: cookies are then `Secure` and every answer carries
+    /// HSTS.
+    pub https: bool,
 }
 
 impl AppState {
@@ -47,7 +53,9 @@ impl AppState {
             calibration: Arc::default(),
             bench: Arc::default(),
             stability: Arc::default(),
+            backups: Arc::default(),
             web_dir: None,
+            https: false,
         }
     }
 }

@@ -89,7 +89,7 @@ fn an_analyst_changes_nothing_but_reads_everything_and_may_press_the_estop() {
             continue;
         }
         let (code, body) = call_alone(&analyst, method, &concrete(path, study));
-        let admin_only = path.starts_with("/api/accounts");
+        let admin_only = path.starts_with("/api/accounts") || path.starts_with("/api/backups");
         match method.as_str() {
             _ if admin_only => assert_eq!(code, 403, "{method} {path}: {body}"),
             "GET" => assert!(
@@ -136,9 +136,10 @@ fn an_analyst_changes_nothing_but_reads_everything_and_may_press_the_estop() {
     }
     admin.ok("/api/estop/reset", json!({}));
 
-    // An experimenter runs studies but does not manage accounts.
+    // An experimenter runs studies but does not manage accounts or backups.
     let (_, experimenter) = server.account(&admin, "exp", "experimenter");
-    for (method, path) in ops.iter().filter(|(_, p)| p.starts_with("/api/accounts")) {
+    let admins_only = |p: &str| p.starts_with("/api/accounts") || p.starts_with("/api/backups");
+    for (method, path) in ops.iter().filter(|(_, p)| admins_only(p)) {
         let (code, body) = call_alone(&experimenter, method, &concrete(path, 1));
         assert_eq!(code, 403, "{method} {path}: {body}");
         assert!(body["error"].as_str().unwrap().contains("admin"), "{body}");

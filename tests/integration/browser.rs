@@ -108,7 +108,10 @@ fn track(s: &Session, seconds: f64) {
 
 #[test]
 fn a_short_study_runs_end_to_end_in_a_real_browser() {
-    let server = Server::start("browser");
+    // Over HTTPS, as on a lab network: pages, API and the live sockets (wss) through TLS
+    // with the server's self-signed certificate.
+    let server = Server::start_https("browser");
+    assert!(server.base.starts_with("https://"));
     let base = server.base.clone();
     let api = server.experimenter();
     let downloads = TempDir::new("downloads");

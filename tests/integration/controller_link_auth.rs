@@ -15,7 +15,7 @@ use bdft_protocol::trial::{FaultKind, Outcome};
 use bdft_tests::controller_link::{Link, PATIENCE, Proc, TrialLog, input_flood_batch};
 use bdft_tests::server::{ADMIN_PASSWORD, Server, eventually};
 
-use super::controller_serve::{server_input_trial, synthetic_trial};
+use super::controller_starts::{server_input_trial, synthetic_trial};
 
 fn refusal(msg: ControllerToServer) -> String {
     match msg {

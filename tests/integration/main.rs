@@ -1,20 +1,30 @@
 //! End-to-end tests, one binary: each module drives real processes of the product.
 
 mod accounts;
+mod backups;
 mod browser;
 mod controller_cli;
+mod controller_estop;
+mod controller_input_udp;
 mod controller_link_auth;
-mod controller_serve;
+mod controller_link_loss;
+mod controller_messages;
+mod controller_rig_udp;
+mod controller_starts;
+mod controller_trials;
 mod design_aids;
 mod exports_analyst;
 mod exports_audit;
 mod hardening;
+mod https;
 mod server_api;
 mod server_layers;
 mod station_safety;
 mod statistics;
+mod structure;
 mod study_params;
 mod subject_page;
+mod upgrade;
 mod validity;
 mod workbench_analysis;
 mod workbench_bench;

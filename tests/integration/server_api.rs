@@ -485,7 +485,7 @@ fn controller_death_is_detected_within_100_ms_and_the_controller_restarts() {
 fn a_person_drives_a_test_through_the_station_socket() {
     let server = Server::start("person");
     let api = server.experimenter();
-    // The stale-input limit (its own tests are in controller_serve) is widened here: this
+    // The stale-input limit (its own tests are in controller_trials) is widened here: this
     // test drives input from a test thread, which a loaded 2-core machine can stall for
     // longer than 100 ms while browsers and other servers run beside it.
     let (_, mut params) = api.get("/api/defaults");
@@ -658,8 +658,8 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
         col(&h, c);
     }
     assert_eq!(rows.len(), 22);
-    let params = bdft_server::engine::schedule::default_params();
-    let hash = bdft_server::engine::schedule::protocol_hash(&params);
+    let params = bdft_server::engine::study::schedule::default_params();
+    let hash = bdft_server::engine::study::schedule::protocol_hash(&params);
     let get = |r: &Vec<String>, c: &str| r[col(&h, c)].clone();
     for (i, code) in ["S01", "S02"].iter().enumerate() {
         let mine: Vec<&Vec<String>> = rows
@@ -669,7 +669,7 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
         assert_eq!(mine.len(), 11);
         let start = if i == 0 { "on" } else { "off" };
         // The schedule is the one the protocol engine regenerates from the study seed.
-        let schedule = bdft_server::engine::schedule::schedule(&params, 7, i as u32);
+        let schedule = bdft_server::engine::study::schedule::schedule(&params, 7, i as u32);
         for (r, t) in mine.iter().zip(&schedule) {
             assert_eq!(get(r, "subject_index"), (i + 1).to_string());
             assert_eq!(get(r, "synthetic"), "1");

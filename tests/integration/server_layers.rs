@@ -192,23 +192,80 @@ fn the_openapi_document_has_schemas_for_every_operation() {
                 op["security"].is_array(),
                 "{method} {path} says nothing of who may call it"
             );
-            // A JSON answer names its schema, and that schema exists.
-            if let Some(json) = answers
-                .get("200")
-                .and_then(|a| a["content"].get("application/json"))
-            {
-                let text = json["schema"].to_string();
-                for name in text.split("#/components/schemas/").skip(1) {
-                    let name = name.split('"').next().unwrap();
+            // A WebSocket upgrade switches protocols: there is no body to describe.
+            if let Some(upgrade) = answers.get("101") {
+                assert!(
+                    upgrade.get("content").is_none(),
+                    "{method} {path}: a 101 answer has no body"
+                );
+            }
+            let Some(ok) = answers.get("200") else {
+                continue;
+            };
+            let content = ok["content"]
+                .as_object()
+                .filter(|c| !c.is_empty())
+                .unwrap_or_else(|| panic!("{method} {path}: its answer names no content type"));
+            for (media, body) in content {
+                let schema = &body["schema"];
+                if media == "application/json" {
+                    // A JSON answer names its schema, and that schema exists.
                     assert!(
-                        schemas.contains_key(name),
-                        "{method} {path}: schema {name} is missing"
+                        schema.as_object().is_some_and(|s| !s.is_empty()),
+                        "{method} {path}: its JSON answer names no schema"
+                    );
+                    let text = schema.to_string();
+                    for name in text.split("#/components/schemas/").skip(1) {
+                        let name = name.split('"').next().unwrap();
+                        assert!(
+                            schemas.contains_key(name),
+                            "{method} {path}: schema {name} is missing"
+                        );
+                    }
+                } else if media.starts_with("text/") || media.ends_with("+xml") {
+                    assert_eq!(
+                        schema["type"], "string",
+                        "{method} {path}: its {media} answer is not described as text"
                     );
                 }
+                // Anything else is a binary file (PNG, Parquet): OpenAPI 3.1 describes raw
+                // bytes by their media type alone.
             }
         }
     }
     assert!(operations >= 40, "only {operations} operations");
+    // The files the server sends are of the media types the document names for them.
+    let api = server.experimenter();
+    let study = short_study(&api, 2.0, 1.0);
+    for (path, operation) in [
+        ("/api/audit/export".to_string(), "/api/audit/export"),
+        (
+            format!("/api/studies/{study}/export/trials"),
+            "/api/studies/{id}/export/{kind}",
+        ),
+        (
+            format!("/api/studies/{study}/export/trials?format=parquet"),
+            "/api/studies/{id}/export/{kind}",
+        ),
+        (
+            format!("/api/studies/{study}/plots/learning_curve.svg"),
+            "/api/studies/{id}/plots/{file}",
+        ),
+        (
+            format!("/api/studies/{study}/plots/learning_curve.png"),
+            "/api/studies/{id}/plots/{file}",
+        ),
+    ] {
+        let (code, content_type) = api.content_type(&path);
+        assert_eq!(code, 200, "GET {path}");
+        let media = content_type.split(';').next().unwrap().trim();
+        assert!(
+            doc["paths"][operation]["get"]["responses"]["200"]["content"]
+                .get(media)
+                .is_some(),
+            "GET {path} answers {media}, which the document does not name for {operation}"
+        );
+    }
     // Request bodies are described, down to the study's parameters.
     let create = &doc["paths"]["/api/studies"]["post"];
     assert!(create["requestBody"]["content"]["application/json"]["schema"].is_object());

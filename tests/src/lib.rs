@@ -58,6 +58,7 @@ impl Drop for TempDir {
 }
 
 pub mod controller_link;
+pub mod exports;
 
 pub mod server;
 pub mod webdriver;

@@ -20,6 +20,8 @@ pub struct Server {
     pub dir: TempDir,
     /// Its arguments after `serve --db … --listen …`.
     args: Vec<String>,
+    /// Its self-signed certificate (PEM) when it serves HTTPS: clients trust exactly it.
+    pub cert: Option<PathBuf>,
 }
 
 impl Server {
@@ -30,17 +32,59 @@ impl Server {
 
     /// A server started with `args` (no account unless they make one).
     pub fn start_with(tag: &str, args: &[&str]) -> Self {
+        Self::start_in(TempDir::new(tag), args)
+    }
+
+    /// A server started with `args` on a copy of the database `source` (the copy is the
+    /// server's `db`; `source` is never touched).
+    pub fn start_on_copy(tag: &str, source: &Path, args: &[&str]) -> Self {
         let dir = TempDir::new(tag);
+        std::fs::copy(source, dir.path().join("bdft-lab.db"))
+            .unwrap_or_else(|e| panic!("copying {}: {e}", source.display()));
+        Self::start_in(dir, args)
+    }
+
+    /// A server on `dir`'s `bdft-lab.db`.
+    fn start_in(dir: TempDir, args: &[&str]) -> Self {
         let db = dir.path().join("bdft-lab.db");
         let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
         let proc = Self::spawn(&db, &args);
-        Self {
-            base: format!("http://{}", proc.addr),
+        let cert = args
+            .iter()
+            .any(|a| a == "--tls-self-signed")
+            .then(|| db.with_extension("tls-cert.pem"));
+        let mut server = Self {
+            base: String::new(),
             proc,
             db,
             dir,
             args,
-        }
+            cert,
+        };
+        server.base = server.base_url();
+        server
+    }
+
+    /// A server over HTTPS with a self-signed certificate it makes at its first start, and
+    /// the account "admin".
+    pub fn start_https(tag: &str) -> Self {
+        Self::start_with(
+            tag,
+            &["--admin-password", ADMIN_PASSWORD, "--tls-self-signed"],
+        )
+    }
+
+    fn scheme(&self) -> &'static str {
+        if self.cert.is_some() { "https" } else { "http" }
+    }
+
+    fn base_url(&self) -> String {
+        format!("{}://{}", self.scheme(), self.proc.addr)
+    }
+
+    /// A client with no session that trusts this server's certificate, if it has one.
+    pub fn anonymous(&self) -> Api {
+        Api::with_agent(&self.base, agent(self.cert.as_deref()))
     }
 
     fn spawn(db: &Path, extra: &[String]) -> Proc {
@@ -52,7 +96,13 @@ impl Server {
             "127.0.0.1:0",
         ];
         args.extend(extra.iter().map(String::as_str));
-        Proc::spawn("bdft-server", &args, "bdft-lab server on http://")
+        let https = extra.iter().any(|a| a == "--tls-self-signed");
+        let prefix = if https {
+            "bdft-lab server on https://"
+        } else {
+            "bdft-lab server on http://"
+        };
+        Proc::spawn("bdft-server", &args, prefix)
     }
 
     /// Kills the server (SIGKILL: no clean shutdown) and starts it again on the same
@@ -60,7 +110,7 @@ impl Server {
     pub fn crash_and_restart(&mut self) {
         self.proc.kill();
         self.proc = Self::spawn(&self.db, &self.args);
-        self.base = format!("http://{}", self.proc.addr);
+        self.base = self.base_url();
     }
 
     /// A client logged in as the admin experimenter.
@@ -70,7 +120,7 @@ impl Server {
 
     /// A client logged in as `username`.
     pub fn login(&self, username: &str, password: &str) -> Api {
-        let mut api = Api::anonymous(&self.base);
+        let mut api = self.anonymous();
         let (code, body) = api.post(
             "/api/login",
             json!({ "username": username, "password": password }),
@@ -103,12 +153,40 @@ pub struct Api {
     pub bearer: Option<String>,
 }
 
+/// An HTTP agent; over HTTPS it trusts only the certificate in `cert` (PEM).
+pub fn agent(cert: Option<&Path>) -> ureq::Agent {
+    let builder = ureq::AgentBuilder::new().timeout(Duration::from_secs(60));
+    match cert {
+        None => builder.build(),
+        Some(cert) => {
+            use rustls::pki_types::CertificateDer;
+            use rustls::pki_types::pem::PemObject;
+            let mut roots = rustls::RootCertStore::empty();
+            for c in CertificateDer::pem_file_iter(cert).expect("the server's certificate") {
+                roots
+                    .add(c.expect("a PEM certificate"))
+                    .expect("a usable certificate");
+            }
+            let config = rustls::ClientConfig::builder_with_provider(std::sync::Arc::new(
+                rustls::crypto::ring::default_provider(),
+            ))
+            .with_safe_default_protocol_versions()
+            .expect("TLS versions")
+            .with_root_certificates(roots)
+            .with_no_client_auth();
+            builder.tls_config(std::sync::Arc::new(config)).build()
+        }
+    }
+}
+
 impl Api {
     pub fn anonymous(base: &str) -> Self {
+        Self::with_agent(base, agent(None))
+    }
+
+    fn with_agent(base: &str, agent: ureq::Agent) -> Self {
         Self {
-            agent: ureq::AgentBuilder::new()
-                .timeout(Duration::from_secs(60))
-                .build(),
+            agent,
             base: base.to_string(),
             csrf: None,
             bearer: None,
@@ -191,6 +269,18 @@ impl Api {
             Err(ureq::Error::Status(c, r)) => (c, r.into_string().unwrap_or_default()),
             Err(e) => panic!("GET {path}: {e}"),
         }
+    }
+
+    /// Status and `Content-Type` of a GET (the body is read and dropped).
+    pub fn content_type(&self, path: &str) -> (u16, String) {
+        let (code, resp) = match self.agent.get(&format!("{}{path}", self.base)).call() {
+            Ok(r) => (r.status(), r),
+            Err(ureq::Error::Status(c, r)) => (c, r),
+            Err(e) => panic!("GET {path}: {e}"),
+        };
+        let content_type = resp.header("content-type").unwrap_or_default().to_string();
+        std::io::copy(&mut resp.into_reader(), &mut std::io::sink()).unwrap();
+        (code, content_type)
     }
 
     /// Raw bytes of a GET (Parquet downloads).

@@ -50,6 +50,8 @@ impl Driver {
             .build();
         let caps = json!({ "capabilities": { "alwaysMatch": {
             "browserName": "chrome",
+            // The HTTPS run's server has a self-signed certificate made for it.
+            "acceptInsecureCerts": true,
             "goog:chromeOptions": {
                 "binary": "/usr/bin/chromium",
                 "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--disable-quic",

@@ -22,6 +22,7 @@ pub mod design_view;
 pub mod frequency;
 pub mod nyquist;
 pub mod robustness;
+pub mod state_space;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CompensatorAnalysis {
@@ -213,10 +214,10 @@ pub fn linear_rig(mut rig: crate::params::PlantParams) -> crate::params::PlantPa
     rig
 }
 
-/// The one-tick map at `k_bf` with no input ([`frequency::probe_matrices`]).
+/// The one-tick map at `k_bf` with no input ([`state_space::probe_matrices`]).
 fn probe(lp: &mut ClosedLoop, k_bf: f64) -> DMatrix<f64> {
     lp.set_k_bf(k_bf);
-    let (a, ..) = frequency::probe_matrices(lp, 0, 0, |lp, _, _| {
+    let (a, ..) = state_space::probe_matrices(lp, 0, 0, |lp, _, _| {
         lp.tick(Drive::Hand(0.0));
     });
     lp.reset();

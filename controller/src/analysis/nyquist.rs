@@ -22,8 +22,8 @@
 use nalgebra::Complex;
 use serde::{Deserialize, Serialize};
 
-use super::frequency::{StateSpace, probe};
 use super::linear_setup;
+use super::state_space::{StateSpace, probe};
 use crate::closed_loop::{ClosedLoop, Drive, LoopSetup};
 use crate::compensator::{Compensator, CompensatorSpec, Prefilter};
 use crate::error::DesignError;

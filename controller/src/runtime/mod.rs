@@ -9,7 +9,6 @@ pub mod estop_path;
 pub mod handoff;
 pub mod handshake;
 pub mod histogram;
-mod input_port;
 pub mod link;
 pub mod local;
 pub mod os;

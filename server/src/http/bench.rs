@@ -5,14 +5,14 @@ use axum::extract::{DefaultBodyLimit, Path, State};
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use serde::Serialize;
-use serde_json::json;
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppError, AppJson};
 use super::extract::Experimenter;
-use crate::engine::bench::{self, BenchRequest, BenchStatus, RunView};
+use crate::engine::machine::bench::{self, BenchRequest, BenchStatus, RunView};
+use crate::engine::results::export::ExportedAll;
 use crate::state::AppState;
 use crate::store::bench::BenchRun;
 use crate::store::{self, Change};
@@ -95,7 +95,7 @@ async fn get_run(
 
 /// A run as CSV: its results' metrics and reductions, and the decimated traces.
 #[utoipa::path(get, path = "/api/bench/runs/{id}/export", tag = "bench", params(("id" = i64, Path)),
-    responses((status = 200, description = "CSV", content_type = "text/csv")))]
+    responses((status = 200, description = "CSV", body = String, content_type = "text/csv")))]
 async fn export_run(
     State(s): State<AppState>,
     who: Experimenter,
@@ -107,7 +107,7 @@ async fn export_run(
         .commit(
             "export",
             Some(format!("bench_run:{id}")),
-            json!({ "kind": "bench" }),
+            ExportedAll { kind: "bench" },
         )
         .await?;
     Ok((
@@ -118,7 +118,7 @@ async fn export_run(
                 format!("attachment; filename=\"bdft-bench{id}.csv\""),
             ),
         ],
-        bench::csv(&view),
+        crate::engine::results::export::bench::csv(&view),
     )
         .into_response())
 }

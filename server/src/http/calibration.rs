@@ -10,8 +10,10 @@ use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppJson};
 use super::extract::Experimenter;
-use crate::engine::calibration::run::{CalibrateRequest, CalibrationReport, CalibrationStatus};
-use crate::engine::job::JobStatus;
+use crate::engine::dry_runs::calibration::run::{
+    CalibrateRequest, CalibrationReport, CalibrationStatus,
+};
+use crate::engine::dry_runs::job::JobStatus;
 use crate::state::AppState;
 
 pub fn routes() -> OpenApiRouter<AppState> {

@@ -10,7 +10,7 @@ use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppJson};
 use super::extract::Experimenter;
-use crate::engine::configs;
+use crate::engine::study::configs;
 use crate::state::AppState;
 use crate::store;
 use crate::store::configs::ConfigVersion;

@@ -8,7 +8,7 @@ use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppJson, Done};
 use super::extract::Experimenter;
-use crate::engine::trials;
+use crate::engine::procedure::trials;
 use crate::state::AppState;
 
 pub fn public() -> OpenApiRouter<AppState> {

@@ -57,8 +57,12 @@ fn same(a: &str, b: &str) -> bool {
             == 0
 }
 
-/// The routes only admins may call (account management), by path prefix.
-const ADMIN_ONLY: &str = "/api/accounts";
+/// The routes only admins may call, by path prefix, with what the refusal says they do:
+/// account management, and backups (a backup holds every subject's data).
+const ADMIN_ONLY: &[(&str, &str)] = &[
+    ("/api/accounts", "manages accounts"),
+    ("/api/backups", "manages backups"),
+];
 
 /// The state-changing routes an analyst may call. The E-stop is among them on purpose: in a
 /// lab anyone logged in who sees a person in danger must be able to stop the machine, the
@@ -74,10 +78,15 @@ const ANALYST_MAY_CHANGE: &[&str] = &[
 /// What `role` may do on the route `path` (as registered) with `method`: anything not
 /// listed for it is refused, so a new route fails closed.
 fn role_allows(role: Role, method: &Method, path: &str) -> Result<(), AppError> {
-    let admin_only = path == ADMIN_ONLY || path.starts_with("/api/accounts/");
-    if admin_only && role != Role::Admin {
+    let admin_only = ADMIN_ONLY.iter().find(|(prefix, _)| {
+        path.strip_prefix(prefix)
+            .is_some_and(|rest| rest.is_empty() || rest.starts_with('/'))
+    });
+    if let Some((_, what)) = admin_only
+        && role != Role::Admin
+    {
         return Err(AppError::Forbidden(format!(
-            "your role is {}: only an admin manages accounts",
+            "your role is {}: only an admin {what}",
             role.name()
         )));
     }
@@ -188,12 +197,19 @@ mod tests {
     }
 
     #[test]
-    fn only_an_admin_manages_accounts() {
+    fn only_an_admin_manages_accounts_and_backups() {
         for role in [Role::Experimenter, Role::Analyst] {
             assert!(role_allows(role, &Method::GET, "/api/accounts").is_err());
             assert!(role_allows(role, &Method::POST, "/api/accounts/{id}/role").is_err());
+            let e = role_allows(role, &Method::GET, "/api/backups").unwrap_err();
+            assert!(
+                e.to_string().contains("only an admin manages backups"),
+                "{e}"
+            );
         }
+        assert!(role_allows(Role::Experimenter, &Method::GET, "/api/backupsfoo").is_ok());
         assert!(role_allows(Role::Admin, &Method::POST, "/api/accounts/{id}/role").is_ok());
+        assert!(role_allows(Role::Admin, &Method::POST, "/api/backups").is_ok());
         assert!(role_allows(Role::Experimenter, &Method::POST, "/api/studies").is_ok());
     }
 }

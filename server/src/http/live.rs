@@ -29,12 +29,12 @@ use utoipa_axum::routes;
 
 use super::error::AppError;
 use super::extract::Experimenter;
-use crate::engine::controller_link::ControllerEvent;
-use crate::engine::station_sockets::{
+use crate::engine::machine::controller_link::ControllerEvent;
+use crate::engine::procedure::station_sockets::{
     Admit, FLOOD_PER_SECOND, FLOOD_SECONDS, INPUT_RATE, InputLimit, Opened,
 };
-use crate::engine::stations::running_trial;
-use crate::engine::validity::{self, DisplayReport, DisplayWatch};
+use crate::engine::procedure::stations::running_trial;
+use crate::engine::procedure::validity::{self, DisplayReport, DisplayWatch};
 use crate::state::AppState;
 use crate::store;
 

@@ -12,6 +12,7 @@ pub mod error;
 pub mod extract;
 
 mod accounts;
+mod backups;
 mod bench;
 mod calibration;
 mod configs;
@@ -69,6 +70,7 @@ pub fn app(state: AppState) -> Router {
     let experimenter = OpenApiRouter::new()
         .merge(session::experimenter())
         .merge(accounts::routes())
+        .merge(backups::routes())
         .merge(studies::routes())
         .merge(subjects::experimenter())
         .merge(stations::routes())
@@ -105,14 +107,30 @@ pub fn app(state: AppState) -> Router {
     }
     add_security_schemes(&mut doc);
     let doc = Arc::new(doc);
-    router
+    let https = state.https;
+    let router = router
         .route(
             "/api/openapi.json",
             get(move || async move { Json(doc.as_ref().clone()) }),
         )
         .merge(pages::routes())
         .layer(DefaultBodyLimit::max(MAX_BODY))
-        .with_state(state)
+        .with_state(state);
+    if https {
+        router.layer(middleware::map_response(strict_transport_security))
+    } else {
+        router
+    }
+}
+
+/// HSTS on every answer of an HTTPS server: a browser that has seen it once never falls
+/// back to plain HTTP for this host (a year, the usual value).
+async fn strict_transport_security(mut r: axum::response::Response) -> axum::response::Response {
+    r.headers_mut().insert(
+        axum::http::header::STRICT_TRANSPORT_SECURITY,
+        axum::http::HeaderValue::from_static("max-age=31536000"),
+    );
+    r
 }
 
 fn operations(item: &mut PathItem) -> impl Iterator<Item = &mut Operation> {

@@ -10,9 +10,9 @@ use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppJson};
 use super::extract::Experimenter;
-use crate::engine::dry_run::{self, DryRunInfo};
-use crate::engine::job::JobStatus;
-use crate::engine::pilot::{PilotReport, PilotStatus};
+use crate::engine::dry_runs::job::JobStatus;
+use crate::engine::dry_runs::pilot::{PilotReport, PilotStatus};
+use crate::engine::study::dry_run::{self, DryRunInfo};
 use crate::state::AppState;
 
 pub fn routes() -> OpenApiRouter<AppState> {

@@ -6,20 +6,21 @@ use axum::extract::{Path, Query, State};
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
-use serde_json::json;
 use utoipa::IntoParams;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppError, AppJson};
 use super::extract::Experimenter;
-use crate::engine::export::{self, ExportFormat, ExportKind, ExportRequest, SampleCut};
-use crate::engine::inference_table::{StatsRow, study_table};
-use crate::engine::job::JobStatus;
-use crate::engine::learning::{LearningCurve, learning_curve};
-use crate::engine::power::{PlanReport, PlanRequest, PlanSource, PlanStatus, plan_study};
-use crate::engine::results::{parse_file, plot as draw_plot};
-use crate::engine::stats::{Stats, summary_stats};
+use crate::engine::dry_runs::job::JobStatus;
+use crate::engine::dry_runs::power::{PlanReport, PlanRequest, PlanSource, PlanStatus, plan_study};
+use crate::engine::results::export::{
+    self, ExportFormat, ExportKind, ExportRequest, ExportedAll, SampleCut,
+};
+use crate::engine::results::inference_table::{StatsRow, study_table};
+use crate::engine::results::learning::{LearningCurve, learning_curve};
+use crate::engine::results::page::{parse_file, plot as draw_plot};
+use crate::engine::results::stats::{Stats, summary_stats};
 use crate::state::AppState;
 use crate::store::audit::AuditEntry;
 use crate::store::{self, Change};
@@ -117,7 +118,8 @@ async fn plan_job_status(State(s): State<AppState>, _who: Experimenter) -> AppJs
 /// `.png`), or the learning curve (`learning_curve.svg` or `.png`).
 #[utoipa::path(get, path = "/api/studies/{id}/plots/{file}", tag = "results",
     params(("id" = i64, Path), ("file" = String, Path, description = "e.g. mse_tracking_mm2.svg or learning_curve.png")),
-    responses((status = 200, description = "SVG or PNG image", content_type = "image/svg+xml")))]
+    responses((status = 200, description = "the figure as SVG (`.svg`) or PNG (`.png`)",
+        content((String = "image/svg+xml"), ("image/png")))))]
 async fn plot(
     State(s): State<AppState>,
     _who: Experimenter,
@@ -150,6 +152,7 @@ async fn learning(
 }
 
 #[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
 struct ExportQuery {
     /// `csv` (default) or `parquet`.
     format: Option<String>,
@@ -199,7 +202,8 @@ impl ExportQuery {
 /// read.
 #[utoipa::path(get, path = "/api/studies/{id}/export/{kind}", tag = "results",
     params(("id" = i64, Path), ("kind" = String, Path, description = "trials, samples, subjects, codebook, summary, stats or notes"), ExportQuery),
-    responses((status = 200, description = "CSV or Parquet", content_type = "text/csv"),
+    responses((status = 200, description = "the table as CSV (`format=csv`, the default) or Parquet (`format=parquet`)",
+            content((String = "text/csv"), ("application/vnd.apache.parquet"))),
         (status = 422, description = "a kind, format or cut that is not allowed, named with what is")))]
 async fn download(
     State(s): State<AppState>,
@@ -215,18 +219,9 @@ async fn download(
     }
     let study = store::studies::get(&s.pool, id).await?;
     export::check(&s.pool, id, &req).await?;
-    let cut = match &req.cut {
-        SampleCut::All => json!(null),
-        SampleCut::Subject(code) => json!({ "subject": code }),
-        SampleCut::Trial(t) => json!({ "trial": t }),
-    };
     Change::begin(&s.pool, who.username.as_str())
         .await?
-        .commit(
-            "export",
-            Some(format!("study:{id}")),
-            json!({ "kind": req.kind.name(), "format": req.format.extension(), "cut": cut }),
-        )
+        .commit("export", Some(format!("study:{id}")), req.audited())
         .await?;
     let filename = req.file_name(study.id, study.protocol_hash.as_deref());
     let format = req.format;
@@ -262,17 +257,24 @@ fn attachment(body: Body, format: ExportFormat, filename: &str) -> Response {
 /// The whole audit log as CSV, oldest first (`id, at, actor, action, target, detail` with
 /// the detail as JSON), streamed.
 #[utoipa::path(get, path = "/api/audit/export", tag = "results",
-    responses((status = 200, description = "CSV", content_type = "text/csv")))]
+    responses((status = 200, description = "CSV", body = String, content_type = "text/csv")))]
 async fn audit_export(State(s): State<AppState>, who: Experimenter) -> Result<Response, AppError> {
     Change::begin(&s.pool, who.username.as_str())
         .await?
-        .commit("export", None, json!({ "kind": "audit" }))
+        .commit(
+            "export",
+            None,
+            ExportedAll {
+                kind: ExportKind::Audit.name(),
+            },
+        )
         .await?;
     let body = stream(&s, 0, ExportRequest::new(ExportKind::Audit));
     Ok(attachment(body, ExportFormat::Csv, "bdft-audit.csv"))
 }
 
 #[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
 struct AuditQuery {
     /// How many of the newest rows: 1 to 10000 (default 200).
     limit: Option<i64>,

@@ -62,18 +62,21 @@ pub struct SetupStatus {
     pub needs_setup: bool,
 }
 
-fn session_cookie(token: &str, max_age_s: i64) -> HeaderValue {
+/// The session cookie; `Secure` when the server speaks HTTPS, so a browser never sends it
+/// over plain HTTP.
+fn session_cookie(token: &str, max_age_s: i64, https: bool) -> HeaderValue {
+    let secure = if https { "; Secure" } else { "" };
     HeaderValue::from_str(&format!(
-        "{SESSION_COOKIE}={token}; HttpOnly; SameSite=Strict; Path=/; Max-Age={max_age_s}"
+        "{SESSION_COOKIE}={token}; HttpOnly; SameSite=Strict; Path=/; Max-Age={max_age_s}{secure}"
     ))
     .expect("tokens are hex")
 }
 
-fn started(username: &str, session: NewSession) -> Response {
+fn started(username: &str, session: NewSession, https: bool) -> Response {
     (
         [(
             header::SET_COOKIE,
-            session_cookie(&session.token, SESSION_HOURS * 3600),
+            session_cookie(&session.token, SESSION_HOURS * 3600, https),
         )],
         AppJson(SessionStarted {
             username: username.to_string(),
@@ -103,7 +106,7 @@ async fn login(
         peer.ip(),
     )
     .await?;
-    Ok(started(&c.username, session))
+    Ok(started(&c.username, session, state.https))
 }
 
 /// Log out: ends the session.
@@ -115,7 +118,11 @@ async fn logout(
 ) -> Result<Response, AppError> {
     let token = cookie(&headers, SESSION_COOKIE);
     accounts::end_session(&state.pool, &who.username, token.as_deref()).await?;
-    Ok(([(header::SET_COOKIE, session_cookie("", 0))], Done::ok()).into_response())
+    Ok((
+        [(header::SET_COOKIE, session_cookie("", 0, state.https))],
+        Done::ok(),
+    )
+        .into_response())
 }
 
 /// Create the first experimenter with the one-time set-up token (valid for an hour; only
@@ -133,11 +140,10 @@ async fn setup(
         id,
         &req.username,
         Role::Admin,
-        "login",
-        serde_json::json!({ "after": "setup" }),
+        accounts::Login::Setup,
     )
     .await?;
-    Ok(started(&req.username, session))
+    Ok(started(&req.username, session, state.https))
 }
 
 /// Whether the first experimenter account must still be created.

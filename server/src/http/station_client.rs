@@ -12,8 +12,8 @@ use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppError, AppJson, Done};
 use super::extract::StationAuth;
-use crate::engine::stations::{PAIRING_WAIT, PairingState};
-use crate::engine::{stations, subjects};
+use crate::engine::procedure::stations::{PAIRING_WAIT, PairingState};
+use crate::engine::procedure::{stations, subjects};
 use crate::state::AppState;
 
 /// Anyone may register a browser as a station (it is useless until paired).

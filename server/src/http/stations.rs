@@ -11,7 +11,7 @@ use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppJson, Done};
 use super::extract::Experimenter;
-use crate::engine::stations;
+use crate::engine::procedure::stations;
 use crate::state::AppState;
 use crate::store;
 use crate::store::stations::Station;

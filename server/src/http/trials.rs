@@ -9,7 +9,7 @@ use utoipa_axum::routes;
 use super::bodies::ReasonBody;
 use super::error::{ApiResult, AppJson, Done, optional_json};
 use super::extract::Experimenter;
-use crate::engine::trials;
+use crate::engine::procedure::trials;
 use crate::state::AppState;
 use crate::store::trials::Trial;
 

@@ -11,7 +11,7 @@ use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppError, AppJson};
 use super::extract::Experimenter;
-use crate::engine::workbench_analysis::{
+use crate::engine::machine::workbench_analysis::{
     FrequencyReport, RobustnessQuery, RobustnessReport, frequency_report, robustness_report,
 };
 use crate::state::AppState;
@@ -29,6 +29,7 @@ fn query<T>(q: Result<Query<T>, QueryRejection>) -> Result<T, AppError> {
 }
 
 #[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
 struct FrequencyQuery {
     /// K_BF at which the loops are closed and the Nyquist curve drawn, 0–20 [default: the
     /// study's].

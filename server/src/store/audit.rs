@@ -20,7 +20,7 @@ pub(super) async fn append(
     actor: &str,
     action: &str,
     target: Option<String>,
-    detail: &Value,
+    detail: &str,
 ) -> Result<()> {
     sqlx::query(
         "INSERT INTO audit_log (at, actor, actor_id, action, target, detail_json) VALUES (?, ?, (SELECT id FROM experimenters WHERE username = ?), ?, ?, ?)",
@@ -30,10 +30,21 @@ pub(super) async fn append(
     .bind(actor)
     .bind(action)
     .bind(target)
-    .bind(detail.to_string())
+    .bind(detail)
     .execute(db)
     .await?;
     Ok(())
+}
+
+/// The detail of an action that records nothing besides who did it and to what: `{}`.
+#[derive(Debug, Serialize)]
+pub struct NoDetail {}
+
+/// The detail of an action whose record is the reason given for it (a trial aborted, found
+/// invalid, accepted incomplete, or not started).
+#[derive(Debug, Serialize)]
+pub struct Reason<'a> {
+    pub reason: &'a str,
 }
 
 /// One row of the audit log as the dashboard shows it.

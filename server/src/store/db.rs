@@ -6,11 +6,21 @@ use std::str::FromStr;
 use std::time::Duration;
 
 use anyhow::Context;
-use sqlx::SqlitePool;
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
+use sqlx::{ConnectOptions, Connection, SqliteConnection, SqlitePool};
 
 /// Opens (creating if needed) the database at `path` and brings its schema up to date.
 pub async fn open(path: &Path) -> anyhow::Result<SqlitePool> {
+    open_with(path, 8).await
+}
+
+/// As [`open`], with one connection: a database only this process works on (a restore's
+/// copy), whose journal mode [`leave_wal`] can then change.
+pub async fn open_alone(path: &Path) -> anyhow::Result<SqlitePool> {
+    open_with(path, 1).await
+}
+
+async fn open_with(path: &Path, connections: u32) -> anyhow::Result<SqlitePool> {
     let url = format!("sqlite://{}", path.display());
     let opts = SqliteConnectOptions::from_str(&url)
         .with_context(|| format!("database path {}", path.display()))?
@@ -21,15 +31,63 @@ pub async fn open(path: &Path) -> anyhow::Result<SqlitePool> {
         .foreign_keys(true)
         .busy_timeout(Duration::from_secs(10));
     let pool = SqlitePoolOptions::new()
-        .max_connections(8)
+        .max_connections(connections)
         .connect_with(opts)
         .await
         .with_context(|| format!("opening the database {}", path.display()))?;
-    sqlx::migrate!("../migrations")
-        .run(&pool)
-        .await
-        .context("applying migrations")?;
+    MIGRATOR.run(&pool).await.context("applying migrations")?;
     Ok(pool)
+}
+
+/// The migrations this program knows (embedded at build time).
+pub static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations");
+
+/// One read-only connection to the database file at `path`, as it is: nothing created,
+/// nothing migrated (a backup being checked, or a database a restore would replace).
+pub async fn open_read_only(path: &Path) -> anyhow::Result<SqliteConnection> {
+    if !path.is_file() {
+        anyhow::bail!("no such file");
+    }
+    SqliteConnectOptions::new()
+        .filename(path)
+        .read_only(true)
+        .busy_timeout(Duration::from_secs(10))
+        .connect()
+        .await
+        .context("opening it read-only")
+}
+
+/// Folds the write-ahead log of a database opened with [`open_alone`] into its file and
+/// leaves it in rollback-journal mode: one file, whole, once the pool is closed.
+pub async fn leave_wal(pool: &SqlitePool) -> anyhow::Result<()> {
+    let (mode,): (String,) = sqlx::query_as("PRAGMA journal_mode = DELETE")
+        .fetch_one(pool)
+        .await?;
+    anyhow::ensure!(mode == "delete", "the journal mode stayed {mode}");
+    Ok(())
+}
+
+/// Folds the database's write-ahead log into its file and leaves it in rollback-journal
+/// mode, one file that can be renamed whole (the server turns WAL back on when it opens it).
+/// Nobody else may have it open.
+pub async fn fold_into_one_file(path: &Path) -> anyhow::Result<()> {
+    let conn = SqliteConnectOptions::new()
+        .filename(path)
+        .journal_mode(SqliteJournalMode::Delete)
+        .busy_timeout(Duration::from_secs(10))
+        .connect()
+        .await
+        .context("folding its write-ahead log in")?;
+    conn.close().await?;
+    let mut wal = path.as_os_str().to_os_string();
+    wal.push("-wal");
+    if Path::new(&wal).exists() {
+        anyhow::bail!(
+            "its write-ahead log {} is still there: another process has the database open",
+            Path::new(&wal).display()
+        );
+    }
+    Ok(())
 }
 
 /// Milliseconds since the Unix epoch, the unit of every time column.

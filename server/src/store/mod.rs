@@ -7,6 +7,7 @@
 
 pub mod accounts;
 pub mod audit;
+pub mod backups;
 pub mod bench;
 pub mod configs;
 pub mod db;
@@ -16,13 +17,15 @@ pub mod latch;
 pub mod pilot_runs;
 pub mod populations;
 pub mod records;
+pub mod server_runs;
 pub mod stations;
 pub mod studies;
 pub mod subjects;
 pub mod tokens;
 pub mod trials;
 
-use serde_json::Value;
+use anyhow::Context;
+use serde::Serialize;
 use sqlx::{Sqlite, SqliteConnection, SqlitePool, Transaction};
 
 use crate::error::Result;
@@ -53,15 +56,28 @@ impl Change {
         &mut self.tx
     }
 
-    /// Writes the audit row and commits everything.
+    /// Writes the audit row and commits everything. `detail` is what the action records (a
+    /// type of the module that commits it, or one of `audit`'s shared ones), stored as JSON
+    /// text by [`json_text`].
     pub async fn commit(
         mut self,
         action: &str,
         target: Option<String>,
-        detail: Value,
+        detail: impl Serialize,
     ) -> Result<()> {
+        let detail = json_text(&detail)?;
         audit::append(&mut self.tx, &self.actor, action, target, &detail).await?;
         self.tx.commit().await?;
         Ok(())
     }
+}
+
+/// The JSON text of a detail the server stores (an audit row's, a station's timing figures):
+/// through `serde_json::Value`, so every object's keys are in sorted order whatever the order
+/// of its type's fields — the text these columns have held since they were written from
+/// untyped JSON objects.
+pub fn json_text(detail: &impl Serialize) -> Result<String> {
+    Ok(serde_json::to_value(detail)
+        .context("a detail to store as JSON")?
+        .to_string())
 }

@@ -2,7 +2,7 @@
 //! trigger refuses any later change of parameters or seed).
 
 use bdft_protocol::study::StudyParams;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use sqlx::{SqliteConnection, SqliteExecutor};
 
 use super::db::now_ms;
@@ -23,11 +23,22 @@ pub struct Study {
     pub created_at: i64,
     /// Who acknowledged that a design is unstable on the machine, when and why (simulated
     /// studies only; cleared by an edit).
-    #[schema(value_type = Option<Object>)]
-    pub instability_ack: Option<serde_json::Value>,
+    pub instability_ack: Option<InstabilityAck>,
     /// The calibrated version of the population `params` holds (0: the study's own;
     /// `population_versions`).
     pub population_version: i64,
+}
+
+/// Who acknowledged that a study's design is unstable on the machine, when and why.
+// The fields are in alphabetical order, the order the stored text and the API's answer have
+// had since the acknowledgement was an untyped JSON object.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct InstabilityAck {
+    /// When, in ms since the Unix epoch.
+    pub at: i64,
+    /// The experimenter's username.
+    pub by: String,
+    pub reason: String,
 }
 
 #[derive(sqlx::FromRow)]
@@ -187,12 +198,12 @@ pub async fn lock(db: &mut SqliteConnection, id: i64, hash: &str) -> Result<()> 
 pub async fn acknowledge_instability(
     db: &mut SqliteConnection,
     id: i64,
-    ack: &serde_json::Value,
+    ack: &InstabilityAck,
 ) -> Result<()> {
     let done = sqlx::query(
         "UPDATE studies SET instability_ack_json = ? WHERE id = ? AND locked_at IS NULL",
     )
-    .bind(ack.to_string())
+    .bind(super::json_text(ack)?)
     .bind(id)
     .execute(&mut *db)
     .await?;

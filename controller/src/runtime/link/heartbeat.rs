@@ -1,0 +1,31 @@
+//! The link's heartbeat and watchdog: the controller beats every 50 ms, and a server silent
+//! for longer than the link timeout has lost the link (every running trial stops).
+
+use std::time::Duration;
+
+use bdft_protocol::controller_to_server::ControllerToServer;
+
+use super::state::{Shared, lock};
+
+/// Sends a heartbeat every 50 ms and declares the link lost after the configured silence.
+pub(super) async fn heartbeat(io: Shared) {
+    let mut every = tokio::time::interval(Duration::from_millis(50));
+    let mut seq = 0u64;
+    loop {
+        every.tick().await;
+        seq += 1;
+        let sender = {
+            let mut g = lock(&io);
+            if let Some((id, _)) = g.sender() {
+                if g.last_rx.elapsed() > g.cfg.link_timeout {
+                    let why = format!("no message for {} ms", g.cfg.link_timeout.as_millis());
+                    g.link_lost(id, &why);
+                }
+            }
+            g.sender()
+        };
+        if let Some((_, tx)) = sender {
+            let _ = tx.try_send(ControllerToServer::Heartbeat { seq });
+        }
+    }
+}

@@ -1,0 +1,561 @@
+//! The power planner: for candidate numbers of subjects, the probability that each planned
+//! comparison (every pair of compensators at one seat, exact Wilcoxon, Holm across the
+//! pairs) reaches significance, by simulating whole studies. The studies come from one of
+//! two models: the study's synthetic population, whose subjects run full trials
+//! (`power_sim`; slow, so it runs as a background job with progress), or a pilot's data: on
+//! the log scale, each compensator's mean and the residual spread of the subject ×
+//! compensator table (the subjects' own level cancels in paired differences).
+//! Comparisons the exact test's floor rules out at an n are reported as impossible, not
+//! simulated.
+
+use bdft_controller::rng::Rng;
+use serde::{Deserialize, Serialize};
+use sqlx::SqlitePool;
+
+use std::sync::Arc;
+
+use bdft_protocol::params::Seat;
+use bdft_protocol::study::StudyParams;
+
+use super::job::{Job, JobStatus, Progress};
+use crate::engine::results::inference::nonparametric::{
+    EXACT_MAX_N, holm, wilcoxon, wilcoxon_floor,
+};
+use crate::engine::results::study_data::SUMMARY_VARIABLES;
+use crate::engine::results::study_data::StudyData;
+use crate::error::{AppError, Result};
+use crate::store;
+
+/// Where the simulated studies come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum PlanSource {
+    /// The log-normal model estimated from the study's (a pilot's) data.
+    #[default]
+    Pilot,
+    /// The study's synthetic population, running full 1 kHz trials.
+    Population,
+}
+
+/// What to plan: candidate numbers of subjects for one metric at one seat.
+#[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PlanRequest {
+    /// `pilot` (default) or `population`.
+    #[serde(default)]
+    pub source: PlanSource,
+    /// Candidate numbers of subjects, 2 to 200 each, at most 20.
+    pub subjects: Vec<usize>,
+    /// `mse_tracking_mm2` or `ms_cab_accel` (the continuous metrics).
+    pub metric: String,
+    /// `on` or `off`.
+    pub station: String,
+    /// Simulated studies per candidate: 100 to 100000 with a pilot's model (default 1000),
+    /// 10 to 10000 with the population.
+    #[serde(default = "default_draws")]
+    pub draws: usize,
+    #[serde(default = "default_alpha")]
+    pub alpha: f64,
+    #[serde(default)]
+    pub seed: u64,
+}
+
+fn default_draws() -> usize {
+    1000
+}
+
+fn default_alpha() -> f64 {
+    0.05
+}
+
+/// The model and the plan of every candidate.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct PlanReport {
+    pub source: PlanSource,
+    /// With a pilot, the pilot's model; with the population, the same model estimated from
+    /// every simulated subject (the population's effects on the log scale).
+    pub model: Model,
+    pub seed: u64,
+    pub plans: Vec<Plan>,
+}
+
+/// Simulated subjects a request may ask for in all (Σ candidates × draws): a few seconds of
+/// CPU, so that one request cannot hold the planner for minutes.
+const MAX_WORK: usize = 2_000_000;
+
+impl PlanRequest {
+    fn check(&self) -> Result<usize> {
+        let bad = |m: String| Err(AppError::BadRequest(m));
+        if self.subjects.is_empty() || self.subjects.len() > 20 {
+            return bad("subjects: 1 to 20 candidate numbers of subjects".into());
+        }
+        if let Some(n) = self.subjects.iter().find(|n| !(2..=200).contains(*n)) {
+            return bad(format!("subjects: {n} is outside 2 to 200"));
+        }
+        let draws = match self.source {
+            PlanSource::Pilot => 100..=100_000,
+            PlanSource::Population => 10..=10_000,
+        };
+        if !draws.contains(&self.draws) {
+            return bad(format!(
+                "draws: {} to {} simulated studies with the {} model",
+                draws.start(),
+                draws.end(),
+                if self.source == PlanSource::Pilot {
+                    "pilot"
+                } else {
+                    "population"
+                }
+            ));
+        }
+        let work: usize = self.subjects.iter().map(|n| n * self.draws).sum();
+        if self.source == PlanSource::Pilot && work > MAX_WORK {
+            return bad(format!(
+                "draws × subjects: {work} simulated subjects in all, at most {MAX_WORK} a \
+                 request (fewer draws or fewer candidates)"
+            ));
+        }
+        if !(self.alpha > 0.0 && self.alpha < 1.0) {
+            return bad("alpha: a level between 0 and 1".into());
+        }
+        if !["on", "off"].contains(&self.station.as_str()) {
+            return bad(format!("station: {:?}; valid: on, off", self.station));
+        }
+        match SUMMARY_VARIABLES[..2]
+            .iter()
+            .position(|m| *m == self.metric)
+        {
+            Some(i) => Ok(i),
+            None => bad(format!(
+                "metric: {:?}; valid: mse_tracking_mm2, ms_cab_accel (ratings are ordinal: \
+                 the planner's log-normal model does not fit them)",
+                self.metric
+            )),
+        }
+    }
+}
+
+/// Most loop ticks a population plan may simulate: the benchmark's size, 1,000 studies of 8
+/// subjects × 10 trials of 140 s (docs/benchmarks.md: under a minute of both cores with
+/// AVX-512, about a minute and a half with AVX2).
+const MAX_POPULATION_TICKS: f64 = 1.12e10;
+
+/// Refuses a population plan larger than `MAX_POPULATION_TICKS`; the largest candidate n.
+fn check_population_work(params: &StudyParams, req: &PlanRequest) -> Result<usize> {
+    let max_n = req.subjects.iter().copied().max().unwrap_or(2);
+    let ticks = super::power_sim::ticks(params, req.draws, max_n);
+    if ticks > MAX_POPULATION_TICKS {
+        return Err(AppError::BadRequest(format!(
+            "draws × subjects: {ticks:.3e} loop ticks of simulated trials, at most \
+             {MAX_POPULATION_TICKS:.3e} a request (fewer draws or fewer subjects)"
+        )));
+    }
+    Ok(max_n)
+}
+
+/// Plans `study_id`: with a pilot's model, estimated from the study's data (run a pilot and
+/// plan on its dry-run copy, or on the study's own first subjects); with the population, by
+/// running its simulated subjects' trials (`progress` counts them).
+pub async fn plan_study(
+    pool: &SqlitePool,
+    study_id: i64,
+    req: PlanRequest,
+    progress: Arc<Progress>,
+) -> Result<PlanReport> {
+    let metric = req.check()?;
+    if req.source == PlanSource::Population {
+        let study = store::studies::get(pool, study_id).await?;
+        let seat: Seat = req
+            .station
+            .parse()
+            .map_err(|e: bdft_protocol::params::ParamError| AppError::BadRequest(e.to_string()))?;
+        let max_n = check_population_work(&study.params, &req)?;
+        let _turn = crate::engine::COMPUTE
+            .acquire()
+            .await
+            .expect("never closed");
+        return tokio::task::spawn_blocking(move || {
+            let rows = super::power_sim::simulate(
+                &study.params,
+                seat,
+                metric,
+                req.draws,
+                max_n,
+                req.seed,
+                &progress,
+            )?;
+            let names: Vec<String> = study
+                .params
+                .controllers
+                .iter()
+                .map(|c| c.kind().name().to_string())
+                .collect();
+            let all: Vec<Vec<f64>> = rows.iter().flatten().cloned().collect();
+            let model = estimate(&names, &all).ok_or_else(|| {
+                AppError::Conflict("fewer than 2 simulated subjects completed every test".into())
+            })?;
+            let mut rng = Rng::new(req.seed);
+            let plans = req
+                .subjects
+                .iter()
+                .map(|&n| {
+                    // Study d of every candidate is the first n subjects of simulated study
+                    // d: common random numbers, so candidates differ only by n.
+                    let mut study = 0;
+                    plan_with(&names, n, req.alpha, req.draws, &mut rng, |_, n| {
+                        let first = study * max_n;
+                        study += 1;
+                        rows[first..first + n].iter().flatten().cloned().collect()
+                    })
+                })
+                .collect();
+            Ok(PlanReport {
+                source: req.source,
+                model,
+                seed: req.seed,
+                plans,
+            })
+        })
+        .await
+        .map_err(|e| AppError::Internal(anyhow::anyhow!("planner task: {e}")))?;
+    }
+    let data = StudyData::load(pool, study_id).await?;
+    let model = estimate(
+        &data.compensators,
+        &data.complete_rows(metric, &req.station),
+    )
+    .ok_or_else(|| {
+        AppError::Conflict(format!(
+            "the study has fewer than 2 subjects with every compensator complete at the {} \
+                 seat: run a pilot (its dry-run copy) first, or plan with the population",
+            req.station
+        ))
+    })?;
+    let _turn = crate::engine::COMPUTE
+        .acquire()
+        .await
+        .expect("never closed");
+    tokio::task::spawn_blocking(move || PlanReport {
+        source: req.source,
+        plans: req
+            .subjects
+            .iter()
+            .map(|&n| plan(&model, n, req.alpha, req.draws, req.seed))
+            .collect(),
+        seed: req.seed,
+        model,
+    })
+    .await
+    .map_err(|e| anyhow::anyhow!("planner task: {e}").into())
+}
+
+/// The one power plan the dashboard may have going in the background, with its progress.
+#[derive(Debug, Default)]
+pub struct PlanJob {
+    job: Arc<Job<PlanReport>>,
+}
+
+/// Where the dashboard's power plan stands (steps: simulated trials; a pilot's model has
+/// none).
+pub type PlanStatus = JobStatus<PlanReport>;
+
+impl PlanJob {
+    /// Checks `req` and starts planning `study_id` in the background; refused while another
+    /// plan runs.
+    pub async fn start(&self, pool: &SqlitePool, study_id: i64, req: PlanRequest) -> Result<()> {
+        req.check()?;
+        let study = store::studies::get(pool, study_id).await?;
+        if req.source == PlanSource::Population {
+            check_population_work(&study.params, &req)?;
+        }
+        let pool = pool.clone();
+        self.job
+            .spawn(study_id, "a power plan", move |progress| async move {
+                plan_study(&pool, study_id, req, progress)
+                    .await
+                    .map_err(|e| e.to_string())
+            })
+    }
+
+    pub fn status(&self) -> PlanStatus {
+        self.job.status()
+    }
+}
+
+/// A study model on the log scale: compensator means and the residual standard deviation.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct Model {
+    pub compensators: Vec<String>,
+    pub log_means: Vec<f64>,
+    pub residual_sd: f64,
+    /// Subjects the model was estimated from.
+    pub pilot_n: usize,
+}
+
+/// The model estimated from a pilot's table `y[s][c]` of positive values (every subject
+/// every compensator, at least 2 × 2). `None` if it is too small.
+pub fn estimate(compensators: &[String], y: &[Vec<f64>]) -> Option<Model> {
+    let n = y.len();
+    let k = compensators.len();
+    if n < 2
+        || k < 2
+        || y.iter()
+            .any(|r| r.len() != k || r.iter().any(|v| *v <= 0.0))
+    {
+        return None;
+    }
+    let logs: Vec<Vec<f64>> = y
+        .iter()
+        .map(|r| r.iter().map(|v| v.ln()).collect())
+        .collect();
+    let grand = logs.iter().flatten().sum::<f64>() / (n * k) as f64;
+    let col: Vec<f64> = (0..k)
+        .map(|c| logs.iter().map(|r| r[c]).sum::<f64>() / n as f64)
+        .collect();
+    let row: Vec<f64> = logs
+        .iter()
+        .map(|r| r.iter().sum::<f64>() / k as f64)
+        .collect();
+    let ss: f64 = logs
+        .iter()
+        .enumerate()
+        .flat_map(|(s, r)| {
+            let (row, col) = (&row, &col);
+            r.iter()
+                .enumerate()
+                .map(move |(c, v)| (v - row[s] - col[c] + grand).powi(2))
+        })
+        .sum();
+    Some(Model {
+        compensators: compensators.to_vec(),
+        log_means: col,
+        residual_sd: (ss / ((n - 1) * (k - 1)) as f64).sqrt(),
+        pilot_n: n,
+    })
+}
+
+/// One pair's chance at one n.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct PairPower {
+    pub a: String,
+    pub b: String,
+    /// Probability that the Holm-adjusted p is below alpha.
+    pub power: f64,
+    /// False when the exact floor makes significance impossible at this n.
+    pub possible: bool,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct Plan {
+    pub subjects: usize,
+    pub alpha: f64,
+    pub draws: usize,
+    pub pairs: Vec<PairPower>,
+    /// Probability that at least one pair is significant.
+    pub any: f64,
+    pub note: String,
+}
+
+/// The planner at `n` subjects: `draws` simulated studies, each drawn by `draw` (one
+/// row of k values per subject, n rows), analysed as the study would be.
+pub fn plan_with(
+    compensators: &[String],
+    n: usize,
+    alpha: f64,
+    draws: usize,
+    rng: &mut Rng,
+    mut draw: impl FnMut(&mut Rng, usize) -> Vec<Vec<f64>>,
+) -> Plan {
+    let k = compensators.len();
+    let pairs: Vec<(usize, usize)> = (0..k)
+        .flat_map(|i| (i + 1..k).map(move |j| (i, j)))
+        .collect();
+    let m = pairs.len();
+    let best = (wilcoxon_floor(n) * m as f64).min(1.0);
+    let possible = !(n <= EXACT_MAX_N && best >= alpha);
+    let mut hits = vec![0usize; m];
+    let mut any = 0usize;
+    if possible {
+        for _ in 0..draws {
+            let y = draw(rng, n);
+            let p: Vec<f64> = pairs
+                .iter()
+                .map(|&(i, j)| {
+                    let a: Vec<f64> = y.iter().map(|r| r[i]).collect();
+                    let b: Vec<f64> = y.iter().map(|r| r[j]).collect();
+                    wilcoxon(&a, &b).map_or(1.0, |w| w.p_value)
+                })
+                .collect();
+            let adjusted = holm(&p);
+            let mut some = false;
+            for (h, q) in hits.iter_mut().zip(&adjusted) {
+                if *q < alpha {
+                    *h += 1;
+                    some = true;
+                }
+            }
+            any += usize::from(some);
+        }
+    }
+    let frac = |x: usize| {
+        if possible {
+            x as f64 / draws as f64
+        } else {
+            0.0
+        }
+    };
+    Plan {
+        subjects: n,
+        alpha,
+        draws: if possible { draws } else { 0 },
+        pairs: pairs
+            .iter()
+            .zip(&hits)
+            .map(|(&(i, j), &h)| PairPower {
+                a: compensators[i].clone(),
+                b: compensators[j].clone(),
+                power: frac(h),
+                possible,
+            })
+            .collect(),
+        any: frac(any),
+        note: if possible {
+            String::new()
+        } else {
+            format!(
+                "no pair can reach p < {alpha} with {n} subjects: the exact Wilcoxon test's \
+                 smallest p is 2/2^{n} = {:.4}, × {m} comparisons (Holm) = {best:.3}",
+                wilcoxon_floor(n)
+            )
+        },
+    }
+}
+
+/// The planner at `n` subjects with a pilot's model.
+pub fn plan(model: &Model, n: usize, alpha: f64, draws: usize, seed: u64) -> Plan {
+    let mut rng = Rng::new(seed);
+    plan_with(&model.compensators, n, alpha, draws, &mut rng, |rng, n| {
+        (0..n)
+            .map(|_| {
+                model
+                    .log_means
+                    .iter()
+                    .map(|mu| (mu + model.residual_sd * rng.normal()).exp())
+                    .collect()
+            })
+            .collect()
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn names(k: usize) -> Vec<String> {
+        (0..k).map(|i| format!("c{i}")).collect()
+    }
+
+    /// Exact power of one exact signed-rank test at n when each difference's sign is positive
+    /// with probability q independently of its size: the chance of every sign pattern whose
+    /// R⁺ is in the rejection region, by enumerating all 2ⁿ patterns.
+    fn analytic_power(n: usize, q: f64, alpha: f64) -> f64 {
+        let mut power = 0.0;
+        for mask in 0u32..(1 << n) {
+            let r_plus: u32 = (0..n as u32)
+                .filter(|i| mask >> i & 1 == 1)
+                .map(|i| i + 1)
+                .sum();
+            // p of this pattern: the share of patterns at least as extreme, two-sided.
+            let extreme = |t: u32| {
+                let (mut lo, mut hi) = (0u32, 0u32);
+                for m2 in 0u32..(1 << n) {
+                    let s: u32 = (0..n as u32)
+                        .filter(|i| m2 >> i & 1 == 1)
+                        .map(|i| i + 1)
+                        .sum();
+                    lo += u32::from(s <= t);
+                    hi += u32::from(s >= t);
+                }
+                (2.0 * f64::from(lo.min(hi)) / f64::from(1u32 << n)).min(1.0)
+            };
+            if extreme(r_plus) < alpha {
+                let pos = mask.count_ones() as i32;
+                power += q.powi(pos) * (1.0 - q).powi(n as i32 - pos);
+            }
+        }
+        power
+    }
+
+    #[test]
+    fn the_simulated_power_at_a_known_effect_matches_the_exact_power() {
+        let (n, q, alpha, draws) = (9, 0.85, 0.05, 20_000);
+        let want = analytic_power(n, q, alpha);
+        let mut rng = Rng::new(11);
+        // Two compensators: one comparison, Holm is the identity. Differences: size uniform,
+        // sign positive with probability q, independent.
+        let got = plan_with(&names(2), n, alpha, draws, &mut rng, |rng, n| {
+            (0..n)
+                .map(|i| {
+                    let size = 1.0 + rng.next_f64() + i as f64 * 1e-9;
+                    let sign = if rng.next_f64() < q { 1.0 } else { -1.0 };
+                    vec![sign * size, 0.0]
+                })
+                .collect()
+        });
+        let se = (want * (1.0 - want) / draws as f64).sqrt();
+        assert!(
+            (got.pairs[0].power - want).abs() < 4.0 * se,
+            "simulated {} against exact {want} (se {se})",
+            got.pairs[0].power
+        );
+        assert!(
+            want > 0.2 && want < 0.9,
+            "a case that tells something: {want}"
+        );
+    }
+
+    #[test]
+    fn the_floor_rules_out_eight_subjects_and_ten_pairs() {
+        let model = Model {
+            compensators: names(5),
+            log_means: vec![0.0, 2.0, 4.0, 6.0, 8.0],
+            residual_sd: 0.01,
+            pilot_n: 8,
+        };
+        let p8 = plan(&model, 8, 0.05, 100, 1);
+        assert!(p8.pairs.iter().all(|p| !p.possible && p.power == 0.0));
+        assert!(p8.note.contains("0.078"), "{}", p8.note);
+        // A huge effect with enough subjects: every pair found.
+        let p10 = plan(&model, 10, 0.05, 100, 1);
+        assert!(
+            p10.pairs.iter().all(|p| p.possible && p.power == 1.0),
+            "{p10:?}"
+        );
+    }
+
+    #[test]
+    fn the_model_recovers_means_and_spread_of_its_own_draws() {
+        let model = Model {
+            compensators: names(3),
+            log_means: vec![1.0, 1.5, 2.0],
+            residual_sd: 0.3,
+            pilot_n: 0,
+        };
+        let mut rng = Rng::new(5);
+        let y: Vec<Vec<f64>> = (0..2000)
+            .map(|_| {
+                let subject = rng.normal();
+                model
+                    .log_means
+                    .iter()
+                    .map(|mu| (mu + subject + 0.3 * rng.normal()).exp())
+                    .collect()
+            })
+            .collect();
+        let est = estimate(&model.compensators, &y).unwrap();
+        for (a, b) in est.log_means.iter().zip(&model.log_means) {
+            assert!((a - b).abs() < 0.1, "{a} vs {b}");
+        }
+        assert!((est.residual_sd - 0.3).abs() < 0.01, "{}", est.residual_sd);
+    }
+}

@@ -1,0 +1,87 @@
+//! From a scheduled trial to the controller's `StartTrial` and back to the database: the one
+//! path that live tests, pilot runs and the power planner's simulated studies share.
+
+use bdft_controller::rng::Rng;
+use bdft_protocol::params::{CompensatorSpec, Seat, SubjectDraw};
+use bdft_protocol::server_to_controller::StartTrial;
+use bdft_protocol::study::StudyParams;
+use bdft_protocol::trial::{InputSource, TargetSpec};
+
+use crate::engine::study::synthetic::operator_and_body;
+use crate::error::{AppError, Result};
+use crate::store::studies::Study;
+use crate::store::trials::Trial;
+
+/// Who moves the input device in a trial.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Operator {
+    /// A person at a station (browser input through the server).
+    Person,
+    /// A synthetic subject (pilot runs, automated tests) with its drawn parameters, or
+    /// none for one enrolled before populations existed.
+    Synthetic(Option<SubjectDraw>),
+}
+
+/// One test as the protocol scheduled it, in the terms a `StartTrial` needs.
+#[derive(Debug, Clone)]
+pub struct TestRun {
+    pub trial_id: u64,
+    pub compensator: CompensatorSpec,
+    pub seat: Seat,
+    /// Place in the subject's schedule (0 = practice): how far they have learned.
+    pub slot: u32,
+    pub k_bf: f64,
+    pub levels_mm: Vec<f64>,
+    pub duration_s: f64,
+    pub target_seed: u64,
+}
+
+/// The controller message that runs `trial` of `study`.
+pub fn start_message(study: &Study, trial: &Trial, operator: Operator) -> Result<StartTrial> {
+    let bad = |what: &str, e: serde_json::Error| {
+        AppError::Internal(anyhow::anyhow!("stored {what} of trial {}: {e}", trial.id))
+    };
+    let run = TestRun {
+        trial_id: trial.id as u64,
+        compensator: serde_json::from_str(&trial.compensator_json)
+            .map_err(|e| bad("compensator", e))?,
+        seat: trial.seat,
+        slot: u32::try_from(trial.slot).unwrap_or(0),
+        k_bf: trial.k_bf,
+        levels_mm: serde_json::from_str(&trial.target_levels_json).map_err(|e| bad("target", e))?,
+        duration_s: trial.duration_s,
+        target_seed: trial.target_seed as u64,
+    };
+    Ok(start(&study.params, run, operator))
+}
+
+/// The controller message that runs `run` of a study with `params`.
+pub fn start(params: &StudyParams, run: TestRun, operator: Operator) -> StartTrial {
+    let seed = run.target_seed;
+    let (input, body) = match operator {
+        Operator::Person => (InputSource::Server, params.body),
+        Operator::Synthetic(draw) => {
+            let (operator, body) = operator_and_body(params, run.slot, draw.as_ref());
+            let seed = Rng::derive(seed, Rng::OPERATOR).next_u64();
+            (InputSource::Synthetic { operator, seed }, body)
+        }
+    };
+    StartTrial {
+        trial_id: run.trial_id,
+        compensator: run.compensator,
+        station: run.seat,
+        k_bf: run.k_bf,
+        target: TargetSpec::Steps {
+            interval_s: params.step_interval_s,
+            levels_mm: run.levels_mm,
+        },
+        duration_s: run.duration_s,
+        input,
+        plant: params.plant,
+        body,
+        noise_seed: Rng::derive(seed, Rng::ACCEL_NOISE).next_u64(),
+        live_rate_hz: 100.0,
+        stale_input_ms: params.stale_input_ms,
+        max_cab_rms_mm_s2: params.max_cab_rms_mm_s2,
+    }
+}

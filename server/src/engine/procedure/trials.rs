@@ -1,0 +1,311 @@
+//! The rules of a test's life: when it may start (consent, order, surveys, the right rig),
+//! when it may be redone (queued again by hand: `queue` re-queues failed tests by itself),
+//! aborted or accepted as incomplete, and the E-stop. Every change is committed with its audit row.
+
+use bdft_protocol::params::{CompensatorKind, Seat};
+use bdft_protocol::records::{ConsentDecision, TrialStatus};
+use bdft_protocol::server_to_controller::ServerToController;
+use bdft_protocol::study::RigKind;
+use serde::Serialize;
+use sqlx::SqlitePool;
+
+use super::orchestrator::{Operator, start_message};
+use crate::engine::machine::controller_link::{ControllerEvent, ControllerLink};
+use crate::error::{AppError, Result};
+use crate::store::audit::{NoDetail, Reason};
+use crate::store::trials::Trial;
+use crate::store::{self, Change};
+
+/// The rig kind a controller must have to run a study on `rig`: "sim" or "udp".
+fn rig_name(rig: RigKind) -> &'static str {
+    match rig {
+        RigKind::Simulated => "sim",
+        RigKind::Real => "udp",
+    }
+}
+
+/// What `trial.start` records: the compensator and the seat, by their wire names.
+#[derive(Debug, Serialize)]
+struct Started {
+    #[serde(rename = "controller")]
+    compensator: CompensatorKind,
+    #[serde(rename = "station")]
+    seat: Seat,
+}
+
+/// Checks that `trial` may start now and starts it on the controller.
+pub async fn start(
+    pool: &SqlitePool,
+    link: &ControllerLink,
+    actor: &str,
+    trial_id: i64,
+) -> Result<Trial> {
+    let trial = store::trials::get(pool, trial_id).await?;
+    let subject = store::subjects::get(pool, trial.subject_id).await?;
+    if subject.withdrawn_at.is_some() {
+        return Err(AppError::Conflict(format!(
+            "{} has withdrawn",
+            subject.code
+        )));
+    }
+    if subject.consent_decision != Some(ConsentDecision::Agreed) {
+        return Err(AppError::Conflict(format!(
+            "{} has not consented; nothing runs without consent",
+            subject.code
+        )));
+    }
+    let next = store::trials::next(pool, subject.id).await?;
+    if next.as_ref().map(|t| t.id) != Some(trial.id) {
+        return Err(AppError::Conflict(format!(
+            "trial {} is not {}'s next test",
+            trial.id, subject.code
+        )));
+    }
+    // A synthetic subject's surveys may be answered (to try the pages) but never hold up a
+    // dry run; a person's must be answered before the next test.
+    if !subject.synthetic {
+        if let Some(pending) = store::trials::pending_survey(pool, subject.id).await? {
+            return Err(AppError::Conflict(format!(
+                "the survey of trial {} is still to be answered",
+                pending.id
+            )));
+        }
+    }
+    if store::latch::latched(pool).await? {
+        return Err(AppError::Conflict(
+            "the E-stop is latched: reset it (Reset e-stop, POST /api/estop/reset) before starting a test".into(),
+        ));
+    }
+    if !link.is_connected() {
+        return Err(AppError::Unavailable(
+            "the controller is not connected".into(),
+        ));
+    }
+    let study = store::studies::get(pool, subject.study_id).await?;
+    // A study run on the real machine must never go to a simulating controller, nor the
+    // reverse: the data would silently mean something else.
+    let want = rig_name(study.params.rig);
+    if link.rig().as_deref() != Some(want) {
+        return Err(AppError::Conflict(format!(
+            "the study runs on the {} rig but the controller's rig is {}",
+            if want == "sim" { "simulated" } else { "real" },
+            link.rig().unwrap_or_else(|| "unknown".into())
+        )));
+    }
+    let operator = if subject.synthetic {
+        Operator::Synthetic(subject.drawn)
+    } else {
+        Operator::Person
+    };
+    let msg = start_message(&study, &trial, operator)?;
+    let mut change = Change::begin(pool, actor).await?;
+    store::trials::mark_running(change.db(), trial.id).await?;
+    change
+        .commit(
+            "trial.start",
+            Some(format!("trial:{}", trial.id)),
+            Started {
+                compensator: trial.compensator,
+                seat: trial.seat,
+            },
+        )
+        .await?;
+    if let Err(reason) = link.start_trial(&msg).await {
+        let mut change = Change::begin(pool, actor).await?;
+        store::trials::unmark_running(change.db(), trial.id).await?;
+        change
+            .commit(
+                "trial.start_failed",
+                Some(format!("trial:{}", trial.id)),
+                Reason { reason: &reason },
+            )
+            .await?;
+        return Err(AppError::Unavailable(format!(
+            "the controller did not start the trial: {reason}"
+        )));
+    }
+    // The station's socket starts forwarding operator input at once.
+    link.emit(ControllerEvent::TrialChanged { trial_id: trial.id });
+    store::trials::get(pool, trial.id).await
+}
+
+/// Stops a running trial early; the controller files it aborted with `reason`.
+pub async fn abort(
+    pool: &SqlitePool,
+    link: &ControllerLink,
+    actor: &str,
+    trial_id: i64,
+    reason: &str,
+) -> Result<()> {
+    crate::engine::check_reason(reason)?;
+    let trial = store::trials::get(pool, trial_id).await?;
+    if trial.status != TrialStatus::Running {
+        return Err(AppError::Conflict(format!(
+            "trial {trial_id} is {}, not running",
+            trial.status
+        )));
+    }
+    link.send(&ServerToController::AbortTrial {
+        trial_id: trial_id as u64,
+        reason: reason.to_string(),
+    })
+    .map_err(AppError::Unavailable)?;
+    Change::begin(pool, actor)
+        .await?
+        .commit(
+            "trial.abort",
+            Some(format!("trial:{trial_id}")),
+            Reason { reason },
+        )
+        .await
+}
+
+/// What `trial.redo` records: the new attempt and why.
+#[derive(Debug, Serialize)]
+struct Redone<'a> {
+    new_trial: i64,
+    reason: &'a str,
+}
+
+/// Adds the next attempt of a finished test (the latest attempt only), queued at the end of
+/// its block like a failed test's; returns it. The experimenter may repeat a test that
+/// failed more often than the server repeats it by itself.
+pub async fn redo(pool: &SqlitePool, actor: &str, trial_id: i64, reason: &str) -> Result<Trial> {
+    if reason.chars().count() > 500 {
+        return Err(AppError::BadRequest(
+            "reason: at most 500 characters".into(),
+        ));
+    }
+    // Read and insert in one immediate transaction: two redos racing see each other.
+    let mut change = Change::begin(pool, actor).await?;
+    let t = store::trials::get(change.db(), trial_id).await?;
+    let latest = store::trials::latest_attempt(change.db(), &t).await?;
+    if latest != t.attempt || !t.finished() {
+        return Err(AppError::Conflict(
+            "only the latest attempt of a finished test can be redone".into(),
+        ));
+    }
+    let new_id = store::trials::insert_next_attempt(change.db(), trial_id).await?;
+    let new = store::trials::get(change.db(), new_id).await?;
+    change
+        .commit(
+            "trial.redo",
+            Some(format!("trial:{trial_id}")),
+            Redone {
+                new_trial: new_id,
+                reason,
+            },
+        )
+        .await?;
+    Ok(new)
+}
+
+/// The experimenter accepts a test as incomplete with a reason: it is not run (again) and
+/// counts as missing with the reason. `trial_id` may be any attempt of the test; the latest
+/// is the one accepted (a failed attempt, its re-queued successor, or a complete one).
+pub async fn accept_incomplete(
+    pool: &SqlitePool,
+    actor: &str,
+    trial_id: i64,
+    reason: &str,
+) -> Result<Trial> {
+    crate::engine::check_reason(reason)?;
+    let mut change = Change::begin(pool, actor).await?;
+    let given = store::trials::get(change.db(), trial_id).await?;
+    let trial_id = store::trials::of_subject(change.db(), given.subject_id)
+        .await?
+        .into_iter()
+        .filter(|t| t.slot == given.slot)
+        .max_by_key(|t| t.attempt)
+        .map_or(trial_id, |t| t.id);
+    store::trials::accept_incomplete(change.db(), trial_id, reason).await?;
+    let t = store::trials::get(change.db(), trial_id).await?;
+    change
+        .commit(
+            "trial.accept_incomplete",
+            Some(format!("trial:{trial_id}")),
+            Reason { reason },
+        )
+        .await?;
+    Ok(t)
+}
+
+/// What `trial.note` records: the note's id and its text.
+#[derive(Debug, Serialize)]
+struct Noted<'a> {
+    note: i64,
+    text: &'a str,
+}
+
+/// A note about a test, by its author; returns the note's id.
+pub async fn add_note(pool: &SqlitePool, author: &str, trial_id: i64, text: &str) -> Result<i64> {
+    if text.trim().is_empty() || text.chars().count() > 2000 {
+        return Err(AppError::BadRequest("text: 1 to 2000 characters".into()));
+    }
+    let mut change = Change::begin(pool, author).await?;
+    let t = store::trials::get(change.db(), trial_id).await?;
+    let note = store::subjects::add_note(change.db(), t.subject_id, trial_id, text, author).await?;
+    change
+        .commit(
+            "trial.note",
+            Some(format!("trial:{trial_id}")),
+            Noted { note, text },
+        )
+        .await?;
+    Ok(note)
+}
+
+/// What `estop` records: whether the controller confirmed the stop, and how fast.
+#[derive(Debug, Serialize)]
+struct EStopped {
+    delivered: bool,
+    confirmed_ms: Option<f64>,
+}
+
+/// The E-stop: sent first (the stop itself waits for nothing that could fail), then the
+/// server's latch is set — it is re-sent to every controller connection until an
+/// experimenter resets it — and audited; an error when it could not be sent.
+/// Returns how long the controller took to confirm.
+pub async fn estop(
+    pool: &SqlitePool,
+    link: &ControllerLink,
+    actor: &str,
+) -> Result<std::time::Duration> {
+    let sent = link.estop(ESTOP_CONFIRMATION).await;
+    let mut change = Change::begin(pool, actor).await?;
+    store::latch::set(change.db(), true).await?;
+    change
+        .commit(
+            "estop",
+            Some("controller".into()),
+            EStopped {
+                delivered: sent.is_ok(),
+                confirmed_ms: sent.as_ref().ok().map(|d| d.as_secs_f64() * 1e3),
+            },
+        )
+        .await?;
+    sent.map_err(|why| {
+        AppError::Unavailable(format!(
+            "the E-stop was NOT confirmed by the controller ({why}); stop the machine by hand"
+        ))
+    })
+}
+
+/// How long the API waits for the controller to confirm an E-stop before saying it was not
+/// delivered.
+const ESTOP_CONFIRMATION: std::time::Duration = std::time::Duration::from_millis(500);
+
+/// Clears the E-stop latch: the server's first (so a controller that connects meanwhile is
+/// told the same), then the controller's.
+pub async fn reset_estop(pool: &SqlitePool, link: &ControllerLink, actor: &str) -> Result<()> {
+    let mut change = Change::begin(pool, actor).await?;
+    store::latch::set(change.db(), false).await?;
+    change
+        .commit("estop.reset", Some("controller".into()), NoDetail {})
+        .await?;
+    link.send(&ServerToController::ResetEStop {})
+        .map_err(AppError::Unavailable)?;
+    // The controller's status confirms the cleared latch.
+    let _ = link.send(&ServerToController::Status {});
+    Ok(())
+}

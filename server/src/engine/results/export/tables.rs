@@ -1,0 +1,421 @@
+//! The rows of each export, written through a `TableWriter` whose columns came from
+//! `columns_of` (the same columns the codebook lists).
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use bdft_protocol::study::SurveyParams;
+use sqlx::SqlitePool;
+use tokio::io::AsyncWrite;
+
+use super::columns::{self, Column};
+use super::sink::{Cell, TableWriter};
+use super::{ExportError, ExportKind, ExportRequest, SampleCut};
+use crate::engine::results::inference_table::study_table;
+use crate::engine::results::stats::summary_stats;
+use crate::engine::results::study_data::{counts, valid};
+use crate::store;
+use crate::store::db::rfc3339;
+use crate::store::exports::{SubjectExportRow, TrialExportRow, Withdrawn};
+
+/// What a study's columns depend on: its survey scale (the ratings' headers) and the names
+/// of its subjects' drawn parameters.
+#[derive(Debug, Default)]
+pub struct StudyContext {
+    survey: SurveyParams,
+    drawn_keys: Vec<String>,
+}
+
+impl StudyContext {
+    /// The study's context (none for the audit log, which is no study's).
+    pub async fn load(
+        pool: &SqlitePool,
+        study_id: i64,
+        kind: ExportKind,
+    ) -> Result<Self, ExportError> {
+        if !kind.per_study() {
+            return Ok(Self::default());
+        }
+        let study = store::studies::get(pool, study_id).await?;
+        let subjects = store::exports::subject_rows(pool, study_id).await?;
+        let keys: BTreeSet<String> = subjects.iter().flat_map(|s| drawn(s).into_keys()).collect();
+        Ok(Self {
+            survey: study.params.survey,
+            drawn_keys: keys.into_iter().collect(),
+        })
+    }
+}
+
+/// A subject's drawn parameters (empty for a person, or a value that is no flat object).
+fn drawn(s: &SubjectExportRow) -> BTreeMap<String, Option<f64>> {
+    s.drawn_json
+        .as_deref()
+        .and_then(|j| serde_json::from_str::<serde_json::Map<String, serde_json::Value>>(j).ok())
+        .map(|m| m.into_iter().map(|(k, v)| (k, v.as_f64())).collect())
+        .unwrap_or_default()
+}
+
+/// The columns of `kind`: what its header, its Parquet schema and the codebook say.
+pub fn columns_of(kind: ExportKind, cx: &StudyContext) -> Vec<Column> {
+    match kind {
+        ExportKind::Trials => columns::trials(&cx.survey),
+        ExportKind::Samples => columns::samples(),
+        ExportKind::Subjects => columns::subjects(&cx.drawn_keys),
+        ExportKind::Codebook => columns::codebook(),
+        ExportKind::Summary => columns::summary(),
+        ExportKind::Stats => columns::stats(),
+        ExportKind::Notes => columns::notes(),
+        ExportKind::Audit => columns::audit(),
+    }
+}
+
+type Table<'w, W> = &'w mut TableWriter<W>;
+
+pub async fn write_rows<W: AsyncWrite + Unpin>(
+    pool: &SqlitePool,
+    study_id: i64,
+    req: &ExportRequest,
+    cx: &StudyContext,
+    t: Table<'_, W>,
+) -> Result<(), ExportError> {
+    match req.kind {
+        ExportKind::Trials => trials(pool, study_id, t).await,
+        ExportKind::Samples => samples(pool, study_id, &req.cut, t).await,
+        ExportKind::Subjects => subjects(pool, study_id, t).await,
+        ExportKind::Codebook => codebook(cx, t).await,
+        ExportKind::Summary => summary(pool, study_id, &cx.survey, t).await,
+        ExportKind::Stats => stats(pool, study_id, &cx.survey, t).await,
+        ExportKind::Notes => notes(pool, study_id, t).await,
+        ExportKind::Audit => audit(pool, t).await,
+    }
+}
+
+fn opt_text(s: &Option<String>) -> Cell<'_> {
+    Cell::Text(s.as_deref().map(Into::into))
+}
+
+fn time(ms: Option<i64>) -> Cell<'static> {
+    Cell::Text(ms.map(|ms| rfc3339(ms).into()))
+}
+
+fn phase(practice: bool) -> Cell<'static> {
+    Cell::text(if practice { "practice" } else { "test" })
+}
+
+/// A test-only cell: empty for the practice, so that it cannot be read as a PID-off test.
+fn test_only<'a>(practice: bool, cell: Cell<'a>) -> Cell<'a> {
+    match (practice, cell) {
+        (false, c) => c,
+        (true, Cell::Int(_)) => Cell::Int(None),
+        (true, Cell::Num(_)) => Cell::Num(None),
+        (true, Cell::Text(_)) => Cell::Text(None),
+    }
+}
+
+async fn trials<W: AsyncWrite + Unpin>(
+    pool: &SqlitePool,
+    study_id: i64,
+    t: Table<'_, W>,
+) -> Result<(), ExportError> {
+    for r in store::exports::trial_rows(pool, study_id, Withdrawn::LeftOut).await? {
+        let p = r.practice;
+        let rating = |v: Option<i64>| Cell::Int(v);
+        let mut cells = vec![
+            Cell::Int(Some(r.study_id)),
+            Cell::Int(Some(r.trial_id)),
+            Cell::text(r.code.as_str()),
+            Cell::Int(Some(r.enrol_index + 1)),
+            Cell::flag(r.synthetic),
+            Cell::text(r.starting_station.as_str()),
+            phase(p),
+            Cell::text(r.station.as_str()),
+            test_only(p, Cell::Int(Some(r.block))),
+            test_only(p, Cell::Int(Some(r.position))),
+            Cell::Int(Some(r.slot)),
+            Cell::Int(Some(r.attempt)),
+            Cell::flag(r.latest),
+            Cell::flag(valid(&r)),
+            test_only(p, Cell::text(r.controller.name())),
+            test_only(p, Cell::text(r.blinded_label.as_str())),
+            Cell::text(r.status.as_str()),
+            opt_text(&r.status_reason),
+            Cell::Int(Some(r.target_seed)),
+            Cell::Num(Some(r.target_mean_mm)),
+            Cell::Num(Some(r.target_std_mm)),
+            Cell::Num(r.target_ms_step_mm2),
+            Cell::Num(Some(r.k_bf)),
+            Cell::Num(Some(r.duration_s)),
+            Cell::Num(r.mse_tracking_mm2),
+            Cell::Num(r.ms_cab_accel),
+            rating(r.accuracy),
+            rating(r.speed),
+            rating(r.smoothness),
+            rating(r.controllability),
+            opt_text(&r.comment),
+            opt_text(&r.protocol_hash),
+            time(r.started_at),
+            time(r.finished_at),
+            opt_text(&r.consent_version),
+        ];
+        cells.extend(validity_cells(&r));
+        cells.push(opt_text(&r.config_version));
+        t.row(&cells).await?;
+    }
+    Ok(())
+}
+
+/// How the test ran (validity): the station's display and input, the controller's timing,
+/// and the experimenter's acceptance of a failed test as incomplete; empty where a figure
+/// is missing (a test that never ran, a station that sent none).
+fn validity_cells(r: &TrialExportRow) -> [Cell<'_>; 10] {
+    let parse = |j: &Option<String>| {
+        j.as_deref()
+            .and_then(|j| serde_json::from_str::<serde_json::Value>(j).ok())
+            .unwrap_or_default()
+    };
+    let (station, controller) = (parse(&r.client_timing_json), parse(&r.timing_json));
+    let int = |v: &serde_json::Value| Cell::Int(v.as_i64());
+    let num = |v: &serde_json::Value| Cell::Num(v.as_f64());
+    [
+        int(&station["frames"]),
+        num(&station["longest_gap_ms"]),
+        num(&station["hidden_ms"]),
+        num(&station["input_hz"]),
+        num(&station["rtt_ms"]["p50"]),
+        num(&station["rtt_ms"]["p95"]),
+        num(&station["rtt_ms"]["max"]),
+        int(&controller["overruns"]),
+        num(&controller["wake_latency_us"]["p99"]),
+        opt_text(&r.accepted_reason),
+    ]
+}
+
+/// Join keys before the record's columns in every samples row.
+const SAMPLE_KEYS: usize = 7;
+
+async fn samples<W: AsyncWrite + Unpin>(
+    pool: &SqlitePool,
+    study_id: i64,
+    cut: &SampleCut,
+    t: Table<'_, W>,
+) -> Result<(), ExportError> {
+    let (code, trial) = match cut {
+        SampleCut::All => (None, None),
+        SampleCut::Subject(code) => (Some(code.as_str()), None),
+        SampleCut::Trial(id) => (None, Some(*id)),
+    };
+    let width = t.columns().len();
+    for r in store::exports::recorded_trials(pool, study_id, code, trial).await? {
+        // One trial's record in memory at a time (about 5 MB for 140 s).
+        let store::records::Record { dt, channels } = store::records::get(pool, r.trial_id).await?;
+        let p = r.practice;
+        let mut cells = vec![
+            Cell::Int(Some(study_id)),
+            Cell::text(r.code.as_str()),
+            Cell::Int(Some(r.trial_id)),
+            phase(p),
+            Cell::text(r.station.as_str()),
+            test_only(p, Cell::text(r.controller.as_str())),
+            Cell::Int(Some(r.attempt)),
+        ];
+        cells.resize(width, Cell::Num(None));
+        debug_assert_eq!(width, SAMPLE_KEYS + 1 + channels.len());
+        for k in 0..channels.first().map_or(0, Vec::len) {
+            cells[SAMPLE_KEYS] = Cell::Num(Some(k as f64 * dt));
+            for (cell, c) in cells[SAMPLE_KEYS + 1..].iter_mut().zip(&channels) {
+                *cell = Cell::Num(Some(f64::from(c[k])));
+            }
+            t.row(&cells).await?;
+        }
+    }
+    Ok(())
+}
+
+async fn subjects<W: AsyncWrite + Unpin>(
+    pool: &SqlitePool,
+    study_id: i64,
+    t: Table<'_, W>,
+) -> Result<(), ExportError> {
+    let trials = store::exports::trial_rows(pool, study_id, Withdrawn::Included).await?;
+    let drawn_columns: Vec<String> = t.columns()[columns::subjects(&[]).len()..]
+        .iter()
+        .map(|c| c.name[columns::DRAWN_PREFIX.len()..].to_string())
+        .collect();
+    for s in store::exports::subject_rows(pool, study_id).await? {
+        let own: Vec<&TrialExportRow> = trials.iter().filter(|r| r.code == s.code).collect();
+        let values = drawn(&s);
+        let mut cells = vec![
+            Cell::Int(Some(study_id)),
+            Cell::text(s.code.as_str()),
+            Cell::Int(Some(s.enrol_index + 1)),
+            Cell::flag(s.synthetic),
+            Cell::text(s.starting_station.as_str()),
+            opt_text(&s.consent_version),
+            opt_text(&s.consent_decision),
+            time(s.consent_at),
+            Cell::flag(s.withdrawn_at.is_some()),
+            time(s.withdrawn_at),
+            Cell::text(order_summary(&own)),
+            Cell::Int(Some(own.iter().filter(|r| counts(r)).count() as i64)),
+        ];
+        cells.extend(
+            drawn_columns
+                .iter()
+                .map(|k| Cell::Num(values.get(k).copied().flatten())),
+        );
+        t.row(&cells).await?;
+    }
+    Ok(())
+}
+
+/// The schedule's order: each seat's compensators in schedule (slot) order, from the first
+/// attempts (`on: pid > lqr > … | off: …`).
+fn order_summary(trials: &[&TrialExportRow]) -> String {
+    let mut tests: Vec<&&TrialExportRow> = trials
+        .iter()
+        .filter(|r| !r.practice && r.attempt == 1)
+        .collect();
+    tests.sort_by_key(|r| r.slot);
+    let mut blocks: Vec<(&str, Vec<&str>)> = Vec::new();
+    for r in tests {
+        match blocks.last_mut() {
+            Some((seat, names)) if *seat == r.station.as_str() => names.push(r.controller.name()),
+            _ => blocks.push((r.station.as_str(), vec![r.controller.name()])),
+        }
+    }
+    blocks
+        .iter()
+        .map(|(seat, names)| format!("{seat}: {}", names.join(" > ")))
+        .collect::<Vec<_>>()
+        .join(" | ")
+}
+
+/// One row per column of every export (of this study: its rating scale, its drawn
+/// parameters), from the same definitions the exports write.
+async fn codebook<W: AsyncWrite + Unpin>(
+    cx: &StudyContext,
+    t: Table<'_, W>,
+) -> Result<(), ExportError> {
+    for kind in ExportKind::ALL {
+        for c in columns_of(kind, cx) {
+            t.row(&[
+                Cell::text(kind.name()),
+                Cell::text(c.name),
+                Cell::text(c.ty.name()),
+                Cell::text(c.unit),
+                Cell::Num(c.ty.resolution()),
+                Cell::text(c.meaning),
+            ])
+            .await?;
+        }
+    }
+    Ok(())
+}
+
+async fn summary<W: AsyncWrite + Unpin>(
+    pool: &SqlitePool,
+    study_id: i64,
+    survey: &SurveyParams,
+    t: Table<'_, W>,
+) -> Result<(), ExportError> {
+    for s in summary_stats(pool, study_id).await? {
+        t.row(&[
+            Cell::text(s.controller),
+            Cell::text(s.station),
+            Cell::text(columns::variable_column(&s.variable, survey)),
+            Cell::Int(Some(s.n as i64)),
+            Cell::Num(Some(s.mean)),
+            Cell::Num(Some(s.median)),
+            Cell::Num(Some(s.q1)),
+            Cell::Num(Some(s.q3)),
+            Cell::Num(Some(s.min)),
+            Cell::Num(Some(s.max)),
+        ])
+        .await?;
+    }
+    Ok(())
+}
+
+async fn stats<W: AsyncWrite + Unpin>(
+    pool: &SqlitePool,
+    study_id: i64,
+    survey: &SurveyParams,
+    t: Table<'_, W>,
+) -> Result<(), ExportError> {
+    for r in study_table(pool, study_id).await? {
+        t.row(&[
+            Cell::text(r.test),
+            Cell::text(columns::variable_column(&r.metric, survey)),
+            Cell::text(r.station),
+            Cell::text(r.a),
+            Cell::text(r.b),
+            Cell::Int(Some(r.n as i64)),
+            Cell::Num(Some(r.statistic)),
+            Cell::Num(Some(r.p_value)),
+            Cell::Num(r.p_adjusted),
+            Cell::Num(Some(r.effect_size)),
+            Cell::text(r.effect),
+            Cell::Num(r.median_diff),
+            Cell::Num(r.ci_low),
+            Cell::Num(r.ci_high),
+            Cell::Num(r.df1),
+            Cell::Num(r.df2),
+            Cell::Num(r.eps),
+            Cell::flag(r.reachable),
+            Cell::text(r.note),
+        ])
+        .await?;
+    }
+    Ok(())
+}
+
+async fn notes<W: AsyncWrite + Unpin>(
+    pool: &SqlitePool,
+    study_id: i64,
+    t: Table<'_, W>,
+) -> Result<(), ExportError> {
+    for r in store::exports::note_rows(pool, study_id).await? {
+        t.row(&[
+            Cell::Int(Some(r.study_id)),
+            Cell::Int(r.trial_id),
+            Cell::text(r.code),
+            Cell::Int(r.slot),
+            Cell::Int(r.attempt),
+            Cell::text(r.kind),
+            Cell::Text(r.status.map(Into::into)),
+            time(r.at),
+            Cell::text(r.author),
+            Cell::text(r.text),
+        ])
+        .await?;
+    }
+    Ok(())
+}
+
+/// Rows of the audit log read at a time.
+const AUDIT_PAGE: i64 = 2000;
+
+async fn audit<W: AsyncWrite + Unpin>(
+    pool: &SqlitePool,
+    t: Table<'_, W>,
+) -> Result<(), ExportError> {
+    let mut after = 0;
+    loop {
+        let rows = store::audit::page(pool, after, AUDIT_PAGE).await?;
+        let Some(last) = rows.last() else {
+            return Ok(());
+        };
+        after = last.0;
+        for (id, at, actor, actor_id, action, target, detail) in rows {
+            t.row(&[
+                Cell::Int(Some(id)),
+                time(Some(at)),
+                Cell::text(actor),
+                Cell::Int(actor_id),
+                Cell::text(action),
+                Cell::Text(target.map(Into::into)),
+                Cell::Text(detail.map(Into::into)),
+            ])
+            .await?;
+        }
+    }
+}

@@ -1,0 +1,105 @@
+//! What the analyses count, decided once: an attempt is valid when it is a scored test that
+//! ran complete, and counts when it is also the latest attempt of its test (a redone test
+//! counts once); a study's analysable data are each subject's cells of the summary
+//! variables from the attempts that count. The box plots, averages, inferential table,
+//! learning curve, exports' `valid`/`latest` flags and the power planner all read it here.
+
+use std::collections::BTreeMap;
+
+use bdft_protocol::records::TrialStatus;
+use sqlx::SqlitePool;
+
+use crate::error::Result;
+use crate::store;
+use crate::store::exports::{TrialExportRow, Withdrawn};
+
+/// The variables summarised per compensator × seat, in the order of every cell.
+pub const SUMMARY_VARIABLES: [&str; 6] = [
+    "mse_tracking_mm2",
+    "ms_cab_accel",
+    "rating_accuracy",
+    "rating_speed",
+    "rating_smoothness",
+    "rating_controllability",
+];
+
+/// Whether an attempt is a valid measurement: a test, not the practice, that ran complete.
+/// (The trials export's `valid` flag.)
+pub fn valid(r: &TrialExportRow) -> bool {
+    !r.practice && r.status == TrialStatus::Complete
+}
+
+/// Whether an attempt counts in the analyses: valid and the latest attempt of its test, so
+/// a redone test counts once, and a test whose latest attempt failed not at all.
+pub fn counts(r: &TrialExportRow) -> bool {
+    valid(r) && r.latest
+}
+
+/// One subject's values of the summary variables per (compensator, seat).
+pub type Cells = BTreeMap<(String, String), [Option<f64>; 6]>;
+
+/// A study's analysable data: its compensators and seats (names, in the study's order) and
+/// each subject's cells from the latest attempt of every test when it is complete.
+#[derive(Debug)]
+pub struct StudyData {
+    pub compensators: Vec<String>,
+    pub seats: Vec<String>,
+    pub subjects: Vec<Cells>,
+}
+
+/// The attempts the analyses count (`counts`): of every scored test, the latest attempt,
+/// when it is complete (a redone test counts once; practice never).
+pub fn analysable(rows: &[TrialExportRow]) -> impl Iterator<Item = &TrialExportRow> {
+    rows.iter().filter(|r| counts(r))
+}
+
+impl StudyData {
+    pub async fn load(pool: &SqlitePool, study_id: i64) -> Result<Self> {
+        let study = store::studies::get(pool, study_id).await?;
+        let rows = store::exports::trial_rows(pool, study_id, Withdrawn::LeftOut).await?;
+        let mut subjects: BTreeMap<i64, Cells> = BTreeMap::new();
+        for r in analysable(&rows) {
+            let f = |v: Option<i64>| v.map(|x| x as f64);
+            subjects.entry(r.enrol_index).or_default().insert(
+                (r.controller.name().into(), r.station.as_str().into()),
+                [
+                    r.mse_tracking_mm2,
+                    r.ms_cab_accel,
+                    f(r.accuracy),
+                    f(r.speed),
+                    f(r.smoothness),
+                    f(r.controllability),
+                ],
+            );
+        }
+        Ok(Self {
+            compensators: study
+                .params
+                .controllers
+                .iter()
+                .map(|c| c.kind().name().to_string())
+                .collect(),
+            seats: study
+                .params
+                .stations
+                .iter()
+                .map(|s| s.as_str().to_string())
+                .collect(),
+            subjects: subjects.into_values().collect(),
+        })
+    }
+
+    /// One row per subject with every compensator at `seat`: the values of `metric` (an
+    /// index into `SUMMARY_VARIABLES`).
+    pub fn complete_rows(&self, metric: usize, seat: &str) -> Vec<Vec<f64>> {
+        self.subjects
+            .iter()
+            .filter_map(|s| {
+                self.compensators
+                    .iter()
+                    .map(|c| s.get(&(c.clone(), seat.to_string()))?[metric])
+                    .collect()
+            })
+            .collect()
+    }
+}
