@@ -3,6 +3,7 @@
 mod accounts;
 mod backups;
 mod browser;
+mod calibration;
 mod controller_cli;
 mod controller_estop;
 mod controller_input_udp;

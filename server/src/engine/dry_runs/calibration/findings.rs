@@ -37,7 +37,7 @@ pub struct Findings {
 }
 
 /// The findings of `subjects` of `params` (enrolled as a study seeded `seed` would enrol
-/// them) as a Markdown table: `bdft-server findings`.
+/// them) as Markdown tables: `bdft-server findings`.
 pub fn table(
     params: &StudyParams,
     subjects: u32,

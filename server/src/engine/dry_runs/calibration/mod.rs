@@ -4,6 +4,7 @@ pub mod findings;
 pub mod fit;
 pub mod run;
 pub mod sim;
+pub mod surveys;
 pub mod target;
 
 #[cfg(test)]

@@ -42,13 +42,14 @@ pub struct Cell {
 }
 
 /// The trial of `subject` with compensator `spec` at `seat`: its drawn parameters, its place
-/// in its schedule and its target, as enrolment and a pilot would give them.
-fn trial(
+/// in its schedule and its target, as enrolment and a pilot would give them; and the test's
+/// target seed (what its survey's answers derive from).
+pub(super) fn trial(
     params: &StudyParams,
     subject: SubjectRef,
     seat: Seat,
     spec: &CompensatorSpec,
-) -> Result<StartTrial> {
+) -> Result<(StartTrial, u64)> {
     let SubjectRef { seed, index } = subject;
     let draw = synthetic::draw(params, seed, index);
     let tests = schedule(params, seed, index);
@@ -75,7 +76,10 @@ fn trial(
         duration_s: t.duration_s,
         target_seed: t.target_seed,
     };
-    Ok(start(params, run, Operator::Synthetic(Some(draw))))
+    Ok((
+        start(params, run, Operator::Synthetic(Some(draw))),
+        t.target_seed,
+    ))
 }
 
 /// A worker's results: (subject, cell, metrics or None if the trial was stopped).
@@ -109,7 +113,7 @@ pub fn simulate(
         let range = chunk * LANES..(chunk * LANES + LANES).min(total);
         let starts = range
             .clone()
-            .map(|j| trial(params, subjects[j], cell.seat, spec))
+            .map(|j| trial(params, subjects[j], cell.seat, spec).map(|(start, _)| start))
             .collect::<Result<Vec<_>>>()?;
         let metrics = bdft_controller::batch::metrics(&starts, DT)
             .map_err(|e| AppError::BadRequest(format!("a simulated trial: {e}")))?;
