@@ -99,8 +99,6 @@ pub fn simulate(
     let k = cells.len();
     progress.total.fetch_add(total * k, Ordering::Relaxed);
     let chunks = total.div_ceil(LANES);
-    let next = AtomicUsize::new(0);
-    let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
     let batch = |item: usize| -> Part {
         let (chunk, c) = (item / k, item % k);
         let cell = cells[c];
@@ -120,7 +118,25 @@ pub fn simulate(
         progress.add(starts.len());
         Ok(range.zip(metrics).map(|(j, m)| (j, c, m)).collect())
     };
-    let parts: Vec<Part> = std::thread::scope(|scope| {
+    let parts = on_every_core(chunks * k, cancel, batch)?;
+    let mut values = vec![vec![None; k]; total];
+    for (j, c, m) in parts {
+        values[j][c] = m;
+    }
+    Ok(values)
+}
+
+/// `one(item)` for every item below `items` on every core, each worker taking the next item
+/// when it is done with one; every item's results, in no particular order. When `cancel` is
+/// set the workers stop before their next item and the run ends in a 409.
+pub(super) fn on_every_core<T: Send>(
+    items: usize,
+    cancel: &AtomicBool,
+    one: impl Fn(usize) -> Result<Vec<T>> + Sync,
+) -> Result<Vec<T>> {
+    let next = AtomicUsize::new(0);
+    let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let parts: Vec<Result<Vec<T>>> = std::thread::scope(|scope| {
         let handles: Vec<_> = (0..workers)
             .map(|_| {
                 scope.spawn(|| {
@@ -130,10 +146,10 @@ pub fn simulate(
                             return Err(AppError::Conflict("cancelled".into()));
                         }
                         let item = next.fetch_add(1, Ordering::Relaxed);
-                        if item >= chunks * k {
+                        if item >= items {
                             return Ok(mine);
                         }
-                        mine.extend(batch(item)?);
+                        mine.extend(one(item)?);
                     }
                 })
             })
@@ -143,13 +159,11 @@ pub fn simulate(
             .map(|h| h.join().expect("a simulation worker panicked"))
             .collect()
     });
-    let mut values = vec![vec![None; k]; total];
+    let mut all = Vec::new();
     for part in parts {
-        for (j, c, m) in part? {
-            values[j][c] = m;
-        }
+        all.extend(part?);
     }
-    Ok(values)
+    Ok(all)
 }
 
 /// Every cell of the study: each controller at each station, in `params` order.

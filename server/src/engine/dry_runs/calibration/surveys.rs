@@ -4,7 +4,7 @@
 //! The batch simulator keeps no records to perceive, so this costs a pilot's time per test:
 //! for pilots of a few subjects.
 
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::AtomicBool;
 
 use bdft_controller::population;
 use bdft_controller::rng::Rng;
@@ -13,7 +13,7 @@ use bdft_protocol::trial::{Outcome, record_channel};
 use serde::Serialize;
 
 use super::findings::median;
-use super::sim::{Cell, DT, SubjectRef, trial};
+use super::sim::{Cell, DT, SubjectRef, on_every_core, trial};
 use crate::engine::study::synthetic;
 use crate::error::{AppError, Result};
 
@@ -42,7 +42,6 @@ pub fn surveys(
     cells: &[Cell],
 ) -> Result<Vec<SurveyCell>> {
     let items = subjects.len() * cells.len();
-    let next = AtomicUsize::new(0);
     let one = |item: usize| -> Result<Option<Answered>> {
         let (subject, c) = (subjects[item / cells.len()], item % cells.len());
         let cell = cells[c];
@@ -78,31 +77,9 @@ pub fn surveys(
         );
         Ok(Some((c, ratings, perceived)))
     };
-    let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let parts: Vec<Result<Vec<Answered>>> = std::thread::scope(|scope| {
-        let handles: Vec<_> = (0..workers)
-            .map(|_| {
-                scope.spawn(|| {
-                    let mut mine = Vec::new();
-                    loop {
-                        let item = next.fetch_add(1, Ordering::Relaxed);
-                        if item >= items {
-                            return Ok(mine);
-                        }
-                        mine.extend(one(item)?);
-                    }
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| h.join().expect("a survey worker panicked"))
-            .collect()
-    });
-    let mut answered = Vec::new();
-    for part in parts {
-        answered.extend(part?);
-    }
+    let answered = on_every_core(items, &AtomicBool::new(false), |item| {
+        one(item).map(|a| a.into_iter().collect())
+    })?;
     Ok(cells
         .iter()
         .enumerate()
