@@ -12,6 +12,7 @@ import * as workbench from './dashboard-workbench.js';
 import * as audit from './dashboard-audit.js';
 import * as pilot from './dashboard-pilot.js';
 import * as plan from './dashboard-plan.js';
+import * as calibrate from './dashboard-calibrate.js';
 import * as accounts from './dashboard-accounts.js';
 import * as backups from './dashboard-backups.js';
 import * as configs from './dashboard-configs.js';
@@ -58,6 +59,7 @@ async function showApp(me) {
     audit.init();
     pilot.init();
     plan.init();
+    calibrate.init();
     accounts.init();
     backups.init();
     bench.init();

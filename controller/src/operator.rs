@@ -18,7 +18,10 @@
 //!   (RMS over about a second) and grips harder: the arm's frequency rises by
 //!   grip_stiffening per m/s² (`grip`, which the runner hands to a seated body), and its
 //!   remnant grows by vibration_remnant per m/s² (whole-body vibration makes manual control
-//!   noisier).
+//!   noisier), and the arm's neuromuscular corner falls by 1/(1 + vibration_slowing per
+//!   m/s²): vibration lowers the operator's gain and adds phase lag in the tracking band
+//!   (Lewis & Griffin's vibration-induced lag; McRuer's crossover regression when the task
+//!   turns disturbing), the effect that makes riding cost accuracy at every step.
 //!
 //! What the operator can correct follows from the delay and the lag: slow feedthrough is
 //! seen on the display and corrected, feedthrough near the cab modes (4–6 Hz) is far above
@@ -48,6 +51,11 @@ pub fn shake_filter(dt: f64) -> Biquad {
         Some(w),
     )
 }
+/// The operator's neuromuscular lag ω²/(s² + 2ζωs + ω²) at corner `w` (rad/s).
+pub(crate) fn neuromuscular_lag(w: f64, zeta: f64, dt: f64) -> Biquad {
+    Biquad::tustin([0.0, 0.0, w * w], [1.0, 2.0 * zeta * w, w * w], dt, None)
+}
+
 /// Time constant of the operator's running impressions of shake and vibration (s).
 const IMPRESSION_S: f64 = 1.0;
 /// The grip is re-evaluated every this many ticks: it changes over seconds, and retuning
@@ -75,6 +83,9 @@ pub struct SyntheticOperator {
     grip: f64,
     /// The remnant's factor from felt vibration, re-evaluated with the grip.
     shaken: f64,
+    /// The factor by which felt vibration has slowed the arm (1 = calm), re-evaluated with
+    /// the grip.
+    slowed: f64,
     grip_countdown: u32,
     /// White-noise standard deviation before the lag that gives remnant_std_mm after it.
     pub(crate) remnant_in_std: f64,
@@ -104,7 +115,7 @@ impl SyntheticOperator {
         check("kbf", k_bf, 1e-3, crate::params::MAX_KBF)?;
         let delay = (params.reaction_delay_s / dt).round() as usize;
         let (w, z) = (params.neuromuscular_w, params.neuromuscular_zeta);
-        let arm = Biquad::tustin([0.0, 0.0, w * w], [1.0, 2.0 * z * w, w * w], dt, None);
+        let arm = neuromuscular_lag(w, z, dt);
         Ok(Self {
             params,
             dt,
@@ -120,6 +131,7 @@ impl SyntheticOperator {
             impression_a: 1.0 - (-dt / IMPRESSION_S).exp(),
             grip: 1.0,
             shaken: 1.0,
+            slowed: 1.0,
             grip_countdown: GRIP_EVERY,
             remnant_in_std: params.remnant_std_mm / variance_gain(&arm).sqrt(),
             rng: Rng::derive(seed, Rng::OPERATOR),
@@ -148,6 +160,15 @@ impl SyntheticOperator {
             let felt = self.felt_ms.sqrt() * 1e-3;
             self.grip = 1.0 + self.params.grip_stiffening_per_m_s2 * felt;
             self.shaken = 1.0 + self.params.vibration_remnant_per_m_s2 * felt;
+            let slowed = 1.0 + self.params.vibration_slowing_per_m_s2 * felt;
+            if slowed != self.slowed {
+                self.slowed = slowed;
+                self.arm.retune(&neuromuscular_lag(
+                    self.params.neuromuscular_w / slowed,
+                    self.params.neuromuscular_zeta,
+                    self.dt,
+                ));
+            }
         }
 
         let e = t_seen - y_seen;

@@ -9,6 +9,7 @@ use clap::{Parser, Subcommand};
 use crate::config::{DbConfig, ServeConfig};
 use crate::engine::accounts;
 use crate::engine::accounts::login_limiter::LoginLimiter;
+use crate::engine::dry_runs::calibration::run::{CalibrateRequest, calibrate};
 use crate::engine::dry_runs::pilot;
 use crate::engine::dry_runs::power::{self, PlanRequest, PlanSource};
 use crate::engine::machine::controller_link;
@@ -86,6 +87,49 @@ enum Command {
         #[arg(long, default_value_t = 0)]
         seed: u64,
     },
+    /// Calibrate the study's synthetic population: fit its medians (and its people's spread,
+    /// where the target has spreads) by simulated moments to a table of cell means or to the
+    /// study's own completed tests; stores the result as the study's next population version
+    /// (what its pilots and planner then use); the report (JSON) on standard output,
+    /// progress on standard error.
+    Calibrate {
+        #[command(flatten)]
+        db: DbConfig,
+        /// Study to calibrate [default: the newest].
+        #[arg(long)]
+        study: Option<i64>,
+        /// CSV table `controller,station,metric,mean[,sd,n]` [default: the study's own
+        /// completed tests].
+        #[arg(long)]
+        table: Option<PathBuf>,
+        /// Simulated subjects per evaluation (8 to 512).
+        #[arg(long, default_value_t = 48)]
+        subjects: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+    },
+    /// The default study's synthetic population against the thesis's findings: per cell the
+    /// median tracking error and cab acceleration, tests the interlock stopped, the riding
+    /// effect per controller and the ICC of log tracking error (a Markdown table; the model
+    /// card's validation table, docs/synthetic-subjects.md).
+    Findings {
+        /// Simulated subjects (enrolled as a study seeded --seed would enrol them).
+        #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(u32).range(2..=100_000))]
+        subjects: u32,
+        /// How many of them (the first) answer the surveys: their tests run with records,
+        /// a pilot's cost per test [0: no surveys].
+        #[arg(long, default_value_t = 8)]
+        surveys: u32,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// A study's parameters (JSON, as `GET /api/defaults` gives them) [default: the
+        /// default study's]; --trial-s still sets the test length.
+        #[arg(long)]
+        params: Option<PathBuf>,
+        /// Test length (s); practice as long, at most 120 s.
+        #[arg(long, default_value_t = 140.0)]
+        trial_s: f64,
+    },
     /// Back the database up to FILE, also while a server uses it: a consistent copy,
     /// checked (SQLite's integrity check, row counts, protocol hashes), with its manifest
     /// FILE.manifest.json beside it (printed too).
@@ -136,6 +180,29 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+}
+
+/// Who the audit log names for a calibration from the command line.
+const COMMAND_LINE_CALIBRATION: &str = "system:calibrate-command";
+
+/// Prints `what`'s progress (simulated trials) on standard error every 2 s until aborted.
+fn progress_ticker(
+    progress: std::sync::Arc<crate::engine::dry_runs::job::Progress>,
+    what: &'static str,
+) -> tokio::task::JoinHandle<()> {
+    tokio::spawn(async move {
+        let mut every = tokio::time::interval(std::time::Duration::from_secs(2));
+        loop {
+            every.tick().await;
+            let (done, total) = (
+                progress.done.load(std::sync::atomic::Ordering::Relaxed),
+                progress.total.load(std::sync::atomic::Ordering::Relaxed),
+            );
+            if total > 0 {
+                eprintln!("{what}: {done} of {total} simulated trials");
+            }
+        }
+    })
 }
 
 pub fn run() -> ExitCode {
@@ -255,27 +322,92 @@ async fn execute(command: Command) -> anyhow::Result<()> {
                 seed,
             };
             let progress = std::sync::Arc::new(crate::engine::dry_runs::job::Progress::default());
-            let ticker = {
-                let progress = progress.clone();
-                tokio::spawn(async move {
-                    let mut every = tokio::time::interval(std::time::Duration::from_secs(2));
-                    loop {
-                        every.tick().await;
-                        let (done, total) = (
-                            progress.done.load(std::sync::atomic::Ordering::Relaxed),
-                            progress.total.load(std::sync::atomic::Ordering::Relaxed),
-                        );
-                        if total > 0 {
-                            eprintln!("planning: {done} of {total} simulated trials");
-                        }
-                    }
-                })
-            };
+            let ticker = progress_ticker(progress.clone(), "planning");
             let started = std::time::Instant::now();
             let report = power::plan_study(&pool, study, req, progress).await;
             ticker.abort();
             println!("{}", serde_json::to_string(&report?)?);
             tracing::info!(elapsed_s = started.elapsed().as_secs_f64(), "plan finished");
+        }
+        Command::Calibrate {
+            db,
+            study,
+            table,
+            subjects,
+            seed,
+        } => {
+            let pool = store::db::open(&db.db).await?;
+            let study = newest_study(&pool, study).await?;
+            let table = match table {
+                Some(path) => Some(
+                    std::fs::read_to_string(&path)
+                        .with_context(|| format!("reading {}", path.display()))?,
+                ),
+                None => None,
+            };
+            let req = CalibrateRequest {
+                table,
+                simulated_subjects: subjects,
+                seed,
+            };
+            let progress = std::sync::Arc::new(crate::engine::dry_runs::job::Progress::default());
+            let ticker = progress_ticker(progress.clone(), "calibrating");
+            let started = std::time::Instant::now();
+            let report = calibrate(
+                &pool,
+                COMMAND_LINE_CALIBRATION,
+                study,
+                req,
+                progress,
+                std::sync::Arc::default(),
+            )
+            .await;
+            ticker.abort();
+            println!("{}", serde_json::to_string(&report?)?);
+            tracing::info!(
+                elapsed_s = started.elapsed().as_secs_f64(),
+                "calibration finished"
+            );
+        }
+        Command::Findings {
+            subjects,
+            surveys,
+            params,
+            seed,
+            trial_s,
+        } => {
+            let base = match params {
+                Some(path) => serde_json::from_str(
+                    &std::fs::read_to_string(&path)
+                        .with_context(|| format!("reading {}", path.display()))?,
+                )
+                .with_context(|| format!("{}: study parameters", path.display()))?,
+                None => crate::engine::study::schedule::default_params(),
+            };
+            let params = bdft_protocol::study::StudyParams {
+                trial_s,
+                practice_s: trial_s.min(120.0),
+                ..base
+            };
+            params.validate()?;
+            let progress = std::sync::Arc::new(crate::engine::dry_runs::job::Progress::default());
+            let ticker = progress_ticker(progress.clone(), "simulating");
+            let table = tokio::task::spawn_blocking(move || {
+                let mut table = crate::engine::dry_runs::calibration::findings::table(
+                    &params, subjects, seed, &progress,
+                )?;
+                if surveys > 0 {
+                    table += &crate::engine::dry_runs::calibration::surveys::table(
+                        &params,
+                        surveys.min(subjects),
+                        seed,
+                    )?;
+                }
+                Ok::<_, crate::error::AppError>(table)
+            })
+            .await?;
+            ticker.abort();
+            println!("{}", table?);
         }
         Command::Backup { db, out } => {
             if !db.db.is_file() {

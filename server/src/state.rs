@@ -6,6 +6,7 @@ use std::sync::Arc;
 use sqlx::SqlitePool;
 
 use crate::engine::accounts::login_limiter::LoginLimiter;
+use crate::engine::dry_runs::calibration::run::CalibrationJob;
 use crate::engine::dry_runs::pilot::PilotJob;
 use crate::engine::dry_runs::power::PlanJob;
 use crate::engine::machine::bench::BenchJob;
@@ -25,6 +26,8 @@ pub struct AppState {
     pub sockets: Arc<StationSockets>,
     pub pilot: Arc<PilotJob>,
     pub plan: Arc<PlanJob>,
+    /// The one calibration at a time.
+    pub calibration: Arc<CalibrationJob>,
     /// The one bench run at a time.
     pub bench: Arc<BenchJob>,
     pub stability: Arc<StabilityCache>,
@@ -47,6 +50,7 @@ impl AppState {
             sockets: Arc::default(),
             pilot: Arc::default(),
             plan: Arc::default(),
+            calibration: Arc::default(),
             bench: Arc::default(),
             stability: Arc::default(),
             backups: Arc::default(),

@@ -4,6 +4,7 @@ mod accounts;
 mod backups;
 mod bids;
 mod browser;
+mod calibration;
 mod controller_cli;
 mod controller_estop;
 mod controller_input_udp;

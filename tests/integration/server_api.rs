@@ -690,7 +690,8 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
             assert_eq!(get(r, "protocol_hash"), hash);
             let mean: f64 = get(r, "target_mean_mm").parse().unwrap();
             let std: f64 = get(r, "target_std_mm").parse().unwrap();
-            assert!(mean.abs() <= 1.0 && (std / 20.0 - 1.0).abs() <= 0.05);
+            // The default target: 12 mm (docs/synthetic-subjects.md, the model card).
+            assert!(mean.abs() <= 1.0 && (std / 12.0 - 1.0).abs() <= 0.05);
             let mse: f64 = get(r, "mse_tracking_mm2").parse().unwrap();
             assert!(mse > 0.0 && mse < 2000.0, "{mse}");
             // Each synthetic subject answers the survey of every scored test on the

@@ -29,6 +29,7 @@ fn a_study_that_cannot_run_is_refused_at_creation_and_edit_naming_the_field() {
 
     // A target std of 32 mm within ±40 mm passes the range check but no target fits.
     let mut p = defaults(&api);
+    p["target_range_mm"] = json!(40.0);
     p["target_std_mm"] = json!(32.0);
     let (code, err) = create(&api, &p);
     assert_eq!(code, 422, "{err}");
@@ -78,6 +79,7 @@ fn a_study_that_cannot_run_is_refused_at_creation_and_edit_naming_the_field() {
     );
     let id = st["id"].as_i64().unwrap();
     let mut p = defaults(&api);
+    p["target_range_mm"] = json!(40.0);
     p["target_std_mm"] = json!(32.0);
     let (code, body) = api.call(
         "PUT",

@@ -1,7 +1,7 @@
 //! `SyntheticOperator` for every lane: each lane its own subject (delay, gains, lags,
 //! remnant), stepped with the scalar operator's operations in its order.
 
-use crate::operator::{GRIP_EVERY, SyntheticOperator};
+use crate::operator::{GRIP_EVERY, SyntheticOperator, neuromuscular_lag};
 
 use super::rig::BiquadLanes;
 use super::{LANES, Lanes, ZERO};
@@ -13,6 +13,9 @@ pub(crate) struct OperatorLanes {
     integral_gain: Lanes,
     grip_stiffening: Lanes,
     vibration_remnant: Lanes,
+    vibration_slowing: Lanes,
+    neuromuscular_w: Lanes,
+    neuromuscular_zeta: Lanes,
     remnant_in_std: Lanes,
     k_bf: Lanes,
     dt: f64,
@@ -33,6 +36,7 @@ pub(crate) struct OperatorLanes {
     felt_ms: Lanes,
     pub(crate) grip: Lanes,
     shaken: Lanes,
+    slowed: Lanes,
     grip_countdown: u32,
 }
 
@@ -49,6 +53,9 @@ impl OperatorLanes {
             integral_gain: lanes(|o| o.params.error_integral_gain),
             grip_stiffening: lanes(|o| o.params.grip_stiffening_per_m_s2),
             vibration_remnant: lanes(|o| o.params.vibration_remnant_per_m_s2),
+            vibration_slowing: lanes(|o| o.params.vibration_slowing_per_m_s2),
+            neuromuscular_w: lanes(|o| o.params.neuromuscular_w),
+            neuromuscular_zeta: lanes(|o| o.params.neuromuscular_zeta),
             remnant_in_std: lanes(|o| o.remnant_in_std),
             k_bf: lanes(|o| o.k_bf),
             dt: ops[0].dt,
@@ -64,6 +71,7 @@ impl OperatorLanes {
             felt_ms: ZERO,
             grip: [1.0; LANES],
             shaken: [1.0; LANES],
+            slowed: [1.0; LANES],
             grip_countdown: GRIP_EVERY,
         }
     }
@@ -108,6 +116,18 @@ impl OperatorLanes {
                 let felt = self.felt_ms[l].sqrt() * 1e-3;
                 self.grip[l] = 1.0 + self.grip_stiffening[l] * felt;
                 self.shaken[l] = 1.0 + self.vibration_remnant[l] * felt;
+                let slowed = 1.0 + self.vibration_slowing[l] * felt;
+                if slowed != self.slowed[l] {
+                    self.slowed[l] = slowed;
+                    self.arm.retune(
+                        l,
+                        &neuromuscular_lag(
+                            self.neuromuscular_w[l] / slowed,
+                            self.neuromuscular_zeta[l],
+                            self.dt,
+                        ),
+                    );
+                }
             }
         }
 

@@ -25,6 +25,7 @@ fn operator(l: usize) -> OperatorParams {
         shake_aversion_per_mm: 0.8 * x,
         grip_stiffening_per_m_s2: 0.05 + 0.6 * x,
         vibration_remnant_per_m_s2: 1.0 - x,
+        vibration_slowing_per_m_s2: 2.0 * x,
     }
 }
 

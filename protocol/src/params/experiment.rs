@@ -29,6 +29,11 @@ pub struct OperatorParams {
     /// Rise of the remnant (fraction) per m/s² RMS of cab acceleration felt: whole-body
     /// vibration makes manual control noisier.
     pub vibration_remnant_per_m_s2: f64,
+    /// Slowing of the operator per m/s² RMS of cab acceleration felt: the neuromuscular
+    /// corner ω_nm falls by 1/(1 + this·felt). Whole-body vibration lowers the operator's
+    /// gain and adds phase lag in the tracking band (crossover regression under a
+    /// disturbing, oscillatory task).
+    pub vibration_slowing_per_m_s2: f64,
 }
 
 impl Default for OperatorParams {
@@ -43,6 +48,7 @@ impl Default for OperatorParams {
             shake_aversion_per_mm: 0.5,
             grip_stiffening_per_m_s2: 0.15,
             vibration_remnant_per_m_s2: 0.5,
+            vibration_slowing_per_m_s2: 0.0,
         }
     }
 }
@@ -72,6 +78,12 @@ impl OperatorParams {
         check(
             "operator.vibration_remnant_per_m_s2",
             self.vibration_remnant_per_m_s2,
+            0.0,
+            10.0,
+        )?;
+        check(
+            "operator.vibration_slowing_per_m_s2",
+            self.vibration_slowing_per_m_s2,
             0.0,
             10.0,
         )?;

@@ -15,6 +15,7 @@ pub mod page;
 mod accounts;
 mod backups;
 mod bench;
+mod calibration;
 mod configs;
 mod controller;
 mod erasure;
@@ -81,6 +82,7 @@ pub fn app(state: AppState) -> Router {
         .merge(trials::routes())
         .merge(controller::experimenter())
         .merge(pilot::routes())
+        .merge(calibration::routes())
         .merge(bench::routes())
         .merge(configs::routes())
         .merge(results::routes())

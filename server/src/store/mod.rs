@@ -16,6 +16,7 @@ pub mod erasure;
 pub mod exports;
 pub mod latch;
 pub mod pilot_runs;
+pub mod populations;
 pub mod records;
 pub mod server_runs;
 pub mod stations;

@@ -24,6 +24,9 @@ pub struct Study {
     /// Who acknowledged that a design is unstable on the machine, when and why (simulated
     /// studies only; cleared by an edit).
     pub instability_ack: Option<InstabilityAck>,
+    /// The calibrated version of the population `params` holds (0: the study's own;
+    /// `population_versions`).
+    pub population_version: i64,
 }
 
 /// Who acknowledged that a study's design is unstable on the machine, when and why.
@@ -49,17 +52,25 @@ struct StudyRow {
     protocol_hash: Option<String>,
     created_at: i64,
     instability_ack_json: Option<String>,
+    population_json: Option<String>,
+    population_version: Option<i64>,
 }
 
 impl TryFrom<StudyRow> for Study {
     type Error = AppError;
     fn try_from(r: StudyRow) -> Result<Self> {
+        let mut params: StudyParams = serde_json::from_str(&r.params_json).map_err(|e| {
+            AppError::Internal(anyhow::anyhow!("stored parameters of study {}: {e}", r.id))
+        })?;
+        if let Some(json) = &r.population_json {
+            params.population = serde_json::from_str(json).map_err(|e| {
+                AppError::Internal(anyhow::anyhow!("stored population of study {}: {e}", r.id))
+            })?;
+        }
         Ok(Study {
             id: r.id,
             name: r.name,
-            params: serde_json::from_str(&r.params_json).map_err(|e| {
-                AppError::Internal(anyhow::anyhow!("stored parameters of study {}: {e}", r.id))
-            })?,
+            params,
             seed: r.seed as u64,
             version: r.version,
             locked_at: r.locked_at,
@@ -68,9 +79,17 @@ impl TryFrom<StudyRow> for Study {
             instability_ack: r
                 .instability_ack_json
                 .and_then(|j| serde_json::from_str(&j).ok()),
+            population_version: r.population_version.unwrap_or(0),
         })
     }
 }
+
+/// A study with the newest calibrated population that applies to it: its own, or for a
+/// dry-run copy its parent's when that is newer (`population_versions`).
+const SELECT: &str = "SELECT s.*, p.population_json, p.version AS population_version FROM studies s \
+     LEFT JOIN population_versions p ON p.id = (SELECT v.id FROM population_versions v \
+     WHERE v.study_id = s.id OR v.study_id = (SELECT d.of_study FROM dry_runs d WHERE d.study_id = s.id) \
+     ORDER BY v.id DESC LIMIT 1)";
 
 fn params_json(params: &StudyParams) -> String {
     serde_json::to_string(params).expect("study parameters always serialize")
@@ -98,7 +117,7 @@ pub async fn insert(
 }
 
 pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Study> {
-    let row: Option<StudyRow> = sqlx::query_as("SELECT * FROM studies WHERE id = ?")
+    let row: Option<StudyRow> = sqlx::query_as(&format!("{SELECT} WHERE s.id = ?"))
         .bind(id)
         .fetch_optional(db)
         .await?;
@@ -106,7 +125,7 @@ pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Study> {
 }
 
 pub async fn all<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<Study>> {
-    let rows: Vec<StudyRow> = sqlx::query_as("SELECT * FROM studies ORDER BY id")
+    let rows: Vec<StudyRow> = sqlx::query_as(&format!("{SELECT} ORDER BY s.id"))
         .fetch_all(db)
         .await?;
     rows.into_iter().map(Study::try_from).collect()

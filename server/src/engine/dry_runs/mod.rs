@@ -5,6 +5,7 @@
 //!
 //! *May use:* `study`, `machine`, `procedure`, `results` (only `operations` is above it).
 
+pub mod calibration;
 pub mod job;
 pub mod pilot;
 pub mod power;

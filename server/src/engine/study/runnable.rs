@@ -86,6 +86,7 @@ mod tests {
     #[test]
     fn a_target_std_the_range_cannot_hold_is_refused_naming_target_std_mm() {
         let mut p = default_params();
+        p.target_range_mm = 40.0;
         p.target_std_mm = 32.0;
         p.validate().expect("within the range check");
         let err = check(&p).unwrap_err().to_string();

@@ -1,0 +1,562 @@
+//! The fit: the population's medians (and the spread of its people, where the target
+//! carries spreads) by simulated moments. The moments are the logarithms of the target's
+//! cell means (and the mean log coefficient of variation over the cells with a spread); the
+//! simulator is `sim::simulate` on a fixed set of simulated subjects, so every evaluation
+//! uses common random numbers and the moments move smoothly with the parameters.
+//! Levenberg–Marquardt on the logarithms of the parameters, the Jacobian by forward
+//! differences; weights 1/(target's variance + Monte-Carlo variance) on the log scale.
+//! Intervals from the Jacobian at the optimum (a table) or a bootstrap over subjects (a
+//! study's own data, linearized at the optimum). A parameter whose half-e-fold change moves
+//! the moments by less than one standard error is not identified: left as it was and named.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use bdft_controller::rng::Rng;
+use bdft_protocol::params::{PopulationParams, Spread, bounds};
+use bdft_protocol::study::StudyParams;
+use bdft_protocol::trial::Metrics;
+use nalgebra::{DMatrix, DVector};
+use serde::Serialize;
+
+use super::sim::{Cell, SubjectRef, all_cells, simulate};
+use super::target::{Metric, Target, mean_sd};
+use crate::engine::dry_runs::job::Progress;
+use crate::error::{AppError, Result};
+
+/// A population parameter the calibration may fit: a median, or the people's spread.
+#[derive(Debug, Clone, Copy)]
+struct Knob {
+    name: &'static str,
+    get: fn(&PopulationParams) -> f64,
+    set: fn(&mut PopulationParams, f64),
+    bounds: (f64, f64),
+}
+
+/// The medians a target of tracking error and cab acceleration moves: the delay (the error
+/// level), the operator's error gain (how fast they correct), the slowing under vibration
+/// (the riding effect) and the body's feedthrough gain (vibration on the machine).
+const MEDIANS: [Knob; 4] = [
+    Knob {
+        name: "reaction_delay_s",
+        get: |p| p.reaction_delay_s.median,
+        set: |p, v| p.reaction_delay_s.median = v,
+        bounds: bounds::REACTION_DELAY_S,
+    },
+    Knob {
+        name: "error_gain",
+        get: |p| p.error_gain.median,
+        set: |p, v| p.error_gain.median = v,
+        bounds: (0.02, bounds::ERROR_GAIN.1),
+    },
+    Knob {
+        name: "vibration_slowing_per_m_s2",
+        get: |p| p.vibration_slowing_per_m_s2.median,
+        set: |p, v| p.vibration_slowing_per_m_s2.median = v,
+        bounds: (0.05, bounds::VIBRATION_SLOWING_PER_M_S2.1),
+    },
+    Knob {
+        name: "body_k_h",
+        get: |p| p.body_k_h.median,
+        set: |p, v| p.body_k_h.median = v,
+        bounds: bounds::BODY_K_H,
+    },
+];
+
+/// Every spread of the people's operators, scaled together: what a target with spreads over
+/// subjects moves.
+fn operator_spreads(p: &mut PopulationParams) -> [&mut Spread; 5] {
+    [
+        &mut p.reaction_delay_s,
+        &mut p.error_gain,
+        &mut p.remnant_std_mm,
+        &mut p.neuromuscular_w,
+        &mut p.vibration_slowing_per_m_s2,
+    ]
+}
+
+const SPREAD: Knob = Knob {
+    name: "operator_spread (cv of the operator's delay, gain, remnant, corner, slowing)",
+    get: |p| p.reaction_delay_s.cv,
+    set: |p, v| {
+        let scale = v / p.reaction_delay_s.cv.max(1e-9);
+        for s in operator_spreads(p) {
+            s.cv = (s.cv * scale).clamp(1e-3, 2.0);
+        }
+    },
+    bounds: (0.01, 1.5),
+};
+
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct FittedParameter {
+    pub name: String,
+    pub before: f64,
+    pub fitted: f64,
+    /// 95 % interval.
+    pub low: f64,
+    pub high: f64,
+}
+
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct CellFit {
+    pub controller: String,
+    pub station: String,
+    pub metric: String,
+    /// The target's mean (None for a prediction of a metric the target did not hold).
+    pub target: Option<f64>,
+    pub target_sd: Option<f64>,
+    pub target_n: Option<usize>,
+    /// The fitted population's simulated mean and its Monte-Carlo standard error.
+    pub prediction: f64,
+    pub monte_carlo_error: f64,
+}
+
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct FitReport {
+    pub source: String,
+    pub simulated_subjects: usize,
+    pub iterations: usize,
+    /// Σ weight·(log prediction − log target)² at the start and at the end.
+    pub objective_before: f64,
+    pub objective: f64,
+    pub parameters: Vec<FittedParameter>,
+    /// Parameters the target cannot move (left as they were).
+    pub not_identified: Vec<String>,
+    /// How the intervals were found.
+    pub intervals: String,
+    /// Every target cell: target, fitted prediction, Monte-Carlo error.
+    pub cells: Vec<CellFit>,
+    /// Every other metric in every cell of the study, predicted by the fitted population:
+    /// the honest test of the model.
+    pub predictions: Vec<CellFit>,
+    #[schema(value_type = Object)]
+    pub population: PopulationParams,
+}
+
+/// What one evaluation gives: the simulated metrics per subject and cell.
+struct Eval {
+    rows: Vec<Vec<Option<Metrics>>>,
+}
+
+impl Eval {
+    /// Mean, its Monte-Carlo standard error and the sd over subjects of `metric` in cell `j`.
+    fn cell(&self, j: usize, metric: Metric) -> (f64, f64, f64) {
+        let v: Vec<f64> = self
+            .rows
+            .iter()
+            .filter_map(|r| r[j].map(|m| metric.of(&m)))
+            .collect();
+        if v.len() < 2 {
+            return (f64::NAN, f64::NAN, f64::NAN);
+        }
+        let (mean, sd) = mean_sd(&v);
+        (mean, sd / (v.len() as f64).sqrt(), sd)
+    }
+}
+
+/// The fit's problem: the target's moments, their weights, the knobs fitted.
+struct Problem<'a> {
+    params: &'a StudyParams,
+    target: &'a Target,
+    cells: Vec<Cell>,
+    subjects: Vec<SubjectRef>,
+    knobs: Vec<Knob>,
+    progress: &'a Progress,
+    cancel: &'a AtomicBool,
+}
+
+/// The judgement used where a table gives no spread: a cell mean known to ±10 %.
+const DEFAULT_LOG_SE: f64 = 0.1;
+
+impl Problem<'_> {
+    fn population(&self, theta: &[f64]) -> PopulationParams {
+        let mut pop = self.params.population;
+        for (k, t) in self.knobs.iter().zip(theta) {
+            (k.set)(&mut pop, t.exp().clamp(k.bounds.0, k.bounds.1));
+        }
+        pop
+    }
+
+    fn run(&self, theta: &[f64]) -> Result<Eval> {
+        if self.cancel.load(Ordering::Relaxed) {
+            return Err(AppError::Conflict("the calibration was cancelled".into()));
+        }
+        let params = StudyParams {
+            population: self.population(theta),
+            ..self.params.clone()
+        };
+        let rows = simulate(
+            &params,
+            &self.subjects,
+            &self.cells,
+            self.progress,
+            self.cancel,
+        )?;
+        Ok(Eval { rows })
+    }
+
+    fn index(&self, cell: Cell) -> usize {
+        self.cells
+            .iter()
+            .position(|&c| c == cell)
+            .expect("a simulated cell")
+    }
+
+    /// The Jacobian of the moments `m` at `theta` in log-parameter space, by forward
+    /// differences of `JACOBIAN_STEP`.
+    fn jacobian(&self, theta: &[f64], m: &DVector<f64>) -> Result<DMatrix<f64>> {
+        let p = self.knobs.len();
+        let mut jac = DMatrix::zeros(m.len(), p);
+        for k in 0..p {
+            let mut th = theta.to_vec();
+            th[k] += JACOBIAN_STEP;
+            let (mk, _) = self.moments(&self.run(&th)?);
+            jac.set_column(k, &((mk - m) / JACOBIAN_STEP));
+        }
+        Ok(jac)
+    }
+
+    /// Moments of an evaluation, and their Monte-Carlo variances: per target cell the mean
+    /// log metric over subjects where the target knows its spread (else the log of the
+    /// mean), then the mean over those cells of the sd of the log metric.
+    fn moments(&self, e: &Eval) -> (DVector<f64>, DVector<f64>) {
+        let mut m = Vec::new();
+        let mut var = Vec::new();
+        let mut sds = Vec::new();
+        for t in &self.target.cells {
+            let j = self.index(t.cell);
+            if t.log.is_some() {
+                let logs: Vec<f64> = e
+                    .rows
+                    .iter()
+                    .filter_map(|r| r[j].map(|x| t.metric.of(&x).max(1e-12).ln()))
+                    .collect();
+                let (mean, sd) = if logs.len() < 2 {
+                    (f64::NAN, f64::NAN)
+                } else {
+                    mean_sd(&logs)
+                };
+                m.push(mean);
+                var.push(sd * sd / logs.len().max(1) as f64);
+                sds.push(sd);
+            } else {
+                let (mean, se, _) = e.cell(j, t.metric);
+                m.push(mean.max(1e-12).ln());
+                var.push((se / mean).powi(2));
+            }
+        }
+        if !sds.is_empty() {
+            m.push(sds.iter().sum::<f64>() / sds.len() as f64);
+            // The sd of a normal sample has a standard error of about sd/√(2n).
+            var.push(m[m.len() - 1].powi(2) / (2.0 * self.subjects.len() as f64));
+        }
+        (DVector::from_vec(m), DVector::from_vec(var))
+    }
+
+    /// The target's moments and their variances, as `moments`.
+    fn target_moments(&self, target: &Target) -> (DVector<f64>, DVector<f64>) {
+        let mut m = Vec::new();
+        let mut var = Vec::new();
+        let mut sds = Vec::new();
+        for t in &target.cells {
+            match (t.log, t.n) {
+                (Some((mean, sd)), Some(n)) => {
+                    m.push(mean);
+                    var.push(sd * sd / n as f64);
+                    sds.push((sd, n));
+                }
+                _ => {
+                    m.push(t.mean.ln());
+                    var.push(DEFAULT_LOG_SE.powi(2));
+                }
+            }
+        }
+        if !sds.is_empty() {
+            let mean = sds.iter().map(|s| s.0).sum::<f64>() / sds.len() as f64;
+            let n = sds.iter().map(|s| s.1).sum::<usize>() / sds.len();
+            m.push(mean);
+            var.push(mean * mean / (2.0 * n as f64));
+        }
+        (DVector::from_vec(m), DVector::from_vec(var))
+    }
+}
+
+/// The target cells that carry a spread over subjects.
+fn with_spread(target: &Target) -> Vec<usize> {
+    (0..target.cells.len())
+        .filter(|&i| target.cells[i].log.is_some() && target.cells[i].n.is_some())
+        .collect()
+}
+
+/// Refuses a target with fewer moments than the parameters it would fit (422).
+pub fn check_enough(target: &Target) -> Result<()> {
+    let spread = !with_spread(target).is_empty();
+    let params = MEDIANS.len() + usize::from(spread);
+    let moments = target.cells.len() + usize::from(spread);
+    if moments < params {
+        return Err(AppError::BadRequest(format!(
+            "table: {} cells give {moments} moments, too few for the {params} parameters fitted ({}{}); give at least {} cells",
+            target.cells.len(),
+            MEDIANS.map(|k| k.name).join(", "),
+            if spread { ", operator_spread" } else { "" },
+            MEDIANS.len(),
+        )));
+    }
+    Ok(())
+}
+
+/// Forward-difference step of the Jacobian (log units: 16 %).
+const JACOBIAN_STEP: f64 = 0.15;
+
+/// Bootstrap resamples for the intervals.
+const BOOTSTRAP: usize = 400;
+
+/// How many simulated subjects a calibration runs per evaluation, at most.
+pub const MAX_SUBJECTS: usize = 512;
+
+/// Fits `params.population` to `target` with `n_sim` simulated subjects (seeded `seed`):
+/// the fitted population and the report. `progress` counts simulated trials; `cancel` stops
+/// it (409).
+pub fn fit(
+    params: &StudyParams,
+    target: &Target,
+    source: &str,
+    n_sim: usize,
+    seed: u64,
+    progress: &Progress,
+    cancel: &AtomicBool,
+) -> Result<FitReport> {
+    if !(8..=MAX_SUBJECTS).contains(&n_sim) {
+        return Err(AppError::BadRequest(format!(
+            "simulated_subjects: 8 to {MAX_SUBJECTS}"
+        )));
+    }
+    check_enough(target)?;
+    let with_sd = with_spread(target);
+    let mut knobs: Vec<Knob> = MEDIANS.to_vec();
+    if !with_sd.is_empty() {
+        knobs.push(SPREAD);
+    }
+    let cells = all_cells(params);
+    let subjects: Vec<SubjectRef> = (0..n_sim as u32)
+        .map(|index| SubjectRef { seed, index })
+        .collect();
+    let problem = Problem {
+        params,
+        target,
+        cells,
+        subjects,
+        knobs,
+        progress,
+        cancel,
+    };
+    let before: Vec<f64> = problem
+        .knobs
+        .iter()
+        .map(|k| (k.get)(&params.population).max(k.bounds.0))
+        .collect();
+    let (t, t_var) = problem.target_moments(target);
+    let objective = |m: &DVector<f64>, w: &DVector<f64>| (m - &t).component_mul(&(m - &t)).dot(w);
+    let mut theta: Vec<f64> = before.iter().map(|v| v.ln()).collect();
+    let mut eval = problem.run(&theta)?;
+    let (mut m, mc) = problem.moments(&eval);
+    let w: DVector<f64> = (&t_var + &mc).map(|v| 1.0 / v.max(1e-12));
+    let objective_before = objective(&m, &w);
+    let mut current = objective_before;
+    let mut lambda = 1e-2;
+    let mut iterations = 0;
+    let mut jac;
+    let mut identified: Vec<usize>;
+    loop {
+        iterations += 1;
+        jac = problem.jacobian(&theta, &m)?;
+        let p = problem.knobs.len();
+        // Identified: half an e-fold of the parameter moves the moments by at least one
+        // standard error (weighted norm of the column).
+        identified = (0..p)
+            .filter(|&k| 0.5 * jac.column(k).component_mul(&jac.column(k)).dot(&w).sqrt() >= 1.0)
+            .collect();
+        if identified.is_empty() || iterations > 8 {
+            break;
+        }
+        let j = jac.select_columns(identified.iter());
+        let jw = j.transpose() * DMatrix::from_diagonal(&w);
+        let jtj = &jw * &j;
+        let g = &jw * (&t - &m);
+        let mut accepted = false;
+        for _ in 0..4 {
+            let mut a = jtj.clone();
+            for d in 0..a.nrows() {
+                a[(d, d)] *= 1.0 + lambda;
+            }
+            let Some(step) = a.lu().solve(&g) else {
+                break;
+            };
+            let step = step.map(|s| s.clamp(-0.7, 0.7));
+            let mut th = theta.clone();
+            for (i, &k) in identified.iter().enumerate() {
+                let (lo, hi) = problem.knobs[k].bounds;
+                th[k] = (th[k] + step[i]).clamp(lo.max(1e-6).ln(), hi.ln());
+            }
+            let e = problem.run(&th)?;
+            let (mt, _) = problem.moments(&e);
+            let o = objective(&mt, &w);
+            if o < current {
+                let small = step.amax() < 0.01;
+                theta = th;
+                eval = e;
+                m = mt;
+                current = o;
+                lambda = (lambda / 10.0).max(1e-6);
+                accepted = true;
+                if small {
+                    break;
+                }
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !accepted {
+            // The Jacobian is the optimum's already.
+            break;
+        }
+        if current < 1e-3 {
+            jac = problem.jacobian(&theta, &m)?;
+            break;
+        }
+    }
+    // Covariance of the identified log-parameters.
+    let j = jac.select_columns(identified.iter());
+    let jw = j.transpose() * DMatrix::from_diagonal(&w);
+    let info = &jw * &j;
+    let cov = info.clone().try_inverse();
+    // Intervals by a two-sided bootstrap, linearized at the fit: each resample redraws the
+    // target (the study's subjects resampled, or each table cell from its standard error)
+    // and the simulated subjects (resampled: the Monte-Carlo error, with its correlation
+    // across cells), and moves the fit by the Gauss–Newton step that answers the change.
+    let (low_high, intervals): (Vec<(f64, f64)>, String) = match &cov {
+        Some(cov) => {
+            let mut rng = Rng::new(seed ^ 0xb007);
+            let mut draws: Vec<Vec<f64>> = vec![Vec::new(); identified.len()];
+            let resample =
+                |rows: &[Vec<Option<Metrics>>], rng: &mut Rng| -> Vec<Vec<Option<Metrics>>> {
+                    let n = rows.len();
+                    (0..n)
+                        .map(|_| rows[((rng.next_f64() * n as f64) as usize).min(n - 1)].clone())
+                        .collect()
+                };
+            for _ in 0..BOOTSTRAP {
+                let tb = match &target.subjects {
+                    Some(rows) => {
+                        let boot =
+                            super::target::from_subjects(&problem.cells, resample(rows, &mut rng));
+                        if boot.cells.len() != target.cells.len()
+                            || boot
+                                .cells
+                                .iter()
+                                .zip(&target.cells)
+                                .any(|(a, b)| a.cell != b.cell || a.metric != b.metric)
+                        {
+                            continue;
+                        }
+                        problem.target_moments(&boot).0
+                    }
+                    None => t.zip_map(&t_var, |v, var| v + var.sqrt() * rng.normal()),
+                };
+                let mb = problem
+                    .moments(&Eval {
+                        rows: resample(&eval.rows, &mut rng),
+                    })
+                    .0;
+                if mb.iter().any(|v| !v.is_finite()) {
+                    continue;
+                }
+                let delta = cov * (&jw * ((tb - &t) - (mb - &m)));
+                for (i, d) in delta.iter().enumerate() {
+                    draws[i].push(theta[identified[i]] + d);
+                }
+            }
+            let ci = draws
+                .into_iter()
+                .map(|mut d| {
+                    if d.is_empty() {
+                        return (f64::NAN, f64::NAN);
+                    }
+                    d.sort_by(f64::total_cmp);
+                    let at =
+                        |q: f64| d[((q * (d.len() - 1) as f64).round() as usize).min(d.len() - 1)];
+                    (at(0.025).exp(), at(0.975).exp())
+                })
+                .collect();
+            let data = if target.subjects.is_some() {
+                "the study's subjects resampled"
+            } else {
+                "each table cell redrawn from its standard error (sd/√n, or ±10 % where the table gives none)"
+            };
+            (
+                ci,
+                format!(
+                    "95 % bootstrap ({BOOTSTRAP} resamples, linearized at the fit): {data}, and the simulated subjects resampled (the Monte-Carlo error)"
+                ),
+            )
+        }
+        None => (
+            Vec::new(),
+            "none: the identified parameters are collinear".into(),
+        ),
+    };
+    let population = problem.population(&theta);
+    let parameters = identified
+        .iter()
+        .enumerate()
+        .map(|(i, &k)| FittedParameter {
+            name: problem.knobs[k].name.to_string(),
+            before: before[k],
+            fitted: (problem.knobs[k].get)(&population),
+            low: low_high.get(i).map_or(f64::NAN, |x| x.0),
+            high: low_high.get(i).map_or(f64::NAN, |x| x.1),
+        })
+        .collect();
+    let not_identified = (0..problem.knobs.len())
+        .filter(|k| !identified.contains(k))
+        .map(|k| problem.knobs[k].name.to_string())
+        .collect();
+    let name = |c: Cell| params.controllers[c.controller].kind().name().to_string();
+    let fit_of = |cell: Cell, metric: Metric, t: Option<&super::target::TargetCell>| {
+        let (mean, se, _) = eval.cell(problem.index(cell), metric);
+        CellFit {
+            controller: name(cell),
+            station: cell.seat.as_str().to_string(),
+            metric: metric.name().to_string(),
+            target: t.map(|t| t.mean),
+            target_sd: t.and_then(|t| t.sd),
+            target_n: t.and_then(|t| t.n),
+            prediction: mean,
+            monte_carlo_error: se,
+        }
+    };
+    let cells = target
+        .cells
+        .iter()
+        .map(|t| fit_of(t.cell, t.metric, Some(t)))
+        .collect();
+    let predictions = problem
+        .cells
+        .iter()
+        .flat_map(|&c| Metric::ALL.map(|m| (c, m)))
+        .filter(|(c, m)| !target.cells.iter().any(|t| t.cell == *c && t.metric == *m))
+        .map(|(c, m)| fit_of(c, m, None))
+        .collect();
+    Ok(FitReport {
+        source: source.to_string(),
+        simulated_subjects: n_sim,
+        iterations,
+        objective_before,
+        objective: current,
+        parameters,
+        not_identified,
+        intervals,
+        cells,
+        predictions,
+        population,
+    })
+}

@@ -1,0 +1,11 @@
+//! Calibration of a study's synthetic population to data, and what a population predicts.
+
+pub mod findings;
+pub mod fit;
+pub mod run;
+pub mod sim;
+pub mod surveys;
+pub mod target;
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,123 @@
+//! What a population's subjects answer in the surveys, cell by cell: each subject's scored
+//! test run in full with its record (the trial a pilot runs, `runtime::local::run`), then
+//! perceived and answered as a pilot's subject answers (`population::perceive`, `answers`).
+//! The batch simulator keeps no records to perceive, so this costs a pilot's time per test:
+//! for pilots of a few subjects.
+
+use std::sync::atomic::AtomicBool;
+
+use bdft_controller::population;
+use bdft_controller::rng::Rng;
+use bdft_protocol::study::StudyParams;
+use bdft_protocol::trial::{Outcome, record_channel};
+use serde::Serialize;
+
+use super::findings::median;
+use super::sim::{Cell, DT, SubjectRef, on_every_core, trial};
+use crate::engine::study::synthetic;
+use crate::error::{AppError, Result};
+
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct SurveyCell {
+    pub controller: String,
+    pub station: String,
+    /// Subjects whose test completed (and who answered).
+    pub n: usize,
+    /// Mean over subjects of accuracy, speed, smoothness and controllability (the scale's
+    /// points): with eight subjects a mean separates cells a median of 7-point answers
+    /// rounds together.
+    pub mean_ratings: [f64; 4],
+    /// Median perceived response lag (s) and felt cab acceleration (m/s²).
+    pub median_lag_s: f64,
+    pub median_felt_m_s2: f64,
+}
+
+/// One answered test: its cell, ratings and what was perceived.
+type Answered = (usize, [u8; 4], population::Perception);
+
+/// Every `subjects`' answers in every one of `cells`, on every core.
+pub fn surveys(
+    params: &StudyParams,
+    subjects: &[SubjectRef],
+    cells: &[Cell],
+) -> Result<Vec<SurveyCell>> {
+    let items = subjects.len() * cells.len();
+    let one = |item: usize| -> Result<Option<Answered>> {
+        let (subject, c) = (subjects[item / cells.len()], item % cells.len());
+        let cell = cells[c];
+        let (start, target_seed) = trial(
+            params,
+            subject,
+            cell.seat,
+            &params.controllers[cell.controller],
+        )?;
+        let (result, channels) = bdft_controller::runtime::local::run(&start, DT)
+            .map_err(|e| AppError::BadRequest(format!("a simulated trial: {e}")))?;
+        if result.outcome != Outcome::Complete {
+            return Ok(None);
+        }
+        let channel = |name: &str| {
+            record_channel(name)
+                .and_then(|i| channels.get(i))
+                .map_or(&[][..], Vec::as_slice)
+        };
+        let perceived = population::perceive(
+            channel("target_mm"),
+            channel("cyl_pos_mm"),
+            channel("cab_accel_mm_s2"),
+            cell.seat,
+            DT,
+        );
+        let (ratings, _) = population::answers(
+            &synthetic::draw(params, subject.seed, subject.index),
+            &perceived,
+            cell.seat,
+            params.survey.scale_points,
+            Rng::derive(target_seed, Rng::SURVEY).next_u64(),
+        );
+        Ok(Some((c, ratings, perceived)))
+    };
+    let answered = on_every_core(items, &AtomicBool::new(false), |item| {
+        one(item).map(|a| a.into_iter().collect())
+    })?;
+    Ok(cells
+        .iter()
+        .enumerate()
+        .map(|(c, cell)| {
+            let mine: Vec<&Answered> = answered.iter().filter(|a| a.0 == c).collect();
+            let n = mine.len();
+            let mean =
+                |i: usize| mine.iter().map(|a| f64::from(a.1[i])).sum::<f64>() / n.max(1) as f64;
+            SurveyCell {
+                controller: params.controllers[cell.controller]
+                    .kind()
+                    .name()
+                    .to_string(),
+                station: cell.seat.as_str().to_string(),
+                n,
+                mean_ratings: [mean(0), mean(1), mean(2), mean(3)],
+                median_lag_s: median(mine.iter().map(|a| a.2.response_lag_s).collect()),
+                median_felt_m_s2: median(mine.iter().map(|a| a.2.felt_rms_m_s2).collect()),
+            }
+        })
+        .collect())
+}
+
+/// The survey answers of the first `subjects` of `params` (enrolled as a study seeded `seed`
+/// would enrol them) as a Markdown table: `bdft-server findings`.
+pub fn table(params: &StudyParams, subjects: u32, seed: u64) -> Result<String> {
+    let cells = super::sim::all_cells(params);
+    let answers = surveys(params, &super::sim::enrolled(seed, subjects), &cells)?;
+    let mut out = format!(
+        "\nSurveys of the first {subjects} subjects (mean rating; {}-point scale, higher is better)\n\n| controller | station | accuracy | speed | smoothness | controllability | median lag (s) | median felt (m/s²) |\n|---|---|---:|---:|---:|---:|---:|---:|\n",
+        params.survey.scale_points
+    );
+    for c in &answers {
+        let [a, sp, sm, co] = c.mean_ratings;
+        out += &format!(
+            "| {} | {} | {a:.2} | {sp:.2} | {sm:.2} | {co:.2} | {:.2} | {:.2} |\n",
+            c.controller, c.station, c.median_lag_s, c.median_felt_m_s2
+        );
+    }
+    Ok(out)
+}
