@@ -14,7 +14,7 @@ use crate::engine::dry_runs::pilot;
 use crate::engine::dry_runs::power::{self, PlanRequest, PlanSource};
 use crate::engine::machine::controller_link;
 use crate::engine::operations::schedule::{Backups, Policy};
-use crate::engine::operations::{backup, presence, restore};
+use crate::engine::operations::{audit_signing, backup, presence, restore};
 use crate::engine::procedure::filing;
 use crate::engine::results::export;
 use crate::engine::results::export::{ExportFormat, ExportKind, ExportRequest, SampleCut, bids};
@@ -150,6 +150,11 @@ enum Command {
         #[command(flatten)]
         db: DbConfig,
     },
+    /// The audit log: `audit verify` checks its hash chain and signed checkpoints.
+    Audit {
+        #[command(subcommand)]
+        command: AuditCommand,
+    },
     /// Write an export of a study as CSV or Parquet, or the study as a BIDS dataset.
     Export {
         #[command(flatten)]
@@ -203,6 +208,21 @@ fn progress_ticker(
             }
         }
     })
+}
+
+#[derive(Debug, Subcommand)]
+enum AuditCommand {
+    /// Checks that no audit entry was edited, deleted, reordered or cut off: prints
+    /// "intact: N entries, head H, last checkpoint K", or the first entry that fails and why
+    /// (exit status 1). Opens the file read-only; a server may be running on it.
+    Verify {
+        #[command(flatten)]
+        db: DbConfig,
+        /// The server's audit public key (64 hex digits, printed at its start) [default:
+        /// the key file beside the database].
+        #[arg(long)]
+        public_key: Option<String>,
+    },
 }
 
 pub fn run() -> ExitCode {
@@ -409,6 +429,23 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             ticker.abort();
             println!("{}", table?);
         }
+        Command::Audit {
+            command: AuditCommand::Verify { db, public_key },
+        } => {
+            let trusted = audit_signing::trusted_key(&db.db, public_key.as_deref())?;
+            let verdict = store::audit_chain::verify_file(&db.db, trusted.as_ref())
+                .await
+                .map_err(|e| anyhow::anyhow!("{}: {}", db.db.display(), e.describe()))?;
+            if trusted.is_none() {
+                println!(
+                    "(no key file beside the database and no --public-key: checkpoints are checked against the key each names)"
+                );
+            }
+            println!("{verdict}");
+            if !verdict.intact {
+                anyhow::bail!("the audit log of {} is not intact", db.db.display());
+            }
+        }
         Command::Backup { db, out } => {
             if !db.db.is_file() {
                 anyhow::bail!("--db {}: no such database", db.db.display());
@@ -506,6 +543,8 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
         None => std::sync::Arc::default(),
     };
     let pool = store::db::open_capped(&config.db.db, config.db_max_pages).await?;
+    let audit_key = audit_signing::load_or_create(&config.db.db)?;
+    let audit_public = audit_key.verifying_key();
     let interrupted = filing::interrupt_running(&pool, "server restart").await?;
     if !interrupted.is_empty() {
         tracing::warn!(trials = ?interrupted, "trials that were running when the server stopped are marked incomplete");
@@ -582,11 +621,24 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     state.web_dir = config.web_dir;
     state.login = std::sync::Arc::new(LoginLimiter::new(config.login.limits()));
     state.https = tls.is_some();
+    state.audit_public = Some(audit_public);
     state.backups = backups;
+    // The head after the start's own entries is signed before anyone is served.
+    audit_signing::checkpoint_now(&state.pool, &audit_key)
+        .await
+        .map_err(|e| anyhow::anyhow!("signing the audit chain's head: {}", e.describe()))?;
+    tokio::spawn(audit_signing::run_checkpoints(
+        state.pool.clone(),
+        audit_key,
+    ));
     if let Some(t) = &tls {
         // Printed before the address line: whoever reads the address has the fingerprint.
         println!("TLS certificate SHA-256 fingerprint: {}", t.fingerprint);
     }
+    println!(
+        "Audit log signing key (Ed25519, public): {}",
+        store::audit_chain::public_key_hex(&audit_public)
+    );
     println!("bdft-lab server on {scheme}://{addr}");
     use std::io::Write;
     let _ = std::io::stdout().flush();

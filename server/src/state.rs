@@ -38,6 +38,8 @@ pub struct AppState {
     /// Whether the server speaks HTTPS: cookies are then `Secure` and every answer carries
     /// HSTS.
     pub https: bool,
+    /// The public half of the key that signs the audit chain's checkpoints.
+    pub audit_public: Option<ed25519_dalek::VerifyingKey>,
 }
 
 impl AppState {
@@ -56,6 +58,7 @@ impl AppState {
             backups: Arc::default(),
             web_dir: None,
             https: false,
+            audit_public: None,
         }
     }
 }

@@ -1,6 +1,7 @@
 //! End-to-end tests, one binary: each module drives real processes of the product.
 
 mod accounts;
+mod audit_chain;
 mod backups;
 mod bids;
 mod browser;

@@ -23,6 +23,7 @@ use crate::engine::results::page::{parse_file, plot as draw_plot};
 use crate::engine::results::stats::{Stats, summary_stats};
 use crate::state::AppState;
 use crate::store::audit::AuditEntry;
+use crate::store::audit_chain::{self, Verdict};
 use crate::store::{self, Change};
 
 pub fn routes() -> OpenApiRouter<AppState> {
@@ -38,6 +39,7 @@ pub fn routes() -> OpenApiRouter<AppState> {
         .routes(routes!(bids_zip))
         .routes(routes!(audit_log))
         .routes(routes!(audit_export))
+        .routes(routes!(audit_verify))
 }
 
 /// Statistics per compensator × seat of every metric and rating.
@@ -321,6 +323,17 @@ async fn audit_export(State(s): State<AppState>, who: Experimenter) -> Result<Re
         .await?;
     let body = stream(&s, 0, ExportRequest::new(ExportKind::Audit));
     Ok(attachment(body, ExportFormat::Csv, "bdft-audit.csv"))
+}
+
+/// Whether the audit log is intact: its hash chain and signed checkpoints, checked against
+/// this server's key (`bdft-server audit verify` does the same on a file).
+#[utoipa::path(get, path = "/api/audit/verify", tag = "results",
+    responses((status = 200, body = Verdict)))]
+async fn audit_verify(State(s): State<AppState>, _who: Experimenter) -> ApiResult<Verdict> {
+    // One read transaction: the log, the chain and the checkpoints of one moment.
+    let mut tx = s.pool.begin().await?;
+    let verdict = audit_chain::verify(&mut tx, s.audit_public.as_ref()).await?;
+    Ok(AppJson(verdict))
 }
 
 #[derive(Debug, Deserialize, IntoParams)]

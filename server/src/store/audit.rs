@@ -25,18 +25,28 @@ pub(super) async fn append(
     target: Option<String>,
     detail: &str,
 ) -> Result<i64> {
-    Ok(sqlx::query(
-        "INSERT INTO audit_log (at, actor, actor_id, action, target, detail_json) VALUES (?, ?, (SELECT id FROM experimenters WHERE username = ?), ?, ?, ?)",
+    let (id, at, actor_id): (i64, i64, Option<i64>) = sqlx::query_as(
+        "INSERT INTO audit_log (at, actor, actor_id, action, target, detail_json) VALUES (?, ?, (SELECT id FROM experimenters WHERE username = ?), ?, ?, ?) RETURNING id, at, actor_id",
     )
     .bind(now_ms())
     .bind(actor)
     .bind(actor)
     .bind(action)
-    .bind(target)
+    .bind(&target)
     .bind(detail)
-    .execute(db)
-    .await?
-    .last_insert_rowid())
+    .fetch_one(&mut *db)
+    .await?;
+    let entry = super::audit_chain::Entry {
+        id,
+        at,
+        actor: actor.to_string(),
+        actor_id,
+        action: action.to_string(),
+        target,
+        detail_json: Some(detail.to_string()),
+    };
+    super::audit_chain::chain(db, &entry).await?;
+    Ok(id)
 }
 
 /// The detail of an action that records nothing besides who did it and to what: `{}`.

@@ -54,6 +54,13 @@ async fn open_with(
         .await
         .with_context(|| format!("opening the database {}", path.display()))?;
     MIGRATOR.run(&pool).await.context("applying migrations")?;
+    // Rows an earlier release wrote join the audit chain before anything is appended.
+    let mut tx = pool.begin_with("BEGIN IMMEDIATE").await?;
+    super::audit_chain::chain_late(&mut tx)
+        .await
+        .map_err(|e| anyhow::anyhow!(e.describe()))
+        .context("chaining the audit log")?;
+    tx.commit().await?;
     Ok(pool)
 }
 

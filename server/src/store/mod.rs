@@ -7,6 +7,7 @@
 
 pub mod accounts;
 pub mod audit;
+pub mod audit_chain;
 pub mod backups;
 pub mod bench;
 pub mod configs;
@@ -79,6 +80,11 @@ impl Change {
     ) -> Result<()> {
         let detail = json_text(&detail)?;
         audit::append(&mut self.conn, &self.actor, action, target, &detail).await?;
+        self.finish().await
+    }
+
+    /// Commits the transaction as it stands.
+    async fn finish(mut self) -> Result<()> {
         sqlx::query("COMMIT").execute(&mut *self.conn).await?;
         self.committed = true;
         Ok(())
@@ -95,9 +101,9 @@ impl Change {
         detail: impl Serialize,
     ) -> Result<Audited> {
         let detail = json_text(&detail)?;
-        let audit_id = audit::append(&mut self.tx, &self.actor, action, target, &detail).await?;
+        let audit_id = audit::append(&mut self.conn, &self.actor, action, target, &detail).await?;
         Ok(Audited {
-            tx: self.tx,
+            change: self,
             audit_id,
         })
     }
@@ -106,7 +112,7 @@ impl Change {
 /// A change whose audit row is already written ([`Change::audit_first`]).
 #[derive(Debug)]
 pub struct Audited {
-    tx: Transaction<'static, Sqlite>,
+    change: Change,
     /// The id of the change's audit row.
     pub audit_id: i64,
 }
@@ -114,13 +120,12 @@ pub struct Audited {
 impl Audited {
     /// The connection the change's statements run on.
     pub fn db(&mut self) -> &mut SqliteConnection {
-        &mut self.tx
+        self.change.db()
     }
 
     /// Commits everything, the audit row with it.
     pub async fn commit(self) -> Result<()> {
-        self.tx.commit().await?;
-        Ok(())
+        self.change.finish().await
     }
 }
 

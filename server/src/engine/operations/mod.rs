@@ -7,6 +7,8 @@
 //!   (its heartbeat, by which a restore knows a server holds the database).
 //! - Erasure on request: `erasure` erases a subject's data and lists the backups (by their
 //!   manifests) that still hold them.
+//! - The audit log's integrity: `audit_signing`, the server's key that signs the hash
+//!   chain's checkpoints (`store::audit_chain`) and the task that signs one every 5 minutes.
 //! - The ethics board's protocol package: `protocol_package`, rendered from the parameters
 //!   the protocol hash is computed from.
 //!
@@ -15,6 +17,7 @@
 //! package), `results` (the exports' codebook: the data kept, for the package), and what
 //! those use (`machine`).
 
+pub mod audit_signing;
 pub mod backup;
 pub mod checks;
 pub mod erasure;

@@ -555,6 +555,7 @@ mod tests {
             protocol_hash: None,
             created_at: 0,
             instability_ack: None,
+            population_version: 0,
         }
     }
 

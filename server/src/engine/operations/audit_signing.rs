@@ -1,0 +1,110 @@
+//! The server's audit signing key (Ed25519): made at the first start and kept beside the
+//! database (`bdft-lab.audit-key`, readable by its owner only); it signs a checkpoint of the
+//! audit chain's head at every start and then every few minutes (`store::audit_chain`). Its
+//! public half is printed at start and in the ethics board's package, so whoever verifies a
+//! copy of the database can check that its checkpoints are this server's.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::Context;
+use ed25519_dalek::{SigningKey, VerifyingKey};
+use sqlx::SqlitePool;
+
+use crate::store::audit_chain;
+
+/// How often the running server signs the head (when it moved).
+pub const CHECKPOINT_EVERY: Duration = Duration::from_secs(300);
+
+/// `bdft-lab.db` → `bdft-lab.audit-key`.
+pub fn key_path(db: &Path) -> PathBuf {
+    db.with_extension("audit-key")
+}
+
+fn parse_key(text: &str, path: &Path) -> anyhow::Result<SigningKey> {
+    let text = text.trim();
+    let mut bytes = [0u8; 32];
+    anyhow::ensure!(
+        text.len() == 64,
+        "{}: not an audit signing key (64 hex digits)",
+        path.display()
+    );
+    for (i, b) in bytes.iter_mut().enumerate() {
+        *b = u8::from_str_radix(&text[2 * i..2 * i + 2], 16).with_context(|| {
+            format!(
+                "{}: not an audit signing key (64 hex digits)",
+                path.display()
+            )
+        })?;
+    }
+    Ok(SigningKey::from_bytes(&bytes))
+}
+
+/// The key beside `db`, made (mode 0600) when there is none.
+pub fn load_or_create(db: &Path) -> anyhow::Result<SigningKey> {
+    let path = key_path(db);
+    if path.exists() {
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("reading {}", path.display()))?;
+        return parse_key(&text, &path);
+    }
+    let mut bytes = [0u8; 32];
+    getrandom::fill(&mut bytes).map_err(|e| anyhow::anyhow!("random audit key: {e}"))?;
+    let hex: String = bytes.iter().map(|b| format!("{b:02x}")).collect();
+    let mut options = std::fs::OpenOptions::new();
+    options.write(true).create_new(true);
+    #[cfg(unix)]
+    std::os::unix::fs::OpenOptionsExt::mode(&mut options, 0o600);
+    use std::io::Write;
+    let mut file = options
+        .open(&path)
+        .with_context(|| format!("creating {}", path.display()))?;
+    file.write_all(format!("{hex}\n").as_bytes())?;
+    file.sync_all()?;
+    Ok(SigningKey::from_bytes(&bytes))
+}
+
+/// The public key to trust when verifying `db`: `given` (hex), else the key file's beside
+/// it, else none (each checkpoint's own key, which proves less).
+pub fn trusted_key(db: &Path, given: Option<&str>) -> anyhow::Result<Option<VerifyingKey>> {
+    if let Some(hex) = given {
+        let mut bytes = [0u8; 32];
+        anyhow::ensure!(
+            hex.len() == 64,
+            "--public-key: 64 hex digits (the key the server prints at start)"
+        );
+        for (i, b) in bytes.iter_mut().enumerate() {
+            *b = u8::from_str_radix(&hex[2 * i..2 * i + 2], 16)
+                .context("--public-key: 64 hex digits (the key the server prints at start)")?;
+        }
+        return Ok(Some(
+            VerifyingKey::from_bytes(&bytes).context("--public-key: not an Ed25519 public key")?,
+        ));
+    }
+    let path = key_path(db);
+    if !path.exists() {
+        return Ok(None);
+    }
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    Ok(Some(parse_key(&text, &path)?.verifying_key()))
+}
+
+/// Signs the chain's head unless the newest checkpoint holds it already.
+pub async fn checkpoint_now(pool: &SqlitePool, key: &SigningKey) -> crate::error::Result<()> {
+    let mut tx = pool.begin_with("BEGIN IMMEDIATE").await?;
+    audit_chain::checkpoint(&mut tx, key).await?;
+    tx.commit().await?;
+    Ok(())
+}
+
+/// Signs the head every [`CHECKPOINT_EVERY`] while the server runs (the start signed it
+/// once already).
+pub async fn run_checkpoints(pool: SqlitePool, key: SigningKey) {
+    loop {
+        tokio::time::sleep(CHECKPOINT_EVERY).await;
+        if let Err(e) = checkpoint_now(&pool, &key).await {
+            tracing::error!("signing the audit chain's head: {}", e.describe());
+        }
+    }
+}
