@@ -11,9 +11,24 @@ export function init() {
   $('audit-refresh').addEventListener('click', () => refresh(true));
   $('audit-limit').addEventListener('change', () => refresh(true));
   $('audit-filter').addEventListener('input', debounce(render, 150));
+  $('audit-verify').addEventListener('click', verify);
   on('action', debounce(() => refresh(false), 400));
   on('trial', debounce(() => refresh(false), 1500));
   refresh(true);
+  verify();
+}
+
+// The chain's and the checkpoints' verdict, in the words `bdft-server audit verify` prints.
+async function verify() {
+  const out = $('audit-verdict');
+  setStatus(out, 'busy', 'Verifying…');
+  const r = await get('/api/audit/verify');
+  if (!r.ok) {
+    setStatus(out, 'err', `Could not verify the audit log: ${errText(r)}`);
+    return;
+  }
+  setStatus(out, r.data.intact ? 'ok' : 'err', r.data.report);
+  out.dataset.intact = String(r.data.intact);
 }
 
 export async function refresh(announce) {

@@ -15,6 +15,7 @@
 pub mod browser_to_server;
 pub mod controller_to_server;
 pub mod framing;
+pub mod hex;
 pub mod link_auth;
 pub mod numbers;
 pub mod params;

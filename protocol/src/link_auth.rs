@@ -64,19 +64,13 @@ impl Bytes32 {
     }
 
     pub fn to_hex(&self) -> String {
-        self.0.iter().map(|b| format!("{b:02x}")).collect()
+        crate::hex::encode(&self.0)
     }
 
     pub fn from_hex(s: &str) -> Result<Self, KeyError> {
-        let s = s.trim();
-        if s.len() != 64 || !s.bytes().all(|c| c.is_ascii_hexdigit()) {
-            return Err(KeyError::Format);
-        }
-        let mut b = [0u8; 32];
-        for (i, byte) in b.iter_mut().enumerate() {
-            *byte = u8::from_str_radix(&s[2 * i..2 * i + 2], 16).map_err(|_| KeyError::Format)?;
-        }
-        Ok(Self(b))
+        crate::hex::decode(s.trim())
+            .map(Self)
+            .ok_or(KeyError::Format)
     }
 }
 

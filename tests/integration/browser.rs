@@ -311,6 +311,23 @@ fn a_short_study_runs_end_to_end_in_a_real_browser() {
     let listed = String::from_utf8_lossy(&zip.1);
     assert!(listed.contains("/dataset_description.json") && listed.contains("_motion.tsv"));
 
+    // The audit page verifies the log's chain and checkpoints when asked, in the words of
+    // `bdft-server audit verify`.
+    dash.click("#audit-verify");
+    let verdict = dash.wait_until(
+        "const v = document.getElementById('audit-verdict'); \
+         return v.dataset.intact === 'true' && !v.classList.contains('busy') ? v.textContent : null;",
+        json!([]),
+    );
+    let verdict = verdict.as_str().unwrap_or_default();
+    assert!(
+        verdict.starts_with("intact: ")
+            && verdict.contains(" entries, head ")
+            && verdict.contains("last checkpoint at entry"),
+        "{verdict}"
+    );
+    shot(&dash, "13-audit-verified");
+
     // A subject's page that tries the dashboard's data is refused.
     machine.goto(&format!("{base}/api/studies"));
     assert!(
@@ -321,7 +338,7 @@ fn a_short_study_runs_end_to_end_in_a_real_browser() {
     machine.goto(&format!("{base}/"));
     machine.find("#login-username");
     assert!(!machine.body_text().contains("Browser study"));
-    shot(&machine, "13-subject-refused");
+    shot(&machine, "14-subject-refused");
     let (_, audit) = api.get("/api/audit?limit=500");
     let actions: Vec<Value> = audit
         .as_array()

@@ -5,7 +5,7 @@
 //! strict CSP (no inline script or style; its stylesheet repeats head and foot on every
 //! printed page).
 
-use bdft_tests::server::{Api, Server};
+use bdft_tests::server::{Api, Server, with_db};
 use serde_json::{Value, json};
 use sha2::{Digest, Sha256};
 
@@ -82,6 +82,20 @@ fn the_package_is_the_hashed_protocol_with_its_hash_on_every_page() {
     assert_eq!(headers["x-content-type-options"], "nosniff");
     assert_no_inline_code(&html);
     assert!(!html.contains("<script>alert"), "user text unescaped");
+    // The key that signs the audit log's checkpoints, as the server signed its first one.
+    let key: String = with_db(&server.db, async |pool| {
+        sqlx::query_scalar("SELECT public_key FROM audit_checkpoints ORDER BY id DESC LIMIT 1")
+            .fetch_one(pool)
+            .await
+            .unwrap()
+    });
+    assert_eq!(key.len(), 64, "{key}");
+    assert!(
+        html.contains(&format!(
+            "Audit log signing key (Ed25519, public)</td><td>{key}"
+        )),
+        "the package names the audit key {key}"
+    );
     assert!(html.contains("&lt;script&gt;alert(1)&lt;/script&gt; &amp; co"));
     assert!(
         html.contains(

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use bdft_tests::exports::compare;
-use bdft_tests::server::{Api, Server};
+use bdft_tests::server::{Api, Server, with_db};
 use bdft_tests::{TempDir, binary};
 use serde_json::Value;
 
@@ -53,6 +53,7 @@ fn differences(fixture: &Path) -> Vec<String> {
         .collect();
     assert!(!lines.is_empty(), "{name}: exports.txt lists no export");
     let mut found = Vec::new();
+    found.extend(audit_chained_late(fixture, &server));
     let check = |file: &str, now: Vec<u8>| -> Option<String> {
         let stored = std::fs::read(fixture.join("exports").join(file))
             .unwrap_or_else(|e| panic!("{name}: exports/{file}: {e}"));
@@ -101,6 +102,49 @@ fn differences(fixture: &Path) -> Vec<String> {
         }
     }
     found
+}
+
+/// The audit entries of a database made before the hash chain are chained at its first
+/// start under this release, each marked as chained late, and the log verifies.
+fn audit_chained_late(fixture: &Path, server: &Server) -> Option<String> {
+    let name = fixture.file_name().unwrap().to_string_lossy().into_owned();
+    let copy = TempDir::new("upgrade-audit");
+    let before = copy.path().join("bdft-lab.db");
+    std::fs::copy(fixture.join("bdft-lab.db"), &before).unwrap();
+    // The fixture's entries without a chain row: all of them before the chain existed.
+    let held: i64 = with_db(&before, async |pool| {
+        let has_chain: bool =
+            sqlx::query_scalar("SELECT COUNT(*) > 0 FROM sqlite_master WHERE name = 'audit_chain'")
+                .fetch_one(pool)
+                .await
+                .unwrap();
+        let unchained = if has_chain {
+            "SELECT COUNT(*) FROM audit_log WHERE id NOT IN (SELECT entry_id FROM audit_chain)"
+        } else {
+            "SELECT COUNT(*) FROM audit_log"
+        };
+        sqlx::query_scalar(unchained).fetch_one(pool).await.unwrap()
+    });
+    let chained: i64 = with_db(&server.db, async |pool| {
+        sqlx::query_scalar("SELECT COUNT(*) FROM audit_chain WHERE chained_late = 1")
+            .fetch_one(pool)
+            .await
+            .unwrap()
+    });
+    let verified = Command::new(binary("bdft-server"))
+        .args(["audit", "verify", "--db"])
+        .arg(&server.db)
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&verified.stdout).into_owned();
+    let late_said = held == 0 || said.contains(&format!("({held} entries chained late"));
+    (!verified.status.success() || !said.contains("intact: ") || !late_said || chained != held)
+    .then(|| {
+        format!(
+            "{name}: the fixture's {held} unchained audit entries, chained late: {chained}; `audit verify` said: {said}{}",
+            String::from_utf8_lossy(&verified.stderr)
+        )
+    })
 }
 
 #[test]

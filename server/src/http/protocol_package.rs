@@ -29,6 +29,10 @@ async fn protocol_html(
     Path(id): Path<i64>,
 ) -> Result<Response, AppError> {
     let study = store::studies::get(&s.pool, id).await?;
-    let html = protocol_package::render(&study, store::db::now_ms());
+    let audit_key = s
+        .audit_public
+        .as_ref()
+        .map(store::audit_chain::public_key_hex);
+    let html = protocol_package::render(&study, store::db::now_ms(), audit_key.as_deref());
     Ok(page::response("text/html; charset=utf-8", html))
 }

@@ -5,7 +5,7 @@ use axum::body::Body;
 use axum::extract::{Path, Query, State};
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use utoipa::IntoParams;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
@@ -90,7 +90,7 @@ async fn plan(
     ))
 }
 
-#[derive(Debug, serde::Serialize, utoipa::ToSchema)]
+#[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct PlanStarted {
     pub started: bool,
 }
@@ -328,12 +328,28 @@ async fn audit_export(State(s): State<AppState>, who: Experimenter) -> Result<Re
 /// Whether the audit log is intact: its hash chain and signed checkpoints, checked against
 /// this server's key (`bdft-server audit verify` does the same on a file).
 #[utoipa::path(get, path = "/api/audit/verify", tag = "results",
-    responses((status = 200, body = Verdict)))]
-async fn audit_verify(State(s): State<AppState>, _who: Experimenter) -> ApiResult<Verdict> {
+    responses((status = 200, body = AuditVerifyReport)))]
+async fn audit_verify(
+    State(s): State<AppState>,
+    _who: Experimenter,
+) -> ApiResult<AuditVerifyReport> {
     // One read transaction: the log, the chain and the checkpoints of one moment.
     let mut tx = s.pool.begin().await?;
     let verdict = audit_chain::verify(&mut tx, s.audit_public.as_ref()).await?;
-    Ok(AppJson(verdict))
+    Ok(AppJson(AuditVerifyReport {
+        report: verdict.to_string(),
+        verdict,
+    }))
+}
+
+/// What `/api/audit/verify` found, and the sentence `bdft-server audit verify` prints for it.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+struct AuditVerifyReport {
+    #[serde(flatten)]
+    verdict: Verdict,
+    /// "intact: N entries, head H, last checkpoint at entry K", or the first entry that
+    /// fails and why.
+    report: String,
 }
 
 #[derive(Debug, Deserialize, IntoParams)]

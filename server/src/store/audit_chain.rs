@@ -10,9 +10,12 @@
 //! (Ed25519) the head at a moment: a chain alone cannot show a cut-off tail or a rewrite of
 //! every hash.
 
+use bdft_protocol::hex;
 use ed25519_dalek::{Signature, Signer, SigningKey, Verifier, VerifyingKey};
 use serde::Serialize;
-use sha2::{Digest, Sha256};
+use std::collections::{HashMap, HashSet};
+
+use futures_util::TryStreamExt;
 use sqlx::{Connection, SqliteConnection};
 
 use super::db::now_ms;
@@ -21,17 +24,10 @@ use crate::error::{AppError, Result};
 /// The hash before the first entry.
 pub const GENESIS: &str = "0000000000000000000000000000000000000000000000000000000000000000";
 
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    Sha256::digest(bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
-}
-
 /// The SHA-256 of a row's details (an absent detail hashes as the empty text, which no
 /// stored detail is).
 pub fn detail_hash(detail: Option<&str>) -> String {
-    sha256_hex(detail.unwrap_or("").as_bytes())
+    hex::sha256(detail.unwrap_or("").as_bytes())
 }
 
 /// An audit row as the chain reads it.
@@ -59,7 +55,7 @@ impl Entry {
             detail_hash,
         );
         let content = serde_json::to_string(&content).unwrap_or_default();
-        sha256_hex(format!("{prev}\n{content}").as_bytes())
+        hex::sha256(format!("{prev}\n{content}").as_bytes())
     }
 }
 
@@ -100,20 +96,28 @@ pub(super) async fn chain(db: &mut SqliteConnection, entry: &Entry) -> Result<()
 /// order, marked as chained late; returns how many. Run at every open, before anything is
 /// appended.
 pub async fn chain_late(db: &mut SqliteConnection) -> Result<u64> {
-    let last = head(db).await?.map_or(0, |(id, _)| id);
-    let rows: Vec<Entry> = sqlx::query_as(
-        "SELECT id, at, actor, actor_id, action, target, detail_json FROM audit_log WHERE id > ? ORDER BY id",
-    )
-    .bind(last)
-    .fetch_all(&mut *db)
-    .await?;
-    let mut prev = head(db)
-        .await?
-        .map_or_else(|| GENESIS.to_string(), |(_, h)| h);
-    for e in &rows {
-        prev = link(db, e, &prev, true).await?;
+    // In batches, so a long log from an earlier release is chained in bounded memory.
+    const BATCH: i64 = 10_000;
+    let mut chained = 0;
+    loop {
+        let (last, mut prev) = head(db)
+            .await?
+            .map_or_else(|| (0, GENESIS.to_string()), |(id, h)| (id, h));
+        let rows: Vec<Entry> = sqlx::query_as(
+            "SELECT id, at, actor, actor_id, action, target, detail_json FROM audit_log WHERE id > ? ORDER BY id LIMIT ?",
+        )
+        .bind(last)
+        .bind(BATCH)
+        .fetch_all(&mut *db)
+        .await?;
+        for e in &rows {
+            prev = link(db, e, &prev, true).await?;
+        }
+        chained += rows.len() as u64;
+        if (rows.len() as i64) < BATCH {
+            return Ok(chained);
+        }
     }
-    Ok(rows.len() as u64)
 }
 
 /// What a checkpoint signs.
@@ -122,7 +126,7 @@ fn checkpoint_message(entry_id: i64, head_hash: &str, at: i64) -> String {
 }
 
 pub fn public_key_hex(key: &VerifyingKey) -> String {
-    key.as_bytes().iter().map(|b| format!("{b:02x}")).collect()
+    hex::encode(key.as_bytes())
 }
 
 /// Signs the chain's head with `key` unless the newest checkpoint already holds it; returns
@@ -140,11 +144,7 @@ pub async fn checkpoint(db: &mut SqliteConnection, key: &SigningKey) -> Result<O
     }
     let at = now_ms();
     let signature = key.sign(checkpoint_message(entry_id, &hash, at).as_bytes());
-    let signature: String = signature
-        .to_bytes()
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect();
+    let signature = hex::encode(&signature.to_bytes());
     sqlx::query(
         "INSERT INTO audit_checkpoints (entry_id, head_hash, at, public_key, signature) VALUES (?, ?, ?, ?, ?)",
     )
@@ -206,14 +206,66 @@ impl std::fmt::Display for Verdict {
     }
 }
 
-#[derive(sqlx::FromRow)]
+/// An entry with its chain row (none: the entry was never chained).
 struct Row {
-    #[sqlx(flatten)]
     entry: Entry,
     prev_hash: Option<String>,
     detail_hash: Option<String>,
     hash: Option<String>,
     chained_late: Option<bool>,
+}
+
+/// How many entries [`page`] reads at a time.
+const PAGE: i64 = 2000;
+
+/// The (at most [`PAGE`]) entries after entry `after`, in order, with their chain rows.
+///
+/// SQLite hands them over as one JSON text per page: row by row, sqlx's worker thread
+/// would copy every value and switch threads once a row, several times the cost of the
+/// hashing (a million entries must verify in seconds). JSON carries the texts unchanged.
+async fn page(db: &mut SqliteConnection, after: i64) -> Result<Vec<Row>> {
+    type Fields = (
+        i64,
+        i64,
+        String,
+        Option<i64>,
+        String,
+        Option<String>,
+        Option<String>,
+        Option<String>,
+        Option<String>,
+        Option<String>,
+        Option<i64>,
+    );
+    let text: String = sqlx::query_scalar(
+        "SELECT json_group_array(json_array(id, at, actor, actor_id, action, target, detail_json, prev_hash, detail_hash, hash, chained_late)) \
+         FROM (SELECT a.id, a.at, a.actor, a.actor_id, a.action, a.target, a.detail_json, c.prev_hash, c.detail_hash, c.hash, c.chained_late \
+               FROM audit_log a LEFT JOIN audit_chain c ON c.entry_id = a.id WHERE a.id > ? ORDER BY a.id LIMIT ?)",
+    )
+    .bind(after)
+    .bind(PAGE)
+    .fetch_one(&mut *db)
+    .await?;
+    let fields: Vec<Fields> = serde_json::from_str(&text)
+        .map_err(|e| AppError::Internal(anyhow::anyhow!("reading the audit log: {e}")))?;
+    Ok(fields
+        .into_iter()
+        .map(|f| Row {
+            entry: Entry {
+                id: f.0,
+                at: f.1,
+                actor: f.2,
+                actor_id: f.3,
+                action: f.4,
+                target: f.5,
+                detail_json: f.6,
+            },
+            prev_hash: f.7,
+            detail_hash: f.8,
+            hash: f.9,
+            chained_late: f.10.map(|l| l != 0),
+        })
+        .collect())
 }
 
 #[derive(sqlx::FromRow)]
@@ -237,30 +289,25 @@ fn redacted_by_erasure(detail: Option<&str>, entry: i64, erasures: &[i64]) -> bo
         && by.is_some_and(|e| e > entry && erasures.contains(&e))
 }
 
-fn hex_array<const N: usize>(hex: &str) -> Option<[u8; N]> {
-    if hex.len() != 2 * N {
-        return None;
-    }
-    let mut out = [0u8; N];
-    for (i, b) in out.iter_mut().enumerate() {
-        *b = u8::from_str_radix(hex.get(2 * i..2 * i + 2)?, 16).ok()?;
-    }
-    Some(out)
-}
-
 /// The other place in the chain where `e`'s content (its details hashing to `detail_hash`)
-/// belongs, if any: a row moved rather than edited. Searched only once something failed.
-fn moved_from(e: &Entry, detail_hash: &str, rows: &[Row]) -> Option<i64> {
-    rows.iter().find_map(|r| {
-        let (Some(prev), Some(hash)) = (&r.prev_hash, &r.hash) else {
-            return None;
-        };
-        let there = Entry {
-            id: r.entry.id,
-            ..e.clone()
-        };
-        (r.entry.id != e.id && there.hash(prev, detail_hash) == *hash).then_some(r.entry.id)
-    })
+/// belongs, if any: a row moved rather than edited. Searched only once something failed,
+/// by a second pass over the chain (streamed, like the first).
+async fn moved_from(
+    db: &mut SqliteConnection,
+    e: &Entry,
+    detail_hash: &str,
+) -> Result<Option<i64>> {
+    let mut chain = sqlx::query_as::<_, (i64, String, String)>(
+        "SELECT entry_id, prev_hash, hash FROM audit_chain ORDER BY entry_id",
+    )
+    .fetch(&mut *db);
+    while let Some((id, prev, hash)) = chain.try_next().await? {
+        let there = Entry { id, ..e.clone() };
+        if id != e.id && there.hash(&prev, detail_hash) == hash {
+            return Ok(Some(id));
+        }
+    }
+    Ok(None)
 }
 
 /// Records the first failure (the ones after it follow from it).
@@ -278,12 +325,6 @@ pub async fn verify(db: &mut SqliteConnection, trusted: Option<&VerifyingKey>) -
         sqlx::query_scalar("SELECT id FROM audit_log WHERE action = 'subject.erase'")
             .fetch_all(&mut *db)
             .await?;
-    let rows: Vec<Row> = sqlx::query_as(
-        "SELECT a.id, a.at, a.actor, a.actor_id, a.action, a.target, a.detail_json, c.prev_hash, c.detail_hash, c.hash, c.chained_late \
-         FROM audit_log a LEFT JOIN audit_chain c ON c.entry_id = a.id ORDER BY a.id",
-    )
-    .fetch_all(&mut *db)
-    .await?;
     let orphan: Option<i64> = sqlx::query_scalar(
         "SELECT entry_id FROM audit_chain WHERE entry_id NOT IN (SELECT id FROM audit_log) ORDER BY entry_id LIMIT 1",
     )
@@ -295,77 +336,98 @@ pub async fn verify(db: &mut SqliteConnection, trusted: Option<&VerifyingKey>) -
     .fetch_all(&mut *db)
     .await?;
 
+    let entries: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM audit_log")
+        .fetch_one(&mut *db)
+        .await?;
     let mut verdict = Verdict {
         intact: true,
-        entries: rows.len() as i64,
+        entries,
         head: None,
         last_checkpoint: checkpoints.last().map(|c| c.entry_id),
         chained_late: 0,
         redacted: 0,
         failure: None,
     };
-    let mut hashes: std::collections::HashMap<i64, String> = std::collections::HashMap::new();
+    // The hashes of the entries checkpoints signed: the only ones kept past their turn, so
+    // memory stays bounded however long the log.
+    let signed: HashSet<i64> = checkpoints.iter().map(|c| c.entry_id).collect();
+    let mut hashes: HashMap<i64, String> = HashMap::new();
     let mut prev = (0i64, GENESIS.to_string());
-    for r in &rows {
-        let e = &r.entry;
-        let (Some(prev_hash), Some(stored_detail), Some(hash)) =
-            (&r.prev_hash, &r.detail_hash, &r.hash)
-        else {
-            fail(
-                &mut verdict,
-                e.id,
-                "inserted behind the server's back: it has no place in the chain".into(),
-            );
-            break;
+    // The first entry whose content fails to hash, looked up elsewhere in the chain after the
+    // pass (the pass holds the connection).
+    let mut misfit: Option<(Entry, String, bool)> = None;
+    'pages: loop {
+        let rows = page(db, prev.0).await?;
+        if rows.is_empty() {
+            break 'pages;
+        }
+        for r in rows {
+            let e = &r.entry;
+            let (Some(prev_hash), Some(stored_detail), Some(hash)) =
+                (&r.prev_hash, &r.detail_hash, &r.hash)
+            else {
+                fail(
+                    &mut verdict,
+                    e.id,
+                    "inserted behind the server's back: it has no place in the chain".into(),
+                );
+                break 'pages;
+            };
+            if e.id != prev.0 + 1 {
+                let gap = if e.id == prev.0 + 2 {
+                    format!("entry {} was deleted", prev.0 + 1)
+                } else {
+                    format!("entries {} to {} were deleted", prev.0 + 1, e.id - 1)
+                };
+                fail(
+                    &mut verdict,
+                    e.id,
+                    format!("{gap} (the ids jump from {} to {})", prev.0, e.id),
+                );
+                break 'pages;
+            }
+            if *prev_hash != prev.1 {
+                fail(
+                    &mut verdict,
+                    e.id,
+                    format!(
+                        "its chain does not follow entry {}: an entry before it was deleted, replaced or moved",
+                        prev.0
+                    ),
+                );
+                break 'pages;
+            }
+            let detail_now = detail_hash(e.detail_json.as_deref());
+            let redacted = detail_now != *stored_detail
+                && redacted_by_erasure(e.detail_json.as_deref(), e.id, &erasures);
+            let details_hold = detail_now == *stored_detail || redacted;
+            if !details_hold || e.hash(prev_hash, stored_detail) != *hash {
+                misfit = Some((e.clone(), detail_now, details_hold));
+                break 'pages;
+            }
+            if redacted {
+                verdict.redacted += 1;
+            }
+            if r.chained_late == Some(true) {
+                verdict.chained_late += 1;
+            }
+            if signed.contains(&e.id) {
+                hashes.insert(e.id, hash.clone());
+            }
+            prev = (e.id, hash.clone());
+        }
+    }
+    if let Some((e, detail_now, details_hold)) = misfit {
+        let why = match moved_from(db, &e, &detail_now).await? {
+            Some(j) => format!(
+                "reordered: it holds what entry {j} held (its content hashes to entry {j}'s place in the chain)"
+            ),
+            None if !details_hold => "edited: its details do not match their hash".into(),
+            None => {
+                "edited: its id, time, actor, action or target no longer hash to its chain".into()
+            }
         };
-        if e.id != prev.0 + 1 {
-            let gap = if e.id == prev.0 + 2 {
-                format!("entry {} was deleted", prev.0 + 1)
-            } else {
-                format!("entries {} to {} were deleted", prev.0 + 1, e.id - 1)
-            };
-            fail(
-                &mut verdict,
-                e.id,
-                format!("{gap} (the ids jump from {} to {})", prev.0, e.id),
-            );
-            break;
-        }
-        if *prev_hash != prev.1 {
-            fail(
-                &mut verdict,
-                e.id,
-                format!(
-                    "its chain does not follow entry {}: an entry before it was deleted, replaced or moved",
-                    prev.0
-                ),
-            );
-            break;
-        }
-        let detail_now = detail_hash(e.detail_json.as_deref());
-        let redacted = detail_now != *stored_detail
-            && redacted_by_erasure(e.detail_json.as_deref(), e.id, &erasures);
-        let details_hold = detail_now == *stored_detail || redacted;
-        if !details_hold || e.hash(prev_hash, stored_detail) != *hash {
-            let why = match moved_from(e, &detail_now, &rows) {
-                Some(j) => format!(
-                    "reordered: it holds what entry {j} held (its content hashes to entry {j}'s place in the chain)"
-                ),
-                None if !details_hold => "edited: its details do not match their hash".into(),
-                None => "edited: its id, time, actor, action or target no longer hash to its chain"
-                    .into(),
-            };
-            fail(&mut verdict, e.id, why);
-            break;
-        }
-        if redacted {
-            verdict.redacted += 1;
-        }
-        if r.chained_late == Some(true) {
-            verdict.chained_late += 1;
-        }
-        hashes.insert(e.id, hash.clone());
-        prev = (e.id, hash.clone());
+        fail(&mut verdict, e.id, why);
     }
     if verdict.intact
         && let Some(id) = orphan
@@ -382,7 +444,7 @@ pub async fn verify(db: &mut SqliteConnection, trusted: Option<&VerifyingKey>) -
     }
     for c in &checkpoints {
         let signed_by =
-            hex_array::<32>(&c.public_key).and_then(|k| VerifyingKey::from_bytes(&k).ok());
+            hex::decode::<32>(&c.public_key).and_then(|k| VerifyingKey::from_bytes(&k).ok());
         let Some(signed_by) = signed_by else {
             fail(
                 &mut verdict,
@@ -402,7 +464,7 @@ pub async fn verify(db: &mut SqliteConnection, trusted: Option<&VerifyingKey>) -
             );
             break;
         }
-        let signature = hex_array::<64>(&c.signature).map(|s| Signature::from_bytes(&s));
+        let signature = hex::decode::<64>(&c.signature).map(|s| Signature::from_bytes(&s));
         let message = checkpoint_message(c.entry_id, &c.head_hash, c.at);
         if signature.is_none_or(|s| signed_by.verify(message.as_bytes(), &s).is_err()) {
             fail(

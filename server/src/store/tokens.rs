@@ -5,7 +5,7 @@
 pub fn random_token() -> String {
     let mut b = [0u8; 32];
     getrandom::fill(&mut b).expect("the OS random source works");
-    b.iter().map(|x| format!("{x:02x}")).collect()
+    bdft_protocol::hex::encode(&b)
 }
 
 /// A random u64 (study seeds when none is given).
@@ -18,9 +18,5 @@ pub fn random_seed() -> u64 {
 
 /// SHA-256 hex of a token: what the database stores instead of the token.
 pub fn token_hash(token: &str) -> String {
-    use sha2::{Digest, Sha256};
-    Sha256::digest(token.as_bytes())
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
+    bdft_protocol::hex::sha256(token.as_bytes())
 }

@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::Context;
+use bdft_protocol::hex;
 use ed25519_dalek::{SigningKey, VerifyingKey};
 use sqlx::SqlitePool;
 
@@ -22,21 +23,12 @@ pub fn key_path(db: &Path) -> PathBuf {
 }
 
 fn parse_key(text: &str, path: &Path) -> anyhow::Result<SigningKey> {
-    let text = text.trim();
-    let mut bytes = [0u8; 32];
-    anyhow::ensure!(
-        text.len() == 64,
-        "{}: not an audit signing key (64 hex digits)",
-        path.display()
-    );
-    for (i, b) in bytes.iter_mut().enumerate() {
-        *b = u8::from_str_radix(&text[2 * i..2 * i + 2], 16).with_context(|| {
-            format!(
-                "{}: not an audit signing key (64 hex digits)",
-                path.display()
-            )
-        })?;
-    }
+    let bytes = hex::decode::<32>(text.trim()).with_context(|| {
+        format!(
+            "{}: not an audit signing key (64 hex digits)",
+            path.display()
+        )
+    })?;
     Ok(SigningKey::from_bytes(&bytes))
 }
 
@@ -50,7 +42,7 @@ pub fn load_or_create(db: &Path) -> anyhow::Result<SigningKey> {
     }
     let mut bytes = [0u8; 32];
     getrandom::fill(&mut bytes).map_err(|e| anyhow::anyhow!("random audit key: {e}"))?;
-    let hex: String = bytes.iter().map(|b| format!("{b:02x}")).collect();
+    let text = hex::encode(&bytes);
     let mut options = std::fs::OpenOptions::new();
     options.write(true).create_new(true);
     #[cfg(unix)]
@@ -59,7 +51,7 @@ pub fn load_or_create(db: &Path) -> anyhow::Result<SigningKey> {
     let mut file = options
         .open(&path)
         .with_context(|| format!("creating {}", path.display()))?;
-    file.write_all(format!("{hex}\n").as_bytes())?;
+    file.write_all(format!("{text}\n").as_bytes())?;
     file.sync_all()?;
     Ok(SigningKey::from_bytes(&bytes))
 }
@@ -67,16 +59,9 @@ pub fn load_or_create(db: &Path) -> anyhow::Result<SigningKey> {
 /// The public key to trust when verifying `db`: `given` (hex), else the key file's beside
 /// it, else none (each checkpoint's own key, which proves less).
 pub fn trusted_key(db: &Path, given: Option<&str>) -> anyhow::Result<Option<VerifyingKey>> {
-    if let Some(hex) = given {
-        let mut bytes = [0u8; 32];
-        anyhow::ensure!(
-            hex.len() == 64,
-            "--public-key: 64 hex digits (the key the server prints at start)"
-        );
-        for (i, b) in bytes.iter_mut().enumerate() {
-            *b = u8::from_str_radix(&hex[2 * i..2 * i + 2], 16)
-                .context("--public-key: 64 hex digits (the key the server prints at start)")?;
-        }
+    if let Some(given) = given {
+        let bytes = hex::decode::<32>(given.trim())
+            .context("--public-key: 64 hex digits (the key the server prints at start)")?;
         return Ok(Some(
             VerifyingKey::from_bytes(&bytes).context("--public-key: not an Ed25519 public key")?,
         ));

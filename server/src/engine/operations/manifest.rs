@@ -128,14 +128,7 @@ pub fn sha256_of(file: &Path) -> Result<(String, u64)> {
         hasher.update(&buf[..n]);
         bytes += n as u64;
     }
-    Ok((
-        hasher
-            .finalize()
-            .iter()
-            .map(|b| format!("{b:02x}"))
-            .collect(),
-        bytes,
-    ))
+    Ok((bdft_protocol::hex::encode(&hasher.finalize()), bytes))
 }
 
 /// A file-system error on `path`, saying what was being done (a user can act on it: a full

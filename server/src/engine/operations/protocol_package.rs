@@ -39,8 +39,9 @@ pub fn shown_hash(study: &Study) -> String {
         .unwrap_or_else(|| protocol_hash(&study.params))
 }
 
-/// The package of `study`, generated at `now_ms`.
-pub fn render(study: &Study, now_ms: i64) -> String {
+/// The package of `study`, generated at `now_ms`; `audit_key` is the public key (hex) that
+/// signs the audit log's checkpoints, so the board can later check the log it was promised.
+pub fn render(study: &Study, now_ms: i64, audit_key: Option<&str>) -> String {
     let p = &study.params;
     let hash = shown_hash(study);
     let now_hash = protocol_hash(p);
@@ -92,6 +93,13 @@ pub fn render(study: &Study, now_ms: i64) -> String {
                 },
             ],
             vec!["Generated".into(), rfc3339(now_ms)],
+            vec![
+                "Audit log signing key (Ed25519, public)".into(),
+                audit_key.map_or_else(
+                    || "none: rendered without a running server".into(),
+                    |k| format!("{k} — every entry of the audit log is hash-chained and checkpoints of the chain are signed with this key; `bdft-server audit verify --public-key KEY` checks a copy of the database against it"),
+                ),
+            ],
         ],
     );
     if now_hash != hash {
@@ -565,7 +573,7 @@ mod tests {
         p.consent.text = "Agree? <script>alert(1)</script> & \"more\"".into();
         p.survey.open_question = "<img src=x onerror=alert(2)>".into();
         p.texts.ready = "<b>ready</b>".into();
-        let html = render(&study("<script>alert(0)</script>", p), 0);
+        let html = render(&study("<script>alert(0)</script>", p), 0, None);
         for raw in ["<script>alert", "<img", "<b>ready"] {
             assert!(!html.contains(raw), "{raw} left unescaped");
         }
@@ -583,7 +591,7 @@ mod tests {
     fn the_hash_is_on_every_page_and_is_the_locked_one() {
         let p = default_params();
         let mut s = study("s", p.clone());
-        let html = render(&s, 0);
+        let html = render(&s, 0, None);
         let hash = protocol_hash(&p);
         // Header, footer (repeated on every printed page), the summary and the appendix.
         assert_eq!(html.matches(hash.as_str()).count(), 4);
@@ -592,7 +600,7 @@ mod tests {
         // hash differs.
         s.locked_at = Some(1_000_000_000_000);
         s.protocol_hash = Some("0".repeat(64));
-        let html = render(&s, 0);
+        let html = render(&s, 0, None);
         assert!(html.contains(&format!("<code class=\"hash\">{}</code>", "0".repeat(64))));
         assert!(html.contains("locked 2001-09-09T01:46:40.000Z"));
         assert!(html.contains(&format!("hash to {hash}")));
@@ -604,7 +612,10 @@ mod tests {
         let mut q = p.clone();
         q.max_cab_rms_mm_s2 = 4321.5;
         q.order_design = OrderDesign::Williams;
-        let (a, b) = (render(&study("s", p), 0), render(&study("s", q), 0));
+        let (a, b) = (
+            render(&study("s", p), 0, None),
+            render(&study("s", q), 0, None),
+        );
         assert_ne!(a, b);
         assert!(b.contains("above 4321.5 mm/s²") && !a.contains("4321.5"));
         assert!(b.contains("The Williams design's rows") && !a.contains("Williams design's rows"));

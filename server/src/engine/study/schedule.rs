@@ -10,7 +10,6 @@ use bdft_protocol::study::{
     ConsentForm, OrderDesign, RigKind, StudyParams, StudyTexts, SurveyParams,
 };
 use serde::{Deserialize, Serialize};
-use sha2::{Digest, Sha256};
 
 use super::williams;
 
@@ -64,8 +63,7 @@ pub fn canonical_json(params: &StudyParams) -> String {
 
 /// SHA-256 (hex) of the parameters' [`canonical_json`].
 pub fn protocol_hash(params: &StudyParams) -> String {
-    let digest = Sha256::digest(canonical_json(params).as_bytes());
-    digest.iter().map(|b| format!("{b:02x}")).collect()
+    bdft_protocol::hex::sha256(canonical_json(params).as_bytes())
 }
 
 /// One entry of a subject's schedule.
@@ -350,10 +348,7 @@ mod tests {
         let fields = stored.as_object_mut().unwrap();
         fields.remove("order_design");
         fields.remove("matched_targets");
-        let before: String = Sha256::digest(stored.to_string().as_bytes())
-            .iter()
-            .map(|b| format!("{b:02x}"))
-            .collect();
+        let before = bdft_protocol::hex::sha256(stored.to_string().as_bytes());
         let parsed: StudyParams = serde_json::from_value(stored).unwrap();
         assert_eq!(parsed, p);
         assert_eq!(protocol_hash(&parsed), before);
