@@ -433,7 +433,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             command: AuditCommand::Verify { db, public_key },
         } => {
             let trusted = audit_signing::trusted_key(&db.db, public_key.as_deref())?;
-            let verdict = store::audit_chain::verify_file(&db.db, trusted.as_ref())
+            let verdict = audit_signing::verify_file(&db.db, trusted.as_ref())
                 .await
                 .map_err(|e| anyhow::anyhow!("{}: {}", db.db.display(), e.describe()))?;
             if trusted.is_none() {

@@ -16,9 +16,8 @@ use serde::Serialize;
 use std::collections::{HashMap, HashSet};
 
 use futures_util::TryStreamExt;
-use sqlx::{Connection, SqliteConnection};
+use sqlx::SqliteConnection;
 
-use super::db::now_ms;
 use crate::error::{AppError, Result};
 
 /// The hash before the first entry.
@@ -131,7 +130,11 @@ pub fn public_key_hex(key: &VerifyingKey) -> String {
 
 /// Signs the chain's head with `key` unless the newest checkpoint already holds it; returns
 /// the entry it signed.
-pub async fn checkpoint(db: &mut SqliteConnection, key: &SigningKey) -> Result<Option<i64>> {
+pub async fn checkpoint(
+    db: &mut SqliteConnection,
+    key: &SigningKey,
+    at: i64,
+) -> Result<Option<i64>> {
     let Some((entry_id, hash)) = head(db).await? else {
         return Ok(None);
     };
@@ -142,7 +145,6 @@ pub async fn checkpoint(db: &mut SqliteConnection, key: &SigningKey) -> Result<O
     if last == Some(entry_id) {
         return Ok(None);
     }
-    let at = now_ms();
     let signature = key.sign(checkpoint_message(entry_id, &hash, at).as_bytes());
     let signature = hex::encode(&signature.to_bytes());
     sqlx::query(
@@ -504,34 +506,4 @@ pub async fn verify(db: &mut SqliteConnection, trusted: Option<&VerifyingKey>) -
         }
     }
     Ok(verdict)
-}
-
-/// Verifies the database file at `path` as it is, read-only (a server may be running on
-/// it): refuses a file that is no bdft-lab database, or one whose log was never chained.
-pub async fn verify_file(
-    path: &std::path::Path,
-    trusted: Option<&VerifyingKey>,
-) -> Result<Verdict> {
-    let mut conn = super::db::open_read_only(path)
-        .await
-        .map_err(|e| AppError::BadRequest(format!("not a database: {e:#}")))?;
-    let tables: Vec<String> = sqlx::query_scalar(
-        "SELECT name FROM sqlite_master WHERE type = 'table' AND name IN ('audit_log', 'audit_chain')",
-    )
-    .fetch_all(&mut conn)
-    .await
-    .map_err(|e| AppError::BadRequest(format!("not a bdft-lab database: {e}")))?;
-    if !tables.iter().any(|t| t == "audit_log") {
-        return Err(AppError::BadRequest(
-            "not a bdft-lab database: it has no audit log".into(),
-        ));
-    }
-    if !tables.iter().any(|t| t == "audit_chain") {
-        return Err(AppError::BadRequest(
-            "its audit log is not chained yet (an earlier release's database): start this release's server on it once".into(),
-        ));
-    }
-    // One read transaction: the log, the chain and the checkpoints of one moment.
-    let mut tx = conn.begin().await?;
-    verify(&mut tx, trusted).await
 }

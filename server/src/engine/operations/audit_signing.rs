@@ -10,9 +10,11 @@ use std::time::Duration;
 use anyhow::Context;
 use bdft_protocol::hex;
 use ed25519_dalek::{SigningKey, VerifyingKey};
-use sqlx::SqlitePool;
+use sqlx::{Connection, SqlitePool};
 
-use crate::store::audit_chain;
+use crate::error::{AppError, Result};
+use crate::store::audit_chain::Verdict;
+use crate::store::{self, audit_chain};
 
 /// How often the running server signs the head (when it moved).
 pub const CHECKPOINT_EVERY: Duration = Duration::from_secs(300);
@@ -78,7 +80,7 @@ pub fn trusted_key(db: &Path, given: Option<&str>) -> anyhow::Result<Option<Veri
 /// Signs the chain's head unless the newest checkpoint holds it already.
 pub async fn checkpoint_now(pool: &SqlitePool, key: &SigningKey) -> crate::error::Result<()> {
     let mut tx = pool.begin_with("BEGIN IMMEDIATE").await?;
-    audit_chain::checkpoint(&mut tx, key).await?;
+    audit_chain::checkpoint(&mut tx, key, store::db::now_ms()).await?;
     tx.commit().await?;
     Ok(())
 }
@@ -92,4 +94,34 @@ pub async fn run_checkpoints(pool: SqlitePool, key: SigningKey) {
             tracing::error!("signing the audit chain's head: {}", e.describe());
         }
     }
+}
+
+/// Verifies the database file at `path` as it is, read-only (a server may be running on
+/// it): refuses a file that is no bdft-lab database, or one whose log was never chained.
+pub async fn verify_file(
+    path: &std::path::Path,
+    trusted: Option<&VerifyingKey>,
+) -> Result<Verdict> {
+    let mut conn = store::db::open_read_only(path)
+        .await
+        .map_err(|e| AppError::BadRequest(format!("not a database: {e:#}")))?;
+    let tables: Vec<String> = sqlx::query_scalar(
+        "SELECT name FROM sqlite_master WHERE type = 'table' AND name IN ('audit_log', 'audit_chain')",
+    )
+    .fetch_all(&mut conn)
+    .await
+    .map_err(|e| AppError::BadRequest(format!("not a bdft-lab database: {e}")))?;
+    if !tables.iter().any(|t| t == "audit_log") {
+        return Err(AppError::BadRequest(
+            "not a bdft-lab database: it has no audit log".into(),
+        ));
+    }
+    if !tables.iter().any(|t| t == "audit_chain") {
+        return Err(AppError::BadRequest(
+            "its audit log is not chained yet (an earlier release's database): start this release's server on it once".into(),
+        ));
+    }
+    // One read transaction: the log, the chain and the checkpoints of one moment.
+    let mut tx = conn.begin().await?;
+    audit_chain::verify(&mut tx, trusted).await
 }

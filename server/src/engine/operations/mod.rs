@@ -8,7 +8,8 @@
 //! - Erasure on request: `erasure` erases a subject's data and lists the backups (by their
 //!   manifests) that still hold them.
 //! - The audit log's integrity: `audit_signing`, the server's key that signs the hash
-//!   chain's checkpoints (`store::audit_chain`) and the task that signs one every 5 minutes.
+//!   chain's checkpoints (`store::audit_chain`), the task that signs one every 5 minutes,
+//!   and the read-only check of a database file's chain.
 //! - The ethics board's protocol package: `protocol_package`, rendered from the parameters
 //!   the protocol hash is computed from.
 //!
