@@ -227,20 +227,14 @@ const PAGE: i64 = 2000;
 /// hashing (a million entries must verify in seconds). JSON carries the texts unchanged.
 async fn page(db: &mut SqliteConnection, after: i64) -> Result<Vec<Row>> {
     type Fields = (
-        i64,
-        i64,
-        String,
-        Option<i64>,
-        String,
-        Option<String>,
-        Option<String>,
+        super::audit::AuditRow,
         Option<String>,
         Option<String>,
         Option<String>,
         Option<i64>,
     );
     let text: String = sqlx::query_scalar(
-        "SELECT json_group_array(json_array(id, at, actor, actor_id, action, target, detail_json, prev_hash, detail_hash, hash, chained_late)) \
+        "SELECT json_group_array(json_array(json_array(id, at, actor, actor_id, action, target, detail_json), prev_hash, detail_hash, hash, chained_late)) \
          FROM (SELECT a.id, a.at, a.actor, a.actor_id, a.action, a.target, a.detail_json, c.prev_hash, c.detail_hash, c.hash, c.chained_late \
                FROM audit_log a LEFT JOIN audit_chain c ON c.entry_id = a.id WHERE a.id > ? ORDER BY a.id LIMIT ?)",
     )
@@ -252,20 +246,20 @@ async fn page(db: &mut SqliteConnection, after: i64) -> Result<Vec<Row>> {
         .map_err(|e| AppError::Internal(anyhow::anyhow!("reading the audit log: {e}")))?;
     Ok(fields
         .into_iter()
-        .map(|f| Row {
+        .map(|(e, prev_hash, detail_hash, hash, late)| Row {
             entry: Entry {
-                id: f.0,
-                at: f.1,
-                actor: f.2,
-                actor_id: f.3,
-                action: f.4,
-                target: f.5,
-                detail_json: f.6,
+                id: e.0,
+                at: e.1,
+                actor: e.2,
+                actor_id: e.3,
+                action: e.4,
+                target: e.5,
+                detail_json: e.6,
             },
-            prev_hash: f.7,
-            detail_hash: f.8,
-            hash: f.9,
-            chained_late: f.10.map(|l| l != 0),
+            prev_hash,
+            detail_hash,
+            hash,
+            chained_late: late.map(|l| l != 0),
         })
         .collect())
 }
