@@ -160,6 +160,7 @@ fn start_trial_validation_names_the_bad_field() {
         live_rate_hz: 100.0,
         stale_input_ms: 100.0,
         max_cab_rms_mm_s2: crate::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
+        exposure_allowance: None,
     };
     assert!(st.validate().unwrap_err().to_string().contains("k_bf"));
     let st = StartTrial {
@@ -233,6 +234,7 @@ fn trial_result_and_record_chunk() {
         },
         dt: 0.001,
         record_chunks: 1,
+        exposure: None,
     }));
     assert_golden(
         &result,

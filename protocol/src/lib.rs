@@ -14,6 +14,7 @@
 
 pub mod browser_to_server;
 pub mod controller_to_server;
+pub mod exposure;
 pub mod framing;
 pub mod link_auth;
 pub mod numbers;

@@ -83,5 +83,7 @@ pub fn start(params: &StudyParams, run: TestRun, operator: Operator) -> StartTri
         live_rate_hz: 100.0,
         stale_input_ms: params.stale_input_ms,
         max_cab_rms_mm_s2: params.max_cab_rms_mm_s2,
+        // Set by the start policy from the subject's day (`procedure::exposure`).
+        exposure_allowance: None,
     }
 }
