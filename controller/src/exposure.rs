@@ -239,9 +239,9 @@ mod tests {
 
     #[test]
     fn the_guard_stops_once_the_allowance_is_used_and_not_before() {
-        // 1 m/s² at 4 Hz: a_w² ≈ 0.262 m²/s⁴ a second. An allowance of 1 m²/s³ lasts about
-        // 3.8 s; the meter trips on the first tick past it, and its energy then exceeds the
-        // allowance by at most one tick's share.
+        // 1 m/s² amplitude at 4 Hz: a_w² = |W_d(4)|²/2 = 0.132 m²/s⁴. An allowance of
+        // 1 m²/s³ lasts about 7.6 s; the meter trips on the first tick past it, and its
+        // energy then exceeds the allowance by at most one tick's share.
         let allowance = ExposureAllowance {
             energy_m2_s3: 1.0,
             vdv4_m4_s7: 1e9,
@@ -252,7 +252,7 @@ mod tests {
             .expect("trips");
         let e = m.exposure();
         assert!(e.energy() > 1.0 && e.energy() < 1.0 + 2.0 * DT, "{e:?}");
-        assert!((3.0..4.5).contains(&(trip as f64 * DT)), "{trip}");
+        assert!((7.0..8.2).contains(&(trip as f64 * DT)), "{trip}");
         // Without an allowance it never trips; a broken reading trips a guarded meter.
         let mut free = ExposureMeter::new(DT, None);
         assert!(!(0..20_000).any(|_| free.add(5000.0)));

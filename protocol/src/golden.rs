@@ -36,7 +36,7 @@ fn hello_and_small_messages() {
             proof: crate::link_auth::Bytes32([0x01; 32]),
         },
         &format!(
-            r#"{{"type":"hello","protocol_version":2,"client":"bdft-server","role":"e_stop","nonce":"{}","proof":"{}"}}"#,
+            r#"{{"type":"hello","protocol_version":3,"client":"bdft-server","role":"e_stop","nonce":"{}","proof":"{}"}}"#,
             "ab".repeat(32),
             "01".repeat(32)
         ),
@@ -47,7 +47,7 @@ fn hello_and_small_messages() {
             nonce: crate::link_auth::Bytes32([0xff; 32]),
         },
         &format!(
-            r#"{{"type":"challenge","protocol_version":2,"nonce":"{}"}}"#,
+            r#"{{"type":"challenge","protocol_version":3,"nonce":"{}"}}"#,
             "ff".repeat(32)
         ),
     );
@@ -256,4 +256,36 @@ fn trial_result_and_record_chunk() {
 fn unknown_messages_and_fields_are_refused() {
     assert!(decode::<ServerToController>(br#"{"type":"launch"}"#).is_err());
     assert!(decode::<ServerToController>(br#"{"type":"heartbeat","seq":1,"extra":2}"#).is_err());
+}
+
+#[test]
+fn the_exposure_guard_on_the_wire() {
+    use crate::exposure::{ExposureAllowance, TrialExposure};
+    assert_golden(
+        &ExposureAllowance {
+            energy_m2_s3: 7200.0,
+            vdv4_m4_s7: 6857.5,
+        },
+        r#"{"energy_m2_s3":7200.0,"vdv4_m4_s7":6857.5}"#,
+    );
+    assert_golden(
+        &TrialExposure {
+            aw_m_s2: 0.5,
+            vdv_m_s175: 2.25,
+            duration_s: 140.0,
+        },
+        r#"{"aw_m_s2":0.5,"vdv_m_s175":2.25,"duration_s":140.0}"#,
+    );
+    assert_golden(&FaultKind::ExposureBudget, r#""exposure-budget""#);
+    // A negative allowance is refused at the boundary, naming it.
+    let bad = ExposureAllowance {
+        energy_m2_s3: -1.0,
+        vdv4_m4_s7: 1.0,
+    };
+    assert!(
+        bad.validate()
+            .unwrap_err()
+            .to_string()
+            .contains("exposure_allowance.energy_m2_s3")
+    );
 }
