@@ -2,8 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::link_auth::Bytes32;
 use crate::exposure::TrialExposure;
+use crate::link_auth::Bytes32;
 use crate::trial::{FaultKind, Metrics, Outcome, TimingSummary, TrialId};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

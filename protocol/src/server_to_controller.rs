@@ -2,9 +2,9 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::exposure::ExposureAllowance;
 use crate::link_auth::{Bytes32, LinkRole};
 use crate::params::{BodyModel, CompensatorSpec, MAX_KBF, ParamError, PlantParams, Seat, check};
-use crate::exposure::ExposureAllowance;
 use crate::trial::{InputSource, MAX_TRIAL_S, TargetSpec, TrialId};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -69,11 +69,17 @@ fn a_w_and_vdv_of_recorded_tests_match_scipy_within_one_percent() {
             want["aw_m_s2"].as_f64().unwrap(),
             want["vdv_m_s175"].as_f64().unwrap(),
         );
-        assert!(want_aw > 0.05 && want_vdv > 0.1, "{trial}: a record that shakes");
+        assert!(
+            want_aw > 0.05 && want_vdv > 0.1,
+            "{trial}: a record that shakes"
+        );
         assert_eq!(want["samples"].as_u64().unwrap() as usize, samples.len());
         let within = |what: &str, ours: f64, theirs: f64| {
             let rel = (ours / theirs - 1.0).abs();
-            assert!(rel < 0.01, "{trial} {what}: ours {ours}, scipy {theirs} ({rel:.4})");
+            assert!(
+                rel < 0.01,
+                "{trial} {what}: ours {ours}, scipy {theirs} ({rel:.4})"
+            );
         };
         // The weighting run over the exported record.
         let e = of_record(samples, 1e-3);
@@ -176,7 +182,10 @@ fn the_guard_stops_a_runaway_test_at_the_budget_and_the_next_is_refused_naming_t
     let t = run_trial(&api, subject, on);
     assert_eq!(t["status"], "incomplete", "{t}");
     let reason = t["status_reason"].as_str().unwrap();
-    assert!(reason.contains("daily vibration budget is used up"), "{reason}");
+    assert!(
+        reason.contains("daily vibration budget is used up"),
+        "{reason}"
+    );
     let vdv = t["cab_vdv_m_s175"].as_f64().unwrap();
     let ran = t["exposure_s"].as_f64().unwrap();
     assert!((9.1..9.1 * 1.02).contains(&vdv), "VDV {vdv}");
@@ -194,7 +203,10 @@ fn the_guard_stops_a_runaway_test_at_the_budget_and_the_next_is_refused_naming_t
     let detail = &entry["detail"];
     assert_eq!(detail["reached"], json!(["vdv"]), "{entry}");
     assert_eq!(detail["trial_id"], on);
-    assert!((detail["vdv_m_s175"].as_f64().unwrap() - vdv).abs() < 1e-9, "{entry}");
+    assert!(
+        (detail["vdv_m_s175"].as_f64().unwrap() - vdv).abs() < 1e-9,
+        "{entry}"
+    );
     assert_eq!(entry["target"], format!("subject:{subject}"));
 
     // The day on the subject's page.

@@ -297,7 +297,10 @@ mod tests {
         let more = b"id,a,b\n1,x,2\n2,y,3\n9,site,lab\n";
         let e = compare("t.csv", stored, more, &[]).unwrap_err();
         assert!(e.contains("2 rows stored, 3 now"), "{e}");
-        assert_eq!(compare("t.csv", stored, more, &["row:9,site".into()]), Ok(()));
+        assert_eq!(
+            compare("t.csv", stored, more, &["row:9,site".into()]),
+            Ok(())
+        );
         let fewer = b"id,a\n1,x\n2,y\n3,w\n";
         let e = compare("t.csv", stored, fewer, &[]).unwrap_err();
         assert!(

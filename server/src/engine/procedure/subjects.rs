@@ -8,8 +8,8 @@ use bdft_protocol::server_to_controller::ServerToController;
 use serde::Serialize;
 use sqlx::SqlitePool;
 
-use crate::engine::study::exposure::{self, SubjectExposure};
 use crate::engine::machine::controller_link::ControllerLink;
+use crate::engine::study::exposure::{self, SubjectExposure};
 use crate::error::{AppError, Result};
 use crate::store::subjects::{Note, Subject};
 use crate::store::trials::{Survey, Trial, latest_attempts};

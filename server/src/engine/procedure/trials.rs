@@ -101,8 +101,14 @@ pub async fn start(
     let mut msg = start_message(&study, &trial, operator)?;
     let mut change = Change::begin(pool, actor).await?;
     // Read in the change that starts it, so no other test of the subject slips in between.
-    msg.exposure_allowance =
-        allowance_for(change.db(), &study.params, &subject, trial.seat, trial.duration_s).await?;
+    msg.exposure_allowance = allowance_for(
+        change.db(),
+        &study.params,
+        &subject,
+        trial.seat,
+        trial.duration_s,
+    )
+    .await?;
     store::trials::mark_running(change.db(), trial.id).await?;
     change
         .commit(

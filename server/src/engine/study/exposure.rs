@@ -240,7 +240,13 @@ mod tests {
         let AppError::Conflict(msg) = allowance(&params, "S01", spent, 140.0).unwrap_err() else {
             panic!("a conflict")
         };
-        for figure in ["A(8) 0.200", "VDV 9.10", "6.00 m/s²", "budget of A(8) 0.5", "VDV 9.1"] {
+        for figure in [
+            "A(8) 0.200",
+            "VDV 9.10",
+            "6.00 m/s²",
+            "budget of A(8) 0.5",
+            "VDV 9.1",
+        ] {
             assert!(msg.contains(figure), "{figure}: {msg}");
         }
     }

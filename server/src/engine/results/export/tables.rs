@@ -10,10 +10,10 @@ use tokio::io::AsyncWrite;
 use super::columns::{self, Column};
 use super::sink::{Cell, TableWriter};
 use super::{ExportError, ExportKind, ExportRequest, SampleCut};
-use crate::engine::study::exposure::{self, ExposureDay};
 use crate::engine::results::inference_table::study_table;
 use crate::engine::results::stats::summary_stats;
 use crate::engine::results::study_data::{counts, valid};
+use crate::engine::study::exposure::{self, ExposureDay};
 use crate::store;
 use crate::store::db::rfc3339;
 use crate::store::exports::{SubjectExportRow, TrialExportRow, Withdrawn};
@@ -281,9 +281,8 @@ async fn subjects<W: AsyncWrite + Unpin>(
         // A day with a test the loop did not measure has only a bound (the budget counts
         // it at its worst case): no figure rather than a bound read as a measurement.
         let measured = days.iter().all(|d| d.worst_case_tests == 0);
-        let most = |f: fn(&ExposureDay) -> f64| {
-            days.iter().map(f).reduce(f64::max).filter(|_| measured)
-        };
+        let most =
+            |f: fn(&ExposureDay) -> f64| days.iter().map(f).reduce(f64::max).filter(|_| measured);
         cells.extend([
             Cell::Int(Some(days.len() as i64)),
             Cell::Num(most(|d| d.a8_m_s2)),
