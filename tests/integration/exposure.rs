@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use bdft_controller::exposure::{WdWeighting, of_record};
 use bdft_tests::exports::parse_csv;
-use bdft_tests::server::{Api, Server, dry_run, eventually, pair_station, run_trial};
+use bdft_tests::server::{Api, Server, dry_run, eventually, pair_station, run_trial, trial_rows};
 use serde_json::{Value, json};
 
 fn fixture(name: &str) -> PathBuf {
@@ -122,16 +122,6 @@ fn runaway_study(api: &Api) -> i64 {
         json!({ "reason": "the exposure guard's test: a limit cycle in simulation" }),
     );
     dry
-}
-
-fn trial_rows(api: &Api, subject: i64) -> Vec<Value> {
-    let (_, d) = api.get(&format!("/api/subjects/{subject}"));
-    d["trials"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|t| t["trial"].clone())
-        .collect()
 }
 
 #[test]

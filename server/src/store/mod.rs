@@ -79,8 +79,7 @@ impl Change {
         target: Option<String>,
         detail: impl Serialize,
     ) -> Result<()> {
-        let detail = json_text(&detail)?;
-        audit::append(&mut self.conn, &self.actor, action, target, &detail).await?;
+        self.audit_also(action, target, detail).await?;
         self.finish().await
     }
 

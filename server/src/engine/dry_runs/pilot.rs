@@ -13,8 +13,7 @@ use serde::Serialize;
 use super::job::{Job, JobStatus, Progress};
 use crate::engine::procedure::enrolment::enrol;
 use crate::engine::procedure::filing::file_result;
-use crate::engine::procedure::orchestrator::{Operator, start_message};
-use crate::engine::study::exposure::allowance_for;
+use crate::engine::procedure::orchestrator::{Operator, start_now};
 use crate::engine::study::schedule::default_params;
 use crate::store::audit::NoDetail;
 use crate::store::records::Record;
@@ -199,16 +198,14 @@ pub async fn run_with_progress(
                 };
                 let subject = store::subjects::get(&pool, subject_id).await?;
                 while let Some(trial) = store::trials::next(&pool, subject_id).await? {
-                    let mut start =
-                        start_message(&study, &trial, Operator::Synthetic(subject.drawn))?;
                     let mut change = Change::begin(&pool, actor.as_str()).await?;
                     // The same budget as a person's: a pilot shows whether the tests fit it.
-                    start.exposure_allowance = allowance_for(
+                    let start = start_now(
                         change.db(),
-                        &study.params,
+                        &study,
+                        &trial,
                         &subject,
-                        trial.seat,
-                        trial.duration_s,
+                        Operator::Synthetic(subject.drawn),
                     )
                     .await?;
                     store::trials::mark_running(change.db(), trial.id).await?;

@@ -7,9 +7,13 @@ use bdft_protocol::server_to_controller::StartTrial;
 use bdft_protocol::study::StudyParams;
 use bdft_protocol::trial::{InputSource, TargetSpec};
 
+use sqlx::SqliteConnection;
+
+use crate::engine::study::exposure::allowance_for;
 use crate::engine::study::synthetic::operator_and_body;
 use crate::error::{AppError, Result};
 use crate::store::studies::Study;
+use crate::store::subjects::Subject;
 use crate::store::trials::Trial;
 
 /// Who moves the input device in a trial.
@@ -53,6 +57,22 @@ pub fn start_message(study: &Study, trial: &Trial, operator: Operator) -> Result
         target_seed: trial.target_seed as u64,
     };
     Ok(start(&study.params, run, operator))
+}
+
+/// The controller message that starts `trial` of `subject` now: with the exposure allowance
+/// its subject's day has left, read on `db` — the change that marks the trial running, so
+/// no other test of the subject slips in between —, or the 409 when nothing is left.
+pub async fn start_now(
+    db: &mut SqliteConnection,
+    study: &Study,
+    trial: &Trial,
+    subject: &Subject,
+    operator: Operator,
+) -> Result<StartTrial> {
+    let mut msg = start_message(study, trial, operator)?;
+    msg.exposure_allowance =
+        allowance_for(db, &study.params, subject, trial.seat, trial.duration_s).await?;
+    Ok(msg)
 }
 
 /// The controller message that runs `run` of a study with `params`.

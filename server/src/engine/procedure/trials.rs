@@ -9,9 +9,8 @@ use bdft_protocol::study::RigKind;
 use serde::Serialize;
 use sqlx::SqlitePool;
 
-use super::orchestrator::{Operator, start_message};
+use super::orchestrator::{Operator, start_now};
 use crate::engine::machine::controller_link::{ControllerEvent, ControllerLink};
-use crate::engine::study::exposure::allowance_for;
 use crate::error::{AppError, Result};
 use crate::store::audit::{NoDetail, Reason};
 use crate::store::trials::Trial;
@@ -98,17 +97,8 @@ pub async fn start(
     } else {
         Operator::Person
     };
-    let mut msg = start_message(&study, &trial, operator)?;
     let mut change = Change::begin(pool, actor).await?;
-    // Read in the change that starts it, so no other test of the subject slips in between.
-    msg.exposure_allowance = allowance_for(
-        change.db(),
-        &study.params,
-        &subject,
-        trial.seat,
-        trial.duration_s,
-    )
-    .await?;
+    let msg = start_now(change.db(), &study, &trial, &subject, operator).await?;
     store::trials::mark_running(change.db(), trial.id).await?;
     change
         .commit(
