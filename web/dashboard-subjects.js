@@ -281,6 +281,41 @@ const HEADERS = [
   ['Notes · reason or note · actions', ''],
 ];
 
+/** The subject's vibration exposure (ISO 2631-1, W_d) day by day against the study's budget. */
+function exposureBlock(x) {
+  if (!x) return '';
+  const budget = `budget A(8) ${x.budget_a8_m_s2} m/s², VDV ${x.budget_vdv_m_s175} m/s^1.75 (action values ${x.action_a8_m_s2} and ${x.action_vdv_m_s175}; limit values ${x.limit_a8_m_s2} and ${x.limit_vdv_m_s175})`;
+  if (!x.days.length) {
+    return el('p', { class: 'muted exposure', 'data-exposure': 'none' }, `Vibration exposure: no test on the machine yet · ${budget}`);
+  }
+  const over = (d) => d.a8_m_s2 >= x.budget_a8_m_s2 || d.vdv_m_s175 >= x.budget_vdv_m_s175;
+  return el(
+    'div',
+    { class: 'exposure' },
+    el('h4', {}, 'Vibration exposure (ISO 2631-1, W_d, per UTC day)'),
+    el(
+      'table',
+      { class: 'grid' },
+      el('thead', {}, el('tr', {}, ...['Day (UTC)', 'Tests on the machine', 'A(8) m/s²', 'VDV m/s^1.75'].map((h) => el('th', {}, h)))),
+      el(
+        'tbody',
+        {},
+        ...x.days.map((d) =>
+          el(
+            'tr',
+            { 'data-exposure-day': d.date, class: over(d) ? 'st-incomplete' : null },
+            el('td', {}, d.date),
+            el('td', { class: 'num' }, d.worst_case_tests ? `${d.tests} (${d.worst_case_tests} at the worst case)` : String(d.tests)),
+            el('td', { class: 'num' }, d.a8_m_s2.toFixed(3)),
+            el('td', { class: 'num' }, d.vdv_m_s175.toFixed(2)),
+          ),
+        ),
+      ),
+    ),
+    el('p', { class: 'muted' }, budget),
+  );
+}
+
 /** The schedule's frame (heading, table, notes), made once per subject. */
 function frame(subjectId) {
   const box = $('schedule');
@@ -333,6 +368,7 @@ function renderSchedule(d) {
     ),
     s.withdrawn_at ? el('p', { class: 'status err' }, `Withdrawn ${when(s.withdrawn_at)}: ${s.withdraw_reason || ''}`) : '',
     s.erased_at ? el('p', { class: 'status err' }, `Data erased ${when(s.erased_at)} (the audit log says by whom and why)`) : '',
+    exposureBlock(d.exposure),
   );
   box.querySelector('.general-notes').replaceChildren(
     ...(generalNotes.length ? [el('h4', {}, 'Notes on the subject'), ...generalNotes.map(noteLine)] : []),

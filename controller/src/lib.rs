@@ -15,6 +15,7 @@ pub mod batch;
 pub mod closed_loop;
 pub mod compensator;
 pub mod error;
+pub mod exposure;
 pub mod filters;
 pub mod interlock;
 pub mod linalg;

@@ -4,7 +4,10 @@
 
 use bdft_protocol::trial::{Metrics, RECORD_CHANNELS};
 
+use bdft_protocol::exposure::{ExposureAllowance, TrialExposure};
+
 use crate::closed_loop::{ClosedLoop, Drive, TickRecord};
+use crate::exposure::ExposureMeter;
 use crate::interlock::{VibrationInterlock, WINDOW_S};
 use crate::operator::SyntheticOperator;
 use crate::signals::Signal;
@@ -126,6 +129,7 @@ pub struct TrialRunner<L> {
     pub(crate) total: u64,
     pub(crate) interlock: Option<VibrationInterlock>,
     tripped: bool,
+    exposure: ExposureMeter,
 }
 
 impl<L: Loop> TrialRunner<L> {
@@ -140,7 +144,25 @@ impl<L: Loop> TrialRunner<L> {
             total: (duration_s / dt).round() as u64,
             interlock: None,
             tripped: false,
+            exposure: ExposureMeter::new(dt, None),
         }
+    }
+
+    /// Guards the subject's daily vibration budget: the caller stops the trial once
+    /// `exposure_used_up` (the W_d-weighted cab acceleration used up `allowance`).
+    pub fn with_exposure_allowance(mut self, allowance: Option<ExposureAllowance>) -> Self {
+        self.exposure = ExposureMeter::new(self.dt, allowance);
+        self
+    }
+
+    /// Whether the exposure guard's allowance is used up.
+    pub fn exposure_used_up(&self) -> bool {
+        self.exposure.used_up()
+    }
+
+    /// The ISO 2631-1 figures of the cab acceleration so far, and the guard's allowance.
+    pub fn exposure(&self) -> (TrialExposure, Option<ExposureAllowance>) {
+        (self.exposure.exposure(), self.exposure.allowance())
     }
 
     /// Watches the cab acceleration with the vibration interlock (limit in mm/s² RMS over
@@ -179,6 +201,7 @@ impl<L: Loop> TrialRunner<L> {
         if let Some(il) = &mut self.interlock {
             self.tripped |= il.update(r.cab_accel);
         }
+        self.exposure.add(r.cab_accel);
         self.k += 1;
         Sample {
             t,

@@ -79,6 +79,10 @@ pub struct SimSummary {
     pub mse_tracking_mm2: f64,
     /// Mean-squared measured cab acceleration ((mm/s²)²).
     pub ms_cab_accel: f64,
+    /// ISO 2631-1 W_d-weighted r.m.s. of the cab acceleration (m/s²) and its vibration dose
+    /// value (m/s^1.75), as the loop measures them (`exposure`).
+    pub cab_aw_m_s2: f64,
+    pub cab_vdv_m_s175: f64,
     /// Realized target statistics (steps only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub target_mean_mm: Option<f64>,
@@ -148,6 +152,7 @@ pub fn simulate(
         )
     });
     let metrics = runner.metrics();
+    let (exposure, _) = runner.exposure();
     let (target_mean_mm, target_std_mm) = (stats.map(|s| s.0), stats.map(|s| s.1));
     Ok(SimSummary {
         compensator: cfg.setup.compensator.kind().name().to_string(),
@@ -159,6 +164,8 @@ pub fn simulate(
         seed: cfg.seed,
         mse_tracking_mm2: metrics.mse_tracking_mm2,
         ms_cab_accel: metrics.ms_cab_accel,
+        cab_aw_m_s2: exposure.aw_m_s2,
+        cab_vdv_m_s175: exposure.vdv_m_s175,
         target_mean_mm,
         target_std_mm,
         outcome: if stop.is_some() {

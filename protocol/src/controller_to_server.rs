@@ -2,6 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::exposure::TrialExposure;
 use crate::link_auth::Bytes32;
 use crate::trial::{FaultKind, Metrics, Outcome, TimingSummary, TrialId};
 
@@ -99,6 +100,10 @@ pub struct TrialResult {
     /// Sample period of the record (s).
     pub dt: f64,
     pub record_chunks: u32,
+    /// ISO 2631-1 figures of the cab acceleration the trial ran (None from a controller
+    /// that predates them).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exposure: Option<TrialExposure>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -36,7 +36,7 @@ fn hello_and_small_messages() {
             proof: crate::link_auth::Bytes32([0x01; 32]),
         },
         &format!(
-            r#"{{"type":"hello","protocol_version":2,"client":"bdft-server","role":"e_stop","nonce":"{}","proof":"{}"}}"#,
+            r#"{{"type":"hello","protocol_version":3,"client":"bdft-server","role":"e_stop","nonce":"{}","proof":"{}"}}"#,
             "ab".repeat(32),
             "01".repeat(32)
         ),
@@ -47,7 +47,7 @@ fn hello_and_small_messages() {
             nonce: crate::link_auth::Bytes32([0xff; 32]),
         },
         &format!(
-            r#"{{"type":"challenge","protocol_version":2,"nonce":"{}"}}"#,
+            r#"{{"type":"challenge","protocol_version":3,"nonce":"{}"}}"#,
             "ff".repeat(32)
         ),
     );
@@ -160,6 +160,7 @@ fn start_trial_validation_names_the_bad_field() {
         live_rate_hz: 100.0,
         stale_input_ms: 100.0,
         max_cab_rms_mm_s2: crate::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
+        exposure_allowance: None,
     };
     assert!(st.validate().unwrap_err().to_string().contains("k_bf"));
     let st = StartTrial {
@@ -233,6 +234,7 @@ fn trial_result_and_record_chunk() {
         },
         dt: 0.001,
         record_chunks: 1,
+        exposure: None,
     }));
     assert_golden(
         &result,
@@ -254,4 +256,36 @@ fn trial_result_and_record_chunk() {
 fn unknown_messages_and_fields_are_refused() {
     assert!(decode::<ServerToController>(br#"{"type":"launch"}"#).is_err());
     assert!(decode::<ServerToController>(br#"{"type":"heartbeat","seq":1,"extra":2}"#).is_err());
+}
+
+#[test]
+fn the_exposure_guard_on_the_wire() {
+    use crate::exposure::{ExposureAllowance, TrialExposure};
+    assert_golden(
+        &ExposureAllowance {
+            energy_m2_s3: 7200.0,
+            vdv4_m4_s7: 6857.5,
+        },
+        r#"{"energy_m2_s3":7200.0,"vdv4_m4_s7":6857.5}"#,
+    );
+    assert_golden(
+        &TrialExposure {
+            aw_m_s2: 0.5,
+            vdv_m_s175: 2.25,
+            duration_s: 140.0,
+        },
+        r#"{"aw_m_s2":0.5,"vdv_m_s175":2.25,"duration_s":140.0}"#,
+    );
+    assert_golden(&FaultKind::ExposureBudget, r#""exposure-budget""#);
+    // A negative allowance is refused at the boundary, naming it.
+    let bad = ExposureAllowance {
+        energy_m2_s3: -1.0,
+        vdv4_m4_s7: 1.0,
+    };
+    assert!(
+        bad.validate()
+            .unwrap_err()
+            .to_string()
+            .contains("exposure_allowance.energy_m2_s3")
+    );
 }

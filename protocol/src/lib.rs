@@ -14,6 +14,7 @@
 
 pub mod browser_to_server;
 pub mod controller_to_server;
+pub mod exposure;
 pub mod framing;
 pub mod hex;
 pub mod link_auth;
@@ -26,8 +27,10 @@ pub mod server_to_controller;
 pub mod study;
 pub mod trial;
 
-/// Version of the server ↔ controller protocol; both ends must agree in the hello.
-pub const PROTOCOL_VERSION: u32 = 2;
+/// Version of the server ↔ controller protocol; both ends must agree in the hello. 3: the
+/// exposure guard (`StartTrial::exposure_allowance`, `TrialResult::exposure`, fault
+/// `exposure-budget`) — a controller without it must not run a test that relies on it.
+pub const PROTOCOL_VERSION: u32 = 3;
 
 #[cfg(test)]
 mod golden;

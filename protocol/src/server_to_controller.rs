@@ -2,6 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::exposure::ExposureAllowance;
 use crate::link_auth::{Bytes32, LinkRole};
 use crate::params::{BodyModel, CompensatorSpec, MAX_KBF, ParamError, PlantParams, Seat, check};
 use crate::trial::{InputSource, MAX_TRIAL_S, TargetSpec, TrialId};
@@ -79,6 +80,11 @@ pub struct StartTrial {
     /// this stops the trial (mm/s²).
     #[serde(default = "default_max_cab_rms")]
     pub max_cab_rms_mm_s2: f64,
+    /// The in-loop exposure guard: what this test may still add to its subject's day
+    /// (ISO 2631-1 W_d-weighted cab acceleration); the test stops (`exposure-budget`) once
+    /// used up. None: no guard (a desk test, a bench run, the planner).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exposure_allowance: Option<ExposureAllowance>,
 }
 
 /// 6 m/s² RMS (why: the controller's `interlock::DEFAULT_LIMIT_MM_S2`).
@@ -107,6 +113,9 @@ impl StartTrial {
         check("live_rate_hz", self.live_rate_hz, 1.0, 1000.0)?;
         check("stale_input_ms", self.stale_input_ms, 5.0, 10_000.0)?;
         check("max_cab_rms_mm_s2", self.max_cab_rms_mm_s2, 10.0, 1e6)?;
+        if let Some(allowance) = &self.exposure_allowance {
+            allowance.validate()?;
+        }
         if let InputSource::Synthetic { operator, .. } = &self.input {
             operator.validate()?;
         }

@@ -351,6 +351,37 @@ pub struct StudyParams {
     pub max_hidden_ms: f64,
     #[serde(default = "default_max_frame_gap_ms")]
     pub max_frame_gap_ms: f64,
+    /// The study's daily vibration exposure budget per subject (ISO 2631-1 W_d, fore-aft,
+    /// seated; `exposure`): A(8) in m/s² and VDV in m/s^1.75 over the subject's day. By
+    /// default the 2002/44/EC action values; never above the limit values (1.15, 21). Left
+    /// out of the JSON at the default, so the protocol hash of a study that predates the
+    /// budget is unchanged (its tests ran under no budget: the default is what it now gets).
+    #[serde(
+        default = "default_budget_a8",
+        skip_serializing_if = "is_default_budget_a8"
+    )]
+    pub exposure_budget_a8_m_s2: f64,
+    #[serde(
+        default = "default_budget_vdv",
+        skip_serializing_if = "is_default_budget_vdv"
+    )]
+    pub exposure_budget_vdv_m_s175: f64,
+}
+
+fn default_budget_a8() -> f64 {
+    crate::exposure::ACTION_A8_M_S2
+}
+
+fn default_budget_vdv() -> f64 {
+    crate::exposure::ACTION_VDV_M_S175
+}
+
+fn is_default_budget_a8(v: &f64) -> bool {
+    *v == default_budget_a8()
+}
+
+fn is_default_budget_vdv(v: &f64) -> bool {
+    *v == default_budget_vdv()
 }
 
 fn default_max_hidden_ms() -> f64 {
@@ -422,6 +453,18 @@ impl StudyParams {
         check("max_cab_rms_mm_s2", self.max_cab_rms_mm_s2, 10.0, 1e6)?;
         check("max_hidden_ms", self.max_hidden_ms, 0.0, 60_000.0)?;
         check("max_frame_gap_ms", self.max_frame_gap_ms, 250.0, 60_000.0)?;
+        check(
+            "exposure_budget_a8_m_s2",
+            self.exposure_budget_a8_m_s2,
+            0.01,
+            crate::exposure::LIMIT_A8_M_S2,
+        )?;
+        check(
+            "exposure_budget_vdv_m_s175",
+            self.exposure_budget_vdv_m_s175,
+            0.1,
+            crate::exposure::LIMIT_VDV_M_S175,
+        )?;
         let s = &self.survey;
         if !(2..=11).contains(&s.scale_points) {
             return invalid(

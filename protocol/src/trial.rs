@@ -168,6 +168,9 @@ pub enum FaultKind {
     /// The cab-vibration interlock: RMS cab acceleration over the sliding window above the
     /// trial's limit.
     CabVibration,
+    /// The in-loop exposure guard: the test's W_d-weighted cab acceleration used up what
+    /// the subject's daily exposure budget had left (`StartTrial::exposure_allowance`).
+    ExposureBudget,
     /// A rig reading that cannot be true: not finite, the cylinder beyond its stroke, an
     /// acceleration no cab reaches, or a reply to a command never sent.
     RigImplausible,

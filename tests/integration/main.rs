@@ -19,6 +19,7 @@ mod design_aids;
 mod erasure;
 mod exports_analyst;
 mod exports_audit;
+mod exposure;
 mod hardening;
 mod https;
 mod isolation;

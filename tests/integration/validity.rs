@@ -45,13 +45,7 @@ fn person_at_a_station(server: &Server, api: &Api, study: i64) -> (i64, Api) {
 }
 
 fn trials(api: &Api, subject: i64) -> Vec<Value> {
-    let (_, d) = api.get(&format!("/api/subjects/{subject}"));
-    d["trials"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|t| t["trial"].clone())
-        .collect()
+    server::trial_rows(api, subject)
 }
 
 fn row(api: &Api, subject: i64, trial: i64) -> Value {

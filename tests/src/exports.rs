@@ -129,7 +129,9 @@ const CELLS_LISTED: usize = 12;
 
 /// Compares the export `file` made now with the one stored: equal bytes pass. Otherwise both
 /// are read as tables and the report says what differs — columns removed or added (a column
-/// named in `accepted_added` may be added: a later release's declared change), columns that
+/// named in `accepted_added` may be added: a later release's declared change; so may a row
+/// named there as `row:CELL,CELL…`, a row whose first cells are those — a codebook's row for
+/// an added column —, which is then left out before the rows are compared), columns that
 /// moved or changed type, the number of rows, and the first differing cells with their row.
 /// Every column but the accepted ones must then be equal cell for cell; CSV also byte for
 /// byte once those are left out, while Parquet may differ in the writer's own bytes
@@ -148,7 +150,19 @@ pub fn compare(
         Table::read(b, format)
             .map_err(|e| format!("{file}: the {which} export cannot be read: {e}"))
     };
-    let (old, new) = (read(stored, "stored")?, read(now, "new")?);
+    let (old, mut new) = (read(stored, "stored")?, read(now, "new")?);
+    let accepted_rows: Vec<Vec<&str>> = accepted_added
+        .iter()
+        .filter_map(|a| a.strip_prefix("row:"))
+        .map(|key| key.split(',').collect())
+        .collect();
+    let rows_now = new.rows.len();
+    new.rows.retain(|r| {
+        !accepted_rows.iter().any(|key| {
+            key.len() <= r.len() && key.iter().zip(r).all(|(k, c)| c.as_deref() == Some(*k))
+        })
+    });
+    let rows_added = rows_now - new.rows.len();
     let mut problems = Vec::new();
     let old_set: BTreeSet<&String> = old.columns.iter().collect();
     let new_set: BTreeSet<&String> = new.columns.iter().collect();
@@ -232,7 +246,7 @@ pub fn compare(
             listed.join("\n")
         ));
     }
-    if problems.is_empty() && added.is_empty() && format == Format::Csv {
+    if problems.is_empty() && added.is_empty() && rows_added == 0 && format == Format::Csv {
         let at = stored
             .iter()
             .zip(now)
@@ -279,6 +293,13 @@ mod tests {
         assert!(
             e.contains("every cell is equal but the bytes differ"),
             "{e}"
+        );
+        let more = b"id,a,b\n1,x,2\n2,y,3\n9,site,lab\n";
+        let e = compare("t.csv", stored, more, &[]).unwrap_err();
+        assert!(e.contains("2 rows stored, 3 now"), "{e}");
+        assert_eq!(
+            compare("t.csv", stored, more, &["row:9,site".into()]),
+            Ok(())
         );
         let fewer = b"id,a\n1,x\n2,y\n3,w\n";
         let e = compare("t.csv", stored, fewer, &[]).unwrap_err();

@@ -539,6 +539,17 @@ pub fn controller_ready(api: &Api) {
     });
 }
 
+/// Every attempt of the subject's tests, as the dashboard's subject view lists them.
+pub fn trial_rows(api: &Api, subject: i64) -> Vec<Value> {
+    let (_, d) = api.get(&format!("/api/subjects/{subject}"));
+    d["trials"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["trial"].clone())
+        .collect()
+}
+
 /// Runs `trial` (started by the experimenter) to its end; returns its final row. A start
 /// the server cannot serve now (503: the controller restarting after its link was lost on a
 /// loaded machine) is tried again once the controller is back.

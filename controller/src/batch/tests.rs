@@ -77,6 +77,7 @@ fn start(l: usize, comp: CompensatorKind, seat: Seat, body: BodyModel, secs: f64
         live_rate_hz: 100.0,
         stale_input_ms: 100.0,
         max_cab_rms_mm_s2: DEFAULT_MAX_CAB_RMS_MM_S2,
+        exposure_allowance: None,
     }
 }
 

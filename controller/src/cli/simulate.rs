@@ -106,6 +106,11 @@ pub(super) fn run(args: SimulateArgs, out: &mut impl Write) -> anyhow::Result<()
             "cab accel MS      {:.1} (mm/s²)²",
             summary.ms_cab_accel
         )?;
+        writeln!(
+            out,
+            "cab a_w, VDV      {:.4} m/s², {:.4} m/s^1.75 (ISO 2631-1 W_d)",
+            summary.cab_aw_m_s2, summary.cab_vdv_m_s175
+        )?;
         if let (Some(m), Some(s)) = (summary.target_mean_mm, summary.target_std_mm) {
             writeln!(out, "target            mean {m:.3} mm, std {s:.3} mm")?;
         }

@@ -427,6 +427,7 @@ mod tests {
             live_rate_hz: 100.0,
             stale_input_ms: 100.0,
             max_cab_rms_mm_s2: bdft_protocol::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
+            exposure_allowance: None,
         }
     }
 

@@ -79,6 +79,7 @@ pub fn build_runner(
         dt,
         st.duration_s,
     )
-    .with_interlock(st.max_cab_rms_mm_s2);
+    .with_interlock(st.max_cab_rms_mm_s2)
+    .with_exposure_allowance(st.exposure_allowance);
     Ok((runner, input))
 }

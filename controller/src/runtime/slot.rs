@@ -237,6 +237,10 @@ impl TrialSlot {
             self.end(EndReason::Faulted(FaultKind::CabVibration));
             return SlotTick::Ended;
         }
+        if self.runner.exposure_used_up() {
+            self.end(EndReason::Faulted(FaultKind::ExposureBudget));
+            return SlotTick::Ended;
+        }
         if self.runner.done() {
             self.end(EndReason::Complete);
             return SlotTick::Ended;
@@ -308,6 +312,18 @@ impl TrialSlot {
                     .map_or((0.0, 0.0), |il| (il.rms(), il.limit()));
                 format!(
                     "cab vibration {rms:.0} mm/s² RMS over {WINDOW_S} s exceeded the limit of {limit:.0} at t = {at:.3} s; valve set to zero"
+                )
+            }
+            FaultKind::ExposureBudget => {
+                let (e, allowance) = self.runner.exposure();
+                let left = allowance.map_or(0.0, |a| a.energy_m2_s3);
+                let left_vdv = allowance.map_or(0.0, |a| a.vdv4_m4_s7.powf(0.25));
+                format!(
+                    "the subject's daily vibration budget is used up at t = {at:.3} s (this test: a_w {:.3} m/s² over {:.1} s = {:.2} m²/s³ of {left:.2} left, VDV {:.2} of {left_vdv:.2} m/s^1.75 left); valve set to zero",
+                    e.aw_m_s2,
+                    e.duration_s,
+                    e.energy(),
+                    e.vdv_m_s175
                 )
             }
             FaultKind::Internal => {

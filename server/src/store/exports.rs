@@ -38,6 +38,8 @@ pub struct TrialExportRow {
     pub duration_s: f64,
     pub mse_tracking_mm2: Option<f64>,
     pub ms_cab_accel: Option<f64>,
+    pub cab_aw_m_s2: Option<f64>,
+    pub cab_vdv_m_s175: Option<f64>,
     pub accuracy: Option<i64>,
     pub speed: Option<i64>,
     pub smoothness: Option<i64>,
@@ -60,7 +62,7 @@ pub struct TrialExportRow {
 
 const TRIALS_SQL: &str = "SELECT s.study_id, t.id AS trial_id, s.code, s.enrol_index, s.synthetic, s.starting_station, t.station, t.block, t.position, t.slot, t.attempt, \
      t.controller, t.blinded_label, t.practice, t.status, t.status_reason, t.target_seed, t.target_mean_mm, t.target_std_mm, t.target_ms_step_mm2, t.k_bf, t.duration_s, \
-     t.mse_tracking_mm2, t.ms_cab_accel, v.accuracy, v.speed, v.smoothness, v.controllability, v.comment, t.protocol_hash, t.started_at, t.finished_at, s.consent_version, \
+     t.mse_tracking_mm2, t.ms_cab_accel, t.cab_aw_m_s2, t.cab_vdv_m_s175, v.accuracy, v.speed, v.smoothness, v.controllability, v.comment, t.protocol_hash, t.started_at, t.finished_at, s.consent_version, \
      t.client_timing_json, t.timing_json, t.accepted_reason, \
      NOT EXISTS (SELECT 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.slot = t.slot AND u.attempt > t.attempt) AS latest, \
      c.name || ' v' || c.version AS config_version \
@@ -129,6 +131,7 @@ pub async fn recorded_trials<'c>(
 /// (and so does the rest of its study).
 #[derive(Debug, sqlx::FromRow)]
 pub struct SubjectExportRow {
+    pub id: i64,
     pub code: String,
     pub enrol_index: i64,
     pub synthetic: bool,
@@ -147,7 +150,7 @@ pub async fn subject_rows<'c>(
     study_id: i64,
 ) -> Result<Vec<SubjectExportRow>> {
     Ok(sqlx::query_as(
-        "SELECT code, enrol_index, synthetic, starting_station, consent_version, consent_decision, consent_at, withdrawn_at, drawn_json \
+        "SELECT id, code, enrol_index, synthetic, starting_station, consent_version, consent_decision, consent_at, withdrawn_at, drawn_json \
          FROM subjects WHERE study_id = ? AND erased_at IS NULL ORDER BY enrol_index",
     )
     .bind(study_id)

@@ -15,6 +15,7 @@ pub mod db;
 pub mod dry_runs;
 pub mod erasure;
 pub mod exports;
+pub mod exposure;
 pub mod latch;
 pub mod pilot_runs;
 pub mod populations;
@@ -78,9 +79,22 @@ impl Change {
         target: Option<String>,
         detail: impl Serialize,
     ) -> Result<()> {
+        self.audit_also(action, target, detail).await?;
+        self.finish().await
+    }
+
+    /// Writes an audit row for an event the change brings about besides itself (a test's
+    /// filing taking its subject's exposure to an action value), in the same transaction;
+    /// the change's own row is still written by `commit`.
+    pub async fn audit_also(
+        &mut self,
+        action: &str,
+        target: Option<String>,
+        detail: impl Serialize,
+    ) -> Result<()> {
         let detail = json_text(&detail)?;
         audit::append(&mut self.conn, &self.actor, action, target, &detail).await?;
-        self.finish().await
+        Ok(())
     }
 
     /// Commits the transaction as it stands.

@@ -41,7 +41,8 @@ pub async fn file_result(
 ) -> Result<Option<(TrialStatus, Option<String>)>> {
     let filed: Option<(String, Option<String>)> = sqlx::query_as(
         "UPDATE trials SET status = CASE WHEN invalid_reason IS NULL THEN ?1 ELSE 'invalid' END, status_reason = COALESCE(invalid_reason, ?2), \
-         finished_at = MAX(?3, COALESCE(started_at, 0)), mse_tracking_mm2 = ?4, ms_cab_accel = ?5, timing_json = ?6 WHERE id = ?7 AND status = 'running' \
+         finished_at = MAX(?3, COALESCE(started_at, 0)), mse_tracking_mm2 = ?4, ms_cab_accel = ?5, timing_json = ?6, \
+         cab_aw_m_s2 = ?8, cab_vdv_m_s175 = ?9, exposure_s = ?10 WHERE id = ?7 AND status = 'running' \
          RETURNING status, status_reason",
     )
     .bind(status.as_str())
@@ -51,6 +52,9 @@ pub async fn file_result(
     .bind(result.metrics.ms_cab_accel)
     .bind(serde_json::to_string(&result.timing).expect("timing serializes"))
     .bind(result.trial_id as i64)
+    .bind(result.exposure.map(|e| e.aw_m_s2))
+    .bind(result.exposure.map(|e| e.vdv_m_s175))
+    .bind(result.exposure.map(|e| e.duration_s))
     .fetch_optional(&mut *db)
     .await?;
     let Some((status, reason)) = filed else {

@@ -58,6 +58,13 @@ pub struct Trial {
     pub invalid_reason: Option<String>,
     /// The experimenter accepted this attempt's test as incomplete, for this reason.
     pub accepted_reason: Option<String>,
+    /// ISO 2631-1 W_d-weighted r.m.s. of the cab acceleration over the record (m/s²; none
+    /// for a test filed before migration 0024 or without a result).
+    pub cab_aw_m_s2: Option<f64>,
+    /// Its vibration dose value (m/s^1.75).
+    pub cab_vdv_m_s175: Option<f64>,
+    /// The length of the record those are over (s).
+    pub exposure_s: Option<f64>,
 }
 
 impl Trial {

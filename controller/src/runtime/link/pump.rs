@@ -115,6 +115,7 @@ impl Io {
             },
             dt: self.cfg.dt,
             record_chunks: n_chunks as u32,
+            exposure: Some(slot.runner.exposure().0),
         };
         msgs.push(ControllerToServer::TrialResult(Box::new(result)));
         (entry.map(|e| e.conn), msgs)

@@ -13,7 +13,7 @@ use serde::Serialize;
 use super::job::{Job, JobStatus, Progress};
 use crate::engine::procedure::enrolment::enrol;
 use crate::engine::procedure::filing::file_result;
-use crate::engine::procedure::orchestrator::{Operator, start_message};
+use crate::engine::procedure::orchestrator::{Operator, start_now};
 use crate::engine::study::schedule::default_params;
 use crate::store::audit::NoDetail;
 use crate::store::records::Record;
@@ -199,6 +199,15 @@ pub async fn run_with_progress(
                 let subject = store::subjects::get(&pool, subject_id).await?;
                 while let Some(trial) = store::trials::next(&pool, subject_id).await? {
                     let mut change = Change::begin(&pool, actor.as_str()).await?;
+                    // The same budget as a person's: a pilot shows whether the tests fit it.
+                    let start = start_now(
+                        change.db(),
+                        &study,
+                        &trial,
+                        &subject,
+                        Operator::Synthetic(subject.drawn),
+                    )
+                    .await?;
                     store::trials::mark_running(change.db(), trial.id).await?;
                     if let Some(run_id) = run_id {
                         store::pilot_runs::claim(change.db(), run_id, trial.id).await?;
@@ -210,7 +219,6 @@ pub async fn run_with_progress(
                             NoDetail {},
                         )
                         .await?;
-                    let start = start_message(&study, &trial, Operator::Synthetic(subject.drawn))?;
                     let (result, channels) = tokio::task::spawn_blocking(move || {
                         bdft_controller::runtime::local::run(&start, DT)
                     })

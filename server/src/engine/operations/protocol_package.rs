@@ -492,6 +492,11 @@ fn stopping_rules(d: &mut Doc, study: &Study) {
             num(p.max_cab_rms_mm_s2)
         ),
         format!(
+            "Vibration exposure budget (ISO 2631-1, W_d-weighted fore-aft seat acceleration; Directive 2002/44/EC): per subject and day, A(8) {} m/s² and VDV {} m/s^1.75 (the action values are 0.5 and 9.1, the limit values 1.15 and 21, which the budget cannot exceed). Only tests on the machine count, over the 24 hours before each test. A test on the machine starts only with what is left of the budget, and the controller stops it (valve command zero) once its weighted cab acceleration has used that up; when nothing is left the test is refused before it starts. Reaching an action value is recorded in the audit log.",
+            num(p.exposure_budget_a8_m_s2),
+            num(p.exposure_budget_vdv_m_s175)
+        ),
+        format!(
             "Stale input: operator input older than {} ms stops the test.",
             num(p.stale_input_ms)
         ),
@@ -612,10 +617,12 @@ mod tests {
         let mut q = p.clone();
         q.max_cab_rms_mm_s2 = 4321.5;
         q.order_design = OrderDesign::Williams;
+        q.exposure_budget_a8_m_s2 = 0.35;
         let (a, b) = (
             render(&study("s", p), 0, None),
             render(&study("s", q), 0, None),
         );
+        assert!(b.contains("A(8) 0.35 m/s²") && a.contains("A(8) 0.5 m/s²"));
         assert_ne!(a, b);
         assert!(b.contains("above 4321.5 mm/s²") && !a.contains("4321.5"));
         assert!(b.contains("The Williams design's rows") && !a.contains("Williams design's rows"));

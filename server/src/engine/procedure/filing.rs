@@ -9,6 +9,8 @@ use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Duration;
 
 use bdft_protocol::controller_to_server::TrialResult;
+use bdft_protocol::exposure::{ACTION_A8_M_S2, ACTION_VDV_M_S175, DoseSum};
+use bdft_protocol::params::Seat;
 use bdft_protocol::records::TrialStatus;
 use bdft_protocol::trial::{FaultKind, Metrics, Outcome};
 use serde::Serialize;
@@ -16,6 +18,7 @@ use sqlx::SqlitePool;
 
 use super::queue::requeue_failed;
 use crate::engine::machine::controller_link::{BoxFuture, ControllerEvent, ControllerLink, Filing};
+use crate::engine::study::exposure::{action_values_reached, last_24h};
 use crate::error::Result;
 use crate::store::records::Record;
 use crate::store::{self, Change};
@@ -60,6 +63,7 @@ pub async fn file_result(
         return Ok(false);
     };
     let requeued = requeue_failed(change.db(), result.trial_id as i64).await?;
+    audit_action_values(&mut change, result).await?;
     change
         .commit(
             "trial.finish",
@@ -73,6 +77,57 @@ pub async fn file_result(
         )
         .await?;
     Ok(true)
+}
+
+/// What `exposure.action_value` records: a test took its subject's daily exposure (the 24 h
+/// before it) to an action value of 2002/44/EC.
+#[derive(Debug, Serialize)]
+struct ActionValueReached<'a> {
+    subject: &'a str,
+    trial_id: i64,
+    /// `a8`, `vdv` or both.
+    reached: Vec<&'static str>,
+    a8_m_s2: f64,
+    vdv_m_s175: f64,
+    action_a8_m_s2: f64,
+    action_vdv_m_s175: f64,
+}
+
+/// Audits the action values a filed test on the machine took its subject's day to.
+async fn audit_action_values(change: &mut Change, result: &TrialResult) -> Result<()> {
+    let Some(exposure) = result.exposure else {
+        return Ok(());
+    };
+    let trial = store::trials::get(change.db(), result.trial_id as i64).await?;
+    if trial.seat != Seat::On {
+        return Ok(());
+    }
+    let subject = store::subjects::get(change.db(), trial.subject_id).await?;
+    let study = store::studies::get(change.db(), subject.study_id).await?;
+    let after = last_24h(change.db(), &study.params, subject.id, store::db::now_ms()).await?;
+    let before = DoseSum {
+        energy_m2_s3: after.energy_m2_s3 - exposure.energy(),
+        vdv4_m4_s7: after.vdv4_m4_s7 - exposure.vdv4(),
+    };
+    let reached = action_values_reached(before, after);
+    if reached.is_empty() {
+        return Ok(());
+    }
+    change
+        .audit_also(
+            "exposure.action_value",
+            Some(format!("subject:{}", subject.id)),
+            ActionValueReached {
+                subject: &subject.code,
+                trial_id: trial.id,
+                reached,
+                a8_m_s2: after.a8(),
+                vdv_m_s175: after.vdv(),
+                action_a8_m_s2: ACTION_A8_M_S2,
+                action_vdv_m_s175: ACTION_VDV_M_S175,
+            },
+        )
+        .await
 }
 
 /// How often [`LinkFiling`] writes again what it could not.

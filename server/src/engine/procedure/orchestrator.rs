@@ -7,9 +7,13 @@ use bdft_protocol::server_to_controller::StartTrial;
 use bdft_protocol::study::StudyParams;
 use bdft_protocol::trial::{InputSource, TargetSpec};
 
+use sqlx::SqliteConnection;
+
+use crate::engine::study::exposure::allowance_for;
 use crate::engine::study::synthetic::operator_and_body;
 use crate::error::{AppError, Result};
 use crate::store::studies::Study;
+use crate::store::subjects::Subject;
 use crate::store::trials::Trial;
 
 /// Who moves the input device in a trial.
@@ -55,6 +59,22 @@ pub fn start_message(study: &Study, trial: &Trial, operator: Operator) -> Result
     Ok(start(&study.params, run, operator))
 }
 
+/// The controller message that starts `trial` of `subject` now: with the exposure allowance
+/// its subject's day has left, read on `db` — the change that marks the trial running, so
+/// no other test of the subject slips in between —, or the 409 when nothing is left.
+pub async fn start_now(
+    db: &mut SqliteConnection,
+    study: &Study,
+    trial: &Trial,
+    subject: &Subject,
+    operator: Operator,
+) -> Result<StartTrial> {
+    let mut msg = start_message(study, trial, operator)?;
+    msg.exposure_allowance =
+        allowance_for(db, &study.params, subject, trial.seat, trial.duration_s).await?;
+    Ok(msg)
+}
+
 /// The controller message that runs `run` of a study with `params`.
 pub fn start(params: &StudyParams, run: TestRun, operator: Operator) -> StartTrial {
     let seed = run.target_seed;
@@ -83,5 +103,7 @@ pub fn start(params: &StudyParams, run: TestRun, operator: Operator) -> StartTri
         live_rate_hz: 100.0,
         stale_input_ms: params.stale_input_ms,
         max_cab_rms_mm_s2: params.max_cab_rms_mm_s2,
+        // Set by the start policy from the subject's day (`procedure::exposure`).
+        exposure_allowance: None,
     }
 }

@@ -9,6 +9,7 @@ use serde::Serialize;
 use sqlx::SqlitePool;
 
 use crate::engine::machine::controller_link::ControllerLink;
+use crate::engine::study::exposure::{self, SubjectExposure};
 use crate::error::{AppError, Result};
 use crate::store::subjects::{Note, Subject};
 use crate::store::trials::{Survey, Trial, latest_attempts};
@@ -232,6 +233,8 @@ pub struct SubjectDetail {
     pub subject: Subject,
     pub trials: Vec<TrialWithSurvey>,
     pub notes: Vec<Note>,
+    /// Vibration exposure (ISO 2631-1) day by day against the study's budget.
+    pub exposure: SubjectExposure,
 }
 
 pub async fn detail(pool: &SqlitePool, subject_id: i64) -> Result<SubjectDetail> {
@@ -248,10 +251,13 @@ pub async fn detail(pool: &SqlitePool, subject_id: i64) -> Result<SubjectDetail>
             TrialWithSurvey { trial, survey }
         })
         .collect();
+    let study = store::studies::get(pool, subject.study_id).await?;
+    let exposure = exposure::days(&mut *pool.acquire().await?, &study.params, subject.id).await?;
     Ok(SubjectDetail {
         subject,
         trials,
         notes: store::subjects::notes(pool, subject_id).await?,
+        exposure,
     })
 }
 

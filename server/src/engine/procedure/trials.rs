@@ -9,7 +9,7 @@ use bdft_protocol::study::RigKind;
 use serde::Serialize;
 use sqlx::SqlitePool;
 
-use super::orchestrator::{Operator, start_message};
+use super::orchestrator::{Operator, start_now};
 use crate::engine::machine::controller_link::{ControllerEvent, ControllerLink};
 use crate::error::{AppError, Result};
 use crate::store::audit::{NoDetail, Reason};
@@ -97,8 +97,8 @@ pub async fn start(
     } else {
         Operator::Person
     };
-    let msg = start_message(&study, &trial, operator)?;
     let mut change = Change::begin(pool, actor).await?;
+    let msg = start_now(change.db(), &study, &trial, &subject, operator).await?;
     store::trials::mark_running(change.db(), trial.id).await?;
     change
         .commit(

@@ -48,6 +48,8 @@ pub fn default_params() -> StudyParams {
         max_cab_rms_mm_s2: bdft_protocol::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
         max_hidden_ms: 500.0,
         max_frame_gap_ms: 1000.0,
+        exposure_budget_a8_m_s2: bdft_protocol::exposure::ACTION_A8_M_S2,
+        exposure_budget_vdv_m_s175: bdft_protocol::exposure::ACTION_VDV_M_S175,
     }
 }
 

@@ -169,6 +169,8 @@ impl BenchJob {
                     // The machine's own interlock limit, as for the study's trials.
                     RigKind::Real => params.max_cab_rms_mm_s2,
                 },
+                // No person rides a bench run.
+                exposure_allowance: None,
             })
             .collect();
         for s in &starts {

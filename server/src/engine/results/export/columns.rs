@@ -249,6 +249,18 @@ pub fn trials(survey: &SurveyParams) -> Vec<Column> {
             num(3),
             "mean-squared measured cab acceleration",
         ),
+        col(
+            "cab_aw_m_s2",
+            "m/s²",
+            num(5),
+            "ISO 2631-1 frequency-weighted r.m.s. a_w of the fore-aft cab acceleration (W_d: band limits 0.4–100 Hz, acceleration–velocity transition at 2 Hz, Q 0.63; discretized at the record's 1 kHz) over the attempt's record; empty for an attempt without a result or filed before release 0.2 (migration 0024)",
+        ),
+        col(
+            "cab_vdv_m_s175",
+            "m/s^1.75",
+            num(5),
+            "ISO 2631-1 vibration dose value (∫a_w⁴ dt)^¼ of the same W_d-weighted cab acceleration over the record; empty as cab_aw_m_s2",
+        ),
     ];
     let points = survey.scale_points;
     for key in RATING_KEYS {
@@ -423,6 +435,24 @@ pub fn subjects(drawn_keys: &[String]) -> Vec<Column> {
             "",
             INT,
             "tests whose latest attempt is valid (those the statistics use)",
+        ),
+        col(
+            "exposure_days",
+            "",
+            INT,
+            "UTC days on which the subject rode the machine in a test (seat on, practice included when on the machine)",
+        ),
+        col(
+            "a8_max_m_s2",
+            "m/s²",
+            num(5),
+            "the highest daily vibration exposure A(8) = √(Σ a_w,i²·T_i / 8 h) over the subject's days (a day: the UTC date a test started; its tests on the machine at their cab_aw_m_s2 over their record); empty without a test on the machine, or when one of them has no measured figures (a test filed before release 0.2 or without a result: the budget counts it at its worst case, the interlock's limit held)",
+        ),
+        col(
+            "vdv_day_max_m_s175",
+            "m/s^1.75",
+            num(5),
+            "the highest daily vibration dose value (Σ VDV_i⁴)^¼ over the same days; empty as a8_max_m_s2",
         ),
     ];
     c.extend(drawn_keys.iter().map(|k| drawn_column(k)));

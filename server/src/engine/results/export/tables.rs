@@ -13,6 +13,7 @@ use super::{ExportError, ExportKind, ExportRequest, SampleCut};
 use crate::engine::results::inference_table::study_table;
 use crate::engine::results::stats::summary_stats;
 use crate::engine::results::study_data::{counts, valid};
+use crate::engine::study::exposure::{self, ExposureDay};
 use crate::store;
 use crate::store::db::rfc3339;
 use crate::store::exports::{SubjectExportRow, TrialExportRow, Withdrawn};
@@ -162,6 +163,8 @@ pub fn trial_cells(r: &TrialExportRow) -> Vec<Cell<'_>> {
         Cell::Num(Some(r.duration_s)),
         Cell::Num(r.mse_tracking_mm2),
         Cell::Num(r.ms_cab_accel),
+        Cell::Num(r.cab_aw_m_s2),
+        Cell::Num(r.cab_vdv_m_s175),
         rating(r.accuracy),
         rating(r.speed),
         rating(r.smoothness),
@@ -254,6 +257,7 @@ async fn subjects<W: AsyncWrite + Unpin>(
         .iter()
         .map(|c| c.name[columns::DRAWN_PREFIX.len()..].to_string())
         .collect();
+    let study = store::studies::get(pool, study_id).await?;
     for s in store::exports::subject_rows(pool, study_id).await? {
         let own: Vec<&TrialExportRow> = trials.iter().filter(|r| r.code == s.code).collect();
         let values = drawn(&s);
@@ -271,6 +275,19 @@ async fn subjects<W: AsyncWrite + Unpin>(
             Cell::text(order_summary(&own)),
             Cell::Int(Some(own.iter().filter(|r| counts(r)).count() as i64)),
         ];
+        let days = exposure::days(&mut *pool.acquire().await?, &study.params, s.id)
+            .await?
+            .days;
+        // A day with a test the loop did not measure has only a bound (the budget counts
+        // it at its worst case): no figure rather than a bound read as a measurement.
+        let measured = days.iter().all(|d| d.worst_case_tests == 0);
+        let most =
+            |f: fn(&ExposureDay) -> f64| days.iter().map(f).reduce(f64::max).filter(|_| measured);
+        cells.extend([
+            Cell::Int(Some(days.len() as i64)),
+            Cell::Num(most(|d| d.a8_m_s2)),
+            Cell::Num(most(|d| d.vdv_m_s175)),
+        ]);
         cells.extend(
             drawn_columns
                 .iter()
