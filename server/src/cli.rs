@@ -56,6 +56,11 @@ enum Command {
         /// Seed of a study created for the pilot.
         #[arg(long)]
         seed: Option<u64>,
+        /// Parameters of the study created for the pilot (JSON, as `GET /api/defaults` gives
+        /// them; e.g. another population) [default: the default study's]; only into a
+        /// database with no study yet.
+        #[arg(long, conflicts_with = "study")]
+        params: Option<PathBuf>,
     },
     /// The power planner: for candidate numbers of subjects, the chance that each pair of
     /// compensators differs significantly at one seat (exact Wilcoxon, Holm), from whole
@@ -286,6 +291,14 @@ impl std::str::FromStr for ExportTarget {
     }
 }
 
+/// A study's parameters from a JSON file (as `GET /api/defaults` gives them).
+fn read_params(path: &std::path::Path) -> anyhow::Result<bdft_protocol::study::StudyParams> {
+    serde_json::from_str(
+        &std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?,
+    )
+    .with_context(|| format!("{}: study parameters", path.display()))
+}
+
 async fn newest_study(pool: &sqlx::SqlitePool, study: Option<i64>) -> anyhow::Result<i64> {
     match study {
         Some(id) => Ok(id),
@@ -306,8 +319,13 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             study,
             subjects,
             seed,
+            params,
         } => {
             let pool = store::db::open(&db.db).await?;
+            let study = match params {
+                Some(path) => Some(pilot::new_study(&pool, &read_params(&path)?, seed).await?),
+                None => study,
+            };
             let started = std::time::Instant::now();
             let report = pilot::run(&pool, study, subjects, seed).await?;
             println!("{}", serde_json::to_string(&report)?);
@@ -397,11 +415,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             trial_s,
         } => {
             let base = match params {
-                Some(path) => serde_json::from_str(
-                    &std::fs::read_to_string(&path)
-                        .with_context(|| format!("reading {}", path.display()))?,
-                )
-                .with_context(|| format!("{}: study parameters", path.display()))?,
+                Some(path) => read_params(&path)?,
                 None => crate::engine::study::schedule::default_params(),
             };
             let params = bdft_protocol::study::StudyParams {

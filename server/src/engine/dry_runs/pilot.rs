@@ -56,6 +56,23 @@ const DT: f64 = 1e-3;
 /// How often a pilot process tells the database it is alive.
 pub const BEAT: std::time::Duration = std::time::Duration::from_secs(1);
 
+/// A stand-alone dry run of `params` for a pilot from the command line (e.g. a population
+/// other than the default, whose pilot makes data to calibrate against); only into a
+/// database with no study yet, so the pilot's "newest study" stays unambiguous.
+pub async fn new_study(
+    pool: &SqlitePool,
+    params: &bdft_protocol::study::StudyParams,
+    seed: Option<u64>,
+) -> anyhow::Result<i64> {
+    if let Some(s) = store::studies::all(pool).await?.first() {
+        anyhow::bail!(
+            "--params: the database already has study {}; a pilot with its own parameters needs a database without studies",
+            s.id
+        );
+    }
+    Ok(crate::engine::study::dry_run::create(pool, COMMAND_LINE, params, seed).await?)
+}
+
 /// Runs the pilot into `study_id` (default: the newest study, or a new default study if
 /// there is none) as a process of its own (`bdft-server pilot`). `seed` seeds a newly
 /// created study. The run beats while it works, so a server can tell when this process was

@@ -1,0 +1,129 @@
+#!/usr/bin/env python3
+"""The 10-cell table of the calibration benchmark (docs/benchmarks.md, issue 21), and its check.
+
+make: a published-style table (5 controllers x 2 stations, mean-squared tracking error with
+sd and n) from a pilot of 8 synthetic subjects of a known population, the "truth": the default
+study with other medians (TRUTH below). The pilot runs through `bdft-server pilot --params`
+(the whole protocol with records, as a lab's pilot); the table's means, sds and ns are then
+computed here with Python's `statistics` from the pilot's trials export (valid = 1 and
+latest = 1 rows: what the study's statistics use), not by the server. Writes
+tests/fixtures/calibration/table.csv (with its provenance as '#' comments, which the table
+parser skips) and truth.json (the study parameters of the pilot).
+
+check REPORT.json: reads `bdft-server calibrate`'s report and says per cell whether the fitted
+prediction lies within its stated error (2.5 x the root sum of squares of the table's standard
+error sd/sqrt(n) and the prediction's Monte-Carlo error: what
+`fits_a_published_style_table_within_its_stated_error_and_predicts_the_rest` asserts) and
+per fitted median whether its 95 % interval holds the truth. Exit 1 if a cell misses.
+
+Usage (from the repo root, after `cargo build --release -p bdft-server`):
+    python3 tools/bench/calibration_table.py make
+    python3 tools/bench/calibration_table.py check report.json
+Only the standard library is needed.
+"""
+
+import csv
+import json
+import math
+import os
+import sqlite3
+import statistics
+import subprocess
+import sys
+import tempfile
+
+ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
+BIN = os.path.join(ROOT, "target", "release", "bdft-server")
+OUT = os.path.join(ROOT, "tests", "fixtures", "calibration")
+
+# The true population's medians (the default study's: 0.25 s, 0.3, 4.0, 0.50).
+TRUTH = {
+    "reaction_delay_s": 0.30,
+    "error_gain": 0.36,
+    "vibration_slowing_per_m_s2": 3.0,
+    "body_k_h": 0.50,
+}
+# The default study's controllers, in its order.
+CONTROLLERS = ["pid", "pid-notch", "pid-shaper", "lqr", "lqr-cabvel"]
+SUBJECTS = 8  # the thesis's eight people
+SEED = 11
+
+
+def run(*args):
+    subprocess.run([BIN, *args], check=True, stdout=subprocess.DEVNULL)
+
+
+def make():
+    with tempfile.TemporaryDirectory() as tmp:
+        # The default study's parameters, as the server stores them.
+        run("pilot", "--db", f"{tmp}/defaults.db", "--subjects", "1", "--seed", "1")
+        with sqlite3.connect(f"{tmp}/defaults.db") as db:
+            params = json.loads(db.execute("SELECT params_json FROM studies ORDER BY id LIMIT 1").fetchone()[0])
+        for name, median in TRUTH.items():
+            params["population"][name]["median"] = median
+        os.makedirs(OUT, exist_ok=True)
+        truth = os.path.join(OUT, "truth.json")
+        with open(truth, "w") as f:
+            json.dump(params, f, indent=2, sort_keys=True)
+            f.write("\n")
+        run("pilot", "--db", f"{tmp}/truth.db", "--params", truth, "--subjects", str(SUBJECTS), "--seed", str(SEED))
+        run("export", "--db", f"{tmp}/truth.db", "--kind", "trials", "--out", f"{tmp}/trials.csv")
+        cells = {}
+        with open(f"{tmp}/trials.csv", newline="") as f:
+            for r in csv.DictReader(f):
+                if r["valid"] == "1" and r["latest"] == "1":
+                    cells.setdefault((r["controller"], r["station"]), []).append(float(r["mse_tracking_mm2"]))
+    lines = [
+        "# Calibration benchmark table (issue 21): mean-squared tracking error of a pilot of",
+        f"# {SUBJECTS} synthetic subjects (seed {SEED}) of truth.json: the default study with the medians",
+        "# " + ", ".join(f"{k} {v}" for k, v in TRUTH.items()) + ".",
+        "# Made by tools/bench/calibration_table.py make (means and sample sds by Python's statistics",
+        "# from the pilot's trials export, valid and latest rows).",
+        "controller,station,metric,mean,sd,n",
+    ]
+    for station in ["on", "off"]:
+        for controller in CONTROLLERS:
+            v = cells.get((controller, station), [])
+            if len(v) < 2:
+                continue
+            lines.append(f"{controller},{station},mse_tracking_mm2,{statistics.fmean(v):.1f},{statistics.stdev(v):.1f},{len(v)}")
+    if len(lines) != 6 + 10:
+        sys.exit(f"expected 10 cells, got {len(lines) - 6}: {sorted(cells)}")
+    with open(os.path.join(OUT, "table.csv"), "w") as f:
+        f.write("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+def check(path):
+    with open(path) as f:
+        report = json.load(f)
+    fit = report["fit"]
+    missed = 0
+    print("| controller | station | table mean | sd | n | fitted | MC error | z |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|")
+    for c in fit["cells"]:
+        se = c["target_sd"] / math.sqrt(c["target_n"])
+        stated = math.hypot(se, c["monte_carlo_error"])
+        z = (c["prediction"] - c["target"]) / stated
+        missed += abs(z) > 2.5
+        print(f"| {c['controller']} | {c['station']} | {c['target']:.1f} | {c['target_sd']:.1f} | {c['target_n']} | {c['prediction']:.1f} | {c['monte_carlo_error']:.1f} | {z:+.2f} |")
+    print()
+    print("| parameter | before | fitted | 95 % interval | truth | in it |")
+    print("|---|---:|---:|---|---:|---|")
+    for p in fit["parameters"]:
+        t = TRUTH.get(p["name"])
+        inside = "" if t is None else ("yes" if p["low"] <= t <= p["high"] else "no")
+        print(f"| {p['name']} | {p['before']:.3g} | {p['fitted']:.3g} | [{p['low']:.3g}, {p['high']:.3g}] | {'' if t is None else t} | {inside} |")
+    print()
+    print(f"iterations {fit['iterations']}, objective {fit['objective_before']:.1f} -> {fit['objective']:.2f}; not identified: {fit['not_identified']}")
+    print(f"cells outside 2.5 x their stated error: {missed} of {len(fit['cells'])}")
+    sys.exit(1 if missed else 0)
+
+
+if __name__ == "__main__":
+    if sys.argv[1:2] == ["make"]:
+        make()
+    elif sys.argv[1:2] == ["check"] and len(sys.argv) == 3:
+        check(sys.argv[2])
+    else:
+        sys.exit(__doc__)
