@@ -75,16 +75,7 @@ pub struct AuditEntry {
     pub detail: Option<Value>,
 }
 
-/// id, at, actor, actor_id, action, target, detail_json
-pub type AuditRow = (
-    i64,
-    i64,
-    String,
-    Option<i64>,
-    String,
-    Option<String>,
-    Option<String>,
-);
+pub use super::audit_chain::AuditRow;
 
 /// Up to `limit` rows after the row `after`, oldest first, with `at` in ms (an export reads
 /// the whole log page by page).

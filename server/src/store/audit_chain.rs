@@ -29,6 +29,18 @@ pub fn detail_hash(detail: Option<&str>) -> String {
     hex::sha256(detail.unwrap_or("").as_bytes())
 }
 
+/// An audit row's columns: id, at, actor, actor_id, action, target, detail_json (the
+/// chain's pages and the log's export read them so).
+pub type AuditRow = (
+    i64,
+    i64,
+    String,
+    Option<i64>,
+    String,
+    Option<String>,
+    Option<String>,
+);
+
 /// An audit row as the chain reads it.
 #[derive(Debug, Clone, sqlx::FromRow)]
 pub struct Entry {
@@ -227,7 +239,7 @@ const PAGE: i64 = 2000;
 /// hashing (a million entries must verify in seconds). JSON carries the texts unchanged.
 async fn page(db: &mut SqliteConnection, after: i64) -> Result<Vec<Row>> {
     type Fields = (
-        super::audit::AuditRow,
+        AuditRow,
         Option<String>,
         Option<String>,
         Option<String>,

@@ -131,6 +131,9 @@ impl Soak {
             self.journal.violation(e);
             return;
         }
+        // kill(1) is a process of its own: on a loaded machine the signal lands anywhere
+        // between the fault's entry and this moment (seconds apart, seen once in 2 hours).
+        let signalled = wall_ms();
         let noticed = self.wait_until(RECOVERY, |s| {
             s.controller()
                 .is_some_and(|(connected, p)| !connected || p != Some(pid))
@@ -145,7 +148,8 @@ impl Soak {
         self.outcome(
             f,
             n,
-            json!({ "link_down_seen_after_ms": noticed.then_some(noticed_ms),
+            json!({ "signalled_wall_ms": signalled,
+                "link_down_seen_after_ms": noticed.then_some(noticed_ms),
                 "replaced_after_ms": replaced.then_some(replaced_ms), "old_process_gone": gone }),
         );
         if !replaced {

@@ -514,6 +514,12 @@ fn check_faults(journal: &Journal, trials: &Rows, v: &mut Vec<String>, figures: 
     let rows: HashMap<i64, &HashMap<String, String>> =
         trials.iter().map(|r| (id_of(r), r)).collect();
     let faults = journal.of("fault");
+    // When each controller fault's signal had surely landed: kill(1) had returned.
+    let signalled: HashMap<i64, i64> = journal
+        .of("fault.outcome")
+        .iter()
+        .filter_map(|o| Some((o["n"].as_i64()?, o["signalled_wall_ms"].as_i64()?)))
+        .collect();
     let mut hit: HashSet<i64> = HashSet::new();
     let mut by_kind: BTreeMap<&str, BTreeMap<String, usize>> = BTreeMap::new();
     for kind in FaultKind::ALL {
@@ -549,7 +555,13 @@ fn check_faults(journal: &Journal, trials: &Rows, v: &mut Vec<String>, figures: 
             let overlap = to.min(ends_at) - from.max(started);
             let bad = match kind {
                 "controller-kill" | "controller-stop" | "server-restart" => {
-                    (status == "complete" && ends_at - at > 500).then(|| {
+                    // A test may end whole before the signal lands: judged from the moment
+                    // it had surely landed, a complete filing needs its end before that.
+                    let lost_at = f["n"]
+                        .as_i64()
+                        .and_then(|n| signalled.get(&n).copied())
+                        .unwrap_or(at);
+                    (status == "complete" && ends_at - lost_at > 500).then(|| {
                         format!(
                             "filed complete though its {} was lost {} ms before its planned end",
                             if kind == "server-restart" {
@@ -557,7 +569,7 @@ fn check_faults(journal: &Journal, trials: &Rows, v: &mut Vec<String>, figures: 
                             } else {
                                 "controller"
                             },
-                            ends_at - at
+                            ends_at - lost_at
                         )
                     })
                 }
