@@ -21,6 +21,7 @@ const FLOOD: u16 = 1008;
 
 #[test]
 fn a_station_flooding_on_four_sockets_does_not_stop_another_stations_test() {
+    let _turn = bdft_tests::machine_load_turn();
     let server = Server::start("isolation");
     let api = server.experimenter();
     // Practice runs of 10 s: the flood (cut off after 3 s of it) runs inside the other test.

@@ -12,6 +12,7 @@ use std::time::Duration;
 use bdft_tests::soak::{self, Config};
 
 fn soak_for(minutes: u64) {
+    let _turn = bdft_tests::machine_load_turn();
     let seed = std::env::var("BDFT_SOAK_SEED")
         .ok()
         .and_then(|s| s.parse().ok())

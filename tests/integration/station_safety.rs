@@ -76,6 +76,7 @@ pub fn trial_row(api: &Api, subject: i64) -> Value {
 
 #[test]
 fn a_flooding_station_is_throttled_then_cut_off_while_another_runs_normally() {
+    let _turn = bdft_tests::machine_load_turn();
     let server = Server::start("station-flood");
     let api = server.experimenter();
     // Practice runs of 8 s: long enough to outlast the flood's three seconds.
