@@ -17,6 +17,7 @@ pub mod controller_to_server;
 pub mod exposure;
 pub mod framing;
 pub mod hex;
+pub mod identification;
 pub mod link_auth;
 pub mod numbers;
 pub mod params;

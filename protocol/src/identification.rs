@@ -1,0 +1,233 @@
+//! The identification test: a known multisine moves the cab while the person holds the
+//! device, the device's motion is recorded but never fed to the valve, and the person's
+//! feedthrough is estimated at the excited frequencies (`docs/identification.md`).
+//!
+//! What crosses the link and the API: the multisine's design (`MultisineSpec`, carried by
+//! `TargetSpec::Identification`), the task the person is given, and what the test measured
+//! (`FrfPoint`s and the seated body fitted to them, `BodyFit`).
+
+use serde::{Deserialize, Serialize};
+
+use crate::params::{BodyModel, ParamError, check};
+
+/// What the person is asked to do while the cab moves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(rename_all = "kebab-case")]
+pub enum IdentificationTask {
+    /// Keep the pointer still at the centre (the position task: a stiff arm).
+    #[default]
+    HoldStill,
+    /// Hold the device lightly and let the arm go with the motion (the relax task).
+    Relax,
+}
+
+impl IdentificationTask {
+    pub const ALL: [Self; 2] = [Self::HoldStill, Self::Relax];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::HoldStill => "hold-still",
+            Self::Relax => "relax",
+        }
+    }
+}
+
+/// The cab's excitation: a sum of sines on the grid 1/period_s, one period a whole number
+/// of ticks, random phases from `seed`, run for `transient_periods` (dropped) and then
+/// `periods` (averaged).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(deny_unknown_fields)]
+pub struct MultisineSpec {
+    /// Lowest excited frequency (Hz).
+    pub f_min_hz: f64,
+    /// Highest excited frequency (Hz).
+    pub f_max_hz: f64,
+    /// How many frequencies are excited (log-spaced, at most one per grid line).
+    pub lines: u32,
+    /// One period (s): the frequency grid's resolution is its inverse.
+    pub period_s: f64,
+    /// Periods recorded and averaged after the transient.
+    pub periods: u32,
+    /// Whole periods run first and dropped, so the loop and the body reach steady state.
+    pub transient_periods: u32,
+    /// RMS of the cylinder reference the multisine drives (mm).
+    pub rms_mm: f64,
+    /// Seed of the phases (the server derives it from the study seed).
+    pub seed: u64,
+}
+
+/// Limits of a multisine a study may ask for: (lo, hi) per parameter.
+pub mod limits {
+    pub const F_MIN_HZ: (f64, f64) = (0.1, 5.0);
+    pub const F_MAX_HZ: (f64, f64) = (1.0, 20.0);
+    pub const LINES: (u32, u32) = (3, 60);
+    pub const PERIOD_S: (f64, f64) = (2.0, 60.0);
+    pub const PERIODS: (u32, u32) = (2, 30);
+    pub const TRANSIENT_PERIODS: (u32, u32) = (1, 5);
+    pub const RMS_MM: (f64, f64) = (0.1, 10.0);
+}
+
+impl Default for MultisineSpec {
+    fn default() -> Self {
+        Self {
+            f_min_hz: 0.5,
+            f_max_hz: 8.0,
+            lines: 20,
+            period_s: 10.0,
+            periods: 6,
+            transient_periods: 1,
+            rms_mm: 2.0,
+            seed: 0,
+        }
+    }
+}
+
+impl MultisineSpec {
+    /// Checks every parameter against `limits` (the error names the parameter and its
+    /// allowed range), the band's order, and that the band holds `lines` grid lines.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        let int = |name: &'static str, v: u32, (lo, hi): (u32, u32)| {
+            check(name, f64::from(v), f64::from(lo), f64::from(hi))
+        };
+        check(
+            "multisine.f_min_hz",
+            self.f_min_hz,
+            limits::F_MIN_HZ.0,
+            limits::F_MIN_HZ.1,
+        )?;
+        check(
+            "multisine.f_max_hz",
+            self.f_max_hz,
+            limits::F_MAX_HZ.0,
+            limits::F_MAX_HZ.1,
+        )?;
+        int("multisine.lines", self.lines, limits::LINES)?;
+        check(
+            "multisine.period_s",
+            self.period_s,
+            limits::PERIOD_S.0,
+            limits::PERIOD_S.1,
+        )?;
+        int("multisine.periods", self.periods, limits::PERIODS)?;
+        int(
+            "multisine.transient_periods",
+            self.transient_periods,
+            limits::TRANSIENT_PERIODS,
+        )?;
+        check(
+            "multisine.rms_mm",
+            self.rms_mm,
+            limits::RMS_MM.0,
+            limits::RMS_MM.1,
+        )?;
+        if self.f_max_hz <= self.f_min_hz {
+            return Err(ParamError::Invalid {
+                name: "multisine.f_max_hz",
+                message: format!(
+                    "{} Hz is not above f_min_hz = {} Hz",
+                    self.f_max_hz, self.f_min_hz
+                ),
+            });
+        }
+        let grid_lines = ((self.f_max_hz - self.f_min_hz) * self.period_s).floor() as u64 + 1;
+        if u64::from(self.lines) > grid_lines {
+            return Err(ParamError::Invalid {
+                name: "multisine.lines",
+                message: format!(
+                    "{} lines asked, but {}–{} Hz holds only {grid_lines} lines of the \
+                     1/{} s grid: lower lines, widen the band or lengthen period_s",
+                    self.lines, self.f_min_hz, self.f_max_hz, self.period_s
+                ),
+            });
+        }
+        Ok(())
+    }
+
+    /// The test's whole length (s): transient and recorded periods.
+    pub fn duration_s(&self) -> f64 {
+        f64::from(self.transient_periods + self.periods) * self.period_s
+    }
+}
+
+/// The feedthrough at one excited frequency: device position over cab acceleration, with
+/// 95 % bounds and the coherence over the periods.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct FrfPoint {
+    pub f_hz: f64,
+    /// |device / cab acceleration| (mm per m/s²).
+    pub magnitude: f64,
+    pub magnitude_lo: f64,
+    pub magnitude_hi: f64,
+    /// Phase of device / cab acceleration (degrees, in (−180, 180]).
+    pub phase_deg: f64,
+    pub phase_lo_deg: f64,
+    pub phase_hi_deg: f64,
+    /// Squared coherence between cab acceleration and device over the periods (0–1).
+    pub coherence: f64,
+}
+
+/// An estimate with its 95 % interval.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct Estimate {
+    pub value: f64,
+    pub lo: f64,
+    pub hi: f64,
+}
+
+/// The seated body (`BodyModel::Seated`) fitted to one person's measured feedthrough.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct BodyFit {
+    pub k_h: Estimate,
+    pub torso_f_hz: Estimate,
+    pub torso_zeta: Estimate,
+    pub arm_f_hz: Estimate,
+    pub arm_zeta: Estimate,
+    /// RMS of the fit's residual, |log(model / measured)| over the points (natural log).
+    pub residual_rms: f64,
+    /// Parameters the data could not pin down (their interval spans more than a factor of
+    /// 10, or the fit's information matrix is singular along them), by name.
+    pub unidentified: Vec<String>,
+}
+
+impl BodyFit {
+    /// The body the fit describes, for the stability gate and per-subject designs.
+    pub fn body(&self) -> BodyModel {
+        BodyModel::Seated {
+            k_h: self.k_h.value,
+            torso_f_hz: self.torso_f_hz.value,
+            torso_zeta: self.torso_zeta.value,
+            arm_f_hz: self.arm_f_hz.value,
+            arm_zeta: self.arm_zeta.value,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_multisine_is_valid_and_lasts_its_periods() {
+        let m = MultisineSpec::default();
+        m.validate().unwrap();
+        assert_eq!(m.duration_s(), 70.0);
+    }
+
+    #[test]
+    fn a_bad_multisine_names_what_is_wrong() {
+        let bad = |f: fn(&mut MultisineSpec)| {
+            let mut m = MultisineSpec::default();
+            f(&mut m);
+            m.validate().unwrap_err().to_string()
+        };
+        assert!(bad(|m| m.rms_mm = 50.0).starts_with("multisine.rms_mm = 50"));
+        assert!(bad(|m| m.f_max_hz = 0.4).starts_with("multisine.f_max_hz"));
+        assert!(bad(|m| m.f_max_hz = 1.0).contains("holds only"));
+        assert!(bad(|m| m.periods = 0).starts_with("multisine.periods"));
+    }
+}
