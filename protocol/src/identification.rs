@@ -35,10 +35,10 @@ impl IdentificationTask {
 
 /// The cab's excitation: a sum of sines on the grid 1/period_s, one period a whole number
 /// of ticks, random phases from `seed`, run for `transient_periods` (dropped) and then
-/// `periods` (averaged).
+/// `periods` (averaged). A parameter left out takes its default.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
-#[serde(deny_unknown_fields)]
+#[serde(default, deny_unknown_fields)]
 pub struct MultisineSpec {
     /// Lowest excited frequency (Hz).
     pub f_min_hz: f64,

@@ -12,6 +12,7 @@ use super::error::{ApiResult, AppJson, Done, optional_json};
 use super::extract::{Experimenter, SubjectAuth};
 use crate::engine::procedure::enrolment::enrol;
 use crate::engine::procedure::subjects::{self, OwnProgress, SubjectDetail, SubjectProgress};
+use crate::engine::results::identification::{self, IdentificationView};
 use crate::state::AppState;
 use crate::store;
 use crate::store::subjects::Subject;
@@ -20,6 +21,7 @@ pub fn experimenter() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(list_subjects, enrol_subject))
         .routes(routes!(get_subject))
+        .routes(routes!(get_identification))
         .routes(routes!(withdraw))
 }
 
@@ -88,6 +90,18 @@ async fn get_subject(
     Path(id): Path<i64>,
 ) -> ApiResult<SubjectDetail> {
     Ok(AppJson(subjects::detail(&s.pool, id).await?))
+}
+
+/// The subject's identification tests: the measured feedthrough, the fitted body and the
+/// study population's band (the subject page's Bode plot).
+#[utoipa::path(get, path = "/api/subjects/{id}/identification", tag = "subjects", params(("id" = i64, Path)),
+    responses((status = 200, body = IdentificationView)))]
+async fn get_identification(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<IdentificationView> {
+    Ok(AppJson(identification::view(&s.pool, id).await?))
 }
 
 /// Record that the subject withdraws (their data leave every export).
