@@ -22,6 +22,7 @@ mod exports_audit;
 mod exposure;
 mod hardening;
 mod https;
+mod identification_study;
 mod isolation;
 mod protocol_package;
 mod server_api;

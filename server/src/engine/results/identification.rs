@@ -7,15 +7,17 @@
 use bdft_controller::analysis::frequency::log_grid;
 use bdft_controller::identification::fit;
 use bdft_controller::population;
-use bdft_protocol::params::BodyModel;
+use bdft_protocol::params::{BodyModel, MAX_KBF, check};
 use bdft_protocol::study::StudyParams;
 use nalgebra::Complex;
 use serde::Serialize;
 use sqlx::SqlitePool;
 
 use super::inference::quantile::quantile;
+use crate::engine::COMPUTE;
+use crate::engine::study::stability::{StabilityCache, StabilityReport};
 use crate::engine::study::synthetic;
-use crate::error::Result;
+use crate::error::{AppError, Result};
 use crate::store;
 use crate::store::identifications::Identification;
 
@@ -74,6 +76,54 @@ pub async fn view(pool: &SqlitePool, subject_id: i64) -> Result<IdentificationVi
         tests,
         fitted,
         population,
+    })
+}
+
+/// Every design of the subject's study checked against the subject's own identified body.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct SubjectStability {
+    pub subject: String,
+    /// The body fitted by the subject's latest identification test with a fit.
+    pub body: BodyModel,
+    /// Each design at `k_bf` with this body, on and off the machine, and its margin (the
+    /// largest stable K_BF for this subject).
+    pub report: StabilityReport,
+}
+
+/// Is each of the study's designs stable for this subject at `k_bf` (default the
+/// study's), and with what margin? The gate's analysis on the study's plant with the body
+/// the subject's identification test fitted; a 409 when the subject has none yet.
+pub async fn subject_stability(
+    pool: &SqlitePool,
+    cache: &StabilityCache,
+    subject_id: i64,
+    k_bf: Option<f64>,
+) -> Result<SubjectStability> {
+    let subject = store::subjects::get(pool, subject_id).await?;
+    let study = store::studies::get(pool, subject.study_id).await?;
+    let fit = store::identifications::of_subject(pool, subject_id)
+        .await?
+        .into_iter()
+        .rev()
+        .find_map(|t| t.fit)
+        .ok_or_else(|| {
+            AppError::Conflict(format!(
+                "{} has no identification test with a fitted body yet",
+                subject.code
+            ))
+        })?;
+    let mut params = study.params.clone();
+    params.body = fit.body();
+    if let Some(k) = k_bf {
+        check("k_bf", k, 0.01, MAX_KBF).map_err(|e| AppError::BadRequest(e.to_string()))?;
+        params.k_bf = k;
+    }
+    // The analysis takes seconds: one heavy read at a time, as the workbench's.
+    let _turn = COMPUTE.acquire().await.expect("never closed");
+    Ok(SubjectStability {
+        subject: subject.code,
+        body: params.body,
+        report: cache.report(&params).await?,
     })
 }
 
