@@ -1,7 +1,7 @@
 //! The identification test run through the controller's own trial set-up: the multisine is
 //! the cylinder reference whatever the hand does, and the synthetic subject holds still.
 
-use bdft_protocol::identification::{IdentificationTask, MultisineSpec};
+use bdft_protocol::identification::{Estimate, IdentificationTask, MultisineSpec};
 use bdft_protocol::params::{BodyModel, OperatorParams, Seat};
 use bdft_protocol::server_to_controller::{DEFAULT_MAX_CAB_RMS_MM_S2, StartTrial};
 use bdft_protocol::trial::{InputSource, TargetSpec};
@@ -287,8 +287,6 @@ pub(crate) fn estimates(fit: &bdft_protocol::identification::BodyFit) -> [Estima
     ]
 }
 
-use bdft_protocol::identification::Estimate;
-
 #[test]
 fn the_fits_95_percent_intervals_cover_the_true_body_of_85_to_100_percent_of_subjects() {
     const SUBJECTS: u64 = 40;
@@ -334,5 +332,103 @@ fn the_fits_95_percent_intervals_cover_the_true_body_of_85_to_100_percent_of_sub
             "{}: {c} of {SUBJECTS}",
             super::fit::PARAMETERS[p]
         );
+    }
+}
+
+fn median(mut xs: Vec<f64>) -> f64 {
+    xs.sort_by(f64::total_cmp);
+    let n = xs.len();
+    if n % 2 == 1 {
+        xs[n / 2]
+    } else {
+        0.5 * (xs[n / 2 - 1] + xs[n / 2])
+    }
+}
+
+/// The figures of docs/identification.md: the default multisine's design, the coherence it
+/// gives across the band, and how the test's length buys precision. Prints a Markdown
+/// table; takes a minute:
+/// `cargo test -p bdft-controller --lib -- identification::tests::design_and_precision_figures --ignored --nocapture`
+#[test]
+#[ignore = "prints the figures of docs/identification.md; about a minute"]
+fn design_and_precision_figures() {
+    const SUBJECTS: u64 = 40;
+    let default = MultisineSpec::default();
+    let m = Multisine::new(&default, DT).unwrap();
+    let power: f64 = m.lines.iter().map(|l| l.amplitude_mm.powi(2)).sum();
+    println!(
+        "default multisine: crest factor {:.2}, lowest line {:.0} % of the reference's power",
+        m.crest_factor,
+        100.0 * m.lines[0].amplitude_mm.powi(2) / power
+    );
+    let mid = |s: &Subject| {
+        s.points
+            .iter()
+            .min_by(|a, b| {
+                (a.f_hz.ln() - 2f64.ln())
+                    .abs()
+                    .total_cmp(&(b.f_hz.ln() - 2f64.ln()).abs())
+            })
+            .copied()
+            .unwrap()
+    };
+    let mut rows = vec![];
+    for (periods, period_s) in [
+        (2, 10.0),
+        (4, 10.0),
+        (6, 10.0),
+        (10, 10.0),
+        (6, 5.0),
+        (6, 20.0),
+    ] {
+        let spec = MultisineSpec {
+            periods,
+            period_s,
+            ..default
+        };
+        let subjects: Vec<Subject> = (0..SUBJECTS).map(|i| subject(i, spec)).collect();
+        let width = |e: Estimate| 100.0 * (e.hi - e.lo) / e.value;
+        let k_h = median(subjects.iter().map(|s| width(s.fit.k_h)).collect());
+        let arm = median(subjects.iter().map(|s| width(s.fit.arm_f_hz)).collect());
+        let f_mid = mid(&subjects[0]).f_hz;
+        let mag = median(
+            subjects
+                .iter()
+                .map(|s| {
+                    let p = mid(s);
+                    100.0 * (p.magnitude_hi - p.magnitude_lo) / p.magnitude
+                })
+                .collect(),
+        );
+        let unidentified = subjects
+            .iter()
+            .filter(|s| !s.fit.unidentified.is_empty())
+            .count();
+        if periods == 6 && period_s == 10.0 {
+            let lines: Vec<String> = (0..spec.lines as usize)
+                .map(|l| {
+                    format!(
+                        "{:.1} Hz {:.2}",
+                        subjects[0].points[l].f_hz,
+                        median(subjects.iter().map(|s| s.points[l].coherence).collect())
+                    )
+                })
+                .collect();
+            println!(
+                "median coherence by line (default test): {}",
+                lines.join(", ")
+            );
+        }
+        rows.push(format!(
+            "| {periods} | {period_s} | {} | {k_h:.1} | {arm:.1} | {mag:.0} ({f_mid:.1} Hz) | {unidentified} |",
+            spec.duration_s()
+        ));
+    }
+    println!(
+        "| periods | period_s | test length (s) | k_h 95 % width (% of value) | arm_f_hz 95 % width (%) | magnitude bound width at mid-band (%) | subjects with a parameter unidentified |"
+    );
+    println!("|---|---|---|---|---|---|---|");
+    for r in rows {
+        println!("{r}");
     }
 }
