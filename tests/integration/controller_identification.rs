@@ -94,8 +94,7 @@ fn an_identification_trial_drives_the_multisine_whatever_the_hand_does() {
     // The hand channel carries the input (held between inputs, once it has arrived) and the
     // device reads it less the feedthrough.
     let mut seen = 0;
-    for k in 0..moved[hand].len() {
-        let h = moved[hand][k];
+    for (k, &h) in moved[hand].iter().enumerate() {
         let batch = k as u64 / u64::from(EVERY);
         assert!(
             h == wild(batch) as f32 || (batch > 0 && h == wild(batch - 1) as f32) || h == 0.0,

@@ -134,6 +134,8 @@ pub(crate) struct Record {
     pub cab_accel: Vec<f32>,
     pub device: Vec<f32>,
     pub mean_grip: f64,
+    /// The test's ISO 2631-1 weighted RMS a_w (m/s²), the exposure guard's measure.
+    pub aw_m_s2: f64,
 }
 
 /// Runs an identification trial to its end on the simulated rig; the hand source's input
@@ -163,6 +165,7 @@ pub(crate) fn run(st: &StartTrial, hand: impl Fn(u64) -> f64) -> Record {
         cab_accel,
         device,
         mean_grip: grip_sum / (k - recorded_from) as f64,
+        aw_m_s2: runner.exposure().0.aw_m_s2,
     }
 }
 
@@ -231,6 +234,7 @@ pub(crate) struct Subject {
     pub truth: [f64; 5],
     pub points: Vec<bdft_protocol::identification::FrfPoint>,
     pub fit: bdft_protocol::identification::BodyFit,
+    pub aw_m_s2: f64,
 }
 
 /// Subject `i` of the default population (which draws bodies) takes the test `spec`
@@ -274,6 +278,7 @@ pub(crate) fn subject(i: u64, spec: MultisineSpec) -> Subject {
         ],
         points,
         fit,
+        aw_m_s2: rec.aw_m_s2,
     }
 }
 
@@ -404,6 +409,7 @@ fn design_and_precision_figures() {
             .iter()
             .filter(|s| !s.fit.unidentified.is_empty())
             .count();
+        let aw = median(subjects.iter().map(|s| s.aw_m_s2).collect());
         if periods == 6 && period_s == 10.0 {
             let lines: Vec<String> = (0..spec.lines as usize)
                 .map(|l| {
@@ -420,14 +426,14 @@ fn design_and_precision_figures() {
             );
         }
         rows.push(format!(
-            "| {periods} | {period_s} | {} | {k_h:.1} | {arm:.1} | {mag:.0} ({f_mid:.1} Hz) | {unidentified} |",
+            "| {periods} | {period_s} | {} | {k_h:.1} | {arm:.1} | {mag:.0} ({f_mid:.1} Hz) | {unidentified} | {aw:.2} |",
             spec.duration_s()
         ));
     }
     println!(
-        "| periods | period_s | test length (s) | k_h 95 % width (% of value) | arm_f_hz 95 % width (%) | magnitude bound width at mid-band (%) | subjects with a parameter unidentified |"
+        "| periods | period_s | test length (s) | k_h 95 % width (% of value) | arm_f_hz 95 % width (%) | magnitude bound width at mid-band (%) | subjects with a parameter unidentified | a_w (m/s²) |"
     );
-    println!("|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|");
     for r in rows {
         println!("{r}");
     }
