@@ -8,6 +8,7 @@ mod browser;
 mod calibration;
 mod controller_cli;
 mod controller_estop;
+mod controller_identification;
 mod controller_input_udp;
 mod controller_link_auth;
 mod controller_link_loss;

@@ -355,3 +355,63 @@ pub fn identify(
     let fit = fit_body(&points)?;
     Ok((points, fit))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn students_quantiles_match_the_tables() {
+        for (dof, want) in [(2.0, 4.302_653), (5.0, 2.570_582), (10.0, 2.228_139)] {
+            let t = t_quantile(0.975, dof);
+            assert!((t - want).abs() < 1e-5, "{dof}: {t}");
+        }
+        assert!((t_quantile(0.975, 1e6) - 1.959_966).abs() < 1e-4);
+    }
+
+    #[test]
+    fn exact_points_give_back_the_body_and_too_few_are_refused() {
+        let truth = [0.55f64, 1.2, 0.35, 2.4, 0.3];
+        let theta = truth.map(f64::ln);
+        let points: Vec<FrfPoint> = (0..20)
+            .map(|i| {
+                let f_hz = 0.5 * 16f64.powf(i as f64 / 19.0);
+                let g = feedthrough(&theta, f_hz);
+                // A 1 % spread, as if measured; the values themselves exact.
+                let sd = 0.01 * g.norm();
+                FrfPoint {
+                    f_hz,
+                    magnitude: g.norm(),
+                    magnitude_lo: g.norm() - 2.0 * sd,
+                    magnitude_hi: g.norm() + 2.0 * sd,
+                    phase_deg: g.arg().to_degrees(),
+                    phase_lo_deg: g.arg().to_degrees() - 1.0,
+                    phase_hi_deg: g.arg().to_degrees() + 1.0,
+                    coherence: 1.0,
+                    std_dev: sd,
+                    periods: 6,
+                }
+            })
+            .collect();
+        let fit = fit_body(&points).unwrap();
+        for (e, t) in [
+            fit.k_h,
+            fit.torso_f_hz,
+            fit.torso_zeta,
+            fit.arm_f_hz,
+            fit.arm_zeta,
+        ]
+        .iter()
+        .zip(truth)
+        {
+            assert!((e.value / t - 1.0).abs() < 1e-6, "{e:?} vs {t}");
+            assert!(e.lo < t && t < e.hi);
+        }
+        assert!(fit.residual_rms < 1e-6 && fit.unidentified.is_empty());
+        let err = fit_body(&points[..2]).unwrap_err().to_string();
+        assert!(err.contains("at least 3"), "{err}");
+        // Three points cannot pin five parameters.
+        let few = fit_body(&points[..3]).unwrap();
+        assert!(!few.unidentified.is_empty(), "{few:?}");
+    }
+}

@@ -1,7 +1,7 @@
 //! The identification test run through the controller's own trial set-up: the multisine is
 //! the cylinder reference whatever the hand does, and the synthetic subject holds still.
 
-use bdft_protocol::identification::{IdentificationTask, MultisineSpec};
+use bdft_protocol::identification::{Estimate, IdentificationTask, MultisineSpec};
 use bdft_protocol::params::{BodyModel, OperatorParams, Seat};
 use bdft_protocol::server_to_controller::{DEFAULT_MAX_CAB_RMS_MM_S2, StartTrial};
 use bdft_protocol::trial::{InputSource, TargetSpec};
@@ -134,6 +134,8 @@ pub(crate) struct Record {
     pub cab_accel: Vec<f32>,
     pub device: Vec<f32>,
     pub mean_grip: f64,
+    /// The test's ISO 2631-1 weighted RMS a_w (m/s²), the exposure guard's measure.
+    pub aw_m_s2: f64,
 }
 
 /// Runs an identification trial to its end on the simulated rig; the hand source's input
@@ -163,6 +165,7 @@ pub(crate) fn run(st: &StartTrial, hand: impl Fn(u64) -> f64) -> Record {
         cab_accel,
         device,
         mean_grip: grip_sum / (k - recorded_from) as f64,
+        aw_m_s2: runner.exposure().0.aw_m_s2,
     }
 }
 
@@ -231,6 +234,7 @@ pub(crate) struct Subject {
     pub truth: [f64; 5],
     pub points: Vec<bdft_protocol::identification::FrfPoint>,
     pub fit: bdft_protocol::identification::BodyFit,
+    pub aw_m_s2: f64,
 }
 
 /// Subject `i` of the default population (which draws bodies) takes the test `spec`
@@ -274,6 +278,7 @@ pub(crate) fn subject(i: u64, spec: MultisineSpec) -> Subject {
         ],
         points,
         fit,
+        aw_m_s2: rec.aw_m_s2,
     }
 }
 
@@ -286,8 +291,6 @@ pub(crate) fn estimates(fit: &bdft_protocol::identification::BodyFit) -> [Estima
         fit.arm_zeta,
     ]
 }
-
-use bdft_protocol::identification::Estimate;
 
 #[test]
 fn the_fits_95_percent_intervals_cover_the_true_body_of_85_to_100_percent_of_subjects() {
@@ -334,5 +337,104 @@ fn the_fits_95_percent_intervals_cover_the_true_body_of_85_to_100_percent_of_sub
             "{}: {c} of {SUBJECTS}",
             super::fit::PARAMETERS[p]
         );
+    }
+}
+
+fn median(mut xs: Vec<f64>) -> f64 {
+    xs.sort_by(f64::total_cmp);
+    let n = xs.len();
+    if n % 2 == 1 {
+        xs[n / 2]
+    } else {
+        0.5 * (xs[n / 2 - 1] + xs[n / 2])
+    }
+}
+
+/// The figures of docs/identification.md: the default multisine's design, the coherence it
+/// gives across the band, and how the test's length buys precision. Prints a Markdown
+/// table; takes a minute:
+/// `cargo test -p bdft-controller --lib -- identification::tests::design_and_precision_figures --ignored --nocapture`
+#[test]
+#[ignore = "prints the figures of docs/identification.md; about a minute"]
+fn design_and_precision_figures() {
+    const SUBJECTS: u64 = 40;
+    let default = MultisineSpec::default();
+    let m = Multisine::new(&default, DT).unwrap();
+    let power: f64 = m.lines.iter().map(|l| l.amplitude_mm.powi(2)).sum();
+    println!(
+        "default multisine: crest factor {:.2}, lowest line {:.0} % of the reference's power",
+        m.crest_factor,
+        100.0 * m.lines[0].amplitude_mm.powi(2) / power
+    );
+    let mid = |s: &Subject| {
+        s.points
+            .iter()
+            .min_by(|a, b| {
+                (a.f_hz.ln() - 2f64.ln())
+                    .abs()
+                    .total_cmp(&(b.f_hz.ln() - 2f64.ln()).abs())
+            })
+            .copied()
+            .unwrap()
+    };
+    let mut rows = vec![];
+    for (periods, period_s) in [
+        (2, 10.0),
+        (4, 10.0),
+        (6, 10.0),
+        (10, 10.0),
+        (6, 5.0),
+        (6, 20.0),
+    ] {
+        let spec = MultisineSpec {
+            periods,
+            period_s,
+            ..default
+        };
+        let subjects: Vec<Subject> = (0..SUBJECTS).map(|i| subject(i, spec)).collect();
+        let width = |e: Estimate| 100.0 * (e.hi - e.lo) / e.value;
+        let k_h = median(subjects.iter().map(|s| width(s.fit.k_h)).collect());
+        let arm = median(subjects.iter().map(|s| width(s.fit.arm_f_hz)).collect());
+        let f_mid = mid(&subjects[0]).f_hz;
+        let mag = median(
+            subjects
+                .iter()
+                .map(|s| {
+                    let p = mid(s);
+                    100.0 * (p.magnitude_hi - p.magnitude_lo) / p.magnitude
+                })
+                .collect(),
+        );
+        let unidentified = subjects
+            .iter()
+            .filter(|s| !s.fit.unidentified.is_empty())
+            .count();
+        let aw = median(subjects.iter().map(|s| s.aw_m_s2).collect());
+        if periods == 6 && period_s == 10.0 {
+            let lines: Vec<String> = (0..spec.lines as usize)
+                .map(|l| {
+                    format!(
+                        "{:.1} Hz {:.2}",
+                        subjects[0].points[l].f_hz,
+                        median(subjects.iter().map(|s| s.points[l].coherence).collect())
+                    )
+                })
+                .collect();
+            println!(
+                "median coherence by line (default test): {}",
+                lines.join(", ")
+            );
+        }
+        rows.push(format!(
+            "| {periods} | {period_s} | {} | {k_h:.1} | {arm:.1} | {mag:.0} ({f_mid:.1} Hz) | {unidentified} | {aw:.2} |",
+            spec.duration_s()
+        ));
+    }
+    println!(
+        "| periods | period_s | test length (s) | k_h 95 % width (% of value) | arm_f_hz 95 % width (%) | magnitude bound width at mid-band (%) | subjects with a parameter unidentified | a_w (m/s²) |"
+    );
+    println!("|---|---|---|---|---|---|---|---|");
+    for r in rows {
+        println!("{r}");
     }
 }
