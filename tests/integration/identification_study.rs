@@ -55,7 +55,10 @@ fn a_bad_identification_test_is_refused_naming_what_is_wrong() {
     p["identification"]["controller"] = json!("lqr-cabacc");
     let (code, body) = create(&api, &p);
     assert_eq!(code, 422, "{body}");
-    assert!(body.to_string().contains("identification.controller"), "{body}");
+    assert!(
+        body.to_string().contains("identification.controller"),
+        "{body}"
+    );
     assert_eq!(create(&api, &good).0, 200);
 }
 
@@ -90,7 +93,10 @@ fn a_pilot_measures_each_synthetic_subjects_feedthrough_and_the_exports_and_view
         assert_eq!(t["station"], "on");
         assert_eq!(t["status"], "complete");
         assert_eq!(t["duration_s"], 70.0);
-        for other in trials.iter().filter(|u| u["block"] == t["block"] && u["id"] != t["id"]) {
+        for other in trials
+            .iter()
+            .filter(|u| u["block"] == t["block"] && u["id"] != t["id"])
+        {
             assert!(other["queue_order"].as_i64() > t["queue_order"].as_i64());
         }
         // No survey is asked of it.
@@ -151,7 +157,10 @@ fn a_pilot_measures_each_synthetic_subjects_feedthrough_and_the_exports_and_view
     }
     // 95 % intervals: most truths inside (6 comparisons; a miss or two is the intervals'
     // own 5 %, the bound above catches a biased estimate).
-    assert!(truths_inside >= 4, "{truths_inside} of 6 truths inside their intervals");
+    assert!(
+        truths_inside >= 4,
+        "{truths_inside} of 6 truths inside their intervals"
+    );
 
     // The trials export: the identification test unscored, without a compensator of its own.
     let (h, rows) = csv(&api, copy, "trials");

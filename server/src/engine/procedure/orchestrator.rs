@@ -52,7 +52,13 @@ pub fn start_message(study: &Study, trial: &Trial, operator: Operator) -> Result
         compensator: serde_json::from_str(&trial.compensator_json)
             .map_err(|e| bad("compensator", e))?,
         seat: trial.seat,
-        slot: u32::try_from(trial.slot).unwrap_or(0),
+        // How far the subject has learned: an identification test comes after as many
+        // tests as its queue order says (its slot is after every scored test).
+        slot: u32::try_from(match trial.phase {
+            TestPhase::Identification => trial.queue_order,
+            _ => trial.slot,
+        })
+        .unwrap_or(0),
         k_bf: trial.k_bf,
         target: match trial.phase {
             TestPhase::Identification => {
