@@ -523,7 +523,7 @@ fn the_command_line_cuts_samples_and_simulate_writes_the_same_record_layout() {
     for (args, expected) in [
         (
             vec!["--kind", "sample"],
-            "trials, samples, subjects, codebook, summary, stats, notes, audit",
+            "trials, samples, subjects, codebook, summary, stats, notes, identification, audit",
         ),
         (vec!["--kind", "trials", "--format", "xlsx"], "csv, parquet"),
         (

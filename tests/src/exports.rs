@@ -131,7 +131,8 @@ const CELLS_LISTED: usize = 12;
 /// are read as tables and the report says what differs — columns removed or added (a column
 /// named in `accepted_added` may be added: a later release's declared change; so may a row
 /// named there as `row:CELL,CELL…`, a row whose first cells are those — a codebook's row for
-/// an added column —, which is then left out before the rows are compared), columns that
+/// an added column —, which is then left out before the rows are compared; and a row named
+/// `changed:CELL,CELL…` may differ, left out of both), columns that
 /// moved or changed type, the number of rows, and the first differing cells with their row.
 /// Every column but the accepted ones must then be equal cell for cell; CSV also byte for
 /// byte once those are left out, while Parquet may differ in the writer's own bytes
@@ -150,18 +151,27 @@ pub fn compare(
         Table::read(b, format)
             .map_err(|e| format!("{file}: the {which} export cannot be read: {e}"))
     };
-    let (old, mut new) = (read(stored, "stored")?, read(now, "new")?);
-    let accepted_rows: Vec<Vec<&str>> = accepted_added
-        .iter()
-        .filter_map(|a| a.strip_prefix("row:"))
-        .map(|key| key.split(',').collect())
-        .collect();
-    let rows_now = new.rows.len();
-    new.rows.retain(|r| {
-        !accepted_rows.iter().any(|key| {
+    let (mut old, mut new) = (read(stored, "stored")?, read(now, "new")?);
+    let keys = |prefix: &str| -> Vec<Vec<&str>> {
+        accepted_added
+            .iter()
+            .filter_map(|a| a.strip_prefix(prefix))
+            .map(|key| key.split(',').collect())
+            .collect()
+    };
+    let named = |keys: &[Vec<&str>], r: &[Option<String>]| {
+        keys.iter().any(|key| {
             key.len() <= r.len() && key.iter().zip(r).all(|(k, c)| c.as_deref() == Some(*k))
         })
-    });
+    };
+    // A row a later release reworded on purpose (`changed:CELL,CELL…`: a codebook row whose
+    // meaning now names a new value) is left out of both before the rows are compared.
+    let changed = keys("changed:");
+    old.rows.retain(|r| !named(&changed, r));
+    new.rows.retain(|r| !named(&changed, r));
+    let accepted_rows = keys("row:");
+    let rows_now = new.rows.len();
+    new.rows.retain(|r| !named(&accepted_rows, r));
     let rows_added = rows_now - new.rows.len();
     let mut problems = Vec::new();
     let old_set: BTreeSet<&String> = old.columns.iter().collect();
