@@ -282,16 +282,9 @@ impl Problem<'_> {
     }
 }
 
-/// The target cells that carry a spread over subjects.
-fn with_spread(target: &Target) -> Vec<usize> {
-    (0..target.cells.len())
-        .filter(|&i| target.cells[i].log.is_some() && target.cells[i].n.is_some())
-        .collect()
-}
-
 /// Refuses a target with fewer moments than the parameters it would fit (422).
 pub fn check_enough(target: &Target) -> Result<()> {
-    let spread = !with_spread(target).is_empty();
+    let spread = !target.with_spread().is_empty();
     let params = MEDIANS.len() + usize::from(spread);
     let moments = target.cells.len() + usize::from(spread);
     if moments < params {
@@ -333,7 +326,7 @@ pub fn fit(
         )));
     }
     check_enough(target)?;
-    let with_sd = with_spread(target);
+    let with_sd = target.with_spread();
     let mut knobs: Vec<Knob> = MEDIANS.to_vec();
     if !with_sd.is_empty() {
         knobs.push(SPREAD);

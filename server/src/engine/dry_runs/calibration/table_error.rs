@@ -54,9 +54,7 @@ impl TableError {
         cells: &[Cell],
         rows: &[Vec<Option<Metrics>>],
     ) -> TableError {
-        let spread: Vec<usize> = (0..target.cells.len())
-            .filter(|&i| target.cells[i].log.is_some() && target.cells[i].n.is_some())
-            .collect();
+        let spread = target.with_spread();
         let logs: Vec<Vec<Option<f64>>> = spread
             .iter()
             .map(|&i| {
