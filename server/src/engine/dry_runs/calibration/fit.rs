@@ -5,9 +5,10 @@
 //! uses common random numbers and the moments move smoothly with the parameters.
 //! Levenberg–Marquardt on the logarithms of the parameters, the Jacobian by forward
 //! differences; weights 1/(target's variance + Monte-Carlo variance) on the log scale.
-//! Intervals from the Jacobian at the optimum (a table) or a bootstrap over subjects (a
-//! study's own data, linearized at the optimum). A parameter whose half-e-fold change moves
-//! the moments by less than one standard error is not identified: left as it was and named.
+//! Intervals from a bootstrap linearized at the optimum: over subjects (a study's own data)
+//! or over the table's cells redrawn with the shared deviation of the people who gave them
+//! (`table_error`). A parameter whose half-e-fold change moves the moments by less than one
+//! standard error is not identified: left as it was and named.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -19,6 +20,7 @@ use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
 use super::sim::{Cell, SubjectRef, all_cells, simulate};
+use super::table_error::TableError;
 use super::target::{Metric, Target, mean_sd};
 use crate::engine::dry_runs::job::Progress;
 use crate::error::{AppError, Result};
@@ -280,16 +282,9 @@ impl Problem<'_> {
     }
 }
 
-/// The target cells that carry a spread over subjects.
-fn with_spread(target: &Target) -> Vec<usize> {
-    (0..target.cells.len())
-        .filter(|&i| target.cells[i].log.is_some() && target.cells[i].n.is_some())
-        .collect()
-}
-
 /// Refuses a target with fewer moments than the parameters it would fit (422).
 pub fn check_enough(target: &Target) -> Result<()> {
-    let spread = !with_spread(target).is_empty();
+    let spread = !target.with_spread().is_empty();
     let params = MEDIANS.len() + usize::from(spread);
     let moments = target.cells.len() + usize::from(spread);
     if moments < params {
@@ -331,7 +326,7 @@ pub fn fit(
         )));
     }
     check_enough(target)?;
-    let with_sd = with_spread(target);
+    let with_sd = target.with_spread();
     let mut knobs: Vec<Knob> = MEDIANS.to_vec();
     if !with_sd.is_empty() {
         knobs.push(SPREAD);
@@ -430,12 +425,14 @@ pub fn fit(
     let info = &jw * &j;
     let cov = info.clone().try_inverse();
     // Intervals by a two-sided bootstrap, linearized at the fit: each resample redraws the
-    // target (the study's subjects resampled, or each table cell from its standard error)
+    // target (the study's subjects resampled, or the table's cells together from their
+    // standard errors and the simulated subjects' correlation between cells: `TableError`)
     // and the simulated subjects (resampled: the Monte-Carlo error, with its correlation
     // across cells), and moves the fit by the Gauss–Newton step that answers the change.
     let (low_high, intervals): (Vec<(f64, f64)>, String) = match &cov {
         Some(cov) => {
             let mut rng = Rng::new(seed ^ 0xb007);
+            let table = TableError::new(target, &t_var, &problem.cells, &eval.rows);
             let mut draws: Vec<Vec<f64>> = vec![Vec::new(); identified.len()];
             let resample =
                 |rows: &[Vec<Option<Metrics>>], rng: &mut Rng| -> Vec<Vec<Option<Metrics>>> {
@@ -460,7 +457,7 @@ pub fn fit(
                         }
                         problem.target_moments(&boot).0
                     }
-                    None => t.zip_map(&t_var, |v, var| v + var.sqrt() * rng.normal()),
+                    None => &t + table.draw(&mut rng),
                 };
                 let mb = problem
                     .moments(&Eval {
@@ -488,9 +485,17 @@ pub fn fit(
                 })
                 .collect();
             let data = if target.subjects.is_some() {
-                "the study's subjects resampled"
+                "the study's subjects resampled".to_string()
             } else {
-                "each table cell redrawn from its standard error (sd/√n, or ±10 % where the table gives none)"
+                format!(
+                    "the table's cells redrawn together from their standard errors (sd/√n) with the simulated subjects' correlation of log metric between cells (mean {:.2}{}), as the same people give every cell; a cell without sd and n ±10 % on its own",
+                    table.mean_correlation,
+                    if table.shrink > 0.0 {
+                        format!(", shrunk by {:.0e} for a factor", table.shrink)
+                    } else {
+                        String::new()
+                    }
+                )
             };
             (
                 ci,

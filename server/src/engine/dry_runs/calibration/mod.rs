@@ -5,6 +5,7 @@ pub mod fit;
 pub mod run;
 pub mod sim;
 pub mod surveys;
+pub mod table_error;
 pub mod target;
 
 #[cfg(test)]

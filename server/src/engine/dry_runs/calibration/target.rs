@@ -62,6 +62,15 @@ pub struct Target {
     pub subjects: Option<Vec<Vec<Option<Metrics>>>>,
 }
 
+impl Target {
+    /// The cells that carry a spread over subjects (a log sd and its number of subjects).
+    pub fn with_spread(&self) -> Vec<usize> {
+        (0..self.cells.len())
+            .filter(|&i| self.cells[i].log.is_some() && self.cells[i].n.is_some())
+            .collect()
+    }
+}
+
 /// The most rows a table may have (every cell of the largest study twice over).
 const MAX_ROWS: usize = 200;
 

@@ -255,6 +255,7 @@ fn surveys_the_vibration_compensated_designs_feel_smoother_on_the_machine() {
 mod calibrate {
     use std::sync::atomic::AtomicBool;
 
+    use bdft_protocol::params::PopulationParams;
     use bdft_protocol::study::StudyParams;
 
     use crate::engine::dry_runs::calibration::fit::{FitReport, fit};
@@ -286,17 +287,64 @@ mod calibrate {
     /// A pilot of `n` subjects of the true population (seed 77): each subject's metrics in
     /// every cell.
     fn pilot(n: u32) -> Target {
-        let p = truth();
-        let cells = all_cells(&p);
+        pilot_of(&truth(), 77, n)
+    }
+
+    /// A pilot of `n` subjects of the study `p` seeded `seed`.
+    fn pilot_of(p: &StudyParams, seed: u64, n: u32) -> Target {
+        let cells = all_cells(p);
         let rows = simulate(
-            &p,
-            &enrolled(77, n),
+            p,
+            &enrolled(seed, n),
             &cells,
             &Progress::default(),
             &AtomicBool::new(false),
         )
         .unwrap();
         from_subjects(&cells, rows)
+    }
+
+    /// A pilot's mean tracking error in every cell with sd and n, rounded to 0.1 as a
+    /// paper's table gives it, read back through the table parser.
+    fn table_of(pilot: &Target) -> Target {
+        let mut csv = String::from("controller,station,metric,mean,sd,n\n");
+        for t in pilot
+            .cells
+            .iter()
+            .filter(|t| t.metric == Metric::MseTrackingMm2)
+        {
+            let kind = study().controllers[t.cell.controller].kind();
+            csv += &format!(
+                "{},{},mse_tracking_mm2,{:.1},{:.1},{}\n",
+                kind.name(),
+                t.cell.seat.as_str(),
+                t.mean,
+                t.sd.unwrap(),
+                t.n.unwrap()
+            );
+        }
+        parse_table(&study(), &csv).unwrap()
+    }
+
+    /// Asserts that every fitted median's 95 % interval holds `truth`'s.
+    fn intervals_hold(report: &FitReport, truth: &PopulationParams) {
+        for p in &report.parameters {
+            let want = match p.name.as_str() {
+                "reaction_delay_s" => truth.reaction_delay_s.median,
+                "vibration_slowing_per_m_s2" => truth.vibration_slowing_per_m_s2.median,
+                "error_gain" => truth.error_gain.median,
+                "body_k_h" => truth.body_k_h.median,
+                _ => continue,
+            };
+            assert!(
+                p.low <= want && want <= p.high,
+                "{}: {want} not in [{}, {}] ({})",
+                p.name,
+                p.low,
+                p.high,
+                report.intervals
+            );
+        }
     }
 
     fn run(target: &Target, source: &str) -> FitReport {
@@ -316,31 +364,13 @@ mod calibrate {
     fn recovers_a_populations_own_medians_from_its_pilot_within_its_intervals() {
         let target = pilot(24);
         let report = run(&target, "pilot");
-        let truth = truth().population;
-        let want = |name: &str| match name {
-            "reaction_delay_s" => Some(truth.reaction_delay_s.median),
-            "vibration_slowing_per_m_s2" => Some(truth.vibration_slowing_per_m_s2.median),
-            "error_gain" => Some(truth.error_gain.median),
-            "body_k_h" => Some(truth.body_k_h.median),
-            _ => None,
-        };
         let delay = report
             .parameters
             .iter()
             .find(|p| p.name == "reaction_delay_s")
             .expect("the delay is identified by tracking error");
         assert!(report.objective < report.objective_before, "{report:#?}");
-        for p in &report.parameters {
-            if let Some(w) = want(&p.name) {
-                assert!(
-                    p.low <= w && w <= p.high,
-                    "{}: {w} not in [{}, {}]",
-                    p.name,
-                    p.low,
-                    p.high
-                );
-            }
-        }
+        intervals_hold(&report, &truth().population);
         // The start (0.25 s) is outside the delay's interval: the data moved it.
         assert!(delay.low > 0.25, "{delay:?}");
     }
@@ -348,26 +378,10 @@ mod calibrate {
     #[test]
     fn fits_a_published_style_table_within_its_stated_error_and_predicts_the_rest() {
         // Means of tracking error only, as a paper's table gives them, with sd and n.
-        let target = pilot(32);
-        let mut csv = String::from("controller,station,metric,mean,sd,n\n");
-        for t in target
-            .cells
-            .iter()
-            .filter(|t| t.metric == Metric::MseTrackingMm2)
-        {
-            let kind = study().controllers[t.cell.controller].kind();
-            csv += &format!(
-                "{},{},mse_tracking_mm2,{:.1},{:.1},{}\n",
-                kind.name(),
-                t.cell.seat.as_str(),
-                t.mean,
-                t.sd.unwrap(),
-                t.n.unwrap()
-            );
-        }
-        let table = parse_table(&study(), &csv).unwrap();
+        let table = table_of(&pilot(32));
         assert_eq!(table.cells.len(), 10);
         let report = run(&table, "table");
+        intervals_hold(&report, &truth().population);
         for c in &report.cells {
             let t = c.target.unwrap();
             let se = c.target_sd.unwrap() / (c.target_n.unwrap() as f64).sqrt();
@@ -389,6 +403,31 @@ mod calibrate {
                 .count(),
             10
         );
+    }
+
+    /// The calibration benchmark's scenario (docs/benchmarks.md, issue 21) with the 20 s
+    /// tests a dev-profile test affords: the table of an 8-subject pilot (seed 11) of the
+    /// population with the medians delay 0.30 s, error gain 0.36, slowing 3.0 per m/s² and
+    /// k_h 0.50. With the cells redrawn together (`table_error`) the delay's interval is
+    /// still [0.319, 0.482] s here (the cells' correlation with 20 s tests is only 0.12),
+    /// and in the 140 s benchmark [0.325, 0.457] s (was [0.350, 0.433]).
+    #[test]
+    #[ignore = "not reproduced yet (docs/benchmarks.md, calibration): the delay's interval from an 8-subject pilot's table still misses its population's 0.30 s"]
+    fn a_small_pilots_table_gives_intervals_that_hold_its_populations_medians() {
+        let mut truth = study();
+        truth.population.reaction_delay_s.median = 0.30;
+        truth.population.error_gain.median = 0.36;
+        truth.population.vibration_slowing_per_m_s2.median = 3.0;
+        truth.population.body_k_h.median = 0.50;
+        let report = run(&table_of(&pilot_of(&truth, 11, 8)), "table");
+        assert!(
+            report
+                .parameters
+                .iter()
+                .any(|p| p.name == "reaction_delay_s"),
+            "{report:#?}"
+        );
+        intervals_hold(&report, &truth.population);
     }
 
     fn refused(csv: &str) -> String {
@@ -441,5 +480,127 @@ mod calibrate {
         );
         let m = refused("controller,seat,metric,mean\n");
         assert!(m.starts_with("table: header"), "{m}");
+    }
+}
+
+/// The table's error model (`table_error`) against its analytic covariance, on simulated
+/// subjects whose correlations between cells are known exactly.
+mod table_errors {
+    use bdft_controller::rng::Rng;
+    use bdft_protocol::trial::Metrics;
+    use nalgebra::{DMatrix, DVector};
+
+    use crate::engine::dry_runs::calibration::sim::all_cells;
+    use crate::engine::dry_runs::calibration::table_error::TableError;
+    use crate::engine::dry_runs::calibration::target::parse_table;
+    use crate::engine::study::schedule::default_params;
+
+    /// Four subjects' deviations of log tracking error: u in pid and pid-notch on the
+    /// machine (correlation 1: a singular matrix), v in pid-shaper (u ⟂ v: correlation 0),
+    /// (u + v)/√2 in lqr (correlation 1/√2 with each); lqr-cabvel has no sd in the table.
+    const U: [f64; 4] = [1.0, -1.0, 1.0, -1.0];
+    const V: [f64; 4] = [1.0, 1.0, -1.0, -1.0];
+    const RHO: [[f64; 4]; 4] = [
+        [1.0, 1.0, 0.0, std::f64::consts::FRAC_1_SQRT_2],
+        [1.0, 1.0, 0.0, std::f64::consts::FRAC_1_SQRT_2],
+        [0.0, 0.0, 1.0, std::f64::consts::FRAC_1_SQRT_2],
+        [
+            std::f64::consts::FRAC_1_SQRT_2,
+            std::f64::consts::FRAC_1_SQRT_2,
+            std::f64::consts::FRAC_1_SQRT_2,
+            1.0,
+        ],
+    ];
+    /// The table's n per cell with a spread: unequal, so the overlap min(n_i, n_j) counts.
+    const N: [usize; 4] = [8, 8, 12, 6];
+
+    #[test]
+    fn a_tables_replicate_errors_have_the_subjects_correlation_between_cells() {
+        let params = default_params();
+        let cells = all_cells(&params);
+        let table = parse_table(
+            &params,
+            &format!(
+                "controller,station,metric,mean,sd,n\n\
+                 pid,on,mse_tracking_mm2,210,90,{}\n\
+                 pid-notch,on,mse_tracking_mm2,190,60,{}\n\
+                 pid-shaper,on,mse_tracking_mm2,175,40,{}\n\
+                 lqr,on,mse_tracking_mm2,165,60,{}\n\
+                 lqr-cabvel,on,mse_tracking_mm2,155,,\n",
+                N[0], N[1], N[2], N[3]
+            ),
+        )
+        .unwrap();
+        let deviation = |cell: usize, s: usize| match cell {
+            0 | 1 => U[s],
+            2 => V[s],
+            _ => (U[s] + V[s]) * std::f64::consts::FRAC_1_SQRT_2,
+        };
+        let rows: Vec<Vec<Option<Metrics>>> = (0..4)
+            .map(|s| {
+                cells
+                    .iter()
+                    .map(|c| {
+                        let at = table.cells.iter().position(|t| t.cell == *c)?;
+                        (at < 4).then(|| Metrics {
+                            ticks: 0,
+                            mse_tracking_mm2: (5.0 + 0.3 * deviation(at, s)).exp(),
+                            ms_cab_accel: 1.0,
+                        })
+                    })
+                    .collect()
+            })
+            .collect();
+        // The moments' variances as the fit gives them: the four cells' σ²/n, the judged
+        // ±10 % of the fifth, the mean log spread's.
+        let sigma: Vec<f64> = table.cells[..4].iter().map(|t| t.log.unwrap().1).collect();
+        let mut var: Vec<f64> = (0..4).map(|i| sigma[i].powi(2) / N[i] as f64).collect();
+        var.extend([0.01, 0.002]);
+        let var = DVector::from_vec(var);
+        let want = DMatrix::from_fn(6, 6, |i, j| match (i, j) {
+            (i, j) if i < 4 && j < 4 => {
+                RHO[i][j] * sigma[i] * sigma[j] * N[i].min(N[j]) as f64 / (N[i] * N[j]) as f64
+            }
+            (i, j) if i == j => var[i],
+            _ => 0.0,
+        });
+
+        let error = TableError::new(&table, &var, &cells, &rows);
+        assert!(error.shrink <= 1e-6, "shrunk by {}", error.shrink);
+        let mean_rho = (1.0 + 3.0 * std::f64::consts::FRAC_1_SQRT_2) / 6.0;
+        assert!((error.mean_correlation - mean_rho).abs() < 1e-9);
+        let scale = |i: usize, j: usize| (want[(i, i)] * want[(j, j)]).sqrt();
+        let factor = error.covariance();
+        for i in 0..6 {
+            for j in 0..6 {
+                assert!(
+                    (factor[(i, j)] - want[(i, j)]).abs() <= 1e-6 * scale(i, j),
+                    "L Lᵀ ({i}, {j}): {} vs {}",
+                    factor[(i, j)],
+                    want[(i, j)]
+                );
+            }
+        }
+
+        // The replicates the bootstrap draws: their covariance is the analytic one (20,000
+        // draws: a correlation's sampling sd is at most 0.007; 0.03 allowed). Independent
+        // redraws would give pid and pid-notch a correlation of 0, not 1.
+        let mut rng = Rng::new(3);
+        let draws: Vec<DVector<f64>> = (0..20_000).map(|_| error.draw(&mut rng)).collect();
+        let n = draws.len() as f64;
+        let mean = draws.iter().fold(DVector::zeros(6), |a, d| a + d) / n;
+        let got = draws.iter().fold(DMatrix::zeros(6, 6), |a, d| {
+            a + (d - &mean) * (d - &mean).transpose()
+        }) / (n - 1.0);
+        for i in 0..6 {
+            for j in 0..6 {
+                assert!(
+                    (got[(i, j)] - want[(i, j)]).abs() <= 0.03 * scale(i, j),
+                    "replicates' covariance ({i}, {j}): {} vs {}",
+                    got[(i, j)],
+                    want[(i, j)]
+                );
+            }
+        }
     }
 }
