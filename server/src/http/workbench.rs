@@ -34,6 +34,9 @@ struct FrequencyQuery {
     /// K_BF at which the loops are closed and the Nyquist curve drawn, 0–20 [default: the
     /// study's].
     kbf: Option<f64>,
+    /// A subject of the study whose identified body (their latest identification test's
+    /// fit) replaces the study's [default: none].
+    subject: Option<i64>,
 }
 
 /// Bode data of the rig's parts, the body, each compensator and each closed loop (on and off
@@ -51,7 +54,7 @@ async fn frequency(
     q: Result<Query<FrequencyQuery>, QueryRejection>,
 ) -> ApiResult<FrequencyReport> {
     let q = query(q)?;
-    let r = frequency_report(&s.pool, id, q.kbf).await?;
+    let r = frequency_report(&s.pool, id, q.kbf, q.subject).await?;
     Ok(AppJson(FrequencyReport::clone(&r)))
 }
 

@@ -101,6 +101,26 @@ pub async fn of_subject<'c>(
     rows.into_iter().map(Identification::try_from).collect()
 }
 
+/// The body fitted by the subject's latest identification test with a fit.
+pub async fn latest_fit<'c>(
+    db: impl SqliteExecutor<'c>,
+    subject_id: i64,
+) -> Result<Option<BodyFit>> {
+    let json: Option<(String,)> = sqlx::query_as(
+        "SELECT fit_json FROM identifications WHERE subject_id = ? AND fit_json IS NOT NULL \
+         ORDER BY trial_id DESC LIMIT 1",
+    )
+    .bind(subject_id)
+    .fetch_optional(db)
+    .await?;
+    json.map(|(j,)| {
+        serde_json::from_str(&j).map_err(|e| {
+            AppError::Internal(anyhow::anyhow!("stored body fit of subject {subject_id}: {e}"))
+        })
+    })
+    .transpose()
+}
+
 /// The identifications of a study's subjects who have not withdrawn, with their codes, in
 /// enrolment order.
 pub async fn of_study<'c>(

@@ -25,6 +25,7 @@ use crate::engine::COMPUTE;
 use crate::engine::study::stability::{analysis_key, study_loop};
 use crate::error::{AppError, Result};
 use crate::store;
+use crate::store::studies::Study;
 
 /// Largest robustness map (cells per axis) and number of draws one request may ask for:
 /// about 3 s of CPU for the slowest design.
@@ -67,6 +68,8 @@ pub struct RobustnessQuery {
     pub seed: u64,
     /// K_BF a draw must be stable at [default: the study's].
     pub kbf: Option<f64>,
+    /// A subject of the study whose identified body replaces the study's [default: none].
+    pub subject: Option<i64>,
 }
 
 fn kh_lo() -> f64 {
@@ -157,13 +160,45 @@ static REPORTS: LazyLock<Mutex<HashMap<String, Arc<FrequencyReport>>>> =
 
 /// Frequency responses, Nyquist views and pole tables of every design of the study, at
 /// `kbf` (default the study's K_BF).
+/// The study's parameters with the body of `subject` (one of its subjects) as their latest
+/// identification test fitted it, or as they are without a subject: what the workbench and
+/// the per-subject stability analyse. A 409 when the subject has no fitted body yet.
+pub async fn params_for(
+    pool: &SqlitePool,
+    study: &Study,
+    subject: Option<i64>,
+) -> Result<StudyParams> {
+    let mut params = study.params.clone();
+    let Some(subject_id) = subject else {
+        return Ok(params);
+    };
+    let subject = store::subjects::get(pool, subject_id).await?;
+    if subject.study_id != study.id {
+        return Err(AppError::BadRequest(format!(
+            "subject: {subject_id} is not a subject of study {}",
+            study.id
+        )));
+    }
+    let fit = store::identifications::latest_fit(pool, subject_id)
+        .await?
+        .ok_or_else(|| {
+            AppError::Conflict(format!(
+                "{} has no identification test with a fitted body yet",
+                subject.code
+            ))
+        })?;
+    params.body = fit.body();
+    Ok(params)
+}
+
 pub async fn frequency_report(
     pool: &SqlitePool,
     study_id: i64,
     kbf: Option<f64>,
+    subject: Option<i64>,
 ) -> Result<Arc<FrequencyReport>> {
     let study = store::studies::get(pool, study_id).await?;
-    let params = study.params;
+    let params = params_for(pool, &study, subject).await?;
     let k_bf = kbf.unwrap_or(params.k_bf);
     check("kbf", k_bf, 0.0, MAX_KBF)?;
     let key = analysis_key(&params, k_bf);
@@ -209,7 +244,7 @@ pub async fn robustness_report(
     q: RobustnessQuery,
 ) -> Result<RobustnessReport> {
     let study = store::studies::get(pool, study_id).await?;
-    let params = study.params;
+    let params = params_for(pool, &study, q.subject).await?;
     let spec = q.spec(params.k_bf)?;
     let designs = designs(&params);
     let Some((name, design)) = designs.into_iter().find(|(n, _)| *n == q.design) else {

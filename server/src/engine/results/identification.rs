@@ -15,6 +15,7 @@ use sqlx::SqlitePool;
 
 use super::inference::quantile::quantile;
 use crate::engine::COMPUTE;
+use crate::engine::machine::workbench_analysis::params_for;
 use crate::engine::study::stability::{StabilityCache, StabilityReport};
 use crate::engine::study::synthetic;
 use crate::error::{AppError, Result};
@@ -101,19 +102,7 @@ pub async fn subject_stability(
 ) -> Result<SubjectStability> {
     let subject = store::subjects::get(pool, subject_id).await?;
     let study = store::studies::get(pool, subject.study_id).await?;
-    let fit = store::identifications::of_subject(pool, subject_id)
-        .await?
-        .into_iter()
-        .rev()
-        .find_map(|t| t.fit)
-        .ok_or_else(|| {
-            AppError::Conflict(format!(
-                "{} has no identification test with a fitted body yet",
-                subject.code
-            ))
-        })?;
-    let mut params = study.params.clone();
-    params.body = fit.body();
+    let mut params = params_for(pool, &study, Some(subject_id)).await?;
     if let Some(k) = k_bf {
         check("k_bf", k, 0.01, MAX_KBF).map_err(|e| AppError::BadRequest(e.to_string()))?;
         params.k_bf = k;
