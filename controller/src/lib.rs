@@ -19,6 +19,7 @@ pub mod exposure;
 pub mod filters;
 pub mod interlock;
 pub mod linalg;
+pub mod lsl;
 pub mod model;
 pub mod operator;
 pub mod param_set;

@@ -49,6 +49,46 @@ pub enum ServerToController {
     Step {
         ticks: u32,
     },
+    /// Only to a controller started with `--lsl`: publish (or keep) the station's LSL signal
+    /// stream, described with these codes; `trial_id`, when given, is the trial about to
+    /// start there, whose ticks go to that stream. Sent when a subject is assigned to a
+    /// station and before each of its tests.
+    LslStation(Box<LslStation>),
+}
+
+/// Who a station's LSL signal stream is about (`ServerToController::LslStation`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LslStation {
+    pub station_id: i64,
+    pub station: String,
+    pub study_id: i64,
+    pub study: String,
+    pub subject: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trial_id: Option<TrialId>,
+}
+
+/// The longest name or code an `LslStation` may carry (characters).
+pub const MAX_LSL_TEXT: usize = 200;
+
+impl LslStation {
+    /// Refuses texts longer than [`MAX_LSL_TEXT`] or with control characters (they go into
+    /// the stream's XML description).
+    pub fn check(&self) -> Result<(), String> {
+        for (field, text) in [
+            ("station", &self.station),
+            ("study", &self.study),
+            ("subject", &self.subject),
+        ] {
+            if text.chars().count() > MAX_LSL_TEXT || text.chars().any(char::is_control) {
+                return Err(format!(
+                    "lsl_station.{field}: at most {MAX_LSL_TEXT} characters, no control characters"
+                ));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Everything a trial needs. Parameters are recorded with the trial by the server.

@@ -16,6 +16,7 @@ use bdft_protocol::trial::{FaultKind, Metrics, Outcome};
 use serde::Serialize;
 use sqlx::SqlitePool;
 
+use super::lsl;
 use super::queue::requeue_failed;
 use crate::engine::machine::controller_link::{BoxFuture, ControllerEvent, ControllerLink, Filing};
 use crate::engine::study::exposure::{action_values_reached, last_24h};
@@ -76,6 +77,7 @@ pub async fn file_result(
             },
         )
         .await?;
+    lsl::test_filed(pool, result, status.as_str()).await;
     Ok(true)
 }
 
