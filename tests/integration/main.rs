@@ -23,6 +23,7 @@ mod exposure;
 mod hardening;
 mod https;
 mod isolation;
+mod lsl;
 mod protocol_package;
 mod server_api;
 mod server_layers;

@@ -88,7 +88,10 @@ impl Publisher {
     /// an unchanged station keeps its stream and its readers.
     pub fn station(&self, tags: StreamTags) -> std::io::Result<()> {
         let mut t = lock(&self.table);
-        if t.stations.get(&tags.station_id).is_some_and(|s| s.tags == tags) {
+        if t.stations
+            .get(&tags.station_id)
+            .is_some_and(|s| s.tags == tags)
+        {
             return Ok(());
         }
         let outlet = Outlet::new(signal_stream(&tags))?;

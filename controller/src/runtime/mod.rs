@@ -30,11 +30,11 @@ use bdft_protocol::trial::{InputSource, TargetSpec, TimingSummary};
 use serde::Serialize;
 
 use crate::compensator::study_spec;
-use crate::operator::OperatorParams;
-use crate::signals::{StepParams, StepTarget};
 use crate::lsl::publisher::Publisher;
 use crate::lsl::streams::{Scope, StreamTags};
 use crate::lsl::tap;
+use crate::operator::OperatorParams;
+use crate::signals::{StepParams, StepTarget};
 use rt_loop::{Command, Event, LoopConfig};
 
 #[derive(Debug, Clone)]
@@ -210,7 +210,10 @@ pub fn serve(
         Some(scope) => {
             let (tap, publisher) = lsl_publisher(scope)?;
             lc.lsl = Some(tap);
-            tracing::info!(scope = scope.as_str(), "LSL: the stations' signal streams are published");
+            tracing::info!(
+                scope = scope.as_str(),
+                "LSL: the stations' signal streams are published"
+            );
             Some(std::sync::Arc::new(publisher))
         }
         None => None,

@@ -95,7 +95,7 @@ async fn assign_station(
     AppJson(b): AppJson<AssignBody>,
 ) -> ApiResult<Done> {
     stations::assign(&s.pool, &who.username, id, b.subject_id).await?;
-    lsl::station_assigned(&s.pool, &s.link, id).await;
+    lsl::station_assigned(&s.pool, &s.controller, id).await;
     Ok(Done::ok())
 }
 

@@ -13,9 +13,10 @@ use std::collections::HashMap;
 use std::sync::{Mutex, OnceLock};
 
 use bdft_controller::lsl::streams::{Scope, StreamTags, marker_stream};
+use bdft_protocol::controller_to_server::TrialResult;
 use bdft_protocol::params::Seat;
 use bdft_protocol::server_to_controller::{LslStation, ServerToController};
-use bdft_protocol::trial::{FaultKind, Outcome, TrialResult};
+use bdft_protocol::trial::{FaultKind, Outcome};
 use labstream_net::Outlet;
 use labstream_wire::{Sample, Value};
 use serde::Serialize;
@@ -96,14 +97,19 @@ impl Markers {
     /// Publishes the station's marker stream, replacing it when its tags changed.
     fn publish(&self, tags: &StreamTags) {
         let mut stations = self.stations();
-        if stations.get(&tags.station_id).is_some_and(|(t, _)| t == tags) {
+        if stations
+            .get(&tags.station_id)
+            .is_some_and(|(t, _)| t == tags)
+        {
             return;
         }
         match Outlet::new(marker_stream(tags)) {
             Ok(outlet) => {
                 stations.insert(tags.station_id, (tags.clone(), outlet));
             }
-            Err(e) => tracing::warn!(station = %tags.station, "the LSL marker stream could not be published: {e}"),
+            Err(e) => {
+                tracing::warn!(station = %tags.station, "the LSL marker stream could not be published: {e}")
+            }
         }
     }
 
@@ -164,7 +170,10 @@ async fn publish(
     }));
     if let Err(e) = link.send(&msg) {
         // The test itself does not depend on its stream: it runs, unstreamed.
-        tracing::warn!(station_id, "the controller was not told of the LSL stream: {e}");
+        tracing::warn!(
+            station_id,
+            "the controller was not told of the LSL stream: {e}"
+        );
     }
     Ok(())
 }
