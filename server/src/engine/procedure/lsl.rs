@@ -249,32 +249,92 @@ pub async fn test_filed(pool: &SqlitePool, result: &TrialResult, status: &str) {
     if !enabled() {
         return;
     }
+    for marker in markers_of_result(result, status) {
+        mark_trial(pool, result.trial_id as i64, marker).await;
+    }
+}
+
+/// What a filed result puts on its station's stream, in order.
+fn markers_of_result<'a>(result: &'a TrialResult, status: &'a str) -> Vec<Marker<'a>> {
     let trial_id = result.trial_id as i64;
+    let mut out = Vec::with_capacity(2);
     let reason = match &result.outcome {
         Outcome::Complete => None,
         Outcome::Aborted { reason } => Some(reason.as_str()),
         Outcome::Faulted { fault, message } => {
             if *fault == FaultKind::CabVibration {
-                mark_trial(pool, trial_id, Marker::Interlock { trial_id }).await;
+                out.push(Marker::Interlock { trial_id });
             }
             Some(message.as_str())
         }
     };
-    mark_trial(
-        pool,
+    out.push(Marker::TestEnd {
         trial_id,
-        Marker::TestEnd {
-            trial_id,
-            status,
-            reason,
-        },
-    )
-    .await
+        status,
+        reason,
+    });
+    out
 }
 
 /// The E-stop, on every station's stream.
 pub fn estop() {
     if let Some(m) = markers() {
         m.push(None, &Marker::EStop {});
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn result(outcome: Outcome) -> TrialResult {
+        TrialResult {
+            trial_id: 12,
+            outcome,
+            metrics: bdft_protocol::trial::Metrics {
+                ticks: 0,
+                mse_tracking_mm2: 0.0,
+                ms_cab_accel: 0.0,
+            },
+            timing: Default::default(),
+            dt: 1e-3,
+            record_chunks: 0,
+            exposure: None,
+        }
+    }
+
+    fn texts(result: &TrialResult, status: &str) -> Vec<String> {
+        markers_of_result(result, status)
+            .iter()
+            .map(|m| serde_json::to_string(m).unwrap())
+            .collect()
+    }
+
+    #[test]
+    fn the_interlock_is_marked_before_the_end_of_the_test_it_stopped() {
+        let tripped = result(Outcome::Faulted {
+            fault: FaultKind::CabVibration,
+            message: "cab vibration 7.1 m/s² RMS".into(),
+        });
+        assert_eq!(
+            texts(&tripped, "incomplete"),
+            [
+                r#"{"event":"interlock","trial_id":12}"#,
+                r#"{"event":"test_end","trial_id":12,"status":"incomplete","reason":"cab vibration 7.1 m/s² RMS"}"#,
+            ]
+        );
+        let stale = result(Outcome::Faulted {
+            fault: FaultKind::StaleInput,
+            message: "no input".into(),
+        });
+        assert_eq!(
+            texts(&stale, "incomplete").len(),
+            1,
+            "only the interlock adds one"
+        );
+        assert_eq!(
+            texts(&result(Outcome::Complete), "complete"),
+            [r#"{"event":"test_end","trial_id":12,"status":"complete"}"#]
+        );
     }
 }
