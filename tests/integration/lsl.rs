@@ -14,22 +14,17 @@ use std::process::{Command, Stdio};
 use bdft_controller::lsl::streams::SIGNAL_CHANNELS;
 use bdft_protocol::trial::RECORD_CHANNELS;
 use bdft_tests::exports::parse_csv;
-use bdft_tests::server::{Api, Server, dry_run, pair_station, run_trial, short_study, trial_rows};
+use bdft_tests::server::{
+    Server, dry_run, run_trial, short_study, synthetic_at_a_station, trial_rows,
+};
+use bdft_tests::{unshare_network, venv_tool};
 use serde_json::{Value, json};
 
 /// Set in the copy of this test that runs inside the namespace.
 const IN_NAMESPACE: &str = "BDFT_TEST_IN_NETNS";
 
 fn python() -> PathBuf {
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/tools/pylsl");
-    let bin = venv.join("bin/python");
-    assert!(
-        bin.is_file(),
-        "{} is missing: scripts/test.sh installs it (python3 -m venv {} && pip install pylsl==1.18.6)",
-        bin.display(),
-        venv.display()
-    );
-    bin
+    venv_tool("pylsl", "python", "pylsl==1.18.6")
 }
 
 /// Runs the test named `name` of this binary again inside a new network namespace with only
@@ -37,12 +32,7 @@ fn python() -> PathBuf {
 /// its LSL traffic on this host; the namespace keeps every query of the client's liblsl
 /// (which multicasts and broadcasts at site scope) off the machine's networks too.
 fn in_network_namespace(name: &str) {
-    let root = Command::new("id")
-        .arg("-u")
-        .output()
-        .is_ok_and(|o| o.stdout == b"0\n");
-    let out = Command::new("unshare")
-        .arg(if root { "-n" } else { "-rn" })
+    let out = unshare_network()
         .args(["sh", "-c", "ip link set lo up && exec \"$@\"", "sh"])
         .arg(std::env::current_exe().unwrap())
         .args([name, "--exact", "--nocapture", "--test-threads=1"])
@@ -94,24 +84,14 @@ fn pylsl_receives_every_sample_and_marker_of_a_test_with_its_labels_and_clock() 
     let api = server.experimenter();
     // Synthetic subjects go into a study's dry-run copy.
     let study = dry_run(&api, short_study(&api, 3.0, 1.0));
-    let enrolled = api.ok(
-        &format!("/api/studies/{study}/subjects"),
-        json!({ "synthetic": true }),
-    );
-    let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let code = enrolled["subject"]["code"].as_str().unwrap().to_string();
-    let (station, token) = pair_station(&api, study, "both");
     // The assignment publishes the station's streams: the client connects before any test.
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
+    let (enrolled, station, station_api) = synthetic_at_a_station(&api, study);
+    let subject = enrolled["id"].as_i64().unwrap();
+    let code = enrolled["code"].as_str().unwrap().to_string();
     assert!(
         lsl_ports_bound().contains(&16571),
         "the streams answer discovery (and the probe of the other test sees them)"
     );
-    let station_api = Api::with_bearer(&api.base, &token);
-    station_api.ok("/api/station/consent", json!({ "decision": "agreed" }));
 
     let mut client = Command::new(python())
         .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/lsl_client.py"))
@@ -316,17 +296,8 @@ fn without_lsl_no_lsl_socket_is_opened() {
     let server = Server::start("no-lsl");
     let api = server.experimenter();
     let study = dry_run(&api, short_study(&api, 3.0, 1.0));
-    let enrolled = api.ok(
-        &format!("/api/studies/{study}/subjects"),
-        json!({ "synthetic": true }),
-    );
-    let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let (station, token) = pair_station(&api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
-    Api::with_bearer(&api.base, &token).ok("/api/station/consent", json!({ "decision": "agreed" }));
+    let (enrolled, _, _) = synthetic_at_a_station(&api, study);
+    let subject = enrolled["id"].as_i64().unwrap();
     let practice = trial_rows(&api, subject)[0]["id"].as_i64().unwrap();
     assert_eq!(run_trial(&api, subject, practice)["status"], "complete");
     assert_eq!(lsl_ports_bound(), Vec::<u16>::new());
