@@ -32,10 +32,9 @@ struct Station {
 #[derive(Default)]
 struct Table {
     stations: HashMap<i64, Station>,
-    /// Which station's stream each trial goes to, oldest first.
+    /// Which station's stream each trial goes to, oldest first. A trial no station named
+    /// (a workbench bench run) is not streamed.
     routes: VecDeque<(TrialId, i64)>,
-    /// Rows of trials that no station named (a bench run, a workbench test): not streamed.
-    unrouted: u64,
 }
 
 impl Table {
@@ -113,11 +112,6 @@ impl Publisher {
     pub fn dropped(&self) -> u64 {
         self.dropped.load(Ordering::Relaxed)
     }
-
-    /// Rows of trials no station named.
-    pub fn unrouted(&self) -> u64 {
-        lock(&self.table).unrouted
-    }
 }
 
 impl Drop for Publisher {
@@ -136,14 +130,13 @@ fn send_rows(mut reader: TapReader, table: &Mutex<Table>, stop: &AtomicBool) {
             std::thread::sleep(IDLE);
             continue;
         }
-        let mut t = lock(table);
+        let t = lock(table);
         while let Ok(row) = reader.ring.pop() {
-            match t.outlet_of(row.trial_id) {
-                Some(outlet) => outlet.push(&Sample {
+            if let Some(outlet) = t.outlet_of(row.trial_id) {
+                outlet.push(&Sample {
                     timestamp: lsl_seconds(row.stamp_ns),
                     values: row.values.iter().map(|&v| Value::F32(v)).collect(),
-                }),
-                None => t.unrouted += 1,
+                });
             }
         }
         drop(t);

@@ -81,7 +81,7 @@ pub fn enable(scope: Scope) {
 }
 
 /// Whether `--lsl` is on.
-pub fn enabled() -> bool {
+fn enabled() -> bool {
     MARKERS.get().is_some()
 }
 
