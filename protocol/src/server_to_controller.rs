@@ -162,3 +162,31 @@ impl StartTrial {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod lsl_station_tests {
+    use super::*;
+
+    #[test]
+    fn lsl_texts_are_refused_naming_the_field_when_too_long_or_with_control_characters() {
+        let ok = LslStation {
+            station_id: 1,
+            station: "cab".into(),
+            study_id: 2,
+            study: "pilot".into(),
+            subject: "S001".into(),
+            trial_id: None,
+        };
+        assert_eq!(ok.check(), Ok(()));
+        let long = LslStation {
+            subject: "x".repeat(MAX_LSL_TEXT + 1),
+            ..ok.clone()
+        };
+        assert!(long.check().unwrap_err().contains("lsl_station.subject"));
+        let control = LslStation {
+            station: "cab\n".into(),
+            ..ok
+        };
+        assert!(control.check().unwrap_err().contains("lsl_station.station"));
+    }
+}
