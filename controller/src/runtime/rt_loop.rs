@@ -608,8 +608,10 @@ mod tests {
         // Memory is not locked in a test, as in a controller without the privilege: a page
         // touched for the first time in the tick is a page fault there. The record and the
         // event queue grow through fresh memory all trial long; the rings of the interlock
-        // and the operator are all touched within the first second.
-        let (mut rt, mut commands, mut events) = test_loop();
+        // and the operator are all touched within the first second. The LSL ring, emptied
+        // as its publisher does, cycles through its pages: they were touched when it was made.
+        let (tap, mut reader) = crate::lsl::tap::tap(crate::lsl::tap::CAPACITY);
+        let (mut rt, mut commands, mut events) = test_loop_with(Some(tap));
         for i in 0..8 {
             let operator = InputSource::Synthetic {
                 operator: OperatorParams::default(),
@@ -626,8 +628,9 @@ mod tests {
         rt.drain_commands();
         let mut tick = |rt: &mut RtLoop, k: u64| {
             rt.one_tick(k * 1_000_000, 1_000);
-            // The I/O side empties the queue, as the link does.
+            // The I/O side empties the queue, as the link does; the publisher the ring.
             while events.pop().is_ok() {}
+            while reader.ring.pop().is_ok() {}
         };
         for k in 0..1_500 {
             tick(&mut rt, k);
