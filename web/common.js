@@ -48,6 +48,14 @@ export function el(tag, attrs = {}, ...children) {
   return node;
 }
 
+/** svg('line', {x1: 0, …}, child): an SVG element with its attributes and children. */
+export function svg(tag, attrs = {}, ...children) {
+  const n = document.createElementNS('http://www.w3.org/2000/svg', tag);
+  for (const [k, v] of Object.entries(attrs)) n.setAttribute(k, String(v));
+  n.append(...children);
+  return n;
+}
+
 /** WebSocket URL for a same-origin path. */
 export function wsUrl(path) {
   const proto = location.protocol === 'https:' ? 'wss:' : 'ws:';

@@ -4,6 +4,7 @@
 // against its uncompensated twin, and overlaid plots of cylinder tracking and cab
 // acceleration (SVG, drawn here from the stored 100 Hz traces).
 
+import { svg } from './common.js';
 import { S, act, el, errText, get, num, on, post, setStatus, when } from './dashboard-core.js';
 
 const $ = (id) => document.getElementById(id);
@@ -137,15 +138,6 @@ async function show(id) {
     plot('Cylinder tracking: reference and position (mm)', v.traces.length ? track : []),
     plot('Cab acceleration (mm/s²)', cab),
   );
-}
-
-const NS = 'http://www.w3.org/2000/svg';
-
-function svg(tag, attrs, ...children) {
-  const n = document.createElementNS(NS, tag);
-  for (const [k, val] of Object.entries(attrs)) n.setAttribute(k, String(val));
-  n.append(...children);
-  return n;
 }
 
 /** An overlay plot of `lines` [{label, color, dash?, trace, key}] over time. */

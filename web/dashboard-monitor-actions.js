@@ -61,7 +61,7 @@ async function startTest(p) {
   p.busy = true;
   renderPanel(p);
   const r = await act(
-    `Start trial ${test.trial_id} at “${p.station.name}” (${p.state.subject}, ${test.practice ? 'practice' : test.label}, ${controllerName(test.controller)})`,
+    `Start trial ${test.trial_id} at “${p.station.name}” (${p.state.subject}, ${test.phase === 'test' ? test.label : test.phase}, ${controllerName(test.controller)})`,
     p.result,
     () => post(`/api/trials/${test.trial_id}/start`),
     () => 'started',

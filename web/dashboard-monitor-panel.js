@@ -11,6 +11,8 @@ import { StripChart } from './dashboard-chart.js';
 import { estopLatched, live } from './dashboard-monitor-live.js';
 
 const WINDOW_S = 10;
+/** How the panel names a test that is not scored, by phase. */
+const UNSCORED = { practice: 'Practice', identification: 'Identification' };
 
 const LATCH_TEXT = 'E-STOP LATCHED: tests cannot start. Press “Reset e-stop” (top right) once it is safe.';
 
@@ -154,9 +156,11 @@ function hintText(st) {
       return `${who}'s next test is ${SEAT_NAME[st.to] || st.to}: move the subject there; ${where}.`;
     }
     case 'ready':
-      return st.test && st.test.practice
+      return st.test && st.test.phase === 'practice'
         ? `${who} is ready for the practice run (not scored). Press Start when they are.`
-        : `${who} is ready for the next test. Press Start when they are.`;
+        : st.test && st.test.phase === 'identification'
+          ? `${who} is ready for the identification test (the seat moves by itself; not scored). Press Start when they are.`
+          : `${who} is ready for the next test. Press Start when they are.`;
     case 'running':
       return `${who} is tracking. Abort only if needed (a reason is recorded); the e-stop is at the top right.`;
     case 'held':
@@ -185,7 +189,7 @@ export function renderPanel(p) {
   p.hint.textContent = st ? hintText(st) : 'Reading the station’s state…';
   const test = st && st.test;
   p.f.subject.v.textContent = st && st.subject ? st.subject : '—';
-  p.f.test.v.textContent = test ? (test.practice ? `Practice (not scored), trial ${test.trial_id}` : `Test ${test.number} of ${test.of}, trial ${test.trial_id}`) : '—';
+  p.f.test.v.textContent = test ? (UNSCORED[test.phase] ? `${UNSCORED[test.phase]} (not scored), trial ${test.trial_id}` : `Test ${test.number} of ${test.of}, trial ${test.trial_id}`) : '—';
   if (test) p.f.controller.v.replaceChildren(CONTROLLER_NAME[test.controller] || test.controller, el('span', { class: 'sub' }, test.controller));
   else p.f.controller.v.textContent = '—';
   p.f.label.v.textContent = test ? test.label : st && st.phase === 'survey' ? st.label : '—';
@@ -196,7 +200,7 @@ export function renderPanel(p) {
 
   const ready = phase === 'ready' && test;
   p.startBtn.disabled = !ready || p.busy || estopLatched;
-  p.startBtn.textContent = ready ? (test.practice ? 'Start practice' : `Start test ${test.number}`) : 'Start test';
+  p.startBtn.textContent = ready ? (UNSCORED[test.phase] ? `Start ${UNSCORED[test.phase].toLowerCase()}` : `Start test ${test.number}`) : 'Start test';
   p.startBtn.title = estopLatched
     ? 'The E-stop is latched: reset it first'
     : ready ? `Start trial ${test.trial_id} (${controllerName(test.controller)})` : 'Only when the station is ready';
@@ -245,7 +249,7 @@ function renderLast(p) {
   p.last.hidden = false;
   p.last.className = `mon-last st-${li.status}`;
   const text =
-    `Last run: trial ${li.id} (${li.code}, ${li.practice ? 'practice' : li.blinded_label}, ${controllerName(li.controller)}) — ${li.status}` +
+    `Last run: trial ${li.id} (${li.code}, ${li.phase === 'test' ? li.blinded_label : li.phase}, ${controllerName(li.controller)}) — ${li.status}` +
     (li.status_reason ? ` (${li.status_reason})` : '') +
     (li.mse_tracking_mm2 !== null ? ` · MSE ${num(li.mse_tracking_mm2)} mm²` : '') +
     (li.ms_cab_accel !== null ? ` · cab accel MS ${num(li.ms_cab_accel)} (mm/s²)²` : '') +

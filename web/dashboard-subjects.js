@@ -7,6 +7,7 @@ import {
 import { reloadSelected } from './dashboard-study.js';
 import { mayChange } from './dashboard-accounts.js';
 import { confirmAction } from './dashboard-confirm.js';
+import { identificationBlock } from './dashboard-identification.js';
 
 const $ = (id) => document.getElementById(id);
 
@@ -281,6 +282,13 @@ const HEADERS = [
   ['Notes · reason or note · actions', ''],
 ];
 
+/** Where the subject's identification plot goes once it has loaded. */
+function identificationSlot(id, trials) {
+  const slot = el('div', { class: 'identification-slot' });
+  identificationBlock(id, trials).then((node) => slot.replaceChildren(node));
+  return slot;
+}
+
 /** The subject's vibration exposure (ISO 2631-1, W_d) day by day against the study's budget. */
 function exposureBlock(x) {
   if (!x) return '';
@@ -352,7 +360,7 @@ function renderSchedule(d) {
   const next = [...latest.values()]
     .filter((t) => t.status === 'scheduled' || t.status === 'running')
     .sort((a, b) => a.slot - b.slot)[0];
-  const tests = [...latest.values()].filter((t) => !t.practice);
+  const tests = [...latest.values()].filter((t) => t.phase === 'test');
   const done = tests.filter((t) => t.status === 'complete').length;
   const notesOf = (tid) => d.notes.filter((n) => n.trial_id === tid);
   const generalNotes = d.notes.filter((n) => n.trial_id === null || n.trial_id === undefined);
@@ -364,11 +372,12 @@ function renderSchedule(d) {
       'p',
       {},
       `${s.synthetic ? 'Synthetic subject (the synthetic operator drives the tests)' : 'Person'} · starts ${SEAT_NAME[s.starting_station] || s.starting_station} · consent ${consentText(s)} · ${done} of ${tests.length} tests complete` +
-        (next ? ` · next: slot ${next.slot} (${next.practice ? 'practice' : next.blinded_label}, ${SEAT_NAME[next.station]})` : ' · nothing left to run'),
+        (next ? ` · next: slot ${next.slot} (${next.phase === 'test' ? next.blinded_label : next.phase}, ${SEAT_NAME[next.station]})` : ' · nothing left to run'),
     ),
     s.withdrawn_at ? el('p', { class: 'status err' }, `Withdrawn ${when(s.withdrawn_at)}: ${s.withdraw_reason || ''}`) : '',
     s.erased_at ? el('p', { class: 'status err' }, `Data erased ${when(s.erased_at)} (the audit log says by whom and why)`) : '',
     exposureBlock(d.exposure),
+    identificationSlot(s.id, trials),
   );
   box.querySelector('.general-notes').replaceChildren(
     ...(generalNotes.length ? [el('h4', {}, 'Notes on the subject'), ...generalNotes.map(noteLine)] : []),
@@ -384,7 +393,7 @@ function renderSchedule(d) {
       const isLatest = latest.get(t.slot) === t;
       return {
         'data-trial-row': t.id,
-        class: [`st-${t.status}`, isLatest ? '' : 'superseded', next && next.id === t.id ? 'next' : '', t.practice ? 'practice' : ''].join(' '),
+        class: [`st-${t.status}`, isLatest ? '' : 'superseded', next && next.id === t.id ? 'next' : '', t.phase === 'test' ? '' : t.phase].join(' '),
         title: isLatest ? null : 'An earlier attempt: a later attempt of this slot replaced it',
       };
     },
@@ -423,7 +432,7 @@ function renderSchedule(d) {
                 `${survey.accuracy} / ${survey.speed} / ${survey.smoothness} / ${survey.controllability}`,
                 survey.comment ? el('div', { class: 'comment' }, `“${survey.comment}”`) : null,
               ]
-            : t.practice
+            : t.phase !== 'test'
               ? el('span', { class: 'muted' }, 'no survey')
               : t.status === 'complete' && isLatest
                 ? el('span', { class: 'tag warn' }, 'pending')

@@ -7,16 +7,25 @@ import { el } from './common.js';
 
 const $ = (id) => document.getElementById(id);
 
-/** The instructions before a test (or the practice run), and what "ready" means. */
+/** What the progress line says of a test that is not scored. */
+export const PROGRESS = { practice: 'Practice run', identification: 'Measurement (not scored)' };
+
+/** The instructions before a test (the practice run, an identification test), and what
+ * "ready" means. */
 export function renderReady(s) {
   const t = s.test;
   const texts = s.texts || {};
   $('ready-label').textContent = t.label;
-  $('ready-progress').textContent = t.practice ? 'Practice run' : `Test ${t.number} of ${t.of}`;
-  const before = t.practice ? texts.before_practice : texts.before_test;
+  $('ready-progress').textContent = PROGRESS[t.phase] ? PROGRESS[t.phase] : `Test ${t.number} of ${t.of}`;
+  // An identification test has its own instructions: the subject does not steer in it.
   $('ready-instructions').replaceChildren(
-    ...paragraphs(texts.instructions),
-    ...paragraphs(before, t.practice ? 'strong' : undefined),
+    ...(t.phase === 'identification'
+      ? paragraphs(t.instructions, 'strong')
+      : [
+        ...paragraphs(texts.instructions),
+        ...paragraphs(t.phase === 'practice' ? texts.before_practice : texts.before_test,
+          t.phase === 'practice' ? 'strong' : undefined),
+      ]),
   );
   $('ready-note').textContent = texts.ready || '';
 }

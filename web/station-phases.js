@@ -89,7 +89,11 @@ const renderers = {
     renderReady(s);
   },
   running(s) {
-    $('running-label').textContent = s.test.practice ? 'Practice (not scored)' : `${s.test.label} · test ${s.test.number} of ${s.test.of}`;
+    $('running-label').textContent = s.test.phase === 'practice'
+      ? 'Practice (not scored)'
+      : s.test.phase === 'identification'
+        ? 'Measurement (not scored): you do not steer'
+        : `${s.test.label} · test ${s.test.number} of ${s.test.of}`;
   },
   survey(s) {
     renderSurvey(s);

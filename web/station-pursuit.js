@@ -42,10 +42,13 @@ export function startRun(test) {
 export function onSample(sample) {
   if (!run || sample.trial_id !== run.trialId) return;
   const now = performance.now();
+  // In an identification test the subject holds the pointer (the device) still at the
+  // centre; the multisine that moves the boom is not theirs to follow, so it is not drawn.
+  const identification = run.test.phase === 'identification';
   const s = {
     t: sample.t,
-    target: sample.target_mm,
-    cyl: sample.cylinder_mm,
+    target: identification ? 0 : sample.target_mm,
+    cyl: identification ? sample.device_mm : sample.cylinder_mm,
     accel: sample.cab_accel_mm_s2,
   };
   if (run.latest && s.t < run.latest.t) run.samples = [];

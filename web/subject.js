@@ -47,7 +47,7 @@ function render(p) {
   $('done-bar').value = p.tests_complete;
   $('tests').replaceChildren(
     ...p.tests.map((t) =>
-      el('li', { class: t.status }, `${t.practice ? 'Practice' : t.label}, ${SEAT[t.station] || t.station}: ${STATUS[t.status] || t.status}`),
+      el('li', { class: t.status }, `${t.label}, ${SEAT[t.station] || t.station}: ${STATUS[t.status] || t.status}`),
     ),
   );
   $('withdraw-box').hidden = p.withdrawn;

@@ -93,4 +93,52 @@ mod tests {
             }
         }
     }
+
+    #[test]
+    fn an_identification_tick_never_allocates() {
+        use crate::identification::Multisine;
+        use crate::operator::IdentificationTask;
+        use crate::runner::{HandSource, TrialRunner};
+        use crate::signals::Signal;
+        use bdft_protocol::identification::MultisineSpec;
+
+        let plant = PlantParams::default();
+        let spec = MultisineSpec::default();
+        let dt = 1e-3;
+        for task in IdentificationTask::ALL {
+            for synthetic in [true, false] {
+                let setup = LoopSetup {
+                    compensator: variants::variant("pid", &plant, dt).unwrap(),
+                    plant,
+                    body: crate::model::SEATED_FOR_TESTS,
+                    loop_params: LoopParams::default(),
+                    station: Seat::On,
+                };
+                let hand = if synthetic {
+                    HandSource::Synthetic(
+                        SyntheticOperator::new(OperatorParams::default(), dt, 0.6, 1)
+                            .unwrap()
+                            .holding(task),
+                    )
+                } else {
+                    HandSource::External
+                };
+                let mut runner = TrialRunner::new(
+                    Signal::Multisine(Multisine::new(&spec, dt).unwrap()),
+                    ClosedLoop::new(&setup, 1).unwrap(),
+                    hand,
+                    dt,
+                    spec.duration_s(),
+                )
+                .with_interlock(6000.0);
+                // Across a period boundary of the table.
+                let n = allocations_during(|| {
+                    for k in 0..12_000 {
+                        std::hint::black_box(runner.tick((k % 7) as f64));
+                    }
+                });
+                assert_eq!(n, 0, "{task:?}, synthetic {synthetic}: {n} allocations");
+            }
+        }
+    }
 }

@@ -28,6 +28,10 @@ pub enum Drive {
     Hand(f64),
     /// The cylinder reference itself (bench tests: no operator, no feedthrough).
     Reference(f64),
+    /// The identification test: the cylinder reference is the excitation `r_c`, the device
+    /// reads `hand` − h and is recorded, and nothing of it reaches the reference (K_BF = 0
+    /// for the loop, whatever the trial's K_BF).
+    Excited { hand: f64, r_c: f64 },
 }
 
 /// Signals of one tick.
@@ -122,6 +126,7 @@ impl ClosedLoop {
         let (hand, r_c) = match drive {
             Drive::Hand(p_h) => (p_h, self.k_bf * (p_h - h)),
             Drive::Reference(r) => (0.0, r),
+            Drive::Excited { hand, r_c } => (hand, r_c),
         };
         let v = self.compensator.step(r_c, m);
         let applied = self.plant.step(v);

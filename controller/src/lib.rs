@@ -17,6 +17,7 @@ pub mod compensator;
 pub mod error;
 pub mod exposure;
 pub mod filters;
+pub mod identification;
 pub mod interlock;
 pub mod linalg;
 pub mod lsl;

@@ -27,6 +27,7 @@
 //! seen on the display and corrected, feedthrough near the cab modes (4–6 Hz) is far above
 //! the operator's bandwidth and passes through uncorrected.
 
+pub use bdft_protocol::identification::IdentificationTask;
 pub use bdft_protocol::params::OperatorParams;
 
 use crate::error::ParamError;
@@ -81,6 +82,8 @@ pub struct SyntheticOperator {
     felt_ms: f64,
     pub(crate) impression_a: f64,
     grip: f64,
+    /// Relaxed in an identification test (`holding`): the grip stays 1 whatever is felt.
+    relaxed: bool,
     /// The remnant's factor from felt vibration, re-evaluated with the grip.
     shaken: f64,
     /// The factor by which felt vibration has slowed the arm (1 = calm), re-evaluated with
@@ -130,6 +133,7 @@ impl SyntheticOperator {
             felt_ms: 0.0,
             impression_a: 1.0 - (-dt / IMPRESSION_S).exp(),
             grip: 1.0,
+            relaxed: false,
             shaken: 1.0,
             slowed: 1.0,
             grip_countdown: GRIP_EVERY,
@@ -152,13 +156,47 @@ impl SyntheticOperator {
 
         let shake = self.shake_filter.step(y_seen);
         self.shake_ms += self.impression_a * (shake * shake - self.shake_ms);
+        self.feel(felt_accel);
+
+        let e = t_seen - y_seen;
+        let gain = self.params.error_gain
+            / (1.0 + self.params.shake_aversion_per_mm * self.shake_ms.sqrt());
+        self.integral += self.params.error_integral_gain * e * self.dt;
+        let command = (t_seen + gain * e + self.integral) / self.k_bf;
+        let noise = self.remnant();
+        self.arm.step(command + noise)
+    }
+
+    /// One tick of the identification test (`holding`): the operator tracks nothing and
+    /// holds the device at its centre, so the intended hand position is the remnant alone,
+    /// through the neuromuscular lag. Felt vibration still grows the remnant, slows the arm
+    /// and — holding still — stiffens the grip as in tracking; relaxed, the grip stays 1.
+    #[inline]
+    pub fn hold(&mut self, felt_accel: f64) -> f64 {
+        self.feel(felt_accel);
+        let noise = self.remnant();
+        self.arm.step(noise)
+    }
+
+    /// Sets the task of an identification test (what `hold` does with the grip).
+    pub fn holding(mut self, task: IdentificationTask) -> Self {
+        self.relaxed = task == IdentificationTask::Relax;
+        self
+    }
+
+    /// The felt cab acceleration's running impression, and every `GRIP_EVERY` ticks the
+    /// grip, remnant and arm it sets.
+    #[inline]
+    fn feel(&mut self, felt_accel: f64) {
         self.felt_ms += self.impression_a * (felt_accel * felt_accel - self.felt_ms);
         self.grip_countdown -= 1;
         if self.grip_countdown == 0 {
             self.grip_countdown = GRIP_EVERY;
             // mm/s² → m/s².
             let felt = self.felt_ms.sqrt() * 1e-3;
-            self.grip = 1.0 + self.params.grip_stiffening_per_m_s2 * felt;
+            if !self.relaxed {
+                self.grip = 1.0 + self.params.grip_stiffening_per_m_s2 * felt;
+            }
             self.shaken = 1.0 + self.params.vibration_remnant_per_m_s2 * felt;
             let slowed = 1.0 + self.params.vibration_slowing_per_m_s2 * felt;
             if slowed != self.slowed {
@@ -170,18 +208,16 @@ impl SyntheticOperator {
                 ));
             }
         }
+    }
 
-        let e = t_seen - y_seen;
-        let gain = self.params.error_gain
-            / (1.0 + self.params.shake_aversion_per_mm * self.shake_ms.sqrt());
-        self.integral += self.params.error_integral_gain * e * self.dt;
-        let command = (t_seen + gain * e + self.integral) / self.k_bf;
-        let noise = if self.remnant_in_std > 0.0 {
+    /// This tick's remnant, before the lag (mm of intended hand position).
+    #[inline]
+    fn remnant(&mut self) -> f64 {
+        if self.remnant_in_std > 0.0 {
             self.shaken * self.remnant_in_std * self.rng.normal()
         } else {
             0.0
-        };
-        self.arm.step(command + noise)
+        }
     }
 
     /// How hard the operator grips now: the factor on a seated body's arm frequency.

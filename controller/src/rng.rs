@@ -44,6 +44,8 @@ impl Rng {
     pub const OPERATOR: u64 = 3;
     pub const POPULATION: u64 = 4;
     pub const SURVEY: u64 = 5;
+    /// The identification test's multisine phases.
+    pub const MULTISINE: u64 = 6;
 
     /// An independent stream for a sub-purpose (e.g. "accelerometer noise" vs "target"), so
     /// that adding draws to one purpose never shifts another's values.

@@ -121,6 +121,8 @@ impl MetricsAccumulator {
 #[derive(Debug, Clone)]
 pub struct TrialRunner<L> {
     pub(crate) signal: Signal,
+    /// The signal is the identification test's excitation (`Signal::excites`), read once.
+    excited: bool,
     pub(crate) lp: L,
     pub(crate) hand: HandSource,
     metrics: MetricsAccumulator,
@@ -135,6 +137,7 @@ pub struct TrialRunner<L> {
 impl<L: Loop> TrialRunner<L> {
     pub fn new(signal: Signal, lp: L, hand: HandSource, dt: f64, duration_s: f64) -> Self {
         Self {
+            excited: signal.excites(),
             signal,
             lp,
             hand,
@@ -188,6 +191,17 @@ impl<L: Loop> TrialRunner<L> {
         let t = self.k as f64 * self.dt;
         let target = self.signal.at(t);
         let drive = match &mut self.hand {
+            // The identification test: the target is the cylinder reference, the hand is
+            // only recorded.
+            HandSource::Synthetic(op) if self.excited => {
+                let hand = op.hold(self.lp.felt_accel());
+                self.lp.set_grip(op.grip());
+                Drive::Excited { hand, r_c: target }
+            }
+            HandSource::External if self.excited => Drive::Excited {
+                hand: external_hand,
+                r_c: target,
+            },
             HandSource::Synthetic(op) => {
                 let hand = op.step(target, self.lp.displayed_y(), self.lp.felt_accel());
                 self.lp.set_grip(op.grip());

@@ -4,6 +4,7 @@ use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
 use crate::error::ParamError;
+use crate::identification::{IdentificationError, Multisine};
 use crate::params::check;
 use crate::rng::Rng;
 pub use bdft_protocol::params::StepParams;
@@ -293,6 +294,8 @@ pub enum Signal {
         levels_mm: Vec<f64>,
     },
     Sampled(SampledReference),
+    /// The identification test's excitation: the cylinder reference itself.
+    Multisine(Multisine),
 }
 
 impl Signal {
@@ -308,12 +311,19 @@ impl Signal {
                 levels_mm[i]
             }
             Self::Sampled(s) => s.at(t),
+            Self::Multisine(m) => m.at(t),
         }
     }
 
-    /// The signal a trial message describes; bench sweeps span the trial's duration.
-    pub fn from_spec(spec: &TargetSpec, duration_s: f64) -> Self {
-        match spec {
+    /// The signal a trial message describes for a loop ticking every `dt` s; bench sweeps
+    /// span the trial's duration. Only a multisine can be refused (its period must be a
+    /// whole number of ticks).
+    pub fn from_spec(
+        spec: &TargetSpec,
+        duration_s: f64,
+        dt: f64,
+    ) -> Result<Self, IdentificationError> {
+        Ok(match spec {
             TargetSpec::Steps {
                 interval_s,
                 levels_mm,
@@ -345,7 +355,16 @@ impl Signal {
                 sample_rate_hz: *sample_rate_hz,
                 samples_mm: samples_mm.clone(),
             }),
-        }
+            TargetSpec::Identification { excitation, .. } => {
+                Self::Multisine(Multisine::new(excitation, dt)?)
+            }
+        })
+    }
+
+    /// Whether the signal is the identification test's excitation, which drives the
+    /// cylinder reference directly whatever the operator does.
+    pub fn excites(&self) -> bool {
+        matches!(self, Self::Multisine(_))
     }
 }
 

@@ -214,6 +214,44 @@ fn start_trial_validation_names_the_bad_field() {
         let err = st.validate().unwrap_err().to_string();
         assert!(err.contains("samples_mm"), "{err}");
     }
+    let identification = TargetSpec::Identification {
+        excitation: crate::identification::MultisineSpec::default(),
+        task: crate::identification::IdentificationTask::HoldStill,
+    };
+    assert_golden(
+        &identification,
+        r#"{"kind":"identification","excitation":{"f_min_hz":0.5,"f_max_hz":8.0,"lines":20,"period_s":10.0,"periods":6,"transient_periods":1,"rms_mm":2.0,"seed":0},"task":"hold-still"}"#,
+    );
+    assert_eq!(identification.kind(), "identification");
+    // The trial lasts the multisine's periods; a bad multisine names its field.
+    let st = StartTrial {
+        target: identification.clone(),
+        duration_s: 70.0,
+        ..st
+    };
+    st.validate().unwrap();
+    let err = StartTrial {
+        duration_s: 60.0,
+        ..st.clone()
+    }
+    .validate()
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("duration_s") && err.contains("70 s"), "{err}");
+    let err = StartTrial {
+        target: TargetSpec::Identification {
+            excitation: crate::identification::MultisineSpec {
+                lines: 2,
+                ..Default::default()
+            },
+            task: crate::identification::IdentificationTask::Relax,
+        },
+        ..st
+    }
+    .validate()
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("multisine.lines"), "{err}");
 }
 
 #[test]

@@ -6,7 +6,7 @@ use crate::browser_to_server::{
 };
 use crate::controller_to_server::LiveSample;
 use crate::params::{CompensatorKind, Seat};
-use crate::records::{ConsentDecision, DoneReason, StationRole, TrialStatus};
+use crate::records::{ConsentDecision, DoneReason, StationRole, TestPhase, TrialStatus};
 use crate::server_to_browser::{
     MonitorEvent, MonitorStation, MonitorTest, MonitorView, Phase, StationEvent, StationInfo,
     StationSocket, StationView, StopNotice, TestView,
@@ -32,7 +32,8 @@ fn test_view() -> TestView {
     TestView {
         trial_id: 12,
         label: "Controller 3".into(),
-        practice: false,
+        phase: TestPhase::Test,
+        instructions: None,
         number: 4,
         of: 10,
         duration_s: 140.0,
@@ -188,7 +189,7 @@ fn what_a_station_shows() {
             stopped: None,
             texts: None,
         },
-        r#"{"phase":"ready","subject":"S01","test":{"trial_id":12,"label":"Controller 3","practice":false,"number":4,"of":10,"duration_s":140.0,"station":"on","shake_gain":1.0,"target_range_mm":40.0,"k_bf":0.78,"started_at":null},"station":{"name":"Cab seat","role":"on"}}"#,
+        r#"{"phase":"ready","subject":"S01","test":{"trial_id":12,"label":"Controller 3","phase":"test","number":4,"of":10,"duration_s":140.0,"station":"on","shake_gain":1.0,"target_range_mm":40.0,"k_bf":0.78,"started_at":null},"station":{"name":"Cab seat","role":"on"}}"#,
     );
     // After a stopped test the next one is shown with what happened; with nothing left to
     // run but a test that failed too often, the station holds (never "done").
@@ -206,7 +207,7 @@ fn what_a_station_shows() {
             }),
             texts: None,
         },
-        r#"{"phase":"ready","subject":"S01","test":{"trial_id":12,"label":"Controller 3","practice":false,"number":4,"of":10,"duration_s":140.0,"station":"on","shake_gain":1.0,"target_range_mm":40.0,"k_bf":0.78,"started_at":null},"station":{"name":"Cab seat","role":"on"},"stopped":{"label":"Controller 2","status":"invalid","repeated":true}}"#,
+        r#"{"phase":"ready","subject":"S01","test":{"trial_id":12,"label":"Controller 3","phase":"test","number":4,"of":10,"duration_s":140.0,"station":"on","shake_gain":1.0,"target_range_mm":40.0,"k_bf":0.78,"started_at":null},"station":{"name":"Cab seat","role":"on"},"stopped":{"label":"Controller 2","status":"invalid","repeated":true}}"#,
     );
     assert_golden(
         &StationView {
@@ -245,7 +246,7 @@ fn what_the_experimenter_sees_of_a_station_names_the_compensator() {
                 }),
             },
         },
-        r#"{"phase":"running","subject":"S02","test":{"trial_id":12,"label":"Controller 3","practice":false,"number":4,"of":10,"duration_s":140.0,"station":"on","shake_gain":1.0,"target_range_mm":40.0,"k_bf":0.78,"started_at":null,"controller":"pid-notch"},"station":{"id":3,"name":"Desk","role":"both","subject_id":9,"socket":{"connected":false,"accepted":1200,"dropped":98000,"closed_by_server":"input flood"}}}"#,
+        r#"{"phase":"running","subject":"S02","test":{"trial_id":12,"label":"Controller 3","phase":"test","number":4,"of":10,"duration_s":140.0,"station":"on","shake_gain":1.0,"target_range_mm":40.0,"k_bf":0.78,"started_at":null,"controller":"pid-notch"},"station":{"id":3,"name":"Desk","role":"both","subject_id":9,"socket":{"connected":false,"accepted":1200,"dropped":98000,"closed_by_server":"input flood"}}}"#,
     );
 }
 

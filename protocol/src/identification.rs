@@ -35,10 +35,10 @@ impl IdentificationTask {
 
 /// The cab's excitation: a sum of sines on the grid 1/period_s, one period a whole number
 /// of ticks, random phases from `seed`, run for `transient_periods` (dropped) and then
-/// `periods` (averaged).
+/// `periods` (averaged). A parameter left out takes its default.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
-#[serde(deny_unknown_fields)]
+#[serde(default, deny_unknown_fields)]
 pub struct MultisineSpec {
     /// Lowest excited frequency (Hz).
     pub f_min_hz: f64,
@@ -152,7 +152,9 @@ impl MultisineSpec {
 }
 
 /// The feedthrough at one excited frequency: device position over cab acceleration, with
-/// 95 % bounds and the coherence over the periods.
+/// 95 % bounds and the coherence over the periods. The bounds are the projections of the
+/// 95 % confidence disc about the complex estimate (they hold jointly); a phase bound may
+/// leave (−180, 180] so that lo ≤ phase ≤ hi.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct FrfPoint {
@@ -167,6 +169,12 @@ pub struct FrfPoint {
     pub phase_hi_deg: f64,
     /// Squared coherence between cab acceleration and device over the periods (0–1).
     pub coherence: f64,
+    /// Standard deviation of the complex estimate, (E|Ĥ − H|²)^½ (mm per m/s²), from the
+    /// period-to-period spread: what the body fit weights the point by.
+    pub std_dev: f64,
+    /// Periods averaged: the spread behind `std_dev` has 2·(periods − 1) degrees of
+    /// freedom, which the bounds and the fit's intervals account for.
+    pub periods: u32,
 }
 
 /// An estimate with its 95 % interval.

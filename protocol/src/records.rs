@@ -90,6 +90,25 @@ wire_enum!(
 );
 
 wire_enum!(
+    /// What a test of the schedule is for: the unscored warm-up, a scored test of a
+    /// compensator, or an identification test (the cab moved by a multisine while the
+    /// person holds the device, to measure their feedthrough; unscored, no survey).
+    TestPhase, "test phase" {
+        Practice = "practice",
+        Test = "test",
+        Identification = "identification",
+    }
+);
+
+impl TestPhase {
+    /// Whether the test is a measurement the comparison of compensators counts (and asks
+    /// a survey about).
+    pub fn scored(self) -> bool {
+        self == Self::Test
+    }
+}
+
+wire_enum!(
     /// Why a station has nothing more for its subject.
     DoneReason, "reason" {
         Withdrawn = "withdrawn",

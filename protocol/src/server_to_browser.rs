@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::controller_to_server::LiveSample;
 use crate::params::{CompensatorKind, Seat};
-use crate::records::{DoneReason, StationRole, TrialStatus};
+use crate::records::{DoneReason, StationRole, TestPhase, TrialStatus};
 use crate::study::{ConsentForm, StudyTexts, SurveyParams};
 
 /// What a station shows its subject now.
@@ -94,9 +94,13 @@ pub enum Phase<T> {
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct TestView {
     pub trial_id: i64,
-    /// "Controller k" or "Practice".
+    /// "Controller k", "Practice" or "Identification".
     pub label: String,
-    pub practice: bool,
+    pub phase: TestPhase,
+    /// What the subject is asked to do in an identification test (the practice's and the
+    /// tests' texts are the study's `texts`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub instructions: Option<String>,
     /// Position in the schedule (0 = practice).
     pub number: i64,
     /// Scored tests in the schedule.

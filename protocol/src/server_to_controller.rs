@@ -159,6 +159,21 @@ impl StartTrial {
         if let InputSource::Synthetic { operator, .. } = &self.input {
             operator.validate()?;
         }
+        // An identification test runs whole periods: the trial is exactly its transient and
+        // recorded periods, so the estimator finds every period it expects.
+        if let TargetSpec::Identification { excitation, .. } = &self.target {
+            let want = excitation.duration_s();
+            if (self.duration_s - want).abs() > 1e-9 * want {
+                return Err(ParamError::Invalid {
+                    name: "duration_s",
+                    message: format!(
+                        "{} s given; an identification test lasts its multisine's \
+                         (transient_periods + periods) × period_s = {want} s",
+                        self.duration_s
+                    ),
+                });
+            }
+        }
         Ok(())
     }
 }

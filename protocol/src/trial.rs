@@ -3,6 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::identification::{IdentificationTask, MultisineSpec};
 use crate::params::{OperatorParams, ParamError, check};
 
 /// Identifier the server gives a trial (its database id); echoed in every message about it.
@@ -31,6 +32,13 @@ pub enum TargetSpec {
     Sampled {
         sample_rate_hz: f64,
         samples_mm: Vec<f64>,
+    },
+    /// The identification test (`docs/identification.md`): the multisine is the cylinder
+    /// reference itself, the person's hand is recorded but never reaches it (K_BF = 0 for
+    /// the loop), and the trial lasts `excitation.duration_s()`.
+    Identification {
+        excitation: MultisineSpec,
+        task: IdentificationTask,
     },
 }
 
@@ -99,6 +107,18 @@ impl TargetSpec {
                 }
                 Ok(())
             }
+            Self::Identification { excitation, .. } => excitation.validate(),
+        }
+    }
+
+    /// The name `kind` carries on the wire.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Self::Steps { .. } => "steps",
+            Self::SweptSine { .. } => "swept-sine",
+            Self::Trapezoid { .. } => "trapezoid",
+            Self::Sampled { .. } => "sampled",
+            Self::Identification { .. } => "identification",
         }
     }
 }

@@ -61,6 +61,11 @@ enum Command {
         /// database with no study yet.
         #[arg(long, conflicts_with = "study")]
         params: Option<PathBuf>,
+        /// Add an identification test (the default multisine, hold-still) to the study the
+        /// pilot creates, at the start of each subject's block on the machine; a study given
+        /// with --study must have one in its parameters already.
+        #[arg(long)]
+        identification: bool,
     },
     /// The power planner: for candidate numbers of subjects, the chance that each pair of
     /// compensators differs significantly at one seat (exact Wilcoxon, Holm), from whole
@@ -169,10 +174,11 @@ enum Command {
         study: Option<i64>,
         /// trials (one row per test attempt, with valid and latest flags), samples (1 kHz
         /// records, long format, with join keys), subjects (one row per subject, with the
-        /// drawn parameters), codebook (every column of every export: meaning, unit, type),
-        /// summary (statistics per controller × station), stats (Friedman, pairwise exact
-        /// Wilcoxon with Holm, on vs off, RM-ANOVA), notes (notes and reasons about tests) or
-        /// audit (the whole audit log; --study is not used), or bids (the study as a BIDS
+        /// drawn parameters and the identified body), codebook (every column of every export:
+        /// meaning, unit, type), summary (statistics per controller × station), stats
+        /// (Friedman, pairwise exact Wilcoxon with Holm, on vs off, RM-ANOVA), notes (notes
+        /// and reasons about tests), identification (the feedthrough each identification
+        /// test measured, per excited frequency, with bounds and coherence) or audit (the whole audit log; --study is not used), or bids (the study as a BIDS
         /// dataset: a directory, --out names it; --format, --subject, --trial are not used).
         #[arg(long)]
         kind: ExportTarget,
@@ -320,11 +326,42 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             subjects,
             seed,
             params,
+            identification,
         } => {
             let pool = store::db::open(&db.db).await?;
-            let study = match params {
-                Some(path) => Some(pilot::new_study(&pool, &read_params(&path)?, seed).await?),
-                None => study,
+            let with_identification = |mut p: bdft_protocol::study::StudyParams| {
+                if identification && p.identification.is_none() {
+                    p.identification = Some(Default::default());
+                }
+                p
+            };
+            let study = match (params, study) {
+                (Some(path), _) => Some(
+                    pilot::new_study(&pool, &with_identification(read_params(&path)?), seed)
+                        .await?,
+                ),
+                (None, None) if identification && store::studies::all(&pool).await?.is_empty() => {
+                    Some(
+                        pilot::new_study(
+                            &pool,
+                            &with_identification(crate::engine::study::schedule::default_params()),
+                            seed,
+                        )
+                        .await?,
+                    )
+                }
+                (None, study) => {
+                    if identification {
+                        let s = newest_study(&pool, study).await?;
+                        let params = store::studies::get(&pool, s).await?.params;
+                        if params.identification.is_none() {
+                            anyhow::bail!(
+                                "--identification: study {s} has no identification test; add \"identification\" to its parameters"
+                            );
+                        }
+                    }
+                    study
+                }
             };
             let started = std::time::Instant::now();
             let report = pilot::run(&pool, study, subjects, seed).await?;

@@ -122,7 +122,7 @@ fn design_aids_are_validated_followed_by_enrolment_and_drawn_from_the_export() {
         for (seat, row) in [("on", index % 10), ("off", (index + 5) % 10)] {
             let mut at_seat: Vec<&&Value> = trials
                 .iter()
-                .filter(|t| t["practice"] == false && t["station"] == seat)
+                .filter(|t| t["phase"] == "test" && t["station"] == seat)
                 .collect();
             at_seat.sort_by_key(|t| t["position"].as_i64());
             let order: Vec<&str> = at_seat

@@ -243,7 +243,7 @@ fn pylsl_receives_every_sample_and_marker_of_a_test_with_its_labels_and_clock() 
         assert_eq!(m["seat"], t["station"]);
     }
     assert_eq!(markers[0]["phase"], "practice");
-    assert_eq!(markers[2]["phase"], "main");
+    assert_eq!(markers[2]["phase"], "test");
     assert_eq!(markers[1]["status"], "complete");
     assert_eq!(markers[4]["trial_id"], first_id);
     assert_eq!(markers[5]["new_trial_id"], redone["id"]);

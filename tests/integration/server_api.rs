@@ -89,7 +89,7 @@ fn a_subject_goes_through_the_whole_protocol_via_the_api() {
                         .as_str()
                         .unwrap()
                         .starts_with("Controller ")
-                        || state["test"]["practice"] == true
+                        || state["test"]["phase"] == "practice"
                 );
                 let row = run_trial(&api, subject, t);
                 assert_eq!(row["status"], "complete", "{row}");
@@ -676,15 +676,12 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
             assert_eq!(get(r, "starting_station"), start);
             assert_eq!(get(r, "station"), t.seat.as_str());
             // Practice has no compensator, block or position: no row reads as a PID test.
-            let test_only = |v: String| if t.practice { String::new() } else { v };
+            let test_only = |v: String| if t.phase.scored() { v } else { String::new() };
             assert_eq!(get(r, "controller"), test_only(t.compensator.name().into()));
             assert_eq!(get(r, "blinded_label"), test_only(t.blinded_label.clone()));
             assert_eq!(get(r, "block"), test_only(t.block.to_string()));
             assert_eq!(get(r, "position"), test_only(t.position.to_string()));
-            assert_eq!(
-                get(r, "phase"),
-                if t.practice { "practice" } else { "test" }
-            );
+            assert_eq!(get(r, "phase"), t.phase.as_str());
             assert_eq!(get(r, "seed"), t.target_seed.to_string());
             assert_eq!(get(r, "status"), "complete");
             assert_eq!(get(r, "protocol_hash"), hash);
@@ -696,7 +693,7 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
             assert!(mse > 0.0 && mse < 2000.0, "{mse}");
             // Each synthetic subject answers the survey of every scored test on the
             // study's 7-point scale, as a person would; the practice has none.
-            if t.practice {
+            if !t.phase.scored() {
                 assert!(get(r, "rating_accuracy_1to7").is_empty() && get(r, "comment").is_empty());
             } else {
                 for item in ["accuracy", "speed", "smoothness", "controllability"] {

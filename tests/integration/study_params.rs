@@ -155,7 +155,7 @@ fn the_station_gets_its_texts_filled_in_from_the_parameters() {
         .clone();
     let (_, s) = api.get(&format!("/api/subjects/{subject}"));
     let practice = &s["trials"][0]["trial"];
-    assert_eq!(practice["practice"], true);
+    assert_eq!(practice["phase"], "practice");
     let ran: Value = serde_json::from_str(practice["compensator_json"].as_str().unwrap()).unwrap();
     assert_eq!(ran, own);
 }

@@ -151,6 +151,10 @@ fn lane(runner: &TrialRunner<SlotLoop>) -> Result<Lane<'_>, String> {
     let HandSource::Synthetic(operator) = &runner.hand else {
         return Err("a batched trial needs a synthetic operator".into());
     };
+    // The batch's operators track their targets; an identification test's hold still.
+    if runner.signal.excites() {
+        return Err("an identification test is not batched: its operator holds still".into());
+    }
     Ok(Lane {
         runner,
         rig,

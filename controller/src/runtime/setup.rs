@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use bdft_protocol::params::LoopParams;
 use bdft_protocol::server_to_controller::StartTrial;
-use bdft_protocol::trial::InputSource;
+use bdft_protocol::trial::{InputSource, TargetSpec};
 
 use super::handoff::InputCell;
 use super::slot::{ExternalLoop, SlotLoop, TrialSlot};
@@ -63,17 +63,18 @@ pub fn build_runner(
         InputSource::Server | InputSource::Udp { .. } => {
             (HandSource::External, Some(Arc::new(InputCell::default())))
         }
-        InputSource::Synthetic { operator, seed } => (
-            HandSource::Synthetic(
-                SyntheticOperator::new(operator, dt, st.k_bf.max(1e-3), seed)
-                    .map_err(|e| e.to_string())?,
-            ),
-            None,
-        ),
+        InputSource::Synthetic { operator, seed } => {
+            let mut op = SyntheticOperator::new(operator, dt, st.k_bf.max(1e-3), seed)
+                .map_err(|e| e.to_string())?;
+            if let TargetSpec::Identification { task, .. } = st.target {
+                op = op.holding(task);
+            }
+            (HandSource::Synthetic(op), None)
+        }
         InputSource::Reference => (HandSource::Reference, None),
     };
     let runner = TrialRunner::new(
-        Signal::from_spec(&st.target, st.duration_s),
+        Signal::from_spec(&st.target, st.duration_s, dt).map_err(|e| e.to_string())?,
         lp,
         hand,
         dt,

@@ -46,6 +46,7 @@ impl Loop for ExternalLoop {
         let (hand, r_c) = match drive {
             Drive::Hand(p) => (p, self.k_bf * p),
             Drive::Reference(r) => (0.0, r),
+            Drive::Excited { hand, r_c } => (hand, r_c),
         };
         self.command = saturate(self.compensator.step(r_c, m), self.v_max);
         TickRecord {

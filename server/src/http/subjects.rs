@@ -1,7 +1,7 @@
 //! Subjects: enrolment, the experimenter's view of each, withdrawal, and the subject's own
 //! page data (bearer token of the subject).
 
-use axum::extract::{Path, State};
+use axum::extract::{Path, Query, State};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
@@ -12,6 +12,7 @@ use super::error::{ApiResult, AppJson, Done, optional_json};
 use super::extract::{Experimenter, SubjectAuth};
 use crate::engine::procedure::enrolment::enrol;
 use crate::engine::procedure::subjects::{self, OwnProgress, SubjectDetail, SubjectProgress};
+use crate::engine::results::identification::{self, IdentificationView, SubjectStability};
 use crate::state::AppState;
 use crate::store;
 use crate::store::subjects::Subject;
@@ -20,6 +21,8 @@ pub fn experimenter() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(list_subjects, enrol_subject))
         .routes(routes!(get_subject))
+        .routes(routes!(get_identification))
+        .routes(routes!(get_subject_stability))
         .routes(routes!(withdraw))
 }
 
@@ -88,6 +91,40 @@ async fn get_subject(
     Path(id): Path<i64>,
 ) -> ApiResult<SubjectDetail> {
     Ok(AppJson(subjects::detail(&s.pool, id).await?))
+}
+
+/// The subject's identification tests: the measured feedthrough, the fitted body and the
+/// study population's band (the subject page's Bode plot).
+#[utoipa::path(get, path = "/api/subjects/{id}/identification", tag = "subjects", params(("id" = i64, Path)),
+    responses((status = 200, body = IdentificationView)))]
+async fn get_identification(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+) -> ApiResult<IdentificationView> {
+    Ok(AppJson(identification::view(&s.pool, id).await?))
+}
+
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+struct StabilityQuery {
+    /// The feedthrough gain to check at [default: the study's].
+    k_bf: Option<f64>,
+}
+
+/// Every design of the study checked against the subject's identified body: stable on and
+/// off the machine at K_BF, and the largest stable K_BF for this subject.
+#[utoipa::path(get, path = "/api/subjects/{id}/stability", tag = "subjects",
+    params(("id" = i64, Path), StabilityQuery),
+    responses((status = 200, body = SubjectStability)))]
+async fn get_subject_stability(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    Path(id): Path<i64>,
+    Query(q): Query<StabilityQuery>,
+) -> ApiResult<SubjectStability> {
+    Ok(AppJson(
+        identification::subject_stability(&s.pool, &s.stability, id, q.k_bf).await?,
+    ))
 }
 
 /// Record that the subject withdraws (their data leave every export).

@@ -18,6 +18,8 @@ pub struct Removed {
     pub trials: u64,
     /// Full-rate records of those attempts.
     pub records: u64,
+    /// What the subject's identification tests measured (feedthrough and fitted body).
+    pub identifications: u64,
     /// Survey answers (ratings and comments).
     pub surveys: u64,
     /// The experimenters' notes on the subject and their tests.
@@ -78,10 +80,11 @@ pub async fn erase(db: &mut SqliteConnection, subject_id: i64, erasure_id: i64) 
     .await?
     .rows_affected();
     // Children before the trials they name (foreign keys), in this order.
-    let mut counts = [0u64; 6];
+    let mut counts = [0u64; 7];
     for (n, sql) in [
         "UPDATE stations SET subject_id = NULL WHERE subject_id = ?1",
         "DELETE FROM notes WHERE subject_id = ?1",
+        "DELETE FROM identifications WHERE subject_id = ?1",
         "DELETE FROM surveys WHERE trial_id IN (SELECT id FROM trials WHERE subject_id = ?1)",
         "DELETE FROM trial_records WHERE trial_id IN (SELECT id FROM trials WHERE subject_id = ?1)",
         "DELETE FROM pilot_trials WHERE trial_id IN (SELECT id FROM trials WHERE subject_id = ?1)",
@@ -96,9 +99,18 @@ pub async fn erase(db: &mut SqliteConnection, subject_id: i64, erasure_id: i64) 
             .await?
             .rows_affected();
     }
-    let [stations_released, notes, surveys, records, _, trials] = counts;
+    let [
+        stations_released,
+        notes,
+        identifications,
+        surveys,
+        records,
+        _,
+        trials,
+    ] = counts;
     Ok(Removed {
         trials,
+        identifications,
         records,
         surveys,
         notes,

@@ -2,7 +2,7 @@
 //! subjects who have not withdrawn, in schedule order.
 
 use bdft_protocol::params::{CompensatorKind, Seat};
-use bdft_protocol::records::TrialStatus;
+use bdft_protocol::records::{TestPhase, TrialStatus};
 use sqlx::SqliteExecutor;
 
 use crate::error::Result;
@@ -26,7 +26,8 @@ pub struct TrialExportRow {
     #[sqlx(try_from = "String")]
     pub controller: CompensatorKind,
     pub blinded_label: String,
-    pub practice: bool,
+    #[sqlx(try_from = "String")]
+    pub phase: TestPhase,
     #[sqlx(try_from = "String")]
     pub status: TrialStatus,
     pub status_reason: Option<String>,
@@ -61,7 +62,7 @@ pub struct TrialExportRow {
 }
 
 const TRIALS_SQL: &str = "SELECT s.study_id, t.id AS trial_id, s.code, s.enrol_index, s.synthetic, s.starting_station, t.station, t.block, t.position, t.slot, t.attempt, \
-     t.controller, t.blinded_label, t.practice, t.status, t.status_reason, t.target_seed, t.target_mean_mm, t.target_std_mm, t.target_ms_step_mm2, t.k_bf, t.duration_s, \
+     t.controller, t.blinded_label, t.phase, t.status, t.status_reason, t.target_seed, t.target_mean_mm, t.target_std_mm, t.target_ms_step_mm2, t.k_bf, t.duration_s, \
      t.mse_tracking_mm2, t.ms_cab_accel, t.cab_aw_m_s2, t.cab_vdv_m_s175, v.accuracy, v.speed, v.smoothness, v.controllability, v.comment, t.protocol_hash, t.started_at, t.finished_at, s.consent_version, \
      t.client_timing_json, t.timing_json, t.accepted_reason, \
      NOT EXISTS (SELECT 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.slot = t.slot AND u.attempt > t.attempt) AS latest, \
@@ -101,7 +102,8 @@ pub struct RecordedTrial {
     pub station: String,
     pub controller: String,
     pub attempt: i64,
-    pub practice: bool,
+    #[sqlx(try_from = "String")]
+    pub phase: TestPhase,
 }
 
 /// The trials of the study's remaining subjects that have a record, in schedule order:
@@ -113,7 +115,7 @@ pub async fn recorded_trials<'c>(
     trial_id: Option<i64>,
 ) -> Result<Vec<RecordedTrial>> {
     Ok(sqlx::query_as(
-        "SELECT t.id AS trial_id, s.code, t.station, t.controller, t.attempt, t.practice FROM trials t JOIN subjects s ON s.id = t.subject_id \
+        "SELECT t.id AS trial_id, s.code, t.station, t.controller, t.attempt, t.phase FROM trials t JOIN subjects s ON s.id = t.subject_id \
          JOIN trial_records r ON r.trial_id = t.id WHERE s.study_id = ?1 AND s.withdrawn_at IS NULL \
          AND (?2 IS NULL OR s.code = ?2) AND (?3 IS NULL OR t.id = ?3) ORDER BY s.enrol_index, t.slot, t.attempt",
     )

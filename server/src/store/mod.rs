@@ -16,6 +16,7 @@ pub mod dry_runs;
 pub mod erasure;
 pub mod exports;
 pub mod exposure;
+pub mod identifications;
 pub mod latch;
 pub mod pilot_runs;
 pub mod populations;

@@ -5,7 +5,7 @@
 //! guarded UPDATEs here, so two users racing cannot move a trial twice.
 
 use bdft_protocol::params::{CompensatorKind, Seat};
-use bdft_protocol::records::TrialStatus;
+use bdft_protocol::records::{TestPhase, TrialStatus};
 use bdft_protocol::study::SurveyAnswer;
 use serde::Serialize;
 use sqlx::{SqliteConnection, SqliteExecutor};
@@ -21,7 +21,8 @@ pub struct Trial {
     pub slot: i64,
     /// 1 for the first attempt; a redo adds the next.
     pub attempt: i64,
-    pub practice: bool,
+    #[sqlx(try_from = "String")]
+    pub phase: TestPhase,
     #[sqlx(rename = "station", try_from = "String")]
     #[serde(rename = "station")]
     pub seat: Seat,
@@ -126,7 +127,7 @@ pub async fn pending_survey<'c>(
     subject_id: i64,
 ) -> Result<Option<Trial>> {
     Ok(sqlx::query_as(
-        "SELECT t.* FROM trials t WHERE t.subject_id = ? AND t.practice = 0 AND t.status = 'complete' \
+        "SELECT t.* FROM trials t WHERE t.subject_id = ? AND t.phase = 'test' AND t.status = 'complete' \
          AND NOT EXISTS (SELECT 1 FROM surveys v WHERE v.trial_id = t.id) \
          AND t.attempt = (SELECT MAX(attempt) FROM trials u WHERE u.subject_id = t.subject_id AND u.slot = t.slot) ORDER BY t.slot LIMIT 1",
     )
@@ -140,10 +141,11 @@ pub async fn pending_survey<'c>(
 pub struct NewTrial<'a> {
     pub subject_id: i64,
     pub slot: u32,
-    pub practice: bool,
+    pub phase: TestPhase,
     pub seat: Seat,
     pub block: u32,
     pub position: u32,
+    pub queue_order: u32,
     pub compensator: CompensatorKind,
     pub blinded_label: &'a str,
     pub compensator_json: String,
@@ -160,12 +162,12 @@ pub struct NewTrial<'a> {
 /// Stores a scheduled test; it is queued in schedule order.
 pub async fn insert(db: &mut SqliteConnection, t: &NewTrial<'_>) -> Result<i64> {
     Ok(sqlx::query(
-        "INSERT INTO trials (subject_id, slot, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order) \
+        "INSERT INTO trials (subject_id, slot, phase, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order) \
          VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
     )
     .bind(t.subject_id)
     .bind(i64::from(t.slot))
-    .bind(t.practice)
+    .bind(t.phase.as_str())
     .bind(t.seat.as_str())
     .bind(i64::from(t.block))
     .bind(i64::from(t.position))
@@ -180,7 +182,7 @@ pub async fn insert(db: &mut SqliteConnection, t: &NewTrial<'_>) -> Result<i64> 
     .bind(t.target_std_mm)
     .bind(t.target_ms_step_mm2)
     .bind(t.protocol_hash)
-    .bind(i64::from(t.slot))
+    .bind(i64::from(t.queue_order))
     .execute(db)
     .await?
     .last_insert_rowid())
@@ -202,8 +204,8 @@ pub async fn latest_attempt<'c>(db: impl SqliteExecutor<'c>, trial: &Trial) -> R
 /// second re-queue fail.)
 pub async fn insert_next_attempt(db: &mut SqliteConnection, trial_id: i64) -> Result<i64> {
     Ok(sqlx::query(
-        "INSERT INTO trials (subject_id, slot, attempt, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order) \
-         SELECT subject_id, slot, attempt + 1, practice, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, \
+        "INSERT INTO trials (subject_id, slot, attempt, phase, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order) \
+         SELECT subject_id, slot, attempt + 1, phase, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, \
          (SELECT MAX(queue_order) + 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.block = t.block) FROM trials t WHERE id = ?",
     )
     .bind(trial_id)

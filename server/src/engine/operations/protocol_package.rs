@@ -16,6 +16,7 @@
 use std::fmt::Write;
 
 use bdft_protocol::params::{BodyModel, PlantParams, Seat};
+use bdft_protocol::records::TestPhase;
 use bdft_protocol::study::{MAX_COMMENT_CHARS, OrderDesign, RigKind, StudyParams};
 use serde_json::Value;
 
@@ -289,6 +290,21 @@ fn schedule_design(d: &mut Doc, p: &StudyParams) {
         ),
         "Subjects are blind to the compensator: they see “Controller 1…k”, a numbering drawn for each subject and kept across both seats.".into(),
         "A survey follows every scored test.".into(),
+    ]);
+    if let Some(id) = &p.identification {
+        let m = &id.excitation;
+        items.push(format!(
+            "An identification test of {} s first in each subject's block on the machine, not scored and without a survey: the seat is moved by a sum of {} sines between {} and {} Hz (the cylinder reference {} mm r.m.s., driven by the {} design; the subject's input is recorded but never moves the machine) while the subject is asked: “{}” It measures the subject's feedthrough; the vibration counts against the daily budget like every test on the machine.",
+            num(m.duration_s()),
+            m.lines,
+            num(m.f_min_hz),
+            num(m.f_max_hz),
+            num(m.rms_mm),
+            id.controller_or(p.practice_controller),
+            id.instructions_for()
+        ));
+    }
+    items.extend([
         format!(
             "A test that fails (stopped, faulted, or invalid for its display) is run again at the end of its block, at most {MAX_ATTEMPTS} attempts in all, unless the experimenter accepts it as incomplete (with a reason); no test is skipped silently."
         ),
@@ -340,17 +356,22 @@ fn randomization(d: &mut Doc, study: &Study) {
         &["Subject", "Starts", "First block", "Second block", "Labels"],
         (0..shown).map(|i| {
             let tests = schedule(p, study.seed, i);
+            // The block's tests in queue order: an identification test first, by its phase.
             let block = |b: u32| {
-                tests
+                let mut of_block: Vec<_> = tests.iter().filter(|t| t.block == b).collect();
+                of_block.sort_by_key(|t| t.queue_order);
+                of_block
                     .iter()
-                    .filter(|t| t.block == b)
-                    .map(|t| t.compensator.to_string())
+                    .map(|t| match t.phase {
+                        TestPhase::Test => t.compensator.to_string(),
+                        phase => phase.to_string(),
+                    })
                     .collect::<Vec<_>>()
                     .join(" → ")
             };
             let mut labels: Vec<String> = tests
                 .iter()
-                .filter(|t| t.block == 1)
+                .filter(|t| t.block == 1 && t.phase == TestPhase::Test)
                 .map(|t| format!("{} = {}", t.compensator, t.blinded_label))
                 .collect();
             labels.sort();

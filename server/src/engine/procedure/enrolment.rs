@@ -2,6 +2,7 @@
 //! trial); the subject's schedule and every test's target are drawn from the study seed and
 //! stored, all in one immediate transaction with the audit row.
 
+use bdft_protocol::records::TestPhase;
 use serde::Serialize;
 use sqlx::SqlitePool;
 
@@ -73,9 +74,17 @@ pub async fn enrol(
     )
     .await?;
     for t in schedule(&study.params, study.seed, index) {
-        let tg = target(&study.params, &t)?;
-        // The practice runs the study's own design of its practice compensator when the
-        // study has one, else that compensator's design for people.
+        // An identification test has no target to track: the multisine drawn from its seed
+        // moves the cab (`orchestrator::start`).
+        let (levels, mean_mm, std_mm, ms_step_mm2) = match t.phase {
+            TestPhase::Identification => (Vec::new(), 0.0, 0.0, 0.0),
+            _ => {
+                let tg = target(&study.params, &t)?;
+                (tg.levels_mm, tg.mean_mm, tg.std_mm, tg.ms_step_mm2)
+            }
+        };
+        // The practice (and an identification test) runs the study's own design of its
+        // compensator when the study has one, else that compensator's design for people.
         let spec = study
             .params
             .controllers
@@ -83,7 +92,7 @@ pub async fn enrol(
             .find(|c| c.kind() == t.compensator)
             .cloned()
             .or_else(|| {
-                t.practice.then(|| {
+                (t.phase != TestPhase::Test).then(|| {
                     bdft_controller::compensator::study_spec(t.compensator, &study.params.plant)
                 })
             })
@@ -98,7 +107,8 @@ pub async fn enrol(
             &NewTrial {
                 subject_id,
                 slot: t.slot,
-                practice: t.practice,
+                phase: t.phase,
+                queue_order: t.queue_order,
                 seat: t.seat,
                 block: t.block,
                 position: t.position,
@@ -108,10 +118,10 @@ pub async fn enrol(
                 k_bf: study.params.k_bf,
                 duration_s: t.duration_s,
                 target_seed: t.target_seed,
-                target_levels_json: serde_json::to_string(&tg.levels_mm).expect("levels serialize"),
-                target_mean_mm: tg.mean_mm,
-                target_std_mm: tg.std_mm,
-                target_ms_step_mm2: tg.ms_step_mm2,
+                target_levels_json: serde_json::to_string(&levels).expect("levels serialize"),
+                target_mean_mm: mean_mm,
+                target_std_mm: std_mm,
+                target_ms_step_mm2: ms_step_mm2,
                 protocol_hash: &hash,
             },
         )

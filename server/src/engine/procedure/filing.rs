@@ -11,17 +11,19 @@ use std::time::Duration;
 use bdft_protocol::controller_to_server::TrialResult;
 use bdft_protocol::exposure::{ACTION_A8_M_S2, ACTION_VDV_M_S175, DoseSum};
 use bdft_protocol::params::Seat;
-use bdft_protocol::records::TrialStatus;
+use bdft_protocol::records::{TestPhase, TrialStatus};
 use bdft_protocol::trial::{FaultKind, Metrics, Outcome};
 use serde::Serialize;
 use sqlx::SqlitePool;
 
+use super::identification::{self, Measured};
 use super::lsl;
 use super::queue::requeue_failed;
 use crate::engine::machine::controller_link::{BoxFuture, ControllerEvent, ControllerLink, Filing};
 use crate::engine::study::exposure::{action_values_reached, last_24h};
-use crate::error::Result;
+use crate::error::{AppError, Result};
 use crate::store::records::Record;
+use crate::store::trials::Trial;
 use crate::store::{self, Change};
 
 /// How an outcome is filed: the experimenter's abort and the E-stop are "aborted"; any other
@@ -57,12 +59,21 @@ pub async fn file_result(
     record: &Record,
 ) -> Result<bool> {
     let (status, reason) = filing(&result.outcome);
+    let measured = match status {
+        TrialStatus::Complete => measure_identification(pool, result, record).await?,
+        _ => None,
+    };
     let mut change = Change::begin(pool, actor).await?;
     let Some((status, reason)) =
         store::records::file_result(change.db(), result, status, reason.as_deref(), record).await?
     else {
         return Ok(false);
     };
+    // Filed complete only now: a test found invalid while it ran stays invalid, and then
+    // it measured nothing.
+    if let (TrialStatus::Complete, Some((trial, m))) = (status, &measured) {
+        identification::store(&mut change, trial, m).await?;
+    }
     let requeued = requeue_failed(change.db(), result.trial_id as i64).await?;
     audit_action_values(&mut change, result).await?;
     change
@@ -79,6 +90,28 @@ pub async fn file_result(
         .await?;
     lsl::test_filed(pool, result, status.as_str()).await;
     Ok(true)
+}
+
+/// What the record of `result`'s trial measured, when it is an identification test.
+async fn measure_identification(
+    pool: &SqlitePool,
+    result: &TrialResult,
+    record: &Record,
+) -> Result<Option<(Trial, Measured)>> {
+    let trial = match store::trials::get(pool, result.trial_id as i64).await {
+        Ok(t) => t,
+        // Not a trial of ours (the file_result below says so).
+        Err(AppError::NotFound(_)) => return Ok(None),
+        Err(e) => return Err(e),
+    };
+    if trial.phase != TestPhase::Identification {
+        return Ok(None);
+    }
+    let subject = store::subjects::get(pool, trial.subject_id).await?;
+    let study = store::studies::get(pool, subject.study_id).await?;
+    Ok(identification::measure(&study.params, &trial, record)
+        .await
+        .map(|m| (trial, m)))
 }
 
 /// What `exposure.action_value` records: a test took its subject's daily exposure (the 24 h

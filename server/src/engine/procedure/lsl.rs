@@ -15,6 +15,7 @@ use std::sync::{Mutex, OnceLock};
 use bdft_controller::lsl::streams::{Scope, StreamTags, marker_stream};
 use bdft_protocol::controller_to_server::TrialResult;
 use bdft_protocol::params::Seat;
+use bdft_protocol::records::TestPhase;
 use bdft_protocol::server_to_controller::{LslStation, ServerToController};
 use bdft_protocol::trial::{FaultKind, Outcome};
 use labstream_net::Outlet;
@@ -35,7 +36,7 @@ pub enum Marker<'a> {
     /// label the subject sees (never the compensator).
     TestStart {
         trial_id: i64,
-        phase: Phase,
+        phase: TestPhase,
         seat: Seat,
         block: i64,
         attempt: i64,
@@ -56,14 +57,6 @@ pub enum Marker<'a> {
     EStop {},
     /// The cab-vibration interlock stopped the test.
     Interlock { trial_id: i64 },
-}
-
-/// Which part of the protocol a test belongs to.
-#[derive(Debug, Clone, Copy, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Phase {
-    Practice,
-    Main,
 }
 
 struct Markers {
@@ -231,11 +224,7 @@ async fn try_mark_trial(pool: &SqlitePool, trial_id: i64, marker: Marker<'_>) ->
 pub async fn test_started(pool: &SqlitePool, trial: &Trial) {
     let marker = Marker::TestStart {
         trial_id: trial.id,
-        phase: if trial.practice {
-            Phase::Practice
-        } else {
-            Phase::Main
-        },
+        phase: trial.phase,
         seat: trial.seat,
         block: trial.block,
         attempt: trial.attempt,

@@ -3,6 +3,7 @@
 
 use bdft_controller::rng::Rng;
 use bdft_protocol::params::{CompensatorSpec, Seat, SubjectDraw};
+use bdft_protocol::records::TestPhase;
 use bdft_protocol::server_to_controller::StartTrial;
 use bdft_protocol::study::StudyParams;
 use bdft_protocol::trial::{InputSource, TargetSpec};
@@ -10,6 +11,7 @@ use bdft_protocol::trial::{InputSource, TargetSpec};
 use sqlx::SqliteConnection;
 
 use crate::engine::study::exposure::allowance_for;
+use crate::engine::study::schedule::identification_target;
 use crate::engine::study::synthetic::operator_and_body;
 use crate::error::{AppError, Result};
 use crate::store::studies::Study;
@@ -35,7 +37,7 @@ pub struct TestRun {
     /// Place in the subject's schedule (0 = practice): how far they have learned.
     pub slot: u32,
     pub k_bf: f64,
-    pub levels_mm: Vec<f64>,
+    pub target: TargetSpec,
     pub duration_s: f64,
     pub target_seed: u64,
 }
@@ -50,9 +52,29 @@ pub fn start_message(study: &Study, trial: &Trial, operator: Operator) -> Result
         compensator: serde_json::from_str(&trial.compensator_json)
             .map_err(|e| bad("compensator", e))?,
         seat: trial.seat,
-        slot: u32::try_from(trial.slot).unwrap_or(0),
+        // How far the subject has learned: an identification test comes after as many
+        // tests as its queue order says (its slot is after every scored test).
+        slot: u32::try_from(match trial.phase {
+            TestPhase::Identification => trial.queue_order,
+            _ => trial.slot,
+        })
+        .unwrap_or(0),
         k_bf: trial.k_bf,
-        levels_mm: serde_json::from_str(&trial.target_levels_json).map_err(|e| bad("target", e))?,
+        target: match trial.phase {
+            TestPhase::Identification => {
+                identification_target(&study.params, trial.target_seed as u64).ok_or_else(|| {
+                    AppError::Internal(anyhow::anyhow!(
+                        "trial {} is an identification test of a study without identification",
+                        trial.id
+                    ))
+                })?
+            }
+            _ => TargetSpec::Steps {
+                interval_s: study.params.step_interval_s,
+                levels_mm: serde_json::from_str(&trial.target_levels_json)
+                    .map_err(|e| bad("target", e))?,
+            },
+        },
         duration_s: trial.duration_s,
         target_seed: trial.target_seed as u64,
     };
@@ -91,10 +113,7 @@ pub fn start(params: &StudyParams, run: TestRun, operator: Operator) -> StartTri
         compensator: run.compensator,
         station: run.seat,
         k_bf: run.k_bf,
-        target: TargetSpec::Steps {
-            interval_s: params.step_interval_s,
-            levels_mm: run.levels_mm,
-        },
+        target: run.target,
         duration_s: run.duration_s,
         input,
         plant: params.plant,

@@ -6,7 +6,7 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use bdft_protocol::params::Seat;
-use bdft_protocol::records::{ConsentDecision, DoneReason, StationRole, TrialStatus};
+use bdft_protocol::records::{ConsentDecision, DoneReason, StationRole, TestPhase, TrialStatus};
 use bdft_protocol::server_to_browser::{
     MonitorStation, MonitorTest, MonitorView, Phase, StationInfo, StationView, TestView,
 };
@@ -352,7 +352,9 @@ async fn subject_phase<T>(
         });
     }
     let trials = store::trials::of_subject(pool, subject_id).await?;
-    let total = latest_attempts(&trials).filter(|t| !t.practice).count();
+    let total = latest_attempts(&trials)
+        .filter(|t| t.phase.scored())
+        .count();
     let Some(t) = store::trials::next(pool, subject_id).await? else {
         // Never "done" while a test is missing: one that failed too often waits for the
         // experimenter.
@@ -374,7 +376,15 @@ async fn subject_phase<T>(
     let view = TestView {
         trial_id: t.id,
         label: t.blinded_label.clone(),
-        practice: t.practice,
+        phase: t.phase,
+        instructions: (t.phase == TestPhase::Identification).then(|| {
+            study
+                .params
+                .identification
+                .as_ref()
+                .map(|id| id.instructions_for())
+                .unwrap_or_default()
+        }),
         number: t.slot,
         of: total as i64,
         duration_s: t.duration_s,

@@ -3,7 +3,7 @@
 //! the subject's own page.
 
 use bdft_protocol::browser_to_server::{RttPercentiles, SurveySubmission, TimingReport};
-use bdft_protocol::records::{ConsentDecision, TrialStatus};
+use bdft_protocol::records::{ConsentDecision, TestPhase, TrialStatus};
 use bdft_protocol::server_to_controller::ServerToController;
 use serde::Serialize;
 use sqlx::SqlitePool;
@@ -64,7 +64,7 @@ pub async fn answer_survey(
     trial: &Trial,
     answer: &SurveySubmission,
 ) -> Result<()> {
-    if trial.practice || trial.status != TrialStatus::Complete {
+    if !trial.phase.scored() || trial.status != TrialStatus::Complete {
         return Err(AppError::Conflict(
             "only a completed test has a survey".into(),
         ));
@@ -211,7 +211,7 @@ pub async fn progress_of_study(pool: &SqlitePool, study_id: i64) -> Result<Vec<S
     let mut out = Vec::new();
     for subject in store::subjects::of_study(pool, study_id).await? {
         let trials = store::trials::of_subject(pool, subject.id).await?;
-        let scored = || latest_attempts(&trials).filter(|t| !t.practice);
+        let scored = || latest_attempts(&trials).filter(|t| t.phase.scored());
         out.push(SubjectProgress {
             tests_complete: scored()
                 .filter(|t| t.status == TrialStatus::Complete)
@@ -270,7 +270,7 @@ pub struct OwnTest {
     pub label: String,
     pub station: bdft_protocol::params::Seat,
     pub status: TrialStatus,
-    pub practice: bool,
+    pub phase: TestPhase,
 }
 
 /// The subject's own page: their progress, blinded (no compensator names, no metrics).
@@ -288,7 +288,7 @@ pub struct OwnProgress {
 
 pub async fn own_progress(pool: &SqlitePool, subject: Subject) -> Result<OwnProgress> {
     let trials = store::trials::of_subject(pool, subject.id).await?;
-    let scored = || latest_attempts(&trials).filter(|t| !t.practice);
+    let scored = || latest_attempts(&trials).filter(|t| t.phase.scored());
     Ok(OwnProgress {
         tests_complete: scored()
             .filter(|t| t.status == TrialStatus::Complete)
@@ -299,7 +299,7 @@ pub async fn own_progress(pool: &SqlitePool, subject: Subject) -> Result<OwnProg
                 label: t.blinded_label.clone(),
                 station: t.seat,
                 status: t.status,
-                practice: t.practice,
+                phase: t.phase,
             })
             .collect(),
         code: subject.code,

@@ -1,13 +1,15 @@
 //! Room **results**: what a study's data become — descriptive statistics (`stats`), the
 //! inferential tests (`inference`, pure functions on numbers) and their table
 //! (`inference_table`), the learning curve (`learning`), the figures (`plots`, and the
-//! results page's set in `page`) and every export (`export`). What counts in an analysis is
-//! decided once (`study_data`).
+//! results page's set in `page`), every export (`export`) and a subject's identification
+//! tests against the population (`identification`). What counts in an analysis is decided
+//! once (`study_data`).
 //!
 //! *May use:* `study`, `machine` (a bench run's results, for their export). Read-only on the
 //! store: nothing here changes a study.
 
 pub mod export;
+pub mod identification;
 pub mod inference;
 pub mod inference_table;
 pub mod learning;

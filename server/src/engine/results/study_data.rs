@@ -26,7 +26,7 @@ pub const SUMMARY_VARIABLES: [&str; 6] = [
 /// Whether an attempt is a valid measurement: a test, not the practice, that ran complete.
 /// (The trials export's `valid` flag.)
 pub fn valid(r: &TrialExportRow) -> bool {
-    !r.practice && r.status == TrialStatus::Complete
+    r.phase.scored() && r.status == TrialStatus::Complete
 }
 
 /// Whether an attempt counts in the analyses: valid and the latest attempt of its test, so

@@ -5,10 +5,13 @@
 use bdft_controller::compensator::study_spec;
 use bdft_controller::rng::Rng;
 use bdft_controller::signals::StepTarget;
+use bdft_protocol::identification::MultisineSpec;
 use bdft_protocol::params::{CompensatorKind, ParamError, PlantParams, Seat, StepParams};
+use bdft_protocol::records::TestPhase;
 use bdft_protocol::study::{
     ConsentForm, OrderDesign, RigKind, StudyParams, StudyTexts, SurveyParams,
 };
+use bdft_protocol::trial::TargetSpec;
 use serde::{Deserialize, Serialize};
 
 use super::williams;
@@ -50,6 +53,7 @@ pub fn default_params() -> StudyParams {
         max_frame_gap_ms: 1000.0,
         exposure_budget_a8_m_s2: bdft_protocol::exposure::ACTION_A8_M_S2,
         exposure_budget_vdv_m_s175: bdft_protocol::exposure::ACTION_VDV_M_S175,
+        identification: None,
     }
 }
 
@@ -71,14 +75,18 @@ pub fn protocol_hash(params: &StudyParams) -> String {
 /// One entry of a subject's schedule.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ScheduledTest {
-    /// 0 = practice, then 1.. in order.
+    /// 0 = practice, then 1.. for the scored tests in order; an identification test comes
+    /// after them (its place in the queue is `queue_order`).
     pub slot: u32,
-    pub practice: bool,
+    pub phase: TestPhase,
     pub seat: Seat,
     /// 0 for the practice, 1 for the starting seat, 2 for the other.
     pub block: u32,
-    /// Position within the block, from 1 (0 for the practice).
+    /// Position within the block, from 1 (0 for the practice and an identification test).
     pub position: u32,
+    /// Where the test stands in its block's queue: its slot, but an identification test
+    /// goes first in the block on the machine.
+    pub queue_order: u32,
     pub compensator: CompensatorKind,
     /// What the subject sees ("Controller 3", "Practice").
     pub blinded_label: String,
@@ -161,10 +169,11 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
     if params.practice_s > 0.0 {
         out.push(ScheduledTest {
             slot: 0,
-            practice: true,
+            phase: TestPhase::Practice,
             seat: Seat::Off,
             block: 0,
             position: 0,
+            queue_order: 0,
             compensator: params.practice_controller,
             blinded_label: "Practice".into(),
             duration_s: params.practice_s,
@@ -176,12 +185,14 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
         .enumerate()
     {
         for (i, &k) in order.iter().enumerate() {
+            let slot = (block * kinds.len() + i + 1) as u32;
             out.push(ScheduledTest {
-                slot: (block * kinds.len() + i + 1) as u32,
-                practice: false,
+                slot,
+                phase: TestPhase::Test,
                 seat,
                 block: block as u32 + 1,
                 position: i as u32 + 1,
+                queue_order: slot,
                 compensator: k,
                 blinded_label: label_of(k),
                 duration_s: params.trial_s,
@@ -189,7 +200,46 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
             });
         }
     }
+    if let Some(id) = &params.identification {
+        // Drawn after every other test's seed, so adding identification to a study leaves
+        // its orders, labels and targets as they were.
+        let seed = rng.next_u64() >> 11;
+        let block = if start == Seat::On { 1 } else { 2 };
+        let first_slot = if block == 1 {
+            1
+        } else {
+            kinds.len() as u32 + 1
+        };
+        out.push(ScheduledTest {
+            slot: 2 * kinds.len() as u32 + 1,
+            phase: TestPhase::Identification,
+            seat: Seat::On,
+            block,
+            position: 0,
+            // Before the block's first test: the queue orders by block, then this.
+            queue_order: first_slot - 1,
+            compensator: id.controller_or(params.practice_controller),
+            blinded_label: "Identification".into(),
+            duration_s: id.excitation.duration_s(),
+            target_seed: seed,
+        });
+    }
     out
+}
+
+/// What moves the cab in a study's identification test whose phases are drawn from `seed`
+/// (the test's `target_seed`); none when the study has no identification test.
+pub fn identification_target(params: &StudyParams, seed: u64) -> Option<TargetSpec> {
+    params
+        .identification
+        .as_ref()
+        .map(|id| TargetSpec::Identification {
+            excitation: MultisineSpec {
+                seed,
+                ..id.excitation
+            },
+            task: id.task,
+        })
 }
 
 /// The target of one test: steps every `step_interval_s`, within ±range, zero mean and the
@@ -300,7 +350,7 @@ mod tests {
             let s = schedule(&p, 99, idx);
             assert_eq!(s, schedule(&p, 99, idx), "reproducible");
             assert_eq!(s.len(), 11);
-            assert!(s[0].practice && s[0].seat == Seat::Off);
+            assert!(s[0].phase == TestPhase::Practice && s[0].seat == Seat::Off);
             let start = if idx % 2 == 0 { Seat::On } else { Seat::Off };
             let block = |b| s.iter().filter(move |t| t.block == b).collect::<Vec<_>>();
             let (b1, b2) = (block(1), block(2));
@@ -403,7 +453,7 @@ mod tests {
                 assert_eq!(s, schedule(&p, 5, idx), "reproducible");
                 let order = |seat: Seat| -> Vec<usize> {
                     s.iter()
-                        .filter(|t| !t.practice && t.seat == seat)
+                        .filter(|t| t.phase == TestPhase::Test && t.seat == seat)
                         .map(|t| kinds.iter().position(|&c| c == t.compensator).unwrap())
                         .collect()
                 };

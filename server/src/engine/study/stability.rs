@@ -1,7 +1,10 @@
 //! The stability gate: every compensator of a study analysed at the study's K_BF with its
 //! plant and body — on the machine (feedthrough loop closed) and off it — before a person
 //! runs it. A study on the real machine whose on-machine design is unstable cannot be
-//! locked; a simulated one needs an explicit, audited acknowledgement.
+//! locked; a simulated one needs an explicit, audited acknowledgement. The off-machine
+//! verdict is also the gate of an identification test's disturbance: the multisine drives
+//! the boom through one of the study's designs with no feedthrough (K_BF = 0 for the loop),
+//! which is that design's loop off the machine.
 //!
 //! The analysis reads the one-tick map off the loop that runs (`bdft_controller::analysis`)
 //! and can take a second or more, so reports are computed off the async threads, once per distinct set

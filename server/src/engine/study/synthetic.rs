@@ -93,7 +93,7 @@ pub async fn answer_survey(
         return Ok(());
     };
     let trial = store::trials::get(pool, trial.id).await?;
-    if trial.practice || trial.status != TrialStatus::Complete {
+    if !trial.phase.scored() || trial.status != TrialStatus::Complete {
         return Ok(());
     }
     let channel = |name: &str| {

@@ -5,7 +5,7 @@
 use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex};
 
-use bdft_protocol::records::TrialStatus;
+use bdft_protocol::records::{TestPhase, TrialStatus};
 use bdft_protocol::trial::Metrics;
 use serde::{Deserialize, Serialize};
 use sqlx::SqlitePool;
@@ -56,7 +56,7 @@ async fn study_target(
     let rows = store::exports::trial_rows(pool, study_id, Withdrawn::LeftOut).await?;
     let mut subjects: Vec<(String, Vec<Option<Metrics>>)> = Vec::new();
     for r in rows {
-        if r.practice || !r.latest || r.status != TrialStatus::Complete {
+        if r.phase != TestPhase::Test || !r.latest || r.status != TrialStatus::Complete {
             continue;
         }
         let (Some(mse), Some(acc)) = (r.mse_tracking_mm2, r.ms_cab_accel) else {

@@ -13,9 +13,11 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use bdft_controller::batch::LANES;
 use bdft_protocol::params::{CompensatorSpec, Seat};
+use bdft_protocol::records::TestPhase;
 use bdft_protocol::server_to_controller::StartTrial;
 use bdft_protocol::study::StudyParams;
 use bdft_protocol::trial::Metrics;
+use bdft_protocol::trial::TargetSpec;
 
 use crate::engine::dry_runs::job::Progress;
 use crate::engine::procedure::orchestrator::{Operator, TestRun, start};
@@ -55,7 +57,7 @@ pub(super) fn trial(
     let tests = schedule(params, seed, index);
     let t = tests
         .iter()
-        .find(|t| !t.practice && t.seat == seat && t.compensator == spec.kind())
+        .find(|t| t.phase == TestPhase::Test && t.seat == seat && t.compensator == spec.kind())
         .ok_or_else(|| {
             AppError::BadRequest(format!(
                 "station: the study schedules no {} test at the {} seat",
@@ -66,13 +68,17 @@ pub(super) fn trial(
     let levels_mm = target(params, t)
         .map_err(|e| AppError::BadRequest(e.to_string()))?
         .levels_mm;
+    let target = TargetSpec::Steps {
+        interval_s: params.step_interval_s,
+        levels_mm,
+    };
     let run = TestRun {
         trial_id: 0,
         compensator: spec.clone(),
         seat,
         slot: t.slot,
         k_bf: params.k_bf,
-        levels_mm,
+        target,
         duration_s: t.duration_s,
         target_seed: t.target_seed,
     };

@@ -146,6 +146,7 @@ impl BenchJob {
             ));
         }
         let (target, duration_s) = target(req, seed)?;
+        let signal = signal_kind(&target)?;
         let compensators = resolve(pool, &req.compensators, &params.plant).await?;
         let starts: Vec<StartTrial> = compensators
             .iter()
@@ -209,7 +210,7 @@ impl BenchJob {
                 Some(format!("bench_run:{run_id}")),
                 Started {
                     compensators: compensators.iter().map(|c| c.label.as_str()).collect(),
-                    signal: signal_kind(&target),
+                    signal,
                     duration_s,
                     seed,
                     study_id: req.study_id,
@@ -316,13 +317,22 @@ async fn check_real_rig(pool: &SqlitePool, link: &ControllerLink) -> Result<()> 
     Ok(())
 }
 
-fn signal_kind(t: &TargetSpec) -> &'static str {
-    match t {
+/// The bench signal a target is; an identification test is no bench signal (it needs a
+/// person on the seat and runs from a study's schedule), so a bench run refuses it.
+fn signal_kind(t: &TargetSpec) -> Result<&'static str> {
+    Ok(match t {
         TargetSpec::Steps { .. } => "steps",
         TargetSpec::SweptSine { .. } => "swept-sine",
         TargetSpec::Trapezoid { .. } => "trapezoid",
         TargetSpec::Sampled { .. } => "csv",
-    }
+        TargetSpec::Identification { .. } => {
+            return Err(AppError::BadRequest(
+                "target.kind: identification is not a bench signal; allowed: steps, \
+                 swept-sine, trapezoid, csv"
+                    .into(),
+            ));
+        }
+    })
 }
 
 /// Runs each compensator in turn off the async threads and stores its result.

@@ -134,7 +134,7 @@ const PHASE: Column = col(
     "phase",
     "",
     TEXT,
-    "practice (the unscored warm-up: no compensator, block or position of its own) or test",
+    "practice (the unscored warm-up: no compensator, block or position of its own), test, or identification (the cab moved by a multisine while the subject held the device: unscored, no compensator of its own)",
 );
 const STATION: Column = col(
     "station",
@@ -455,8 +455,83 @@ pub fn subjects(drawn_keys: &[String]) -> Vec<Column> {
             "the highest daily vibration dose value (Σ VDV_i⁴)^¼ over the same days; empty as a8_max_m_s2",
         ),
     ];
+    for (key, unit, meaning) in IDENTIFIED {
+        for (suffix, what) in [
+            ("", "fitted"),
+            ("_lo", "lower 95 % bound of the fitted"),
+            ("_hi", "upper 95 % bound of the fitted"),
+        ] {
+            c.push(Column {
+                name: format!("identified.{key}{suffix}").into(),
+                unit: unit.into(),
+                ty: num(6),
+                meaning: format!(
+                    "{what} {meaning}, from the subject's latest identification test with a fit (the identification export has its points); empty without one"
+                )
+                .into(),
+            });
+        }
+    }
+    c.push(col(
+        "identified.residual_rms",
+        "",
+        num(6),
+        "RMS of that fit's residual, |ln(model / measured)| over its points",
+    ));
     c.extend(drawn_keys.iter().map(|k| drawn_column(k)));
     c
+}
+
+/// The seated body's parameters an identification test fits, with unit and meaning, in
+/// the subjects export's order.
+pub const IDENTIFIED: [(&str, &str, &str); 5] = [
+    (
+        "k_h",
+        "",
+        "feedthrough gain k_h of the seated body (h = k_h·(1 − T·A)·x_c)",
+    ),
+    ("torso_f_hz", "Hz", "torso resonance frequency"),
+    ("torso_zeta", "", "torso damping ratio"),
+    (
+        "arm_f_hz",
+        "Hz",
+        "arm resonance frequency, as gripped during the test",
+    ),
+    ("arm_zeta", "", "arm damping ratio"),
+];
+
+pub fn identification() -> Vec<Column> {
+    let mag = |name, meaning| col(name, "mm/(m/s²)", num(6), meaning);
+    let deg = |name, meaning| col(name, "deg", num(3), meaning);
+    vec![
+        STUDY_ID,
+        SUBJECT_CODE,
+        col("trial_id", "", INT, "the identification test's attempt"),
+        col(
+            "f_hz",
+            "Hz",
+            num(4),
+            "an excited frequency of the multisine",
+        ),
+        mag(
+            "magnitude",
+            "|device position / cab acceleration| at f_hz, averaged over the test's periods",
+        ),
+        mag("magnitude_lo", "lower 95 % bound of magnitude"),
+        mag("magnitude_hi", "upper 95 % bound of magnitude"),
+        deg(
+            "phase_deg",
+            "phase of device position / cab acceleration at f_hz",
+        ),
+        deg("phase_lo_deg", "lower 95 % bound of phase_deg"),
+        deg("phase_hi_deg", "upper 95 % bound of phase_deg"),
+        col(
+            "coherence",
+            "",
+            num(4),
+            "squared coherence of cab acceleration and device position over the periods (0–1)",
+        ),
+    ]
 }
 
 /// A drawn parameter's column: its key carries the unit (`reaction_delay_s`).

@@ -36,12 +36,13 @@ pub enum ExportKind {
     Summary,
     Stats,
     Notes,
+    Identification,
     Audit,
 }
 
 impl ExportKind {
     /// Every kind, in the codebook's order.
-    pub const ALL: [Self; 8] = [
+    pub const ALL: [Self; 9] = [
         Self::Trials,
         Self::Samples,
         Self::Subjects,
@@ -49,6 +50,7 @@ impl ExportKind {
         Self::Summary,
         Self::Stats,
         Self::Notes,
+        Self::Identification,
         Self::Audit,
     ];
 
@@ -61,6 +63,7 @@ impl ExportKind {
             Self::Summary => "summary",
             Self::Stats => "stats",
             Self::Notes => "notes",
+            Self::Identification => "identification",
             Self::Audit => "audit",
         }
     }

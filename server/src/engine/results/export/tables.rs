@@ -3,11 +3,13 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
+use bdft_protocol::identification::{BodyFit, Estimate};
+use bdft_protocol::records::TestPhase;
 use bdft_protocol::study::SurveyParams;
 use sqlx::SqlitePool;
 use tokio::io::AsyncWrite;
 
-use super::columns::{self, Column};
+use super::columns::{self, Column, IDENTIFIED};
 use super::sink::{Cell, TableWriter};
 use super::{ExportError, ExportKind, ExportRequest, SampleCut};
 use crate::engine::results::inference_table::study_table;
@@ -74,6 +76,7 @@ pub fn columns_of(kind: ExportKind, cx: &StudyContext) -> Vec<Column> {
         ExportKind::Summary => columns::summary(),
         ExportKind::Stats => columns::stats(),
         ExportKind::Notes => columns::notes(),
+        ExportKind::Identification => columns::identification(),
         ExportKind::Audit => columns::audit(),
     }
 }
@@ -95,6 +98,7 @@ pub async fn write_rows<W: AsyncWrite + Unpin>(
         ExportKind::Summary => summary(pool, study_id, &cx.survey, t).await,
         ExportKind::Stats => stats(pool, study_id, &cx.survey, t).await,
         ExportKind::Notes => notes(pool, study_id, t).await,
+        ExportKind::Identification => identification(pool, study_id, t).await,
         ExportKind::Audit => audit(pool, t).await,
     }
 }
@@ -107,17 +111,18 @@ fn time(ms: Option<i64>) -> Cell<'static> {
     Cell::Text(ms.map(|ms| rfc3339(ms).into()))
 }
 
-fn phase(practice: bool) -> Cell<'static> {
-    Cell::text(if practice { "practice" } else { "test" })
+fn phase(p: TestPhase) -> Cell<'static> {
+    Cell::text(p.as_str())
 }
 
-/// A test-only cell: empty for the practice, so that it cannot be read as a PID-off test.
-fn test_only<'a>(practice: bool, cell: Cell<'a>) -> Cell<'a> {
-    match (practice, cell) {
-        (false, c) => c,
-        (true, Cell::Int(_)) => Cell::Int(None),
-        (true, Cell::Num(_)) => Cell::Num(None),
-        (true, Cell::Text(_)) => Cell::Text(None),
+/// A test-only cell: empty for the practice and an identification test, so that neither
+/// can be read as a test of its compensator.
+fn test_only(p: TestPhase, cell: Cell<'_>) -> Cell<'_> {
+    match (p.scored(), cell) {
+        (true, c) => c,
+        (false, Cell::Int(_)) => Cell::Int(None),
+        (false, Cell::Num(_)) => Cell::Num(None),
+        (false, Cell::Text(_)) => Cell::Text(None),
     }
 }
 
@@ -134,7 +139,7 @@ async fn trials<W: AsyncWrite + Unpin>(
 
 /// A trials export row: the cells of `columns::trials`, in its order.
 pub fn trial_cells(r: &TrialExportRow) -> Vec<Cell<'_>> {
-    let p = r.practice;
+    let p = r.phase;
     let rating = |v: Option<i64>| Cell::Int(v);
     let mut cells = vec![
         Cell::Int(Some(r.study_id)),
@@ -224,7 +229,7 @@ async fn samples<W: AsyncWrite + Unpin>(
     for r in store::exports::recorded_trials(pool, study_id, code, trial).await? {
         // One trial's record in memory at a time (about 5 MB for 140 s).
         let store::records::Record { dt, channels } = store::records::get(pool, r.trial_id).await?;
-        let p = r.practice;
+        let p = r.phase;
         let mut cells = vec![
             Cell::Int(Some(study_id)),
             Cell::text(r.code.as_str()),
@@ -288,6 +293,23 @@ async fn subjects<W: AsyncWrite + Unpin>(
             Cell::Num(most(|d| d.a8_m_s2)),
             Cell::Num(most(|d| d.vdv_m_s175)),
         ]);
+        // The body fitted by the subject's latest identification test that has a fit.
+        let fit = store::identifications::of_subject(pool, s.id)
+            .await?
+            .into_iter()
+            .rev()
+            .find_map(|i| i.fit);
+        for e in fit.as_ref().map(identified).unwrap_or_default() {
+            cells.extend([
+                Cell::Num(Some(e.value)),
+                Cell::Num(Some(e.lo)),
+                Cell::Num(Some(e.hi)),
+            ]);
+        }
+        if fit.is_none() {
+            cells.extend((0..3 * IDENTIFIED.len()).map(|_| Cell::Num(None)));
+        }
+        cells.push(Cell::Num(fit.as_ref().map(|f| f.residual_rms)));
         cells.extend(
             drawn_columns
                 .iter()
@@ -298,12 +320,43 @@ async fn subjects<W: AsyncWrite + Unpin>(
     Ok(())
 }
 
+/// The identified body's parameters in the subjects export's order (`columns::IDENTIFIED`).
+fn identified(f: &BodyFit) -> Vec<Estimate> {
+    vec![f.k_h, f.torso_f_hz, f.torso_zeta, f.arm_f_hz, f.arm_zeta]
+}
+
+async fn identification<W: AsyncWrite + Unpin>(
+    pool: &SqlitePool,
+    study_id: i64,
+    t: Table<'_, W>,
+) -> Result<(), ExportError> {
+    for (code, i) in store::identifications::of_study(pool, study_id).await? {
+        for p in &i.points {
+            t.row(&[
+                Cell::Int(Some(study_id)),
+                Cell::text(code.as_str()),
+                Cell::Int(Some(i.trial_id)),
+                Cell::Num(Some(p.f_hz)),
+                Cell::Num(Some(p.magnitude)),
+                Cell::Num(Some(p.magnitude_lo)),
+                Cell::Num(Some(p.magnitude_hi)),
+                Cell::Num(Some(p.phase_deg)),
+                Cell::Num(Some(p.phase_lo_deg)),
+                Cell::Num(Some(p.phase_hi_deg)),
+                Cell::Num(Some(p.coherence)),
+            ])
+            .await?;
+        }
+    }
+    Ok(())
+}
+
 /// The schedule's order: each seat's compensators in schedule (slot) order, from the first
 /// attempts (`on: pid > lqr > … | off: …`).
 fn order_summary(trials: &[&TrialExportRow]) -> String {
     let mut tests: Vec<&&TrialExportRow> = trials
         .iter()
-        .filter(|r| !r.practice && r.attempt == 1)
+        .filter(|r| r.phase.scored() && r.attempt == 1)
         .collect();
     tests.sort_by_key(|r| r.slot);
     let mut blocks: Vec<(&str, Vec<&str>)> = Vec::new();

@@ -397,6 +397,10 @@ pub fn events_json() -> Vec<u8> {
             &[
                 ("practice", "practice before the scored tests"),
                 ("test", "a scored test"),
+                (
+                    "identification",
+                    "the cab moved by a multisine while the subject held the device (unscored)",
+                ),
             ],
         ),
     );
@@ -412,10 +416,10 @@ pub fn events_tsv(row: &TrialExportRow, record: &Record) -> Vec<u8> {
         out.push_str(name);
     }
     let test_only = |s: &str| {
-        if row.practice {
-            "n/a".to_string()
-        } else {
+        if row.phase.scored() {
             one_line(s)
+        } else {
+            "n/a".to_string()
         }
     };
     let cells = [
@@ -431,7 +435,7 @@ pub fn events_tsv(row: &TrialExportRow, record: &Record) -> Vec<u8> {
     out.push_str(&format!(
         "\n0\t{}\t{}",
         bdft_protocol::numbers::format_number(samples as f64 * record.dt, 3),
-        if row.practice { "practice" } else { "test" }
+        row.phase.as_str()
     ));
     for c in cells {
         out.push('\t');

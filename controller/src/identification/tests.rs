@@ -1,0 +1,440 @@
+//! The identification test run through the controller's own trial set-up: the multisine is
+//! the cylinder reference whatever the hand does, and the synthetic subject holds still.
+
+use bdft_protocol::identification::{Estimate, IdentificationTask, MultisineSpec};
+use bdft_protocol::params::{BodyModel, OperatorParams, Seat};
+use bdft_protocol::server_to_controller::{DEFAULT_MAX_CAB_RMS_MM_S2, StartTrial};
+use bdft_protocol::trial::{InputSource, TargetSpec};
+
+use super::Multisine;
+use crate::compensator::variants;
+use crate::params::PlantParams;
+use crate::runner::Sample;
+use crate::runtime::setup::build_runner;
+use crate::runtime::slot::SlotLoop;
+
+pub(crate) const DT: f64 = 1e-3;
+
+/// An identification trial of `spec` on the simulated rig, seat on, under the PID.
+pub(crate) fn start_trial(
+    spec: MultisineSpec,
+    task: IdentificationTask,
+    input: InputSource,
+    body: BodyModel,
+    noise_seed: u64,
+) -> StartTrial {
+    let plant = PlantParams::default();
+    StartTrial {
+        trial_id: 1,
+        compensator: variants::variant("pid", &plant, DT).unwrap(),
+        station: Seat::On,
+        k_bf: 0.6,
+        target: TargetSpec::Identification {
+            excitation: spec,
+            task,
+        },
+        duration_s: spec.duration_s(),
+        input,
+        plant,
+        body,
+        noise_seed,
+        live_rate_hz: 100.0,
+        stale_input_ms: 100.0,
+        max_cab_rms_mm_s2: DEFAULT_MAX_CAB_RMS_MM_S2,
+        exposure_allowance: None,
+    }
+}
+
+#[test]
+fn the_hand_is_recorded_but_never_reaches_the_cylinder_reference() {
+    let spec = MultisineSpec {
+        periods: 2,
+        ..MultisineSpec::default()
+    };
+    let st = start_trial(
+        spec,
+        IdentificationTask::HoldStill,
+        InputSource::Server,
+        crate::model::SEATED_FOR_TESTS,
+        3,
+    );
+    let (mut runner, input) = build_runner(&st, DT, false).unwrap();
+    assert!(input.is_some(), "server input feeds the hand");
+    let m = Multisine::new(&spec, DT).unwrap();
+    let mut k = 0u64;
+    let mut moved = 0.0f64;
+    while !runner.done() {
+        // A large, changing hand: ±40 mm at 0.7 Hz.
+        let hand = 40.0 * (k as f64 * 0.0044).sin();
+        let s: Sample = runner.tick(hand);
+        assert_eq!(s.r_c, m.at_tick(k), "tick {k}");
+        assert_eq!(s.target, s.r_c);
+        assert_eq!(s.hand, hand);
+        assert_eq!(s.device(), hand - s.feedthrough);
+        moved = moved.max(s.feedthrough.abs());
+        k += 1;
+    }
+    assert_eq!(k, 30_000);
+    // The seat is on: the body is shaken and its feedthrough is in the device channel.
+    assert!(moved > 0.01, "{moved}");
+}
+
+#[test]
+fn the_synthetic_subject_holds_its_remnant_and_grips_only_when_holding_still() {
+    let spec = MultisineSpec {
+        periods: 2,
+        rms_mm: 8.0,
+        ..MultisineSpec::default()
+    };
+    let op = OperatorParams {
+        grip_stiffening_per_m_s2: 0.5,
+        ..OperatorParams::default()
+    };
+    let run = |task| {
+        let st = start_trial(
+            spec,
+            task,
+            InputSource::Synthetic {
+                operator: op,
+                seed: 4,
+            },
+            crate::model::SEATED_FOR_TESTS,
+            3,
+        );
+        let (mut runner, _) = build_runner(&st, DT, false).unwrap();
+        let m = Multisine::new(&spec, DT).unwrap();
+        let mut hands = vec![];
+        let mut k = 0;
+        while !runner.done() {
+            let s = runner.tick(0.0);
+            assert_eq!(s.r_c, m.at_tick(k));
+            hands.push(s.hand);
+            k += 1;
+        }
+        let SlotLoop::Sim(lp) = runner.loop_ref() else {
+            unreachable!("simulated rig")
+        };
+        (hands, lp.body.grip)
+    };
+    let (still, grip_still) = run(IdentificationTask::HoldStill);
+    let (relaxed, grip_relaxed) = run(IdentificationTask::Relax);
+    // The hand is the remnant about the centre: zero mean, about the remnant's spread
+    // (grown by the felt vibration), not the ±mm excitation.
+    let (mean, std) = crate::signals::mean_std(&still[5_000..]);
+    assert!(mean.abs() < 0.2 && std > 0.3 && std < 1.5, "{mean} {std}");
+    assert!(grip_still > 1.05, "{grip_still}");
+    assert_eq!(grip_relaxed, 1.0);
+    // The grip changes the body, not the intention: the same remnant either way.
+    assert_eq!(still, relaxed);
+}
+
+/// A finished test's record channels, as the controller stores them (f32), and the arm
+/// frequency factor (grip) the body had on average over the recorded periods.
+pub(crate) struct Record {
+    pub cab_accel: Vec<f32>,
+    pub device: Vec<f32>,
+    pub mean_grip: f64,
+    /// The test's ISO 2631-1 weighted RMS a_w (m/s²), the exposure guard's measure.
+    pub aw_m_s2: f64,
+}
+
+/// Runs an identification trial to its end on the simulated rig; the hand source's input
+/// (server) is held at `hand(k)`.
+pub(crate) fn run(st: &StartTrial, hand: impl Fn(u64) -> f64) -> Record {
+    let (mut runner, _) = build_runner(st, DT, false).unwrap();
+    let TargetSpec::Identification { excitation, .. } = st.target else {
+        unreachable!("an identification trial")
+    };
+    let recorded_from =
+        (f64::from(excitation.transient_periods) * excitation.period_s / DT).round() as u64;
+    let (mut cab_accel, mut device) = (vec![], vec![]);
+    let (mut grip_sum, mut k) = (0.0, 0u64);
+    while !runner.done() {
+        let s = runner.tick(hand(k));
+        cab_accel.push(s.cab_accel as f32);
+        device.push(s.device() as f32);
+        if k >= recorded_from {
+            let SlotLoop::Sim(lp) = runner.loop_ref() else {
+                unreachable!("simulated rig")
+            };
+            grip_sum += lp.body.grip;
+        }
+        k += 1;
+    }
+    Record {
+        cab_accel,
+        device,
+        mean_grip: grip_sum / (k - recorded_from) as f64,
+        aw_m_s2: runner.exposure().0.aw_m_s2,
+    }
+}
+
+#[test]
+fn without_noise_the_estimate_is_the_seated_bodys_analytic_feedthrough() {
+    use super::estimate;
+    use super::fit::feedthrough;
+    let spec = MultisineSpec {
+        periods: 2,
+        ..MultisineSpec::default()
+    };
+    let body = crate::model::SEATED_FOR_TESTS;
+    let mut st = start_trial(
+        spec,
+        IdentificationTask::HoldStill,
+        InputSource::Server,
+        body,
+        1,
+    );
+    st.plant.accel_noise_std = 0.0;
+    let rec = run(&st, |_| 0.0);
+    let points = estimate(&spec, DT, &rec.cab_accel, &rec.device).unwrap();
+    assert_eq!(points.len(), 20);
+    let BodyModel::Seated {
+        k_h,
+        torso_f_hz,
+        torso_zeta,
+        arm_f_hz,
+        arm_zeta,
+    } = body
+    else {
+        unreachable!()
+    };
+    // G(jω) = k_h(1 − T·A)/ω², independently of the fit's code: T, A written out here.
+    let tr = |s: nalgebra::Complex<f64>, f: f64, z: f64| {
+        let w = 2.0 * std::f64::consts::PI * f;
+        (s * (2.0 * z * w) + w * w) / (s * s + s * (2.0 * z * w) + w * w)
+    };
+    for p in &points {
+        let w = 2.0 * std::f64::consts::PI * p.f_hz;
+        let s = nalgebra::Complex::new(0.0, w);
+        let want = (nalgebra::Complex::from(1.0)
+            - tr(s, torso_f_hz, torso_zeta) * tr(s, arm_f_hz, arm_zeta))
+            * k_h
+            * 1e3
+            / (w * w);
+        let dphase = (p.phase_deg - want.arg().to_degrees() + 540.0).rem_euclid(360.0) - 180.0;
+        assert!(
+            (p.magnitude / want.norm() - 1.0).abs() < 0.01 && dphase.abs() < 1.0,
+            "{} Hz: {} ∠{}° vs {} ∠{}°",
+            p.f_hz,
+            p.magnitude,
+            p.phase_deg,
+            want.norm(),
+            want.arg().to_degrees()
+        );
+        assert!(p.coherence > 0.999, "{} Hz: {}", p.f_hz, p.coherence);
+        let theta = [k_h, torso_f_hz, torso_zeta, arm_f_hz, arm_zeta].map(f64::ln);
+        assert!((feedthrough(&theta, p.f_hz) - want).norm() < 1e-9 * want.norm());
+    }
+}
+
+/// One synthetic subject's identification: their true body (arm frequency times the grip
+/// their felt vibration produced) and the fit.
+pub(crate) struct Subject {
+    pub truth: [f64; 5],
+    pub points: Vec<bdft_protocol::identification::FrfPoint>,
+    pub fit: bdft_protocol::identification::BodyFit,
+    pub aw_m_s2: f64,
+}
+
+/// Subject `i` of the default population (which draws bodies) takes the test `spec`
+/// holding still, seat on, with their own remnant: the operator of their first test
+/// (position 0, before any practice: the most remnant they will have).
+pub(crate) fn subject(i: u64, spec: MultisineSpec) -> Subject {
+    use crate::population;
+    use bdft_protocol::params::{BodySource, PopulationParams};
+    let pop = PopulationParams::default();
+    assert_eq!(pop.body, BodySource::Drawn);
+    let draw = population::draw(&pop, 1000 + i);
+    let body = population::body(&draw, BodyModel::default());
+    let operator = population::operator(&draw, 0, 0.0);
+    let spec = MultisineSpec { seed: i, ..spec };
+    let st = start_trial(
+        spec,
+        IdentificationTask::HoldStill,
+        InputSource::Synthetic { operator, seed: i },
+        body,
+        i,
+    );
+    let rec = run(&st, |_| 0.0);
+    let (points, fit) = super::identify(&spec, DT, &rec.cab_accel, &rec.device).unwrap();
+    let BodyModel::Seated {
+        k_h,
+        torso_f_hz,
+        torso_zeta,
+        arm_f_hz,
+        arm_zeta,
+    } = body
+    else {
+        unreachable!("the population draws seated bodies")
+    };
+    Subject {
+        truth: [
+            k_h,
+            torso_f_hz,
+            torso_zeta,
+            arm_f_hz * rec.mean_grip,
+            arm_zeta,
+        ],
+        points,
+        fit,
+        aw_m_s2: rec.aw_m_s2,
+    }
+}
+
+pub(crate) fn estimates(fit: &bdft_protocol::identification::BodyFit) -> [Estimate; 5] {
+    [
+        fit.k_h,
+        fit.torso_f_hz,
+        fit.torso_zeta,
+        fit.arm_f_hz,
+        fit.arm_zeta,
+    ]
+}
+
+#[test]
+fn the_fits_95_percent_intervals_cover_the_true_body_of_85_to_100_percent_of_subjects() {
+    const SUBJECTS: u64 = 40;
+    let subjects: Vec<Subject> = (0..SUBJECTS)
+        .map(|i| subject(i, MultisineSpec::default()))
+        .collect();
+    let mut covered = [0u32; 5];
+    for (i, s) in subjects.iter().enumerate() {
+        for (p, e) in estimates(&s.fit).iter().enumerate() {
+            let hit = e.lo <= s.truth[p] && s.truth[p] <= e.hi;
+            covered[p] += u32::from(hit);
+            if !hit {
+                eprintln!(
+                    "subject {i}: {} = {:.4} outside [{:.4}, {:.4}] (fit {:.4}; residual {:.3})",
+                    super::fit::PARAMETERS[p],
+                    s.truth[p],
+                    e.lo,
+                    e.hi,
+                    e.value,
+                    s.fit.residual_rms
+                );
+            }
+        }
+    }
+    eprintln!("coverage of {SUBJECTS}: {covered:?}");
+    // Each point's magnitude bounds hold the true body's feedthrough at that line as
+    // often as their (joint, so conservative) 95 % says.
+    let (mut inside, mut all) = (0, 0);
+    for s in &subjects {
+        let theta = s.truth.map(f64::ln);
+        for pt in &s.points {
+            let g = super::fit::feedthrough(&theta, pt.f_hz).norm();
+            inside += usize::from(pt.magnitude_lo <= g && g <= pt.magnitude_hi);
+            all += 1;
+        }
+    }
+    eprintln!("points whose magnitude bounds hold the truth: {inside} of {all}");
+    assert!(inside as f64 >= 0.93 * all as f64, "{inside} of {all}");
+    for (p, c) in covered.iter().enumerate() {
+        let share = f64::from(*c) / SUBJECTS as f64;
+        assert!(
+            (0.85..=1.0).contains(&share),
+            "{}: {c} of {SUBJECTS}",
+            super::fit::PARAMETERS[p]
+        );
+    }
+}
+
+fn median(mut xs: Vec<f64>) -> f64 {
+    xs.sort_by(f64::total_cmp);
+    let n = xs.len();
+    if n % 2 == 1 {
+        xs[n / 2]
+    } else {
+        0.5 * (xs[n / 2 - 1] + xs[n / 2])
+    }
+}
+
+/// The figures of docs/identification.md: the default multisine's design, the coherence it
+/// gives across the band, and how the test's length buys precision. Prints a Markdown
+/// table; takes a minute:
+/// `cargo test -p bdft-controller --lib -- identification::tests::design_and_precision_figures --ignored --nocapture`
+#[test]
+#[ignore = "prints the figures of docs/identification.md; about a minute"]
+fn design_and_precision_figures() {
+    const SUBJECTS: u64 = 40;
+    let default = MultisineSpec::default();
+    let m = Multisine::new(&default, DT).unwrap();
+    let power: f64 = m.lines.iter().map(|l| l.amplitude_mm.powi(2)).sum();
+    println!(
+        "default multisine: crest factor {:.2}, lowest line {:.0} % of the reference's power",
+        m.crest_factor,
+        100.0 * m.lines[0].amplitude_mm.powi(2) / power
+    );
+    let mid = |s: &Subject| {
+        s.points
+            .iter()
+            .min_by(|a, b| {
+                (a.f_hz.ln() - 2f64.ln())
+                    .abs()
+                    .total_cmp(&(b.f_hz.ln() - 2f64.ln()).abs())
+            })
+            .copied()
+            .unwrap()
+    };
+    let mut rows = vec![];
+    for (periods, period_s) in [
+        (2, 10.0),
+        (4, 10.0),
+        (6, 10.0),
+        (10, 10.0),
+        (6, 5.0),
+        (6, 20.0),
+    ] {
+        let spec = MultisineSpec {
+            periods,
+            period_s,
+            ..default
+        };
+        let subjects: Vec<Subject> = (0..SUBJECTS).map(|i| subject(i, spec)).collect();
+        let width = |e: Estimate| 100.0 * (e.hi - e.lo) / e.value;
+        let k_h = median(subjects.iter().map(|s| width(s.fit.k_h)).collect());
+        let arm = median(subjects.iter().map(|s| width(s.fit.arm_f_hz)).collect());
+        let f_mid = mid(&subjects[0]).f_hz;
+        let mag = median(
+            subjects
+                .iter()
+                .map(|s| {
+                    let p = mid(s);
+                    100.0 * (p.magnitude_hi - p.magnitude_lo) / p.magnitude
+                })
+                .collect(),
+        );
+        let unidentified = subjects
+            .iter()
+            .filter(|s| !s.fit.unidentified.is_empty())
+            .count();
+        let aw = median(subjects.iter().map(|s| s.aw_m_s2).collect());
+        if periods == 6 && period_s == 10.0 {
+            let lines: Vec<String> = (0..spec.lines as usize)
+                .map(|l| {
+                    format!(
+                        "{:.1} Hz {:.2}",
+                        subjects[0].points[l].f_hz,
+                        median(subjects.iter().map(|s| s.points[l].coherence).collect())
+                    )
+                })
+                .collect();
+            println!(
+                "median coherence by line (default test): {}",
+                lines.join(", ")
+            );
+        }
+        rows.push(format!(
+            "| {periods} | {period_s} | {} | {k_h:.1} | {arm:.1} | {mag:.0} ({f_mid:.1} Hz) | {unidentified} | {aw:.2} |",
+            spec.duration_s()
+        ));
+    }
+    println!(
+        "| periods | period_s | test length (s) | k_h 95 % width (% of value) | arm_f_hz 95 % width (%) | magnitude bound width at mid-band (%) | subjects with a parameter unidentified | a_w (m/s²) |"
+    );
+    println!("|---|---|---|---|---|---|---|---|");
+    for r in rows {
+        println!("{r}");
+    }
+}
