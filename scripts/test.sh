@@ -25,6 +25,8 @@ missing=()
 command -v chromium >/dev/null 2>&1 || missing+=(chromium)
 command -v chromedriver >/dev/null 2>&1 || missing+=(chromium-driver)
 command -v openssl >/dev/null 2>&1 || missing+=(openssl)
+# The LSL test runs in a network namespace of its own (unshare, util-linux; ip, iproute2).
+command -v ip >/dev/null 2>&1 || missing+=(iproute2)
 if [ ${#missing[@]} -gt 0 ]; then
   echo "installing ${missing[*]} (Debian packages) for the tests"
   SUDO=""
@@ -40,6 +42,15 @@ if [ ! -x "$BIDS_VENV/bin/bids-validator-deno" ]; then
   echo "installing bids-validator-deno (PyPI) into $BIDS_VENV for the BIDS test"
   python3 -m venv "$BIDS_VENV"
   "$BIDS_VENV/bin/pip" install -q "bids-validator-deno==3.0.2"
+fi
+
+# The LSL test reads the server's streams with pylsl (PyPI; its wheel bundles liblsl), in a
+# network namespace; pinned, installed once into target/.
+LSL_VENV=target/tools/pylsl
+if ! "$LSL_VENV/bin/python" -c "import pylsl" >/dev/null 2>&1; then
+  echo "installing pylsl (PyPI) into $LSL_VENV for the LSL test"
+  python3 -m venv "$LSL_VENV"
+  "$LSL_VENV/bin/pip" install -q "pylsl==1.18.6"
 fi
 
 # Style and lints first: they are part of the test (and the cheapest to fail).

@@ -20,6 +20,7 @@ pub mod filters;
 pub mod identification;
 pub mod interlock;
 pub mod linalg;
+pub mod lsl;
 pub mod model;
 pub mod operator;
 pub mod param_set;

@@ -81,6 +81,17 @@ fn hello_and_small_messages() {
         r#"{"type":"step","ticks":10}"#,
     );
     assert_golden(
+        &ServerToController::LslStation(Box::new(crate::server_to_controller::LslStation {
+            station_id: 2,
+            station: "cab".into(),
+            study_id: 1,
+            study: "pilot".into(),
+            subject: "S001".into(),
+            trial_id: Some(9),
+        })),
+        r#"{"type":"lsl_station","station_id":2,"station":"cab","study_id":1,"study":"pilot","subject":"S001","trial_id":9}"#,
+    );
+    assert_golden(
         &ControllerToServer::Fault {
             trial_id: Some(7),
             kind: FaultKind::StaleInput,

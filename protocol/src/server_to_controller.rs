@@ -49,6 +49,46 @@ pub enum ServerToController {
     Step {
         ticks: u32,
     },
+    /// Only to a controller started with `--lsl`: publish (or keep) the station's LSL signal
+    /// stream, described with these codes; `trial_id`, when given, is the trial about to
+    /// start there, whose ticks go to that stream. Sent when a subject is assigned to a
+    /// station and before each of its tests.
+    LslStation(Box<LslStation>),
+}
+
+/// Who a station's LSL signal stream is about (`ServerToController::LslStation`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LslStation {
+    pub station_id: i64,
+    pub station: String,
+    pub study_id: i64,
+    pub study: String,
+    pub subject: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trial_id: Option<TrialId>,
+}
+
+/// The longest name or code an `LslStation` may carry (characters).
+pub const MAX_LSL_TEXT: usize = 200;
+
+impl LslStation {
+    /// Refuses texts longer than [`MAX_LSL_TEXT`] or with control characters (they go into
+    /// the stream's XML description).
+    pub fn check(&self) -> Result<(), String> {
+        for (field, text) in [
+            ("station", &self.station),
+            ("study", &self.study),
+            ("subject", &self.subject),
+        ] {
+            if text.chars().count() > MAX_LSL_TEXT || text.chars().any(char::is_control) {
+                return Err(format!(
+                    "lsl_station.{field}: at most {MAX_LSL_TEXT} characters, no control characters"
+                ));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Everything a trial needs. Parameters are recorded with the trial by the server.
@@ -135,5 +175,33 @@ impl StartTrial {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod lsl_station_tests {
+    use super::*;
+
+    #[test]
+    fn lsl_texts_are_refused_naming_the_field_when_too_long_or_with_control_characters() {
+        let ok = LslStation {
+            station_id: 1,
+            station: "cab".into(),
+            study_id: 2,
+            study: "pilot".into(),
+            subject: "S001".into(),
+            trial_id: None,
+        };
+        assert_eq!(ok.check(), Ok(()));
+        let long = LslStation {
+            subject: "x".repeat(MAX_LSL_TEXT + 1),
+            ..ok.clone()
+        };
+        assert!(long.check().unwrap_err().contains("lsl_station.subject"));
+        let control = LslStation {
+            station: "cab\n".into(),
+            ..ok
+        };
+        assert!(control.check().unwrap_err().contains("lsl_station.station"));
     }
 }

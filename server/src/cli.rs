@@ -633,6 +633,13 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
             }
         }
     }
+    if config.lsl {
+        crate::engine::procedure::lsl::enable(config.lsl_scope);
+        tracing::info!(
+            scope = config.lsl_scope.as_str(),
+            "LSL: each station's signal and marker streams are published"
+        );
+    }
     let source = match config.controller {
         Some(a) => controller_link::ControllerSource::Connect(a),
         None => {
@@ -643,7 +650,14 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
                     "controller",
                 ),
             };
+            let lsl = config.lsl.then(|| {
+                [
+                    "--lsl".to_string(),
+                    format!("--lsl-scope={}", config.lsl_scope.as_str()),
+                ]
+            });
             let args = std::iter::once(sub.to_string())
+                .chain(lsl.into_iter().flatten())
                 .chain(config.controller_args)
                 .collect();
             controller_link::ControllerSource::Spawn { bin, args }

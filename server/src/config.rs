@@ -5,6 +5,8 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
+use bdft_controller::lsl::streams::Scope;
+
 use crate::engine::accounts::login_limiter::LoginLimits;
 
 /// Where the data live.
@@ -57,6 +59,15 @@ pub struct ServeConfig {
     /// (`bdft-tests`' soak fills the room up to it and frees it again). Unlimited by default.
     #[arg(long, env = "BDFT_DB_MAX_PAGES", value_parser = clap::value_parser!(u32).range(1024..))]
     pub db_max_pages: Option<u32>,
+    /// Publish each station's streams over the Lab Streaming Layer: its 1 kHz signals (from
+    /// the controller this server starts, which gets --lsl too) and its markers (test start
+    /// and end, survey, redo, E-stop, interlock). Off by default: without it no LSL socket
+    /// is opened (LSL discovery answers multicast and broadcast queries).
+    #[arg(long, env = "BDFT_LSL")]
+    pub lsl: bool,
+    /// How far LSL discovery answers: machine (this host only), link or site.
+    #[arg(long, env = "BDFT_LSL_SCOPE", value_enum, default_value_t = Scope::Machine, requires = "lsl")]
+    pub lsl_scope: Scope,
     #[command(flatten)]
     pub connections: ConnectionConfig,
     #[command(flatten)]

@@ -14,32 +14,21 @@ use bdft_tests::exports::parse_csv;
 
 use crate::exports_audit::column;
 use bdft_tests::server::{Server, pilot_copy, short_study};
-use bdft_tests::{TempDir, binary};
+use bdft_tests::{TempDir, binary, unshare_network, venv_tool};
 use serde_json::{Value, json};
 
 fn validator() -> PathBuf {
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/tools/bids-validator");
-    let bin = venv.join("bin/bids-validator-deno");
-    assert!(
-        bin.is_file(),
-        "{} is missing: scripts/test.sh installs it (python3 -m venv {} && pip install bids-validator-deno==3.0.2)",
-        bin.display(),
-        venv.display()
-    );
-    bin
+    venv_tool(
+        "bids-validator",
+        "bids-validator-deno",
+        "bids-validator-deno==3.0.2",
+    )
 }
 
 /// The validator's issues of severity `error` as `CODE subCode location`, offline: in a
 /// network namespace of its own with nothing but loopback.
 fn validation_errors(dataset: &Path) -> Vec<String> {
-    // As root a network namespace needs nothing more; otherwise a user namespace maps us
-    // to root inside it.
-    let root = Command::new("id")
-        .arg("-u")
-        .output()
-        .is_ok_and(|o| o.stdout == b"0\n");
-    let out = Command::new("unshare")
-        .arg(if root { "-n" } else { "-rn" })
+    let out = unshare_network()
         .arg(validator())
         .args(["--format", "json", "--max-rows", "-1"])
         .arg(dataset)

@@ -4,7 +4,7 @@
 
 use bdft_protocol::controller_to_server::ControllerToServer;
 use bdft_protocol::link_auth::{Bytes32, LinkRole};
-use bdft_protocol::server_to_controller::ServerToController;
+use bdft_protocol::server_to_controller::{LslStation, ServerToController};
 use bdft_protocol::trial::{Outcome, TargetSpec};
 use bdft_tests::controller_link::{Link, Proc, TrialLog};
 
@@ -45,6 +45,22 @@ fn bad_messages_are_rejected_counted_and_never_reach_the_valve() {
     // Malformed JSON in a valid frame: rejected, the link stays usable.
     link.send_json(r#"{"type":"launch_missiles"}"#);
     assert!(matches!(link.recv(), ControllerToServer::Rejected { .. }));
+    // LSL is off unless the controller was started with --lsl: its stream is refused (and
+    // no LSL socket opened).
+    link.send(&ServerToController::LslStation(Box::new(LslStation {
+        station_id: 1,
+        station: "cab".into(),
+        study_id: 1,
+        study: "pilot".into(),
+        subject: "S001".into(),
+        trial_id: Some(9),
+    })));
+    match link.recv() {
+        ControllerToServer::Rejected { reason, .. } => {
+            assert!(reason.contains("--lsl"), "{reason}")
+        }
+        other => panic!("{other:?}"),
+    }
     // Out-of-range parameters: the reason names the field.
     let mut bad = server_input_trial(9, 1.0);
     bad.k_bf = 50.0;

@@ -10,7 +10,9 @@ use std::time::Duration;
 
 use bdft_controller::exposure::{WdWeighting, of_record};
 use bdft_tests::exports::parse_csv;
-use bdft_tests::server::{Api, Server, dry_run, eventually, pair_station, run_trial, trial_rows};
+use bdft_tests::server::{
+    Api, Server, dry_run, eventually, run_trial, synthetic_at_a_station, trial_rows,
+};
 use serde_json::{Value, json};
 
 fn fixture(name: &str) -> PathBuf {
@@ -143,17 +145,8 @@ fn the_guard_stops_a_runaway_test_at_the_budget_and_the_next_is_refused_naming_t
         "{body}"
     );
 
-    let enrolled = api.ok(
-        &format!("/api/studies/{study}/subjects"),
-        json!({ "synthetic": true }),
-    );
-    let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let (station, token) = pair_station(&api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
-    Api::with_bearer(&api.base, &token).ok("/api/station/consent", json!({ "decision": "agreed" }));
+    let (enrolled, _, _) = synthetic_at_a_station(&api, study);
+    let subject = enrolled["id"].as_i64().unwrap();
     let trials = trial_rows(&api, subject);
     let practice = &trials[0];
     assert_eq!(practice["station"], "off");

@@ -25,6 +25,7 @@ mod hardening;
 mod https;
 mod identification_study;
 mod isolation;
+mod lsl;
 mod protocol_package;
 mod server_api;
 mod server_layers;

@@ -22,6 +22,34 @@ pub fn binary(name: &str) -> PathBuf {
     path
 }
 
+/// A program scripts/test.sh installs into the Python venv `target/tools/<venv>` with
+/// `pip install <package>`.
+pub fn venv_tool(venv: &str, bin: &str, package: &str) -> PathBuf {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../target/tools")
+        .join(venv);
+    let path = dir.join("bin").join(bin);
+    assert!(
+        path.is_file(),
+        "{} is missing: scripts/test.sh installs it (python3 -m venv {} && pip install {package})",
+        path.display(),
+        dir.display()
+    );
+    path
+}
+
+/// `unshare` with the option for a new network namespace: as root it needs nothing more,
+/// otherwise a user namespace maps us to root inside it.
+pub fn unshare_network() -> Command {
+    let root = Command::new("id")
+        .arg("-u")
+        .output()
+        .is_ok_and(|o| o.stdout == b"0\n");
+    let mut c = Command::new("unshare");
+    c.arg(if root { "-n" } else { "-rn" });
+    c
+}
+
 /// Runs `bdft-controller` with `args` and returns its output.
 pub fn controller(args: &[&str]) -> Output {
     Command::new(binary("bdft-controller"))

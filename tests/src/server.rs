@@ -514,6 +514,24 @@ pub fn person_at_a_station(server: &Server, api: &Api, study: i64) -> (i64, i64,
     (subject, station, token)
 }
 
+/// A synthetic subject enrolled in the dry-run copy `study`, assigned to a new station
+/// serving both seats and consented there: its enrolment answer (`subject`: id, code, …),
+/// the station's id and the station's client.
+pub fn synthetic_at_a_station(api: &Api, study: i64) -> (Value, i64, Api) {
+    let enrolled = api.ok(
+        &format!("/api/studies/{study}/subjects"),
+        json!({ "synthetic": true }),
+    );
+    let (station, token) = pair_station(api, study, "both");
+    api.ok(
+        &format!("/api/stations/{station}/assign"),
+        json!({ "subject_id": enrolled["subject"]["id"] }),
+    );
+    let station_api = Api::with_bearer(&api.base, &token);
+    station_api.ok("/api/station/consent", json!({ "decision": "agreed" }));
+    (enrolled["subject"].clone(), station, station_api)
+}
+
 /// Pairs a new station with `role` to `study`; returns (station id, station token).
 pub fn pair_station(api: &Api, study: i64, role: &str) -> (i64, String) {
     pair_named(api, study, &format!("station-{role}"), role)

@@ -64,6 +64,10 @@ pub(super) struct BenchRtArgs {
     priority: i32,
     #[arg(long)]
     json: bool,
+    /// Also hand every tick's signals to an LSL stream, as `serve --lsl` does (opens LSL
+    /// sockets, machine scope: run it in its own network namespace, `unshare -rn`).
+    #[arg(long)]
+    lsl: bool,
 }
 
 pub(super) fn bench_rt(args: BenchRtArgs, out: &mut impl Write) -> anyhow::Result<()> {
@@ -73,12 +77,14 @@ pub(super) fn bench_rt(args: BenchRtArgs, out: &mut impl Write) -> anyhow::Resul
         cpu,
         priority,
         json,
+        lsl,
     } = args;
     let r = runtime::bench_rt(
         duration,
         trials as usize,
         cpu.or_else(runtime::default_cpu),
         priority,
+        lsl,
     )?;
     if json {
         serde_json::to_writer(&mut *out, &r)?;
@@ -100,6 +106,9 @@ pub(super) fn bench_rt(args: BenchRtArgs, out: &mut impl Write) -> anyhow::Resul
             "compute µs:      p50 {:.2}  p99 {:.2}  max {:.2}",
             c.p50, c.p99, c.max
         )?;
+        if let Some(dropped) = r.lsl_dropped {
+            writeln!(out, "LSL hand-over: {dropped} rows dropped")?;
+        }
         writeln!(out, "real-time: {:?}", r.realtime)?;
     }
     Ok(())

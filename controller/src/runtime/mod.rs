@@ -30,6 +30,9 @@ use bdft_protocol::trial::{InputSource, TargetSpec, TimingSummary};
 use serde::Serialize;
 
 use crate::compensator::study_spec;
+use crate::lsl::publisher::Publisher;
+use crate::lsl::streams::{Scope, StreamTags};
+use crate::lsl::tap;
 use crate::operator::OperatorParams;
 use crate::signals::{StepParams, StepTarget};
 use rt_loop::{Command, Event, LoopConfig};
@@ -51,6 +54,8 @@ pub struct ServeConfig {
     pub exit_with_stdin: bool,
     /// The link key every server connection must prove.
     pub key: LinkKey,
+    /// Publish the stations' signal streams over LSL, discoverable within this scope.
+    pub lsl: Option<Scope>,
 }
 
 fn loop_config(
@@ -67,6 +72,7 @@ fn loop_config(
         priority,
         cpu,
         rig: None,
+        lsl: None,
     }
 }
 
@@ -115,6 +121,13 @@ pub struct ServeArgs {
     /// as the experiment server hands it to the controller it starts.
     #[arg(long, env = "BDFT_CONTROLLER_KEY_FILE")]
     pub key_file: Option<PathBuf>,
+    /// Publish each station's 1 kHz signals as a Lab Streaming Layer stream (off by
+    /// default: without it no LSL socket is opened).
+    #[arg(long)]
+    pub lsl: bool,
+    /// How far LSL discovery answers: machine (this host only), link or site.
+    #[arg(long, value_enum, default_value_t = Scope::Machine, requires = "lsl")]
+    pub lsl_scope: Scope,
 }
 
 impl ServeArgs {
@@ -145,6 +158,7 @@ impl ServeArgs {
             dt: bdft_protocol::params::LoopParams::default().dt,
             exit_with_stdin: self.exit_with_stdin,
             key,
+            lsl: self.lsl.then_some(self.lsl_scope),
         })
     }
 }
@@ -192,6 +206,18 @@ pub fn serve(
             .with_context(|| format!("opening the UDP link to the rig at {addr}"))?,
         );
     }
+    let lsl = match cfg.lsl {
+        Some(scope) => {
+            let (tap, publisher) = lsl_publisher(scope)?;
+            lc.lsl = Some(tap);
+            tracing::info!(
+                scope = scope.as_str(),
+                "LSL: the stations' signal streams are published"
+            );
+            Some(std::sync::Arc::new(publisher))
+        }
+        None => None,
+    };
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -213,6 +239,7 @@ pub fn serve(
         link_timeout: cfg.link_timeout,
         input_udp: cfg.input_udp.is_some(),
         key: cfg.key.clone(),
+        lsl,
     };
     runtime.block_on(async {
         let listener = tokio::net::TcpListener::bind(cfg.listen)
@@ -253,6 +280,15 @@ pub fn serve(
     Ok(())
 }
 
+/// The loop's end of the LSL hand-over and the publisher reading it, LSL configured for
+/// `scope` first.
+fn lsl_publisher(scope: Scope) -> anyhow::Result<(tap::SampleTap, Publisher)> {
+    scope.configure();
+    let (tap, reader) = tap::tap(tap::CAPACITY);
+    let publisher = Publisher::start(reader).context("starting the LSL publisher")?;
+    Ok((tap, publisher))
+}
+
 /// Resolves on SIGINT or SIGTERM.
 pub async fn shutdown_signal() {
     let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
@@ -267,6 +303,9 @@ pub async fn shutdown_signal() {
 pub struct BenchReport {
     pub trials: usize,
     pub duration_s: f64,
+    /// With `--lsl`: rows the hand-over dropped (its publisher fell behind).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lsl_dropped: Option<u64>,
     #[serde(flatten)]
     pub timing: TimingSummary,
     pub realtime: RealtimeStatus,
@@ -306,16 +345,39 @@ pub fn bench_trial(i: usize, duration_s: f64) -> anyhow::Result<StartTrial> {
 
 /// Runs `trials` simulated trials (the five study compensators in turn, synthetic
 /// operators, station on) in real time for `duration_s` and reports the loop's timing.
+///
+/// With `lsl`, every trial's signals also go through the LSL hand-over to one stream
+/// ("bench", machine scope), as `serve --lsl` sends a station's: the loop's cost of it shows
+/// in the timing.
 pub fn bench_rt(
     duration_s: f64,
     trials: usize,
     cpu: Option<usize>,
     priority: i32,
+    lsl: bool,
 ) -> anyhow::Result<BenchReport> {
     let dt = 1e-3;
-    let mut rt = rt_loop::spawn(loop_config(dt, false, trials.max(1), priority, cpu));
+    let mut lc = loop_config(dt, false, trials.max(1), priority, cpu);
+    let publisher = if lsl {
+        let (tap, publisher) = lsl_publisher(Scope::Machine)?;
+        lc.lsl = Some(tap);
+        publisher.station(StreamTags {
+            station_id: 0,
+            station: "bench".into(),
+            study_id: 0,
+            study: "bench-rt".into(),
+            subject: "none".into(),
+        })?;
+        Some(publisher)
+    } else {
+        None
+    };
+    let mut rt = rt_loop::spawn(lc);
     for i in 0..trials {
         let st = bench_trial(i, duration_s)?;
+        if let Some(p) = &publisher {
+            p.route(st.trial_id, 0);
+        }
         let built = setup::build_slot(&st, dt, false).map_err(anyhow::Error::msg)?;
         rt.send(Command::Start(built.slot))
             .map_err(|_| anyhow::anyhow!("command queue full"))?;
@@ -335,6 +397,7 @@ pub fn bench_rt(
     Ok(BenchReport {
         trials,
         duration_s,
+        lsl_dropped: publisher.map(|p| p.dropped()),
         timing: TimingSummary {
             ticks: stats.ticks,
             overruns: stats.overruns,

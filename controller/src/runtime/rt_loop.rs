@@ -17,6 +17,7 @@ use super::histogram::Histogram;
 use super::os;
 use super::rig_udp::UdpRig;
 use super::slot::{EndReason, SlotLoop, SlotTick, TrialSlot};
+use crate::lsl::tap::SampleTap;
 
 /// State the loop publishes for the I/O side.
 #[derive(Debug, Default)]
@@ -66,6 +67,8 @@ pub struct LoopConfig {
     pub priority: i32,
     pub cpu: Option<usize>,
     pub rig: Option<UdpRig>,
+    /// The hand-over of every tick's signals to the LSL publisher (`--lsl`).
+    pub lsl: Option<SampleTap>,
 }
 
 /// Whole-run timing of the loop.
@@ -373,7 +376,12 @@ impl RtLoop {
                 }
             }
             if slot.end.is_none() {
-                match slot.tick(now, wake_ns, latency_us) {
+                let rows = slot.record.len();
+                let tick = slot.tick(now, wake_ns, latency_us);
+                if let (Some(tap), Some(row)) = (&mut self.cfg.lsl, slot.record.get(rows)) {
+                    tap.offer(slot.trial_id, wake_ns, row);
+                }
+                match tick {
                     SlotTick::Live(s) if self.events.slots() > EVENT_RESERVE => {
                         let _ = self.events.push(Event::Live(s));
                     }
@@ -432,6 +440,10 @@ mod tests {
     }
 
     fn test_loop() -> (RtLoop, Producer<Command>, Consumer<Event>) {
+        test_loop_with(None)
+    }
+
+    fn test_loop_with(lsl: Option<SampleTap>) -> (RtLoop, Producer<Command>, Consumer<Event>) {
         let cfg = LoopConfig {
             period_ns: 1_000_000,
             lockstep: true,
@@ -439,6 +451,7 @@ mod tests {
             priority: 1,
             cpu: None,
             rig: None,
+            lsl,
         };
         let (rt, commands, events, _shared) = RtLoop::new(cfg);
         (rt, commands, events)
@@ -446,7 +459,10 @@ mod tests {
 
     #[test]
     fn the_loop_tick_never_allocates() {
-        let (mut rt, mut commands, mut events) = test_loop();
+        // With the LSL hand-over, its ring small enough to fill: handing over and dropping
+        // rows allocate nothing either.
+        let (tap, reader) = crate::lsl::tap::tap(4096);
+        let (mut rt, mut commands, mut events) = test_loop_with(Some(tap));
         let mut cells = Vec::new();
         for (i, kind) in CompensatorKind::ALL.into_iter().enumerate() {
             let input = if i % 2 == 0 {
@@ -485,10 +501,47 @@ mod tests {
             }
         }
         assert_eq!(n, 0, "the loop allocated {n} times");
+        assert!(reader.dropped() > 0, "the ring filled and dropped rows");
         assert_eq!(
             finished, 6,
             "every trial ended (one aborted, five complete)"
         );
+    }
+
+    #[test]
+    fn the_lsl_hand_over_carries_every_recorded_tick_of_a_trial() {
+        let (tap, mut reader) = crate::lsl::tap::tap(crate::lsl::tap::CAPACITY);
+        let (mut rt, mut commands, mut events) = test_loop_with(Some(tap));
+        let st = start(
+            3,
+            CompensatorKind::Pid,
+            InputSource::Synthetic {
+                operator: OperatorParams::default(),
+                seed: 3,
+            },
+        );
+        let built = build_slot(&st, 1e-3, false).unwrap();
+        commands.push(Command::Start(built.slot)).unwrap();
+        for k in 0..2000u64 {
+            rt.drain_commands();
+            rt.one_tick(k * 1_000_000, 1_000);
+        }
+        let slot = std::iter::from_fn(|| events.pop().ok())
+            .find_map(|e| match e {
+                Event::Finished(slot) => Some(slot),
+                _ => None,
+            })
+            .expect("the trial ended");
+        let rows: Vec<_> = std::iter::from_fn(|| reader.ring.pop().ok()).collect();
+        assert_eq!(rows.len(), slot.record.len(), "one row per recorded tick");
+        assert_eq!(rows.len(), 1500);
+        let columns = crate::lsl::streams::signal_columns();
+        for (k, (row, recorded)) in rows.iter().zip(&slot.record).enumerate() {
+            assert_eq!(row.trial_id, 3);
+            assert_eq!(row.stamp_ns, k as u64 * 1_000_000, "stamped with its tick");
+            assert_eq!(row.values, columns.map(|c| recorded[c]));
+        }
+        assert_eq!(reader.dropped(), 0);
     }
 
     #[test]
@@ -555,8 +608,10 @@ mod tests {
         // Memory is not locked in a test, as in a controller without the privilege: a page
         // touched for the first time in the tick is a page fault there. The record and the
         // event queue grow through fresh memory all trial long; the rings of the interlock
-        // and the operator are all touched within the first second.
-        let (mut rt, mut commands, mut events) = test_loop();
+        // and the operator are all touched within the first second. The LSL ring, emptied
+        // as its publisher does, cycles through its pages: they were touched when it was made.
+        let (tap, mut reader) = crate::lsl::tap::tap(crate::lsl::tap::CAPACITY);
+        let (mut rt, mut commands, mut events) = test_loop_with(Some(tap));
         for i in 0..8 {
             let operator = InputSource::Synthetic {
                 operator: OperatorParams::default(),
@@ -573,8 +628,9 @@ mod tests {
         rt.drain_commands();
         let mut tick = |rt: &mut RtLoop, k: u64| {
             rt.one_tick(k * 1_000_000, 1_000);
-            // The I/O side empties the queue, as the link does.
+            // The I/O side empties the queue, as the link does; the publisher the ring.
             while events.pop().is_ok() {}
+            while reader.ring.pop().is_ok() {}
         };
         for k in 0..1_500 {
             tick(&mut rt, k);

@@ -11,7 +11,7 @@ use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppJson, Done};
 use super::extract::Experimenter;
-use crate::engine::procedure::stations;
+use crate::engine::procedure::{lsl, stations};
 use crate::state::AppState;
 use crate::store;
 use crate::store::stations::Station;
@@ -95,6 +95,7 @@ async fn assign_station(
     AppJson(b): AppJson<AssignBody>,
 ) -> ApiResult<Done> {
     stations::assign(&s.pool, &who.username, id, b.subject_id).await?;
+    lsl::station_assigned(&s.pool, &s.controller, id).await;
     Ok(Done::ok())
 }
 

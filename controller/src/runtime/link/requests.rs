@@ -8,10 +8,11 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use bdft_protocol::controller_to_server::ControllerToServer;
-use bdft_protocol::server_to_controller::{ServerToController, StartTrial};
+use bdft_protocol::server_to_controller::{LslStation, ServerToController, StartTrial};
 use bdft_protocol::trial::InputSource;
 
 use super::state::{Io, TrialEntry};
+use crate::lsl::streams::StreamTags;
 use crate::runtime::estop_path;
 use crate::runtime::handoff::InputSample;
 use crate::runtime::rt_loop::Command;
@@ -82,6 +83,7 @@ impl Io {
                 vec![self.status()]
             }
             ServerToController::Status {} => vec![self.status()],
+            ServerToController::LslStation(station) => self.lsl_station(&station),
             ServerToController::Step { ticks } => {
                 if !self.cfg.lockstep {
                     return self.reject(
@@ -94,6 +96,31 @@ impl Io {
                 }
             }
         }
+    }
+
+    /// Publishes the station's LSL signal stream and routes the named trial to it. A
+    /// controller without `--lsl` refuses: it opens no LSL socket.
+    fn lsl_station(&mut self, station: &LslStation) -> Vec<ControllerToServer> {
+        let Some(publisher) = self.cfg.lsl.clone() else {
+            return self.reject("LSL is off on this controller (serve --lsl)".into());
+        };
+        if let Err(e) = station.check() {
+            return self.reject(e);
+        }
+        let tags = StreamTags {
+            station_id: station.station_id,
+            station: station.station.clone(),
+            study_id: station.study_id,
+            study: station.study.clone(),
+            subject: station.subject.clone(),
+        };
+        if let Err(e) = publisher.station(tags) {
+            return self.reject(format!("the LSL stream could not be published: {e}"));
+        }
+        if let Some(trial) = station.trial_id {
+            publisher.route(trial, station.station_id);
+        }
+        vec![]
     }
 
     fn start(&mut self, conn: u64, st: &StartTrial) -> Vec<ControllerToServer> {

@@ -13,6 +13,7 @@ use bdft_protocol::link_auth::LinkKey;
 use bdft_protocol::trial::{FaultKind, TrialId};
 use tokio::sync::mpsc;
 
+use crate::lsl::publisher::Publisher;
 use crate::runtime::handoff::InputCell;
 use crate::runtime::rt_loop::{Command, LoopHandle};
 
@@ -27,6 +28,8 @@ pub struct LinkConfig {
     pub input_udp: bool,
     /// The key a server must prove before anything it sends is read.
     pub key: LinkKey,
+    /// The stations' LSL signal streams (`--lsl`).
+    pub lsl: Option<Arc<Publisher>>,
 }
 
 /// Messages queued for a connection's writer, which frames them ([`ControllerCodec`]).

@@ -17,6 +17,7 @@ use serde::Serialize;
 use sqlx::SqlitePool;
 
 use super::identification::{self, Measured};
+use super::lsl;
 use super::queue::requeue_failed;
 use crate::engine::machine::controller_link::{BoxFuture, ControllerEvent, ControllerLink, Filing};
 use crate::engine::study::exposure::{action_values_reached, last_24h};
@@ -87,6 +88,7 @@ pub async fn file_result(
             },
         )
         .await?;
+    lsl::test_filed(pool, result, status.as_str()).await;
     Ok(true)
 }
 

@@ -8,6 +8,7 @@ use bdft_protocol::server_to_controller::ServerToController;
 use serde::Serialize;
 use sqlx::SqlitePool;
 
+use super::lsl::{self, Marker};
 use crate::engine::machine::controller_link::ControllerLink;
 use crate::engine::study::exposure::{self, SubjectExposure};
 use crate::error::{AppError, Result};
@@ -85,7 +86,9 @@ pub async fn answer_survey(
                 comment_chars: answer.answer.comment.chars().count(),
             },
         )
-        .await
+        .await?;
+    lsl::mark_trial(pool, trial.id, Marker::Survey { trial_id: trial.id }).await;
+    Ok(())
 }
 
 /// The station's figures of how its display kept up during a test, as the trial keeps them

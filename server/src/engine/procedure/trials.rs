@@ -9,6 +9,7 @@ use bdft_protocol::study::RigKind;
 use serde::Serialize;
 use sqlx::SqlitePool;
 
+use super::lsl::{self, Marker};
 use super::orchestrator::{Operator, start_now};
 use crate::engine::machine::controller_link::{ControllerEvent, ControllerLink};
 use crate::error::{AppError, Result};
@@ -110,6 +111,8 @@ pub async fn start(
             },
         )
         .await?;
+    // Its station's LSL streams are up and route its ticks before it starts.
+    lsl::trial_starting(pool, link, &trial).await;
     if let Err(reason) = link.start_trial(&msg).await {
         let mut change = Change::begin(pool, actor).await?;
         if !store::trials::unmark_running(change.db(), trial.id).await? {
@@ -132,6 +135,7 @@ pub async fn start(
     }
     // The station's socket starts forwarding operator input at once.
     link.emit(ControllerEvent::TrialChanged { trial_id: trial.id });
+    lsl::test_started(pool, &trial).await;
     store::trials::get(pool, trial.id).await
 }
 
@@ -203,6 +207,15 @@ pub async fn redo(pool: &SqlitePool, actor: &str, trial_id: i64, reason: &str) -
             },
         )
         .await?;
+    lsl::mark_trial(
+        pool,
+        trial_id,
+        Marker::Redo {
+            trial_id,
+            new_trial_id: new_id,
+        },
+    )
+    .await;
     Ok(new)
 }
 
@@ -278,6 +291,7 @@ pub async fn estop(
     actor: &str,
 ) -> Result<std::time::Duration> {
     let sent = link.estop(ESTOP_CONFIRMATION).await;
+    lsl::estop();
     let mut change = Change::begin(pool, actor).await?;
     store::latch::set(change.db(), true).await?;
     change
