@@ -8,7 +8,9 @@
 //!
 //! Map: [`params`] (named parameters with the identified defaults) → [`model`] (plant, body)
 //! and [`compensator`] (designs in [`linalg`], filters in [`filters`], [`shaper`]) →
-//! [`closed_loop`] (one tick) → [`simulate`] and [`analysis`].
+//! [`closed_loop`] (one tick) → [`simulate`] and [`analysis`]; [`special`]: the special
+//! functions (log-gamma, incomplete gamma and beta) the identification's intervals and the
+//! server's statistics share.
 
 pub mod analysis;
 pub mod batch;
@@ -32,6 +34,7 @@ pub mod runtime;
 pub mod shaper;
 pub mod signals;
 pub mod simulate;
+pub mod special;
 pub mod state;
 
 #[cfg(test)]

@@ -155,6 +155,21 @@ fn a_pilot_measures_each_synthetic_subjects_feedthrough_and_the_exports_and_view
         assert_eq!(code, 422, "{bad}");
         assert!(bad.to_string().contains("k_bf"), "{bad}");
     }
+    // The workbench analyses a subject's own body when asked: another report than the
+    // study's, and a subject of another study is refused naming the parameter.
+    let first = subjects[0]["subject"]["id"].as_i64().unwrap();
+    let (code, own) = api.get(&format!(
+        "/api/studies/{copy}/workbench/frequency?subject={first}"
+    ));
+    assert_eq!(code, 200, "{own}");
+    let (_, generic) = api.get(&format!("/api/studies/{copy}/workbench/frequency"));
+    assert_ne!(own, generic);
+    let original = study["id"].as_i64().unwrap();
+    let (code, refused) = api.get(&format!(
+        "/api/studies/{original}/workbench/robustness?design=pid&subject={first}"
+    ));
+    assert_eq!(code, 422, "{refused}");
+    assert!(refused.to_string().contains("subject"), "{refused}");
     // 95 % intervals: most truths inside (6 comparisons; a miss or two is the intervals'
     // own 5 %, the bound above catches a biased estimate).
     assert!(

@@ -34,6 +34,7 @@ use nalgebra::{Complex, DMatrix, DVector, SMatrix, SVector};
 
 use super::IdentificationError;
 use super::estimate::{CONFIDENCE, estimate};
+use crate::special::beta_inc;
 
 /// The parameters in the order of θ.
 pub const PARAMETERS: [&str; 5] = ["k_h", "torso_f_hz", "torso_zeta", "arm_f_hz", "arm_zeta"];
@@ -149,11 +150,11 @@ fn levenberg_marquardt(mut theta: Theta, points: &[Weighted]) -> (Theta, f64) {
 }
 
 /// Student's t quantile q for `dof` degrees of freedom, by bisection on its CDF (the
-/// regularized incomplete beta function, Numerical Recipes' continued fraction).
+/// regularized incomplete beta function, `special::beta_inc`).
 pub fn t_quantile(q: f64, dof: f64) -> f64 {
     let cdf = |t: f64| {
         let x = dof / (dof + t * t);
-        let tail = 0.5 * incomplete_beta(dof / 2.0, 0.5, x);
+        let tail = 0.5 * beta_inc(dof / 2.0, 0.5, x);
         if t >= 0.0 { 1.0 - tail } else { tail }
     };
     let (mut lo, mut hi) = (0.0, 1e3);
@@ -166,74 +167,6 @@ pub fn t_quantile(q: f64, dof: f64) -> f64 {
         }
     }
     0.5 * (lo + hi)
-}
-
-fn ln_gamma(x: f64) -> f64 {
-    // Lanczos (g = 7, n = 9), accurate to ~1e-15 for x > 0.
-    const C: [f64; 9] = [
-        0.999_999_999_999_809_9,
-        676.520_368_121_885_1,
-        -1_259.139_216_722_402_8,
-        771.323_428_777_653_1,
-        -176.615_029_162_140_6,
-        12.507_343_278_686_905,
-        -0.138_571_095_265_720_12,
-        9.984_369_578_019_572e-6,
-        1.505_632_735_149_311_6e-7,
-    ];
-    let x = x - 1.0;
-    let t = x + 7.5;
-    let s = C[1..]
-        .iter()
-        .enumerate()
-        .fold(C[0], |s, (i, c)| s + c / (x + i as f64 + 1.0));
-    0.5 * (2.0 * PI).ln() + (x + 0.5) * t.ln() - t + s.ln()
-}
-
-/// The regularized incomplete beta function I_x(a, b).
-fn incomplete_beta(a: f64, b: f64, x: f64) -> f64 {
-    if x <= 0.0 {
-        return 0.0;
-    }
-    if x >= 1.0 {
-        return 1.0;
-    }
-    let front =
-        (ln_gamma(a + b) - ln_gamma(a) - ln_gamma(b) + a * x.ln() + b * (1.0 - x).ln()).exp();
-    if x < (a + 1.0) / (a + b + 2.0) {
-        front * beta_fraction(a, b, x) / a
-    } else {
-        1.0 - front * beta_fraction(b, a, 1.0 - x) / b
-    }
-}
-
-fn beta_fraction(a: f64, b: f64, x: f64) -> f64 {
-    let tiny = 1e-300;
-    let (qab, qap, qam) = (a + b, a + 1.0, a - 1.0);
-    let mut c = 1.0;
-    let mut d = 1.0 - qab * x / qap;
-    d = 1.0 / if d.abs() < tiny { tiny } else { d };
-    let mut h = d;
-    for m in 1..300 {
-        let m = f64::from(m);
-        let m2 = 2.0 * m;
-        for aa in [
-            m * (b - m) * x / ((qam + m2) * (a + m2)),
-            -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2)),
-        ] {
-            d = 1.0 + aa * d;
-            d = 1.0 / if d.abs() < tiny { tiny } else { d };
-            c = 1.0 + aa / c;
-            if c.abs() < tiny {
-                c = tiny;
-            }
-            h *= d * c;
-        }
-        if (d * c - 1.0).abs() < 1e-15 {
-            break;
-        }
-    }
-    h
 }
 
 /// Fits the seated body to measured feedthrough points (module doc).

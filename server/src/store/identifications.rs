@@ -115,7 +115,9 @@ pub async fn latest_fit<'c>(
     .await?;
     json.map(|(j,)| {
         serde_json::from_str(&j).map_err(|e| {
-            AppError::Internal(anyhow::anyhow!("stored body fit of subject {subject_id}: {e}"))
+            AppError::Internal(anyhow::anyhow!(
+                "stored body fit of subject {subject_id}: {e}"
+            ))
         })
     })
     .transpose()
