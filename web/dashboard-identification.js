@@ -58,14 +58,17 @@ function bode(title, v, test, which) {
   const pts = test.points;
   const fs = v.population.map((b) => b.f_hz).concat(pts.map((p) => p.f_hz));
   const [f0, f1] = [Math.min(...fs), Math.max(...fs)];
+  // The axis spans the band and the estimates; a bound beyond it (a magnitude's lower bound
+  // of 0 where the coherence is low) is drawn to the frame's edge.
   const ys = mag
-    ? v.population.flatMap((b) => [b.magnitude_lo, b.magnitude_hi]).concat(pts.flatMap((p) => [p.magnitude_lo, p.magnitude_hi]))
-    : v.population.flatMap((b) => [b.phase_lo_deg, b.phase_hi_deg]).concat(pts.flatMap((p) => [p.phase_lo_deg, p.phase_hi_deg]));
+    ? v.population.flatMap((b) => [b.magnitude_lo, b.magnitude_hi]).concat(pts.map((p) => p.magnitude))
+    : v.population.flatMap((b) => [b.phase_lo_deg, b.phase_hi_deg]).concat(pts.map((p) => p.phase_deg));
   const fy = (y) => (mag ? Math.log10(Math.max(y, 1e-9)) : y);
   let [y0, y1] = [Math.min(...ys.map(fy)), Math.max(...ys.map(fy))];
-  if (!(y1 > y0)) { y0 -= 1; y1 += 1; }
+  const pad = mag ? 0.15 : 15;
+  [y0, y1] = [y0 - pad, y1 + pad];
   const x = (f) => L + (Math.log10(f / f0) / Math.log10(f1 / f0 || 10)) * (W - L - R);
-  const y = (val) => T + (1 - (fy(val) - y0) / (y1 - y0)) * (H - T - B);
+  const y = (val) => T + (1 - Math.min(1, Math.max(0, (fy(val) - y0) / (y1 - y0)))) * (H - T - B);
   const g = svg('svg', { viewBox: `0 0 ${W} ${H}`, role: 'img', 'aria-label': title, class: 'bode-plot', 'data-panel': which });
   g.append(svg('rect', { x: L, y: T, width: W - L - R, height: H - T - B, fill: 'none', stroke: '#bbb' }));
   const lo = mag ? 'magnitude_lo' : 'phase_lo_deg';

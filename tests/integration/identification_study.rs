@@ -4,8 +4,10 @@
 //! Bode view carrying it, the stability of every design for the subject's own body, and the
 //! station's instructions for the test.
 
+use bdft_tests::TempDir;
 use bdft_tests::exports::parse_csv;
 use bdft_tests::server::{Api, Server, pair_station, pilot_copy};
+use bdft_tests::webdriver::{Driver, artifacts_dir};
 use serde_json::{Value, json};
 
 /// The default study with short tests and the default identification test.
@@ -241,4 +243,51 @@ fn the_station_tells_the_subject_the_identification_task_and_shows_no_target() {
     );
     // Blinded as every test: nothing names the design that moves the boom.
     assert!(!view.to_string().contains("\"pid"), "{view}");
+}
+
+#[test]
+fn in_chromium_a_subjects_schedule_draws_the_identification_as_a_bode_plot() {
+    let server = Server::start("ident-browser");
+    let base = server.base.clone();
+    let api = server.experimenter();
+    let (code, study) = create(&api, &params_with_identification(&api, 2.0));
+    assert_eq!(code, 200, "{study}");
+    let copy = pilot_copy(&api, study["id"].as_i64().unwrap(), 1);
+    let (_, subjects) = api.get(&format!("/api/studies/{copy}/subjects"));
+    let subject = subjects[0]["subject"]["id"].as_i64().unwrap();
+    let (_, view) = api.get(&format!("/api/subjects/{subject}/identification"));
+
+    let downloads = TempDir::new("ident-downloads");
+    let driver = Driver::start();
+    let dash = driver.session(downloads.path());
+    dash.log_in_to_dashboard(&base);
+    dash.find("#estop");
+    dash.wait_until(
+        "return [...document.querySelectorAll('#study-select option')].some((o) => o.value === arguments[0]);",
+        json!([copy.to_string()]),
+    );
+    dash.choose("#study-select", &copy.to_string());
+    let row = format!("#subjects tr[data-subject-id='{subject}']");
+    dash.find(&row);
+    dash.click(&row);
+    // Both panels, a point per excited line with its bounds, the fitted curve and the band.
+    let points = dash.wait_until(
+        "const m = document.querySelectorAll('.bode-plot[data-panel=magnitude] circle'); \
+         return document.querySelectorAll('.bode-plot').length === 2 && m.length ? m.length : null;",
+        json!([]),
+    );
+    assert_eq!(points, json!(20));
+    for panel in ["magnitude", "phase"] {
+        assert!(dash.exists(&format!(".bode-plot[data-panel={panel}] polyline")));
+        assert!(dash.exists(&format!(".bode-plot[data-panel={panel}] polygon")));
+    }
+    // The fitted parameters, as the API has them.
+    let k_h = view["tests"][0]["fit"]["k_h"]["value"].as_f64().unwrap();
+    let table = dash.text("table[data-fit=body]");
+    assert!(table.contains(&format!("{k_h:.3}")[..4]), "{table}");
+    dash.exec(
+        "document.querySelector('.identification').scrollIntoView();",
+        json!([]),
+    );
+    dash.screenshot(&artifacts_dir().join("14-identification-bode.png"));
 }
