@@ -6,7 +6,7 @@
 
 use bdft_tests::TempDir;
 use bdft_tests::exports::parse_csv;
-use bdft_tests::server::{Api, Server, pair_station, pilot_copy};
+use bdft_tests::server::{Api, Server, pair_station, pilot_copy, trial_rows};
 use bdft_tests::webdriver::{Driver, artifacts_dir};
 use serde_json::{Value, json};
 
@@ -80,13 +80,8 @@ fn a_pilot_measures_each_synthetic_subjects_feedthrough_and_the_exports_and_view
         let id = s["subject"]["id"].as_i64().unwrap();
         let (_, detail) = api.get(&format!("/api/subjects/{id}"));
         // One identification test, on the machine, first in the block there, complete.
-        let trials: Vec<&Value> = detail["trials"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|t| &t["trial"])
-            .collect();
-        let ident: Vec<&&Value> = trials
+        let trials = trial_rows(&api, id);
+        let ident: Vec<&Value> = trials
             .iter()
             .filter(|t| t["phase"] == "identification")
             .collect();
