@@ -189,16 +189,8 @@ fn without_noise_the_estimate_is_the_seated_bodys_analytic_feedthrough() {
     let rec = run(&st, |_| 0.0);
     let points = estimate(&spec, DT, &rec.cab_accel, &rec.device).unwrap();
     assert_eq!(points.len(), 20);
-    let BodyModel::Seated {
-        k_h,
-        torso_f_hz,
-        torso_zeta,
-        arm_f_hz,
-        arm_zeta,
-    } = body
-    else {
-        unreachable!()
-    };
+    let [k_h, torso_f_hz, torso_zeta, arm_f_hz, arm_zeta] =
+        body.seated_params().expect("a seated body");
     // G(jω) = k_h(1 − T·A)/ω², independently of the fit's code: T, A written out here.
     let tr = |s: nalgebra::Complex<f64>, f: f64, z: f64| {
         let w = 2.0 * std::f64::consts::PI * f;
@@ -258,16 +250,9 @@ pub(crate) fn subject(i: u64, spec: MultisineSpec) -> Subject {
     );
     let rec = run(&st, |_| 0.0);
     let (points, fit) = super::identify(&spec, DT, &rec.cab_accel, &rec.device).unwrap();
-    let BodyModel::Seated {
-        k_h,
-        torso_f_hz,
-        torso_zeta,
-        arm_f_hz,
-        arm_zeta,
-    } = body
-    else {
-        unreachable!("the population draws seated bodies")
-    };
+    let [k_h, torso_f_hz, torso_zeta, arm_f_hz, arm_zeta] = body
+        .seated_params()
+        .expect("the population draws seated bodies");
     Subject {
         truth: [
             k_h,

@@ -112,6 +112,21 @@ impl Default for BodyModel {
 }
 
 impl BodyModel {
+    /// A seated body's parameters in the identification fit's order — k_h, torso
+    /// frequency and damping, arm frequency and damping —; none for another kind of body.
+    pub fn seated_params(&self) -> Option<[f64; 5]> {
+        match *self {
+            Self::Seated {
+                k_h,
+                torso_f_hz,
+                torso_zeta,
+                arm_f_hz,
+                arm_zeta,
+            } => Some([k_h, torso_f_hz, torso_zeta, arm_f_hz, arm_zeta]),
+            _ => None,
+        }
+    }
+
     pub fn validate(&self) -> Result<(), ParamError> {
         match *self {
             Self::RigidMass { k_h } => check("body.k_h", k_h, 0.0, 10.0),

@@ -130,17 +130,11 @@ fn grid(params: &StudyParams) -> Vec<f64> {
 /// cab's displacement is −ẍ_c/ω², so it is (h/x_c)/ω².
 fn feedthrough(body: &BodyModel, f_hz: f64) -> Complex<f64> {
     let w2 = (2.0 * std::f64::consts::PI * f_hz).powi(2);
+    if let Some(seated) = body.seated_params() {
+        return fit::feedthrough(&seated.map(f64::ln), f_hz);
+    }
     match *body {
-        BodyModel::Seated {
-            k_h,
-            torso_f_hz,
-            torso_zeta,
-            arm_f_hz,
-            arm_zeta,
-        } => fit::feedthrough(
-            &[k_h, torso_f_hz, torso_zeta, arm_f_hz, arm_zeta].map(f64::ln),
-            f_hz,
-        ),
+        BodyModel::Seated { .. } => unreachable!("a seated body has its parameters"),
         BodyModel::RigidMass { k_h } => Complex::from(k_h * 1e3 / w2),
         BodyModel::SingleResonance {
             k_h,
