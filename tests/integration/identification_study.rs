@@ -151,6 +151,9 @@ fn a_pilot_measures_each_synthetic_subjects_feedthrough_and_the_exports_and_view
         let (code, bad) = api.get(&format!("/api/subjects/{id}/stability?k_bf=100"));
         assert_eq!(code, 422, "{bad}");
         assert!(bad.to_string().contains("k_bf"), "{bad}");
+        let (code, bad) = api.get(&format!("/api/subjects/{id}/stability?k_bf=fast"));
+        assert_eq!(code, 422, "{bad}");
+        assert!(bad.to_string().contains("k_bf"), "{bad}");
     }
     // The workbench analyses a subject's own body when asked: another report than the
     // study's, and a subject of another study is refused naming the parameter.

@@ -5,7 +5,8 @@
 //! default. Stations and subjects by unguessable bearer tokens scoped to one station or one
 //! subject.
 
-use axum::extract::{FromRequestParts, MatchedPath, Request, State};
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{FromRequestParts, MatchedPath, Query, Request, State};
 use axum::http::request::Parts;
 use axum::http::{HeaderMap, Method, header};
 use axum::middleware::Next;
@@ -29,6 +30,12 @@ pub struct Experimenter {
     pub username: String,
     pub role: Role,
     pub csrf: String,
+}
+
+/// A query string that does not parse is the user's mistake: 422 naming the field.
+pub fn query<T>(q: Result<Query<T>, QueryRejection>) -> Result<T, AppError> {
+    q.map(|Query(q)| q)
+        .map_err(|r| AppError::BadRequest(r.body_text()))
 }
 
 pub fn cookie(headers: &HeaderMap, name: &str) -> Option<String> {

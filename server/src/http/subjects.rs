@@ -1,6 +1,7 @@
 //! Subjects: enrolment, the experimenter's view of each, withdrawal, and the subject's own
 //! page data (bearer token of the subject).
 
+use axum::extract::rejection::QueryRejection;
 use axum::extract::{Path, Query, State};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
@@ -9,7 +10,7 @@ use utoipa_axum::routes;
 
 use super::bodies::ReasonBody;
 use super::error::{ApiResult, AppJson, Done, optional_json};
-use super::extract::{Experimenter, SubjectAuth};
+use super::extract::{Experimenter, SubjectAuth, query};
 use crate::engine::procedure::enrolment::enrol;
 use crate::engine::procedure::subjects::{self, OwnProgress, SubjectDetail, SubjectProgress};
 use crate::engine::results::identification::{self, IdentificationView, SubjectStability};
@@ -120,8 +121,9 @@ async fn get_subject_stability(
     State(s): State<AppState>,
     _who: Experimenter,
     Path(id): Path<i64>,
-    Query(q): Query<StabilityQuery>,
+    q: Result<Query<StabilityQuery>, QueryRejection>,
 ) -> ApiResult<SubjectStability> {
+    let q = query(q)?;
     Ok(AppJson(
         identification::subject_stability(&s.pool, &s.stability, id, q.k_bf).await?,
     ))

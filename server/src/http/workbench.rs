@@ -9,8 +9,8 @@ use utoipa::IntoParams;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::error::{ApiResult, AppError, AppJson};
-use super::extract::Experimenter;
+use super::error::{ApiResult, AppJson};
+use super::extract::{Experimenter, query};
 use crate::engine::machine::workbench_analysis::{
     FrequencyReport, RobustnessQuery, RobustnessReport, frequency_report, robustness_report,
 };
@@ -20,12 +20,6 @@ pub fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(frequency))
         .routes(routes!(robustness))
-}
-
-/// A query string that does not parse is the user's mistake: 422 naming the field.
-fn query<T>(q: Result<Query<T>, QueryRejection>) -> Result<T, AppError> {
-    q.map(|Query(q)| q)
-        .map_err(|r| AppError::BadRequest(r.body_text()))
 }
 
 #[derive(Debug, Deserialize, IntoParams)]
