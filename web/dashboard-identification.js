@@ -33,7 +33,29 @@ export async function identificationBlock(id, trials) {
       el('span', { class: 'bode-band' }, '▮ population 2.5–97.5 %')),
     fitted ? fitTable(fitted.fit) : el('p', { class: 'status err' }, `No body fitted: ${latest.fit_error}`),
   );
+  const tuned = [...v.tests].reverse().find((t) => t.designs);
+  if (tuned) box.append(designTable(tuned.designs));
   return box;
+}
+
+/** A personalized study's designs tuned to the subject: each LQR design's weight, the
+ * study's and the subject's, and the margin it keeps for their body (or why none). */
+function designTable(designs) {
+  if (!designs.length) {
+    return el('p', { class: 'status err', 'data-designs': 'none' },
+      'No designs tuned: there is no fitted body; the subject runs the study\'s designs.');
+  }
+  const symbol = { alpha: 'α (tracking)', beta: 'β (cab feedback)' };
+  return el('table', { class: 'grid', 'data-designs': 'personal' },
+    el('thead', {}, el('tr', {},
+      ...['Design', 'Weight', 'Study', 'This subject', 'Stable up to K_BF', ''].map((h) => el('th', {}, h)))),
+    el('tbody', {}, ...designs.map((d) => el('tr', { 'data-controller': d.controller },
+      el('td', {}, d.controller), el('td', {}, symbol[d.weight] || d.weight),
+      el('td', { class: 'num' }, num(d.generic, 3)),
+      el('td', { class: 'num' }, d.value == null ? '—' : num(d.value, 3)),
+      el('td', { class: 'num' }, d.max_stable_kbf == null ? '> 20' : num(d.max_stable_kbf, 3)),
+      el('td', { class: d.reason ? 'status err' : '' }, d.reason || 'runs this subject\'s tests')))),
+    el('caption', {}, 'Designs tuned to this subject (k_h at its 95 % upper bound)'));
 }
 
 function fitTable(f) {

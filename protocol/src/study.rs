@@ -398,6 +398,12 @@ pub struct IdentificationParams {
     /// (`IdentificationParams::instructions_for`).
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub instructions: String,
+    /// Each subject's LQR designs tuned to the body their identification test fitted
+    /// (`bdft_controller::analysis::personal`): the test then runs first of all their
+    /// tests, and every trial records whether its design was the subject's own. Left out
+    /// of the JSON when false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub personalized: bool,
 }
 
 impl IdentificationParams {
@@ -447,6 +453,14 @@ impl IdentificationParams {
                     "{kind} is not one of the study's controllers; the test runs one of them, \
                      whose loop the stability gate has analysed"
                 ),
+            });
+        }
+        if self.personalized && !controllers.iter().any(|c| c.kind().is_lqr()) {
+            return Err(ParamError::Invalid {
+                name: "identification.personalized",
+                message: "the study has no LQR design to tune to its subjects (lqr, lqr-cabvel \
+                          or lqr-cabacc)"
+                    .into(),
             });
         }
         if self.instructions.chars().count() > MAX_TEXT_CHARS {

@@ -66,6 +66,10 @@ enum Command {
         /// with --study must have one in its parameters already.
         #[arg(long)]
         identification: bool,
+        /// As --identification, with the study's LQR designs tuned to each subject's fitted
+        /// body (`identification.personalized`).
+        #[arg(long)]
+        personalized: bool,
     },
     /// The power planner: for candidate numbers of subjects, the chance that each pair of
     /// compensators differs significantly at one seat (exact Wilcoxon, Holm), from whole
@@ -327,11 +331,16 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             seed,
             params,
             identification,
+            personalized,
         } => {
             let pool = store::db::open(&db.db).await?;
+            let identification = identification || personalized;
             let with_identification = |mut p: bdft_protocol::study::StudyParams| {
                 if identification && p.identification.is_none() {
                     p.identification = Some(Default::default());
+                }
+                if let Some(id) = p.identification.as_mut() {
+                    id.personalized |= personalized;
                 }
                 p
             };
@@ -357,6 +366,12 @@ async fn execute(command: Command) -> anyhow::Result<()> {
                         if params.identification.is_none() {
                             anyhow::bail!(
                                 "--identification: study {s} has no identification test; add \"identification\" to its parameters"
+                            );
+                        }
+                        if personalized && !params.identification.is_some_and(|id| id.personalized)
+                        {
+                            anyhow::bail!(
+                                "--personalized: study {s} does not personalize its designs; set \"identification\": {{\"personalized\": true}} in its parameters"
                             );
                         }
                     }

@@ -348,3 +348,181 @@ fn a_short_study_runs_end_to_end_in_a_real_browser() {
         .collect();
     assert!(actions.contains(&json!("trial.start")));
 }
+
+/// A personalized study with a person at a station in Chromium: the identification test
+/// first (the seat moved, the person holds still), then the machine's tests, which run the
+/// LQR designs tuned to the body the test measured; the dashboard shows those designs.
+#[test]
+fn a_personalized_study_runs_end_to_end_in_a_real_browser() {
+    let server = Server::start("browser-personal");
+    let base = server.base.clone();
+    let api = server.experimenter();
+    let downloads = TempDir::new("downloads-personal");
+    let driver = Driver::start();
+
+    let (_, mut params) = api.get("/api/defaults");
+    params["controllers"] = json!(
+        params["controllers"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|c| c["kind"] == "lqr" || c["kind"] == "lqr-cabvel")
+            .cloned()
+            .collect::<Vec<_>>()
+    );
+    params["practice_controller"] = json!("lqr");
+    params["practice_s"] = json!(0.0);
+    params["trial_s"] = json!(2.0);
+    params["step_interval_s"] = json!(0.5);
+    // The person's body is the simulated rig's: a seated one coupled loosely enough for the
+    // study's designs to be stable on it, not with the gate's margin — so the LQR's
+    // tracking weight comes out below the study's for this person.
+    params["body"] = json!({ "kind": "seated", "k_h": 0.15, "torso_f_hz": 4.0,
+        "torso_zeta": 0.4, "arm_f_hz": 6.0, "arm_zeta": 0.3 });
+    // A short multisine (16 s): 10 lines from 0.5 to 8 Hz, three periods after one dropped.
+    params["identification"] = json!({ "personalized": true, "excitation": {
+        "f_min_hz": 0.5, "f_max_hz": 8.0, "lines": 10, "period_s": 4.0, "periods": 3,
+        "transient_periods": 1, "rms_mm": 2.0 } });
+    // Of the flow, not of the display limits or the stale-input stop (as above).
+    params["max_hidden_ms"] = json!(60_000.0);
+    params["max_frame_gap_ms"] = json!(60_000.0);
+    params["stale_input_ms"] = json!(5_000.0);
+    let (code, study) = api.post(
+        "/api/studies",
+        json!({ "name": "Personalized", "params": params, "seed": 3 }),
+    );
+    assert_eq!(code, 200, "{study}");
+    let study = study["id"].as_i64().unwrap();
+
+    let dash = driver.session(downloads.path());
+    dash.log_in_to_dashboard(&base);
+    dash.find("#estop");
+    dash.wait_until(
+        "return [...document.querySelectorAll('#study-select option')].some((o) => o.value === arguments[0]);",
+        json!([study.to_string()]),
+    );
+    dash.choose("#study-select", &study.to_string());
+    dash.click("#enrol");
+    dash.find("tr[data-subject-id]");
+    let subject = api.get(&format!("/api/studies/{study}/subjects")).1[0]["subject"]["id"]
+        .as_i64()
+        .unwrap();
+
+    // One station serving both seats, paired from the dashboard.
+    let seat = driver.session(downloads.path());
+    seat.goto(&format!("{base}/station"));
+    let code = seat.text("#pairing-code");
+    dash.type_into("#pair-code", code.trim());
+    dash.type_into("#pair-name", "Cab");
+    dash.choose("#pair-role", "both");
+    dash.click("#pair-submit");
+    let station = eventually(Duration::from_secs(20), || {
+        api.get(&format!("/api/studies/{study}/stations"))
+            .1
+            .as_array()?
+            .iter()
+            .find(|s| s["name"] == "Cab")?["id"]
+            .as_i64()
+    });
+    dash.choose(
+        &format!("select[data-assign-station='{station}']"),
+        &subject.to_string(),
+    );
+    seat.wait_phase("consent");
+    seat.click("#consent-agree");
+    seat.wait_phase("ready");
+    let start = format!("button[data-action='start'][data-station-id='{station}']");
+
+    // The identification test comes first: its instructions, then the seat moves while
+    // the person holds still (the pointer is not moved).
+    let trials = bdft_tests::server::trial_rows(&api, subject);
+    let ident = trials
+        .iter()
+        .find(|t| t["phase"] == "identification")
+        .unwrap();
+    let told = seat.text("#ready-instructions");
+    assert!(told.contains("you do not steer"), "{told}");
+    run_from_dashboard(
+        &api,
+        &dash,
+        &seat,
+        (subject, ident["slot"].as_i64().unwrap()),
+        &start,
+        &|| {},
+    );
+    // Filed with a fitted body and both designs tuned to it.
+    let (_, view) = api.get(&format!("/api/subjects/{subject}/identification"));
+    let designs = view["tests"][0]["designs"].as_array().unwrap().clone();
+    assert_eq!(designs.len(), 2, "{view}");
+    let fit = &view["tests"][0]["fit"];
+    let k_h = &fit["k_h"];
+    assert!(
+        k_h["lo"].as_f64().unwrap() <= 0.15 && 0.15 <= k_h["hi"].as_f64().unwrap(),
+        "the rig's body is what was measured: {fit}"
+    );
+    let alpha = designs.iter().find(|d| d["controller"] == "lqr").unwrap();
+    assert!(
+        alpha["value"].as_f64().unwrap() < alpha["generic"].as_f64().unwrap(),
+        "{alpha}"
+    );
+
+    // The machine's two tests, tracked and rated, each with the subject's own design.
+    for t in trials
+        .iter()
+        .filter(|t| t["phase"] == "test" && t["station"] == "on")
+        .map(|t| t["slot"].as_i64().unwrap())
+        .collect::<std::collections::BTreeSet<_>>()
+    {
+        seat.wait_phase("ready");
+        run_from_dashboard(&api, &dash, &seat, (subject, t), &start, &|| {
+            track(&seat, 1.0)
+        });
+        seat.wait_phase("survey");
+        for (item, v) in [
+            ("accuracy", 5),
+            ("speed", 4),
+            ("smoothness", 3),
+            ("controllability", 6),
+        ] {
+            seat.click(&format!("input[name='{item}'][value='{v}']"));
+        }
+        seat.click("#survey-submit");
+    }
+    let ran: Vec<Value> = bdft_tests::server::trial_rows(&api, subject)
+        .into_iter()
+        .filter(|t| t["phase"] == "test" && t["status"] == "complete")
+        .collect();
+    assert_eq!(ran.len(), 2, "{ran:?}");
+    for t in &ran {
+        assert_eq!(t["personalized"], true, "{t}");
+        let d = designs
+            .iter()
+            .find(|d| d["controller"] == t["controller"])
+            .unwrap();
+        let spec: Value = serde_json::from_str(t["compensator_json"].as_str().unwrap()).unwrap();
+        assert_eq!(
+            spec["lqr"][d["weight"].as_str().unwrap()],
+            d["value"],
+            "{t}"
+        );
+    }
+
+    // The dashboard's subject view: the Bode plot and the designs tuned to this person.
+    dash.click(&format!("tr[data-subject-id='{subject}']"));
+    let rows = dash.wait_until(
+        "const t = document.querySelector('table[data-designs=personal]'); \
+         return t ? t.querySelectorAll('tbody tr').length : null;",
+        json!([]),
+    );
+    assert_eq!(rows, json!(2));
+    let table = dash.text("table[data-designs=personal]");
+    assert!(
+        table.contains("lqr-cabvel") && table.contains("α"),
+        "{table}"
+    );
+    dash.exec(
+        "document.querySelector('table[data-designs=personal]').scrollIntoView();",
+        json!([]),
+    );
+    shot(&dash, "15-personalized-designs");
+}

@@ -289,3 +289,145 @@ fn in_chromium_a_subjects_schedule_draws_the_identification_as_a_bode_plot() {
     );
     dash.screenshot(&artifacts_dir().join("14-identification-bode.png"));
 }
+
+/// The LQR weight a trial's stored design runs with.
+fn weight_of(trial: &Value, weight: &str) -> f64 {
+    let spec: Value = serde_json::from_str(trial["compensator_json"].as_str().unwrap()).unwrap();
+    spec["lqr"][weight].as_f64().unwrap()
+}
+
+#[test]
+fn a_personalized_study_runs_each_subjects_lqr_designs_tuned_to_their_own_body() {
+    let server = Server::start("ident-personal");
+    let api = server.experimenter();
+    let mut params = params_with_identification(&api, 0.0);
+    params["identification"]["personalized"] = json!(true);
+    // A study with nothing to tune is refused, naming the parameter.
+    let mut pid_only = params.clone();
+    pid_only["controllers"] = json!(
+        params["controllers"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|c| !c["kind"].as_str().unwrap().starts_with("lqr"))
+            .cloned()
+            .collect::<Vec<_>>()
+    );
+    let (code, body) = create(&api, &pid_only);
+    assert_eq!(code, 422, "{body}");
+    assert!(
+        body.to_string().contains("identification.personalized"),
+        "{body}"
+    );
+    let (code, study) = create(&api, &params);
+    assert_eq!(code, 200, "{study}");
+    let generic_alpha = params["controllers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["kind"] == "lqr")
+        .unwrap()["lqr"]["alpha"]
+        .as_f64()
+        .unwrap();
+    let copy = pilot_copy(&api, study["id"].as_i64().unwrap(), 4);
+
+    let required = 1.5 * params["k_bf"].as_f64().unwrap();
+    let (_, subjects) = api.get(&format!("/api/studies/{copy}/subjects"));
+    let mut tuned = 0;
+    for s in subjects.as_array().unwrap() {
+        let id = s["subject"]["id"].as_i64().unwrap();
+        let trials = trial_rows(&api, id);
+        // The identification test runs before every scored test, wherever the subject
+        // starts (the queue runs by block, then queue order).
+        let order = |t: &Value| (t["block"].as_i64(), t["queue_order"].as_i64());
+        let ident = trials
+            .iter()
+            .find(|t| t["phase"] == "identification")
+            .unwrap();
+        assert!(
+            trials
+                .iter()
+                .filter(|t| t["phase"] == "test")
+                .all(|t| order(t) > order(ident)),
+            "{trials:?}"
+        );
+        let (_, view) = api.get(&format!("/api/subjects/{id}/identification"));
+        let designs = view["tests"][0]["designs"].as_array().unwrap();
+        assert_eq!(designs.len(), 2, "lqr and lqr-cabvel: {view}");
+        let (_, own) = api.get(&format!("/api/subjects/{id}/stability"));
+        for d in designs {
+            let kind = d["controller"].as_str().unwrap();
+            let runs: Vec<&Value> = trials
+                .iter()
+                .filter(|t| t["controller"] == kind && t["phase"] == "test")
+                .collect();
+            assert_eq!(runs.len(), 2, "one per seat");
+            let Some(value) = d["value"].as_f64() else {
+                // No design keeps the margin: the study's runs, and the reason is given.
+                assert!(d["reason"].as_str().is_some_and(|r| !r.is_empty()), "{d}");
+                assert!(runs.iter().all(|t| t["personalized"] == false));
+                continue;
+            };
+            tuned += 1;
+            let weight = d["weight"].as_str().unwrap();
+            for t in &runs {
+                assert_eq!(t["personalized"], true, "{t}");
+                assert_eq!(weight_of(t, weight), value);
+                assert_eq!(t["status"], "complete", "{t}");
+            }
+            // The tuned loop keeps the gate's margin for the body it was tuned to.
+            assert!(
+                d["max_stable_kbf"]
+                    .as_f64()
+                    .is_none_or(|k| k >= required - 1e-9),
+                "{d}"
+            );
+            // Tuned to the fitted body at its gain's upper bound, so wherever the study's
+            // design falls short for the fitted body itself, the subject's is more
+            // cautious: a smaller tracking weight, or a larger damping weight.
+            let generic = own["report"]["verdicts"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .find(|v| v["controller"] == kind)
+                .unwrap();
+            if generic["max_stable_kbf"]
+                .as_f64()
+                .is_some_and(|k| k < required)
+            {
+                match weight {
+                    "alpha" => assert!(value < generic_alpha, "{d} vs {generic}"),
+                    _ => assert!(value > d["generic"].as_f64().unwrap(), "{d} vs {generic}"),
+                }
+            }
+        }
+        // Every other design is the study's.
+        assert!(
+            trials
+                .iter()
+                .filter(|t| !t["controller"].as_str().unwrap().starts_with("lqr"))
+                .all(|t| t["personalized"] == false)
+        );
+    }
+    assert!(tuned >= 4, "{tuned} of 8 designs tuned");
+
+    // The trials export says which design each test ran.
+    let (h, rows) = csv(&api, copy, "trials");
+    let col = |name: &str| h.iter().position(|c| c == name).unwrap();
+    let personal: Vec<&Vec<String>> = rows
+        .iter()
+        .filter(|r| r[col("personalized")] == "1")
+        .collect();
+    assert_eq!(personal.len(), 2 * tuned);
+    for r in &personal {
+        assert!(r[col("controller")].starts_with("lqr"), "{r:?}");
+        assert!(!r[col("design_alpha")].is_empty() && !r[col("design_beta")].is_empty());
+    }
+    assert!(
+        rows.iter()
+            .filter(|r| r[col("controller")] == "pid")
+            .all(|r| r[col("personalized")] == "0" && r[col("design_alpha")].is_empty())
+    );
+    let (_, audit) = api.get_text("/api/audit/export");
+    assert_eq!(audit.matches("design.personalize").count(), 4);
+}

@@ -21,6 +21,7 @@ use crate::params::{MAX_KBF, Seat, check};
 pub mod design_view;
 pub mod frequency;
 pub mod nyquist;
+pub mod personal;
 pub mod robustness;
 pub mod state_space;
 

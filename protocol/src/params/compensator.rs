@@ -47,6 +47,12 @@ impl CompensatorKind {
             Self::LqrCabacc => "lqr-cabacc",
         }
     }
+
+    /// The state-feedback designs (an LQR with or without cab feedback): the ones a
+    /// personalized study tunes to each subject.
+    pub fn is_lqr(self) -> bool {
+        matches!(self, Self::Lqr | Self::LqrCabvel | Self::LqrCabacc)
+    }
 }
 
 impl std::fmt::Display for CompensatorKind {

@@ -59,6 +59,10 @@ pub struct TrialExportRow {
     pub latest: bool,
     /// The configuration version the trial ran, as "name vN" (none: not from a version).
     pub config_version: Option<String>,
+    /// The design was tuned to the subject (migration 0026).
+    pub personalized: bool,
+    /// The design the trial ran (`CompensatorSpec`).
+    pub compensator_json: String,
 }
 
 const TRIALS_SQL: &str = "SELECT s.study_id, t.id AS trial_id, s.code, s.enrol_index, s.synthetic, s.starting_station, t.station, t.block, t.position, t.slot, t.attempt, \
@@ -66,7 +70,7 @@ const TRIALS_SQL: &str = "SELECT s.study_id, t.id AS trial_id, s.code, s.enrol_i
      t.mse_tracking_mm2, t.ms_cab_accel, t.cab_aw_m_s2, t.cab_vdv_m_s175, v.accuracy, v.speed, v.smoothness, v.controllability, v.comment, t.protocol_hash, t.started_at, t.finished_at, s.consent_version, \
      t.client_timing_json, t.timing_json, t.accepted_reason, \
      NOT EXISTS (SELECT 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.slot = t.slot AND u.attempt > t.attempt) AS latest, \
-     c.name || ' v' || c.version AS config_version \
+     c.name || ' v' || c.version AS config_version, t.personalized, t.compensator_json \
      FROM trials t JOIN subjects s ON s.id = t.subject_id LEFT JOIN surveys v ON v.trial_id = t.id \
      LEFT JOIN compensator_configs c ON c.id = t.config_id \
      WHERE s.study_id = ?1 AND (?2 OR s.withdrawn_at IS NULL) ORDER BY s.enrol_index, t.slot, t.attempt";

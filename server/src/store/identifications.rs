@@ -2,6 +2,7 @@
 //! and the seated body fitted to it (migration 0025), one row per completed attempt,
 //! written in the trial's filing transaction.
 
+use bdft_controller::analysis::personal::PersonalDesign;
 use bdft_protocol::identification::{BodyFit, FrfPoint};
 use serde::Serialize;
 use sqlx::{SqliteConnection, SqliteExecutor};
@@ -18,6 +19,9 @@ pub struct Identification {
     /// The fitted body, or why the fit failed (`fit_error`).
     pub fit: Option<BodyFit>,
     pub fit_error: Option<String>,
+    /// The designs tuned to the fitted body, in a personalized study (migration 0026).
+    #[schema(value_type = Option<Vec<Object>>)]
+    pub designs: Option<Vec<PersonalDesign>>,
     /// When it was filed (ms since the epoch).
     pub created_at: i64,
 }
@@ -29,6 +33,7 @@ struct Row {
     points_json: String,
     fit_json: Option<String>,
     fit_error: Option<String>,
+    designs_json: Option<String>,
     created_at: i64,
 }
 
@@ -52,19 +57,26 @@ impl TryFrom<Row> for Identification {
                 .transpose()
                 .map_err(bad)?,
             fit_error: r.fit_error,
+            designs: r
+                .designs_json
+                .as_deref()
+                .map(serde_json::from_str)
+                .transpose()
+                .map_err(bad)?,
             created_at: r.created_at,
         })
     }
 }
 
 /// Stores what trial `trial_id` of subject `subject_id` measured: the points, and the fit
-/// or why it failed.
+/// or why it failed, and the designs tuned to it in a personalized study.
 pub async fn insert(
     db: &mut SqliteConnection,
     trial_id: i64,
     subject_id: i64,
     points: &[FrfPoint],
     fit: std::result::Result<&BodyFit, &str>,
+    designs: Option<&[PersonalDesign]>,
 ) -> Result<()> {
     let (fit_json, fit_error) = match fit {
         Ok(f) => (
@@ -74,14 +86,15 @@ pub async fn insert(
         Err(e) => (None, Some(e)),
     };
     sqlx::query(
-        "INSERT INTO identifications (trial_id, subject_id, points_json, fit_json, fit_error, created_at) \
-         VALUES (?, ?, ?, ?, ?, ?)",
+        "INSERT INTO identifications (trial_id, subject_id, points_json, fit_json, fit_error, designs_json, created_at) \
+         VALUES (?, ?, ?, ?, ?, ?, ?)",
     )
     .bind(trial_id)
     .bind(subject_id)
     .bind(serde_json::to_string(points).expect("points serialize"))
     .bind(fit_json)
     .bind(fit_error)
+    .bind(designs.map(|d| serde_json::to_string(d).expect("designs serialize")))
     .bind(now_ms())
     .execute(db)
     .await?;

@@ -33,8 +33,12 @@ pub struct Trial {
     #[serde(rename = "controller")]
     pub compensator: CompensatorKind,
     pub blinded_label: String,
-    /// The full design (`CompensatorSpec`) as recorded at enrolment.
+    /// The full design (`CompensatorSpec`) as recorded at enrolment, or the subject's own
+    /// (`personalized`).
     pub compensator_json: String,
+    /// The design is the one tuned to the subject's identified body (a personalized study's
+    /// LQR designs, once their identification test is filed).
+    pub personalized: bool,
     pub k_bf: f64,
     pub duration_s: f64,
     pub target_seed: i64,
@@ -204,14 +208,34 @@ pub async fn latest_attempt<'c>(db: impl SqliteExecutor<'c>, trial: &Trial) -> R
 /// second re-queue fail.)
 pub async fn insert_next_attempt(db: &mut SqliteConnection, trial_id: i64) -> Result<i64> {
     Ok(sqlx::query(
-        "INSERT INTO trials (subject_id, slot, attempt, phase, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order) \
-         SELECT subject_id, slot, attempt + 1, phase, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, \
+        "INSERT INTO trials (subject_id, slot, attempt, phase, station, block, position, controller, blinded_label, compensator_json, personalized, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order) \
+         SELECT subject_id, slot, attempt + 1, phase, station, block, position, controller, blinded_label, compensator_json, personalized, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, \
          (SELECT MAX(queue_order) + 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.block = t.block) FROM trials t WHERE id = ?",
     )
     .bind(trial_id)
     .execute(db)
     .await?
     .last_insert_rowid())
+}
+
+/// Puts `spec_json`, the subject's own design of `kind`, in place of the design of each of
+/// their scored tests of that kind not yet run (every scheduled attempt); returns how many.
+pub async fn personalize_scheduled(
+    db: &mut SqliteConnection,
+    subject_id: i64,
+    kind: CompensatorKind,
+    spec_json: &str,
+) -> Result<u64> {
+    Ok(sqlx::query(
+        "UPDATE trials SET compensator_json = ?, personalized = 1 \
+         WHERE subject_id = ? AND controller = ? AND phase = 'test' AND status = 'scheduled'",
+    )
+    .bind(spec_json)
+    .bind(subject_id)
+    .bind(kind.name())
+    .execute(db)
+    .await?
+    .rows_affected())
 }
 
 /// Marks a scheduled trial running; fails if it is not scheduled (two starts racing).

@@ -1,14 +1,20 @@
 //! What a completed identification test measured: its record's feedthrough at the excited
 //! frequencies and the seated body fitted to it (`bdft_controller::identification`),
 //! computed off the async threads before the filing's transaction and stored in it, with
-//! its audit row.
+//! its audit row. In a personalized study the study's LQR designs are tuned to the fitted
+//! body there too (`bdft_controller::analysis::personal`), and put in place of the designs
+//! of the subject's tests not yet run.
 
+use bdft_controller::analysis::personal::{PersonalDesign, personalize};
 use bdft_protocol::identification::{BodyFit, Estimate, FrfPoint};
+use bdft_protocol::params::BodyModel;
 use bdft_protocol::records::TestPhase;
+use bdft_protocol::study::StudyParams;
 use bdft_protocol::trial::{TargetSpec, record_channel};
 use serde::Serialize;
 
 use crate::engine::study::schedule::identification_target;
+use crate::engine::study::stability::{MARGIN, study_loop};
 use crate::error::Result;
 use crate::store::records::Record;
 use crate::store::trials::Trial;
@@ -20,15 +26,62 @@ use crate::store::{self, Change};
 pub struct Measured {
     pub points: Vec<FrfPoint>,
     pub fit: std::result::Result<BodyFit, String>,
+    /// The study's LQR designs tuned to the fit, in a personalized study (none otherwise;
+    /// empty when there is no fit to tune to).
+    pub designs: Option<Vec<PersonalDesign>>,
+}
+
+/// The body a subject's designs are tuned to: the fitted one with its gain at the upper
+/// end of its 95 % interval, so that a design keeps its margin for every gain the test
+/// could not rule out (the gain sets how much of the hand's motion is fed back; the
+/// resonances only shape it).
+pub fn design_body(fit: &BodyFit) -> BodyModel {
+    match fit.body() {
+        BodyModel::Seated {
+            torso_f_hz,
+            torso_zeta,
+            arm_f_hz,
+            arm_zeta,
+            ..
+        } => BodyModel::Seated {
+            k_h: fit.k_h.hi,
+            torso_f_hz,
+            torso_zeta,
+            arm_f_hz,
+            arm_zeta,
+        },
+        other => other,
+    }
+}
+
+/// Each of the study's LQR designs tuned to `fit` (`design_body`) to keep the stability
+/// gate's margin at the study's K_BF; a design that cannot be built says so in its reason.
+pub fn personal_designs(params: &StudyParams, fit: &BodyFit) -> Vec<PersonalDesign> {
+    let body = design_body(fit);
+    params
+        .controllers
+        .iter()
+        .filter(|spec| spec.kind().is_lqr())
+        .map(|spec| {
+            let setup = bdft_controller::closed_loop::LoopSetup {
+                body,
+                ..study_loop(params, spec)
+            };
+            personalize(&setup, MARGIN * params.k_bf)
+                .map(|d| d.expect("an LQR design is tuned"))
+                .unwrap_or_else(|e| {
+                    PersonalDesign::refused(
+                        spec,
+                        format!("the design cannot be analysed for this body: {e}"),
+                    )
+                })
+        })
+        .collect()
 }
 
 /// What `trial`'s record measured, when `trial` is an identification test of a study with
 /// `params`; none for any other test.
-pub async fn measure(
-    params: &bdft_protocol::study::StudyParams,
-    trial: &Trial,
-    record: &Record,
-) -> Option<Measured> {
+pub async fn measure(params: &StudyParams, trial: &Trial, record: &Record) -> Option<Measured> {
     if trial.phase != TestPhase::Identification {
         return None;
     }
@@ -38,6 +91,7 @@ pub async fn measure(
         return Some(Measured {
             points: Vec::new(),
             fit: Err("the study has no identification test".into()),
+            designs: None,
         });
     };
     let channel = |name| {
@@ -47,24 +101,39 @@ pub async fn measure(
             .unwrap_or_default()
     };
     let (cab, device, dt) = (channel("cab_accel_mm_s2"), channel("device_mm"), record.dt);
-    // The estimate and fit take up to a second: not on the async threads.
+    let personalized = params
+        .identification
+        .as_ref()
+        .is_some_and(|id| id.personalized)
+        .then(|| params.clone());
+    // The estimate, fit and tuning take up to a few seconds: not on the async threads.
     let measured = tokio::task::spawn_blocking(move || {
         use bdft_controller::identification::{estimate, fit_body};
-        match estimate(&excitation, dt, &cab, &device) {
-            Err(e) => Measured {
-                points: Vec::new(),
-                fit: Err(format!("the record could not be estimated: {e}")),
-            },
+        let (points, fit) = match estimate(&excitation, dt, &cab, &device) {
+            Err(e) => (
+                Vec::new(),
+                Err(format!("the record could not be estimated: {e}")),
+            ),
             Ok(points) => {
                 let fit = fit_body(&points).map_err(|e| format!("the body fit failed: {e}"));
-                Measured { points, fit }
+                (points, fit)
             }
+        };
+        let designs = personalized.map(|params| match &fit {
+            Ok(fit) => personal_designs(&params, fit),
+            Err(_) => Vec::new(),
+        });
+        Measured {
+            points,
+            fit,
+            designs,
         }
     })
     .await;
     Some(measured.unwrap_or_else(|e| Measured {
         points: Vec::new(),
         fit: Err(format!("the estimation stopped: {e}")),
+        designs: None,
     }))
 }
 
@@ -89,8 +158,12 @@ pub async fn store(change: &mut Change, trial: &Trial, measured: &Measured) -> R
         trial.subject_id,
         &measured.points,
         measured.fit.as_ref().map_err(String::as_str),
+        measured.designs.as_deref(),
     )
     .await?;
+    if let Some(designs) = &measured.designs {
+        personalize_tests(change, trial, designs).await?;
+    }
     let fit = measured.fit.as_ref().ok();
     change
         .audit_also(
@@ -105,6 +178,49 @@ pub async fn store(change: &mut Change, trial: &Trial, measured: &Measured) -> R
                 residual_rms: fit.map(|f| f.residual_rms),
                 unidentified: fit.map(|f| f.unidentified.as_slice()),
                 fit_error: measured.fit.as_ref().err().map(String::as_str),
+            },
+        )
+        .await
+}
+
+/// What `design.personalize` records: each design tuned to the subject, and how many of
+/// their tests now run it.
+#[derive(Debug, Serialize)]
+struct Personalized<'a> {
+    subject_id: i64,
+    designs: &'a [PersonalDesign],
+    tests: u64,
+}
+
+/// Puts each tuned design in place of the subject's scheduled tests of its kind, audited
+/// as `design.personalize`; a design that could not be tuned leaves the study's in place
+/// (its reason is in the record).
+async fn personalize_tests(
+    change: &mut Change,
+    trial: &Trial,
+    designs: &[PersonalDesign],
+) -> Result<()> {
+    let mut tests = 0;
+    for d in designs {
+        if let Some(spec) = &d.spec {
+            let json = serde_json::to_string(spec).expect("specs serialize");
+            tests += store::trials::personalize_scheduled(
+                change.db(),
+                trial.subject_id,
+                d.controller,
+                &json,
+            )
+            .await?;
+        }
+    }
+    change
+        .audit_also(
+            "design.personalize",
+            Some(format!("subject:{}", trial.subject_id)),
+            Personalized {
+                subject_id: trial.subject_id,
+                designs,
+                tests,
             },
         )
         .await

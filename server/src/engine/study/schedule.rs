@@ -204,7 +204,15 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
         // Drawn after every other test's seed, so adding identification to a study leaves
         // its orders, labels and targets as they were.
         let seed = rng.next_u64() >> 11;
-        let block = if start == Seat::On { 1 } else { 2 };
+        // First in the block on the machine; in a personalized study first of all the
+        // scored tests, wherever the subject starts, so every test of an LQR design runs
+        // the subject's own (desk tests too: the designs compared must be the same on
+        // both seats).
+        let block = if start == Seat::On || id.personalized {
+            1
+        } else {
+            2
+        };
         let first_slot = if block == 1 {
             1
         } else {
@@ -388,6 +396,44 @@ mod tests {
             schedule(&p, 100, 0),
             "the study seed matters"
         );
+    }
+
+    #[test]
+    fn the_identification_test_comes_first_on_the_machine_or_first_of_all_when_personalized() {
+        use bdft_protocol::study::IdentificationParams;
+        let mut p = default_params();
+        for personalized in [false, true] {
+            p.identification = Some(IdentificationParams {
+                personalized,
+                ..Default::default()
+            });
+            for idx in 0..4 {
+                let s = schedule(&p, 7, idx);
+                let id = s
+                    .iter()
+                    .find(|t| t.phase == TestPhase::Identification)
+                    .unwrap();
+                assert_eq!(id.seat, Seat::On);
+                // The queue runs by block, then queue order.
+                let first_scored = s
+                    .iter()
+                    .filter(|t| t.phase == TestPhase::Test)
+                    .min_by_key(|t| (t.block, t.queue_order))
+                    .unwrap();
+                let first_on = s
+                    .iter()
+                    .filter(|t| t.phase == TestPhase::Test && t.seat == Seat::On)
+                    .min_by_key(|t| (t.block, t.queue_order))
+                    .unwrap();
+                let before =
+                    |t: &ScheduledTest| (id.block, id.queue_order) < (t.block, t.queue_order);
+                assert!(before(first_on), "{idx}");
+                assert_eq!(
+                    before(first_scored),
+                    personalized || first_scored.seat == Seat::On
+                );
+            }
+        }
     }
 
     #[test]

@@ -364,6 +364,24 @@ pub fn trials(survey: &SurveyParams) -> Vec<Column> {
             TEXT,
             "the controller configuration version the trial ran (\"name vN\"; empty: a design not from a version)",
         ),
+        col(
+            "personalized",
+            "",
+            FLAG,
+            "the design was tuned to the subject's identified body (a personalized study's LQR designs)",
+        ),
+        col(
+            "design_alpha",
+            "1",
+            num(4),
+            "the LQR design's tracking weight α as run (empty: not an LQR design)",
+        ),
+        col(
+            "design_beta",
+            "1",
+            num(4),
+            "the LQR design's cab-feedback weight β as run (empty: not an LQR design)",
+        ),
     ]);
     c
 }

@@ -182,7 +182,26 @@ pub fn trial_cells(r: &TrialExportRow) -> Vec<Cell<'_>> {
     ];
     cells.extend(validity_cells(r));
     cells.push(opt_text(&r.config_version));
+    cells.extend(design_cells(r));
     cells
+}
+
+/// Whether the trial's design was the subject's own, and its LQR weights as run.
+fn design_cells(r: &TrialExportRow) -> [Cell<'_>; 3] {
+    use bdft_protocol::params::CompensatorSpec;
+    let lqr = match serde_json::from_str(&r.compensator_json) {
+        Ok(
+            CompensatorSpec::Lqr { lqr }
+            | CompensatorSpec::LqrCabvel { lqr }
+            | CompensatorSpec::LqrCabacc { lqr },
+        ) => Some(lqr),
+        _ => None,
+    };
+    [
+        Cell::flag(r.personalized),
+        Cell::Num(lqr.as_ref().map(|l| l.alpha)),
+        Cell::Num(lqr.as_ref().map(|l| l.beta)),
+    ]
 }
 
 /// How the test ran (validity): the station's display and input, the controller's timing,
