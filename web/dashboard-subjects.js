@@ -327,7 +327,7 @@ function exposureBlock(x) {
 /** The schedule's frame (heading, table, notes), made once per subject. */
 function frame(subjectId) {
   const box = $('schedule');
-  if (box.dataset.subjectId === String(subjectId) && box.querySelector('tbody')) return box;
+  if (box.dataset.subjectId === String(subjectId) && box.querySelector('.schedule-table > tbody')) return box;
   box.replaceChildren(
     el('div', { class: 'schedule-head' }),
     el(
@@ -383,7 +383,7 @@ function renderSchedule(d) {
     ...(generalNotes.length ? [el('h4', {}, 'Notes on the subject'), ...generalNotes.map(noteLine)] : []),
   );
 
-  syncRows(box.querySelector('tbody'), trials, {
+  syncRows(box.querySelector('.schedule-table > tbody'), trials, {
     key: (x) => x.trial.id,
     sig: (x) => {
       const t = x.trial;
