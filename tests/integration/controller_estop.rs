@@ -34,18 +34,7 @@ fn estop_stops_everything_and_latches_until_reset() {
     link.send(&ServerToController::EStop {});
     link.step(1, &mut log);
     for id in [1, 2] {
-        let r = log
-            .results
-            .iter()
-            .find(|r| r.trial_id == id)
-            .expect("stopped");
-        assert!(matches!(
-            r.outcome,
-            Outcome::Faulted {
-                fault: FaultKind::EStop,
-                ..
-            }
-        ));
+        let r = log.assert_faulted(id, FaultKind::EStop);
         assert!(r.metrics.ticks <= 101);
     }
     assert!(log.faults.iter().any(|f| matches!(

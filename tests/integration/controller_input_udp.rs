@@ -96,22 +96,7 @@ fn spoofed_and_replayed_input_datagrams_never_keep_a_trial_alive() {
             break;
         }
     }
-    let r = log
-        .results
-        .iter()
-        .find(|r| r.trial_id == 1)
-        .expect("the trial ended");
-    assert!(
-        matches!(
-            r.outcome,
-            Outcome::Faulted {
-                fault: FaultKind::StaleInput,
-                ..
-            }
-        ),
-        "{:?}",
-        r.outcome
-    );
+    log.assert_faulted(1, FaultKind::StaleInput);
     assert!(
         log.live.iter().all(|s| s.input_seq <= 1),
         "no foreign sequence was used"

@@ -170,22 +170,7 @@ fn the_estop_path_stops_every_trial_at_the_next_tick_and_can_do_nothing_else() {
     // Confirmed before the next tick has run: that tick ends every trial.
     link.step(1, &mut log);
     for id in [1, 2] {
-        let r = log
-            .results
-            .iter()
-            .find(|r| r.trial_id == id)
-            .expect("ended");
-        assert!(
-            matches!(
-                r.outcome,
-                Outcome::Faulted {
-                    fault: FaultKind::EStop,
-                    ..
-                }
-            ),
-            "{:?}",
-            r.outcome
-        );
+        let r = log.assert_faulted(id, FaultKind::EStop);
         assert!(r.metrics.ticks <= 101, "stopped at the next tick");
     }
     // The path can stop the machine, never move it or clear the latch.

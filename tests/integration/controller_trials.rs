@@ -130,22 +130,7 @@ fn stale_operator_input_stops_the_trial_with_a_fault() {
     assert!(log.live.iter().any(|s| s.input_seq == 30));
     // Then silence: the trial must fault once the last input is older than 100 ms.
     link.step(200, &mut log);
-    let r = log
-        .results
-        .iter()
-        .find(|r| r.trial_id == 5)
-        .expect("faulted");
-    assert!(
-        matches!(
-            r.outcome,
-            Outcome::Faulted {
-                fault: FaultKind::StaleInput,
-                ..
-            }
-        ),
-        "{:?}",
-        r.outcome
-    );
+    let r = log.assert_faulted(5, FaultKind::StaleInput);
     // The last input arrived before tick 290; the trial ran until it was 100 ticks old.
     let ticks = r.metrics.ticks;
     assert!((385..=392).contains(&ticks), "stopped after {ticks} ticks");
@@ -162,18 +147,7 @@ fn stale_operator_input_stops_the_trial_with_a_fault() {
         server_input_trial(6, 10.0),
     )));
     link.step(150, &mut log);
-    let r = log
-        .results
-        .iter()
-        .find(|r| r.trial_id == 6)
-        .expect("faulted");
-    assert!(matches!(
-        r.outcome,
-        Outcome::Faulted {
-            fault: FaultKind::StaleInput,
-            ..
-        }
-    ));
+    log.assert_faulted(6, FaultKind::StaleInput);
 }
 
 #[test]

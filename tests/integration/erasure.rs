@@ -15,8 +15,8 @@ use std::path::Path;
 use std::time::Duration;
 
 use bdft_tests::server::{
-    ADMIN_PASSWORD, Api, Server, dry_run, eventually, pair_station, person_at_a_station, run_trial,
-    short_study, with_db,
+    ADMIN_PASSWORD, Api, Server, assigned_station, dry_run, eventually, pair_station,
+    person_at_a_station, run_trial, short_study, with_db,
 };
 use bdft_tests::webdriver::{Session, artifacts_dir};
 use bdft_tests::{TempDir, binary};
@@ -40,11 +40,7 @@ fn at_a_station(api: &Api, study: i64) -> (i64, String, String, Api) {
         json!({ "synthetic": true }),
     );
     let subject = e["subject"]["id"].as_i64().unwrap();
-    let (station, token) = pair_station(api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
+    let (_, token) = assigned_station(api, study, subject);
     let st = Api::with_bearer(&api.base, &token);
     st.ok("/api/station/consent", json!({ "decision": "agreed" }));
     (

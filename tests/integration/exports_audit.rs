@@ -5,7 +5,7 @@
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use bdft_tests::server::{Api, Server, eventually, pair_station};
+use bdft_tests::server::{Api, Server, assigned_station, eventually};
 use bdft_tests::{TempDir, binary};
 use serde_json::{Value, json};
 
@@ -33,11 +33,7 @@ fn notes_and_reasons_are_exported_and_the_audit_log_too() {
     let subject = api.ok(&format!("/api/studies/{study}/subjects"), json!({}))["subject"]["id"]
         .as_i64()
         .unwrap();
-    let (station, token) = pair_station(&api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
+    let (_, token) = assigned_station(&api, study, subject);
     Api::with_bearer(&api.base, &token).ok("/api/station/consent", json!({ "decision": "agreed" }));
     let (_, s) = api.get(&format!("/api/subjects/{subject}"));
     let trial = s["trials"][1]["trial"]["id"].as_i64().unwrap();

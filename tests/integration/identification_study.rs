@@ -6,7 +6,7 @@
 
 use bdft_tests::TempDir;
 use bdft_tests::exports::parse_csv;
-use bdft_tests::server::{Api, Server, pair_station, pilot_copy, trial_rows};
+use bdft_tests::server::{Api, Server, assigned_station, pilot_copy, trial_rows};
 use bdft_tests::webdriver::{Driver, artifacts_dir};
 use serde_json::{Value, json};
 
@@ -221,11 +221,7 @@ fn the_station_tells_the_subject_the_identification_task_and_shows_no_target() {
     // the first thing they do.
     let enrolled = api.ok(&format!("/api/studies/{study}/subjects"), json!({}));
     let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let (station, token) = pair_station(&api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
+    let (_, token) = assigned_station(&api, study, subject);
     let st = Api::with_bearer(&server.base, &token);
     st.ok("/api/station/consent", json!({ "decision": "agreed" }));
     let (_, view) = st.get("/api/station/state");

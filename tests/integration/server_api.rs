@@ -4,7 +4,9 @@
 use std::time::{Duration, Instant};
 
 use bdft_tests::controller_link::Proc;
-use bdft_tests::server::{Api, Server, dry_run, eventually, pair_station, run_trial, short_study};
+use bdft_tests::server::{
+    Api, Server, assigned_station, dry_run, eventually, pair_station, run_trial, short_study,
+};
 use bdft_tests::{TempDir, binary};
 use serde_json::{Value, json};
 
@@ -36,11 +38,7 @@ fn ready_subject(api: &Api, study: i64, synthetic: bool) -> (i64, Api) {
         json!({ "synthetic": synthetic }),
     );
     let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let (station, token) = pair_station(api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
+    let (_, token) = assigned_station(api, study, subject);
     let st = Api::with_bearer(&api.base, &token);
     let (_, state) = st.get("/api/station/state");
     assert_eq!(state["phase"], "consent", "{state}");
@@ -321,11 +319,7 @@ fn tokens_never_open_experimenter_routes_and_bad_input_gets_4xx() {
         .as_i64()
         .unwrap();
     let enrolled = api.ok(&format!("/api/studies/{real}/subjects"), json!({}));
-    let (st_id, st_token) = pair_station(&api, real, "both");
-    api.ok(
-        &format!("/api/stations/{st_id}/assign"),
-        json!({ "subject_id": enrolled["subject"]["id"] }),
-    );
+    let (_, st_token) = assigned_station(&api, real, enrolled["subject"]["id"].as_i64().unwrap());
     Api::with_bearer(&server.base, &st_token)
         .ok("/api/station/consent", json!({ "decision": "agreed" }));
     let (_, s) = api.get(&format!("/api/subjects/{}", enrolled["subject"]["id"]));

@@ -5,7 +5,8 @@
 use std::time::Duration;
 
 use bdft_tests::server::{
-    Api, Server, dry_run, eventually, pair_station, run_pilot, run_trial, short_study,
+    Api, Server, assigned_station, dry_run, eventually, pair_station, run_pilot, run_trial,
+    short_study,
 };
 use serde_json::{Value, json};
 
@@ -41,11 +42,7 @@ fn consented_synthetic_subject(server: &Server, api: &Api, study: i64) -> (i64, 
         json!({ "synthetic": true }),
     );
     let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let (station, token) = pair_station(api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
+    let (_, token) = assigned_station(api, study, subject);
     let (practice, pid) = consent_at(server, api, &token, subject);
     (subject, practice, pid)
 }
@@ -116,11 +113,7 @@ fn racing_changes_are_serialized_or_refused_never_a_500() {
     // Run the first subject's practice, then redo it eight times at once: one new attempt,
     // seven clear conflicts.
     let subject = answers[0].1["subject"]["id"].as_i64().unwrap();
-    let (station, token) = pair_station(&api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
+    let (_, token) = assigned_station(&api, study, subject);
     let (practice, _) = consent_at(&server, &api, &token, subject);
     let done = run_trial(&api, subject, practice);
     assert_eq!(done["status"], "complete", "{done}");
@@ -528,11 +521,7 @@ fn the_estop_is_confirmed_while_a_station_floods_input() {
     // A person's test, fed by the station socket.
     let enrolled = api.ok(&format!("/api/studies/{study}/subjects"), json!({}));
     let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let (station, token) = pair_station(&api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
+    let (_, token) = assigned_station(&api, study, subject);
     let (practice, _) = consent_at(&server, &api, &token, subject);
     let ws_url = format!(
         "{}/api/station/ws?token={token}",

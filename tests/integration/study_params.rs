@@ -5,7 +5,7 @@
 use std::time::Duration;
 
 use bdft_tests::TempDir;
-use bdft_tests::server::{Api, Server, eventually, pair_station};
+use bdft_tests::server::{Api, Server, assigned_station, eventually};
 use bdft_tests::webdriver::Driver;
 use serde_json::{Value, json};
 
@@ -114,11 +114,7 @@ fn german_study(api: &Api, trial_s: f64, practice_s: f64) -> (i64, String) {
     let subject = api.ok(&format!("/api/studies/{study}/subjects"), json!({}))["subject"]["id"]
         .as_i64()
         .unwrap();
-    let (station, token) = pair_station(api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
+    let (_, token) = assigned_station(api, study, subject);
     (subject, token)
 }
 

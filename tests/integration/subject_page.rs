@@ -7,7 +7,7 @@
 use std::time::Duration;
 
 use bdft_tests::TempDir;
-use bdft_tests::server::{Api, Server, eventually, pair_station, short_study};
+use bdft_tests::server::{Api, Server, assigned_station, eventually, short_study};
 use bdft_tests::webdriver::Driver;
 use serde_json::{Value, json};
 
@@ -75,11 +75,7 @@ fn the_subject_reads_blinded_progress_and_withdraws_which_stops_their_running_te
     assert_blinded(&own.to_string());
 
     // A running test of theirs, at a station.
-    let (station, station_token) = pair_station(&api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
+    let (_, station_token) = assigned_station(&api, study, subject);
     Api::with_bearer(&server.base, &station_token)
         .ok("/api/station/consent", json!({ "decision": "agreed" }));
     eventually(Duration::from_secs(30), || {

@@ -13,6 +13,7 @@ use bdft_protocol::controller_to_server::{
 use bdft_protocol::framing::BlockingFramed;
 use bdft_protocol::link_auth::{Bytes32, KEY_ENV, LinkKey, LinkRole};
 use bdft_protocol::server_to_controller::{ServerToController, StartTrial};
+use bdft_protocol::trial::{FaultKind, Outcome};
 
 use crate::binary;
 
@@ -311,6 +312,21 @@ impl TrialLog {
             f @ ControllerToServer::Fault { .. } => self.faults.push(f),
             other => self.other.push(other),
         }
+    }
+
+    /// Asserts that `trial_id` has ended on a fault of kind `kind`; its result.
+    pub fn assert_faulted(&self, trial_id: u64, kind: FaultKind) -> &TrialResult {
+        let r = self
+            .results
+            .iter()
+            .find(|r| r.trial_id == trial_id)
+            .unwrap_or_else(|| panic!("trial {trial_id} has not ended"));
+        assert!(
+            matches!(r.outcome, Outcome::Faulted { fault, .. } if fault == kind),
+            "trial {trial_id}: {:?}",
+            r.outcome
+        );
+        r
     }
 
     /// The full record of a trial, channel by channel, checking the chunks are in order

@@ -503,11 +503,7 @@ pub fn pilot_copy(api: &Api, study: i64, subjects: u32) -> i64 {
 pub fn person_at_a_station(server: &Server, api: &Api, study: i64) -> (i64, i64, String) {
     let enrolled = api.ok(&format!("/api/studies/{study}/subjects"), json!({}));
     let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let (station, token) = pair_station(api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": subject }),
-    );
+    let (station, token) = assigned_station(api, study, subject);
     Api::with_bearer(&server.base, &token)
         .ok("/api/station/consent", json!({ "decision": "agreed" }));
     controller_ready(api);
@@ -522,11 +518,8 @@ pub fn synthetic_at_a_station(api: &Api, study: i64) -> (Value, i64, Api) {
         &format!("/api/studies/{study}/subjects"),
         json!({ "synthetic": true }),
     );
-    let (station, token) = pair_station(api, study, "both");
-    api.ok(
-        &format!("/api/stations/{station}/assign"),
-        json!({ "subject_id": enrolled["subject"]["id"] }),
-    );
+    let (station, token) =
+        assigned_station(api, study, enrolled["subject"]["id"].as_i64().unwrap());
     let station_api = Api::with_bearer(&api.base, &token);
     station_api.ok("/api/station/consent", json!({ "decision": "agreed" }));
     (enrolled["subject"].clone(), station, station_api)
@@ -535,6 +528,17 @@ pub fn synthetic_at_a_station(api: &Api, study: i64) -> (Value, i64, Api) {
 /// Pairs a new station with `role` to `study`; returns (station id, station token).
 pub fn pair_station(api: &Api, study: i64, role: &str) -> (i64, String) {
     pair_named(api, study, &format!("station-{role}"), role)
+}
+
+/// Pairs a new station serving both seats to `study` and assigns `subject` to it; returns
+/// (station id, station token).
+pub fn assigned_station(api: &Api, study: i64, subject: i64) -> (i64, String) {
+    let (station, token) = pair_station(api, study, "both");
+    api.ok(
+        &format!("/api/stations/{station}/assign"),
+        json!({ "subject_id": subject }),
+    );
+    (station, token)
 }
 
 /// Pairs a new station called `name` with `role` to `study`: (station id, station token).

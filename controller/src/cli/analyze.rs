@@ -13,6 +13,7 @@ use bdft_controller::params::{LoopParams, MAX_KBF, NOMINAL_KBF, Seat};
 
 use super::params::load_params;
 use super::values::parse_kbf;
+use super::write_result;
 
 #[derive(Debug, clap::Args)]
 pub(super) struct AnalyzeArgs {
@@ -57,13 +58,7 @@ pub(super) fn run(args: AnalyzeArgs, out: &mut impl Write) -> anyhow::Result<()>
         compensators,
         comparison,
     };
-    if json {
-        serde_json::to_writer(&mut *out, &report)?;
-        writeln!(out)?;
-    } else {
-        print_analysis(out, &report)?;
-    }
-    Ok(())
+    write_result(out, json, &report, print_analysis)
 }
 
 fn print_analysis(out: &mut impl Write, r: &AnalysisReport) -> std::io::Result<()> {

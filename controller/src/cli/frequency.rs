@@ -10,6 +10,7 @@ use bdft_controller::params::{MAX_KBF, NOMINAL_KBF, Seat};
 
 use super::params::{design, load_params};
 use super::values::parse_kbf;
+use super::write_result;
 
 #[derive(Debug, clap::Args)]
 pub(super) struct FrequencyArgs {
@@ -53,10 +54,7 @@ pub(super) fn run(args: FrequencyArgs, out: &mut impl Write) -> anyhow::Result<(
         .collect::<anyhow::Result<Vec<_>>>()?;
     let base = params.setup(CompensatorKind::Pid, Seat::On, kbf);
     let r = frequency::report(&base, &designs)?;
-    if json {
-        serde_json::to_writer(&mut *out, &r)?;
-        writeln!(out)?;
-    } else {
+    write_result(out, json, &r, |out, r| {
         writeln!(
             out,
             "K_BF {kbf}: the feedthrough loop opened (Nyquist), {} frequencies {:.2}–{:.0} Hz",
@@ -80,6 +78,6 @@ pub(super) fn run(args: FrequencyArgs, out: &mut impl Write) -> anyhow::Result<(
                 c.name, n.stable, n.encirclements, n.open_loop_unstable
             )?;
         }
-    }
-    Ok(())
+        Ok(())
+    })
 }

@@ -1,11 +1,12 @@
 //! Command-line interface. Other tools call these commands; the names and JSON fields are a
 //! contract.
 //!
-//! Here: the command list (each command's help text) and the dispatch. Each command's
-//! options, its run and what it prints are in a module of its own: `analyze`, `robustness`,
-//! `frequency`, `simulate`, and `realtime` for `keygen`, `rig-sim` and `bench-rt` (`serve`'s
-//! options are `runtime::ServeArgs`, shared with the server). `values` parses the numbers
-//! among the options with their ranges; `params` reads a parameter file and design names.
+//! Here: the command list (each command's help text), the dispatch, and `write_result`,
+//! how every command with `--json` prints its result. Each command's options, its run and
+//! what it prints are in a module of its own: `analyze`, `robustness`, `frequency`,
+//! `simulate`, and `realtime` for `keygen`, `rig-sim` and `bench-rt` (`serve`'s options are
+//! `runtime::ServeArgs`, shared with the server). `values` parses the numbers among the
+//! options with their ranges; `params` reads a parameter file and design names.
 
 mod analyze;
 mod frequency;
@@ -80,6 +81,23 @@ pub fn run() -> ExitCode {
             ExitCode::from(2)
         }
     }
+}
+
+/// What a command with `--json` prints: its result as one line of JSON (the contract other
+/// tools read), or else the summary `summary` writes of it.
+fn write_result<W: Write, T: serde::Serialize>(
+    out: &mut W,
+    json: bool,
+    result: &T,
+    summary: impl FnOnce(&mut W, &T) -> std::io::Result<()>,
+) -> anyhow::Result<()> {
+    if json {
+        serde_json::to_writer(&mut *out, result)?;
+        writeln!(out)?;
+    } else {
+        summary(out, result)?;
+    }
+    Ok(())
 }
 
 fn execute(command: Command) -> anyhow::Result<()> {

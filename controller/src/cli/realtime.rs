@@ -11,6 +11,7 @@ use bdft_controller::params::{LoopParams, PlantParams};
 use bdft_controller::runtime;
 
 use super::values::parse_duration;
+use super::write_result;
 
 #[derive(Debug, clap::Args)]
 pub(super) struct KeygenArgs {
@@ -86,10 +87,7 @@ pub(super) fn bench_rt(args: BenchRtArgs, out: &mut impl Write) -> anyhow::Resul
         priority,
         lsl,
     )?;
-    if json {
-        serde_json::to_writer(&mut *out, &r)?;
-        writeln!(out)?;
-    } else {
+    write_result(out, json, &r, |out, r| {
         writeln!(
             out,
             "{} trials for {} s: {} ticks, {} overruns",
@@ -110,6 +108,6 @@ pub(super) fn bench_rt(args: BenchRtArgs, out: &mut impl Write) -> anyhow::Resul
             writeln!(out, "LSL hand-over: {dropped} rows dropped")?;
         }
         writeln!(out, "real-time: {:?}", r.realtime)?;
-    }
-    Ok(())
+        Ok(())
+    })
 }

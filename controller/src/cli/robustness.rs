@@ -12,6 +12,7 @@ use bdft_controller::params::{MAX_KBF, Seat};
 
 use super::params::{design, load_params};
 use super::values::{parse_kbf, parse_range};
+use super::write_result;
 
 #[derive(Debug, clap::Args)]
 pub(super) struct RobustnessArgs {
@@ -86,16 +87,13 @@ pub(super) fn run(args: RobustnessArgs, out: &mut impl Write) -> anyhow::Result<
             robustness(name, &setup, &spec).with_context(|| format!("analysing {name}"))
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    if json {
-        serde_json::to_writer(&mut *out, &reports)?;
-        writeln!(out)?;
-    } else {
+    write_result(out, json, &reports, |out, reports| {
         writeln!(
             out,
             "{:<26} {:>14} {:>14} {:>10}",
             "design", "min max K_BF", "max max K_BF", "pass rate"
         )?;
-        for r in &reports {
+        for r in reports {
             let cells = r.max_stable_kbf.iter().flatten();
             let lo = cells
                 .clone()
@@ -107,6 +105,6 @@ pub(super) fn run(args: RobustnessArgs, out: &mut impl Write) -> anyhow::Result<
                 .map_or_else(|| "—".into(), |p| format!("{:.1} %", 100.0 * p));
             writeln!(out, "{:<26} {lo:>14.4} {hi:>14.4} {rate:>10}", r.design)?;
         }
-    }
-    Ok(())
+        Ok(())
+    })
 }

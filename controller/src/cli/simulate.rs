@@ -14,6 +14,7 @@ use bdft_protocol::trial::{RECORD_CHANNELS, RECORD_TIME};
 
 use super::params::load_params;
 use super::values::{parse_duration, parse_kbf_positive};
+use super::write_result;
 
 #[derive(Debug, clap::Args)]
 pub(super) struct SimulateArgs {
@@ -85,10 +86,7 @@ pub(super) fn run(args: SimulateArgs, out: &mut impl Write) -> anyhow::Result<()
         Some(path) => write_record(&cfg, &path)?,
         None => simulate(&cfg, |_| {})?,
     };
-    if json {
-        serde_json::to_writer(&mut *out, &summary)?;
-        writeln!(out)?;
-    } else {
+    write_result(out, json, &summary, |out, summary| {
         writeln!(out, "compensator       {}", summary.compensator)?;
         writeln!(
             out,
@@ -121,8 +119,8 @@ pub(super) fn run(args: SimulateArgs, out: &mut impl Write) -> anyhow::Result<()
             )?,
             _ => writeln!(out, "outcome           {}", summary.outcome)?,
         }
-    }
-    Ok(())
+        Ok(())
+    })
 }
 
 /// Simulates while streaming the record to a CSV file; the file only appears complete

@@ -20,6 +20,7 @@ pub mod identifications;
 pub mod latch;
 pub mod pilot_runs;
 pub mod populations;
+mod process_runs;
 pub mod records;
 pub mod server_runs;
 pub mod stations;

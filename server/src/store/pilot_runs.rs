@@ -5,6 +5,7 @@
 use sqlx::{SqliteConnection, SqliteExecutor};
 
 use super::db::now_ms;
+use super::process_runs;
 use crate::error::Result;
 
 /// Registers a pilot process; returns the run's id.
@@ -23,12 +24,7 @@ pub async fn start(db: &mut SqliteConnection, pid: u32) -> Result<i64> {
 
 /// The run is alive. Not audited: a heartbeat changes no state of the study.
 pub async fn beat<'c>(db: impl SqliteExecutor<'c>, run_id: i64) -> Result<()> {
-    sqlx::query("UPDATE pilot_runs SET beat_at = ? WHERE id = ? AND ended_at IS NULL")
-        .bind(now_ms())
-        .bind(run_id)
-        .execute(db)
-        .await?;
-    Ok(())
+    process_runs::beat(db, "pilot_runs", run_id).await
 }
 
 /// `trial_id` is run by the pilot `run_id` (in the transaction that marks it running).
@@ -64,10 +60,6 @@ pub async fn end(db: &mut SqliteConnection, run_id: i64, reason: &str) -> Result
     .bind(run_id)
     .fetch_all(&mut *db)
     .await?;
-    sqlx::query("UPDATE pilot_runs SET ended_at = ? WHERE id = ? AND ended_at IS NULL")
-        .bind(now)
-        .bind(run_id)
-        .execute(&mut *db)
-        .await?;
+    process_runs::end(&mut *db, "pilot_runs", run_id, now).await?;
     Ok(ids.into_iter().map(|r| r.0).collect())
 }

@@ -4,6 +4,7 @@
 use sqlx::{SqliteConnection, SqliteExecutor};
 
 use super::db::now_ms;
+use super::process_runs;
 use crate::error::Result;
 
 /// Registers a serving process; returns the run's id.
@@ -23,22 +24,12 @@ pub async fn start<'c>(db: impl SqliteExecutor<'c>, pid: u32, listen: &str) -> R
 
 /// The server is alive. Not audited: a heartbeat changes no state of a study.
 pub async fn beat<'c>(db: impl SqliteExecutor<'c>, run_id: i64) -> Result<()> {
-    sqlx::query("UPDATE server_runs SET beat_at = ? WHERE id = ? AND ended_at IS NULL")
-        .bind(now_ms())
-        .bind(run_id)
-        .execute(db)
-        .await?;
-    Ok(())
+    process_runs::beat(db, "server_runs", run_id).await
 }
 
 /// The server stopped serving.
 pub async fn end<'c>(db: impl SqliteExecutor<'c>, run_id: i64) -> Result<()> {
-    sqlx::query("UPDATE server_runs SET ended_at = ? WHERE id = ? AND ended_at IS NULL")
-        .bind(now_ms())
-        .bind(run_id)
-        .execute(db)
-        .await?;
-    Ok(())
+    process_runs::end(db, "server_runs", run_id, now_ms()).await
 }
 
 /// Ends every run that has not ended, at its last beat: a restored copy's runs were

@@ -184,13 +184,7 @@ pub async fn record_consent(
         .execute(&mut *db)
         .await?;
     if done.rows_affected() == 0 {
-        let subject = get(&mut *db, subject_id).await?;
-        if subject.erased_at.is_some() {
-            return Err(refuse_erased(&subject));
-        }
-        return Err(AppError::Conflict(
-            "consent has already been recorded".into(),
-        ));
+        return refuse_unchanged(db, subject_id, "consent has already been recorded").await;
     }
     Ok(())
 }
@@ -203,15 +197,19 @@ pub async fn withdraw(db: &mut SqliteConnection, subject_id: i64, reason: &str) 
         .execute(&mut *db)
         .await?;
     if done.rows_affected() == 0 {
-        let subject = get(&mut *db, subject_id).await?;
-        if subject.erased_at.is_some() {
-            return Err(refuse_erased(&subject));
-        }
-        return Err(AppError::Conflict(
-            "the subject has already withdrawn".into(),
-        ));
+        return refuse_unchanged(db, subject_id, "the subject has already withdrawn").await;
     }
     Ok(())
+}
+
+/// The refusal of a one-time change to `subject_id` (consent, withdrawal) that changed
+/// nothing: the subject was erased, or else the change was made before (`already`).
+async fn refuse_unchanged(db: &mut SqliteConnection, subject_id: i64, already: &str) -> Result<()> {
+    let subject = get(&mut *db, subject_id).await?;
+    if subject.erased_at.is_some() {
+        return Err(refuse_erased(&subject));
+    }
+    Err(AppError::Conflict(already.into()))
 }
 
 #[derive(Debug, Clone, Serialize, sqlx::FromRow, utoipa::ToSchema)]

@@ -6,8 +6,6 @@
 use serde::Serialize;
 use sqlx::{SqliteConnection, SqlitePool};
 
-use super::studies::Created;
-
 use crate::error::{AppError, Result};
 use crate::store::{self, Change};
 
@@ -100,20 +98,5 @@ pub async fn create(
 ) -> Result<i64> {
     params.validate()?;
     let seed = seed.unwrap_or_else(store::tokens::random_seed);
-    let name = "Pilot (default protocol)";
-    let mut change = Change::begin(pool, actor).await?;
-    let id = store::studies::insert(change.db(), name, params, seed).await?;
-    store::dry_runs::insert(change.db(), id, None).await?;
-    change
-        .commit(
-            "study.create",
-            Some(format!("study:{id}")),
-            Created {
-                name,
-                seed,
-                dry_run: true,
-            },
-        )
-        .await?;
-    Ok(id)
+    super::studies::insert(pool, actor, "Pilot (default protocol)", params, seed, true).await
 }

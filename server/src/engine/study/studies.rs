@@ -17,11 +17,11 @@ const SEED_LIMIT: u64 = 1 << 53;
 /// What `study.create` records: the name and seed, and `"dry_run": true` for a stand-alone
 /// dry run (absent for a study of people).
 #[derive(Debug, Serialize)]
-pub(super) struct Created<'a> {
-    pub name: &'a str,
-    pub seed: u64,
+struct Created<'a> {
+    name: &'a str,
+    seed: u64,
     #[serde(skip_serializing_if = "std::ops::Not::not")]
-    pub dry_run: bool,
+    dry_run: bool,
 }
 
 /// Creates a study (default seed: a random one); returns its id.
@@ -41,8 +41,24 @@ pub async fn create(
     params.validate()?;
     check_runnable(params).await?;
     let seed = seed.unwrap_or_else(store::tokens::random_seed);
+    insert(pool, actor, name, params, seed, false).await
+}
+
+/// Stores a new study (a stand-alone dry run if `dry_run`) with its `study.create` audit
+/// row, in one transaction; returns its id.
+pub(super) async fn insert(
+    pool: &SqlitePool,
+    actor: &str,
+    name: &str,
+    params: &StudyParams,
+    seed: u64,
+    dry_run: bool,
+) -> Result<i64> {
     let mut change = Change::begin(pool, actor).await?;
     let id = store::studies::insert(change.db(), name, params, seed).await?;
+    if dry_run {
+        store::dry_runs::insert(change.db(), id, None).await?;
+    }
     change
         .commit(
             "study.create",
@@ -50,7 +66,7 @@ pub async fn create(
             Created {
                 name,
                 seed,
-                dry_run: false,
+                dry_run,
             },
         )
         .await?;
