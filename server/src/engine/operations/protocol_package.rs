@@ -303,6 +303,12 @@ fn schedule_design(d: &mut Doc, p: &StudyParams) {
             id.controller_or(p.practice_controller),
             id.instructions_for()
         ));
+        if id.personalized {
+            items.push(format!(
+                "Personalized designs: the identification test comes first of all the subject's tests (on the machine, whichever seat they start at). From the body fitted to it — its gain k_h at the upper end of its 95 % interval — each LQR design is tuned to the subject: the tracking weight α as large, the cab-feedback weight β as small as keeps the design stable up to {} × K_BF on the machine and stable off it, within α/16–2α and 0–max(8, 4β) of the study's weights. The subject's tests of that design run the tuned one, recorded with every test; when no weight in the band keeps the margin, or the body could not be fitted, the subject runs the study's design, with the reason recorded.",
+                num(crate::engine::study::stability::MARGIN)
+            ));
+        }
     }
     items.extend([
         format!(
@@ -375,7 +381,10 @@ fn randomization(d: &mut Doc, study: &Study) {
                 .map(|t| format!("{} = {}", t.compensator, t.blinded_label))
                 .collect();
             labels.sort();
-            let start = tests.iter().find(|t| t.block == 1).map(|t| t.seat);
+            let start = tests
+                .iter()
+                .find(|t| t.block == 1 && t.phase == TestPhase::Test)
+                .map(|t| t.seat);
             vec![
                 format!("S{:02}", i + 1),
                 start.map_or("", seat).into(),
