@@ -466,17 +466,21 @@ fn a_personalized_study_runs_end_to_end_in_a_real_browser() {
         "{alpha}"
     );
 
-    // The machine's two tests, tracked and rated, each with the subject's own design.
-    for t in trials
-        .iter()
-        .filter(|t| t["phase"] == "test" && t["station"] == "on")
-        .map(|t| t["slot"].as_i64().unwrap())
-        .collect::<std::collections::BTreeSet<_>>()
-    {
-        seat.wait_phase("ready");
-        run_from_dashboard(&api, &dash, &seat, (subject, t), &start, &|| {
-            track(&seat, 1.0)
-        });
+    // Every scored test in the queue's order — the machine's block, then the desk's on the
+    // same station (it serves both seats) —, tracked and rated, each with the subject's own
+    // design.
+    let mut queue: Vec<&Value> = trials.iter().filter(|t| t["phase"] == "test").collect();
+    queue.sort_by_key(|t| (t["block"].as_i64(), t["queue_order"].as_i64()));
+    for t in queue {
+        wait_phase_of(&seat, &["ready", "move"]);
+        run_from_dashboard(
+            &api,
+            &dash,
+            &seat,
+            (subject, t["slot"].as_i64().unwrap()),
+            &start,
+            &|| track(&seat, 1.0),
+        );
         seat.wait_phase("survey");
         for (item, v) in [
             ("accuracy", 5),
@@ -492,7 +496,7 @@ fn a_personalized_study_runs_end_to_end_in_a_real_browser() {
         .into_iter()
         .filter(|t| t["phase"] == "test" && t["status"] == "complete")
         .collect();
-    assert_eq!(ran.len(), 2, "{ran:?}");
+    assert_eq!(ran.len(), 4, "{ran:?}");
     for t in &ran {
         assert_eq!(t["personalized"], true, "{t}");
         let d = designs
@@ -507,12 +511,12 @@ fn a_personalized_study_runs_end_to_end_in_a_real_browser() {
         );
     }
 
-    // The dashboard's subject view: the schedule's rows as they now stand (three complete:
-    // the identification and both tests — in the schedule's table, not in the exposure
+    // The dashboard's subject view: the schedule's rows as they now stand (five complete:
+    // the identification and the four tests — in the schedule's table, not in the exposure
     // table above it), and the designs tuned to this person.
     dash.click(&format!("tr[data-subject-id='{subject}']"));
     dash.wait_until(
-        "return document.querySelectorAll('.schedule-table > tbody .badge.st-complete').length === 3 \
+        "return document.querySelectorAll('.schedule-table > tbody .badge.st-complete').length === 5 \
          && !document.querySelector('.exposure tbody [data-trial-row]') || null;",
         json!([]),
     );

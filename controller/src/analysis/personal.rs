@@ -70,7 +70,7 @@ pub fn personalize(
     };
     let generic = weight.of(lqr);
     let with = |w: f64| {
-        let mut tuned = lqr.clone();
+        let mut tuned = *lqr;
         match weight {
             Weight::Alpha => tuned.alpha = w,
             Weight::Beta => tuned.beta = w,
