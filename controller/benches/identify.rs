@@ -2,22 +2,32 @@
 //! (70 s at 1 kHz), run with `cargo bench -p bdft-controller --bench identify`.
 //!
 //! The records are simulated first (not timed): subjects of the default population holding
-//! still on the simulated rig. Medians over repeated runs: the machines are shared.
+//! still on the simulated rig. Medians over repeated runs: the machines are shared. Then each
+//! subject's two LQR designs of the default study tuned to the fitted body
+//! (`analysis::personal::personalize`), as a personalized study does when it files the test.
 
 use std::hint::black_box;
 use std::time::Instant;
 
-use bdft_controller::compensator::variants;
+use bdft_controller::analysis::personal::personalize;
+use bdft_controller::closed_loop::LoopSetup;
+use bdft_controller::compensator::{study_spec, variants};
 use bdft_controller::identification::{estimate, fit_body};
 use bdft_controller::population;
 use bdft_controller::runtime::setup::build_runner;
 use bdft_protocol::identification::{IdentificationTask, MultisineSpec};
-use bdft_protocol::params::{BodyModel, LoopParams, PlantParams, PopulationParams, Seat};
+use bdft_protocol::params::{
+    BodyModel, CompensatorKind, LoopParams, PlantParams, PopulationParams, Seat,
+};
 use bdft_protocol::server_to_controller::{DEFAULT_MAX_CAB_RMS_MM_S2, StartTrial};
 use bdft_protocol::trial::{InputSource, TargetSpec};
 
 const RUNS: usize = 9;
 const SUBJECTS: u64 = 5;
+/// The default study's K_BF and the stability gate's margin over it (the server's
+/// `STUDY_KBF` and `stability::MARGIN`).
+const STUDY_KBF: f64 = 0.78;
+const MARGIN: f64 = 1.5;
 
 fn median(mut xs: Vec<f64>) -> f64 {
     xs.sort_by(f64::total_cmp);
@@ -87,4 +97,27 @@ fn main() {
     println!("  estimate  {:8.2} ms", median(est_ms));
     println!("  fit       {:8.2} ms", median(fit_ms));
     println!("  total     {:8.2} ms (goal ≤ 1000 ms)", median(total_ms));
+
+    let plant = PlantParams::default();
+    println!("a design tuned to each subject's fitted body, median over {SUBJECTS} subjects:");
+    for kind in [CompensatorKind::Lqr, CompensatorKind::LqrCabvel] {
+        let mut ms = vec![];
+        for (u, y) in &records {
+            let fit = fit_body(&estimate(&spec, dt, u, y).unwrap()).unwrap();
+            let setup = LoopSetup {
+                plant,
+                body: fit.body(),
+                loop_params: LoopParams {
+                    k_bf: STUDY_KBF,
+                    ..LoopParams::default()
+                },
+                station: Seat::On,
+                compensator: study_spec(kind, &plant),
+            };
+            let t0 = Instant::now();
+            black_box(personalize(&setup, MARGIN * STUDY_KBF).unwrap());
+            ms.push(t0.elapsed().as_secs_f64() * 1e3);
+        }
+        println!("  {:<10} {:8.1} ms", kind.name(), median(ms));
+    }
 }

@@ -36,21 +36,12 @@ pub struct Measured {
 /// could not rule out (the gain sets how much of the hand's motion is fed back; the
 /// resonances only shape it).
 pub fn design_body(fit: &BodyFit) -> BodyModel {
-    match fit.body() {
-        BodyModel::Seated {
-            torso_f_hz,
-            torso_zeta,
-            arm_f_hz,
-            arm_zeta,
-            ..
-        } => BodyModel::Seated {
-            k_h: fit.k_h.hi,
-            torso_f_hz,
-            torso_zeta,
-            arm_f_hz,
-            arm_zeta,
-        },
-        other => other,
+    BodyModel::Seated {
+        k_h: fit.k_h.hi,
+        torso_f_hz: fit.torso_f_hz.value,
+        torso_zeta: fit.torso_zeta.value,
+        arm_f_hz: fit.arm_f_hz.value,
+        arm_zeta: fit.arm_zeta.value,
     }
 }
 
