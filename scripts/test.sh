@@ -27,6 +27,9 @@ command -v chromedriver >/dev/null 2>&1 || missing+=(chromium-driver)
 command -v openssl >/dev/null 2>&1 || missing+=(openssl)
 # The LSL test runs in a network namespace of its own (unshare, util-linux; ip, iproute2).
 command -v ip >/dev/null 2>&1 || missing+=(iproute2)
+# The store's dialect test runs against a PostgreSQL server of its own (Debian's postgresql).
+pg_bin() { ls -d /usr/lib/postgresql/*/bin 2>/dev/null | sort -V | tail -1; }
+[ -x "$(pg_bin)/initdb" ] || missing+=(postgresql)
 if [ ${#missing[@]} -gt 0 ]; then
   echo "installing ${missing[*]} (Debian packages) for the tests"
   SUDO=""
@@ -52,6 +55,27 @@ if ! "$LSL_VENV/bin/python" -c "import pylsl" >/dev/null 2>&1; then
   python3 -m venv "$LSL_VENV"
   "$LSL_VENV/bin/pip" install -q "pylsl==1.18.6"
 fi
+
+# A PostgreSQL server for this run only: a fresh cluster in a private directory, listening on
+# a Unix socket there and on no TCP port, stopped when the run ends. PostgreSQL refuses to run
+# as root, so as root it runs as the package's postgres user. The tests find it through
+# BDFT_TEST_POSTGRES and fail (never skip) without it.
+PG_BIN=$(pg_bin)
+PG_DIR=$(mktemp -d /tmp/bdft-pg.XXXXXX)
+AS_PG=()
+if [ "$(id -u)" = 0 ]; then
+  chown postgres "$PG_DIR"
+  AS_PG=(runuser -u postgres --)
+fi
+"${AS_PG[@]}" "$PG_BIN/initdb" -D "$PG_DIR/data" -U bdft -A trust -E UTF8 --no-sync >/dev/null
+"${AS_PG[@]}" "$PG_BIN/pg_ctl" -D "$PG_DIR/data" -l "$PG_DIR/log" -w -s \
+  -o "-c listen_addresses='' -k $PG_DIR -c fsync=off -c max_connections=200" start
+stop_pg() {
+  "${AS_PG[@]}" "$PG_BIN/pg_ctl" -D "$PG_DIR/data" -m fast -w -s stop || true
+  rm -rf "$PG_DIR"
+}
+trap stop_pg EXIT
+export BDFT_TEST_POSTGRES="postgres:///postgres?host=$PG_DIR&user=bdft"
 
 # Style and lints first: they are part of the test (and the cheapest to fail).
 cargo fmt --all -- --check

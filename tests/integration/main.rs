@@ -32,6 +32,7 @@ mod server_layers;
 mod soak;
 mod station_safety;
 mod statistics;
+mod store_dialects;
 mod structure;
 mod study_params;
 mod subject_page;
