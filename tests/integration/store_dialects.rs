@@ -376,6 +376,37 @@ fn both_dialects_migrate_to_the_same_schema() {
     });
 }
 
+/// The migrations' numbers in `dir` (the files' leading digits).
+fn versions(dir: &str) -> BTreeSet<u32> {
+    std::fs::read_dir(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(dir))
+        .unwrap()
+        .filter_map(|e| {
+            let name = e.unwrap().file_name().into_string().unwrap();
+            name.ends_with(".sql")
+                .then(|| name.split('_').next().unwrap().parse().unwrap())
+        })
+        .collect()
+}
+
+/// PostgreSQL's first migration is SQLite's schema after `POSTGRES_BASE`; every migration
+/// after it comes in both dialects under one number.
+const POSTGRES_BASE: u32 = 26;
+
+#[test]
+fn every_migration_after_the_base_comes_in_both_dialects() {
+    let sqlite = versions("../migrations");
+    let postgres = versions("../migrations/postgres");
+    assert_eq!(postgres.first(), Some(&POSTGRES_BASE), "{postgres:?}");
+    assert!(sqlite.contains(&POSTGRES_BASE), "{sqlite:?}");
+    let after =
+        |v: &BTreeSet<u32>| -> BTreeSet<u32> { v.range(POSTGRES_BASE + 1..).copied().collect() };
+    same(
+        "migrations after the base",
+        &after(&sqlite),
+        &after(&postgres),
+    );
+}
+
 /// What a statement did: the rows a query gave (one text column), or why it was refused —
 /// a trigger's message, or the kind of constraint it broke (the dialects word those
 /// differently).
