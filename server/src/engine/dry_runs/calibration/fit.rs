@@ -7,7 +7,8 @@
 //! differences; weights 1/(target's variance + Monte-Carlo variance) on the log scale.
 //! Intervals from a bootstrap linearized at the optimum: over subjects (a study's own data)
 //! or over the table's cells redrawn with the shared deviation of the people who gave them
-//! (`table_error`). A parameter whose half-e-fold change moves the moments by less than one
+//! (`table_error`); the delay's ends then carried onto its profile (`Problem::profile_ends`:
+//! the delay–gain ridge is curved). A parameter whose half-e-fold change moves the moments by less than one
 //! standard error is not identified: left as it was and named.
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -203,18 +204,171 @@ impl Problem<'_> {
             .expect("a simulated cell")
     }
 
-    /// The Jacobian of the moments `m` at `theta` in log-parameter space, by forward
-    /// differences of `JACOBIAN_STEP`.
-    fn jacobian(&self, theta: &[f64], m: &DVector<f64>) -> Result<DMatrix<f64>> {
-        let p = self.knobs.len();
-        let mut jac = DMatrix::zeros(m.len(), p);
-        for k in 0..p {
+    /// The Jacobian of the moments `m` at `theta` in log-parameter space with respect to
+    /// the knobs `which` (one column each, in that order), by forward differences of
+    /// `JACOBIAN_STEP`.
+    fn jacobian(&self, theta: &[f64], m: &DVector<f64>, which: &[usize]) -> Result<DMatrix<f64>> {
+        let mut jac = DMatrix::zeros(m.len(), which.len());
+        for (c, &k) in which.iter().enumerate() {
             let mut th = theta.to_vec();
             th[k] += JACOBIAN_STEP;
             let (mk, _) = self.moments(&self.run(&th)?);
-            jac.set_column(k, &((mk - m) / JACOBIAN_STEP));
+            jac.set_column(c, &((mk - m) / JACOBIAN_STEP));
         }
         Ok(jac)
+    }
+
+    /// One damped Gauss–Newton (Levenberg–Marquardt) step of the knobs `free` from `theta`,
+    /// `jac` their Jacobian columns at the moments `m`: the new parameters (within the
+    /// knobs' bounds), the step's largest component and the new parameters' evaluation;
+    /// none when the damped normal equations are singular.
+    #[allow(clippy::too_many_arguments)]
+    fn damped_step(
+        &self,
+        theta: &[f64],
+        free: &[usize],
+        jac: &DMatrix<f64>,
+        m: &DVector<f64>,
+        t: &DVector<f64>,
+        w: &DVector<f64>,
+        lambda: f64,
+    ) -> Result<Option<(Vec<f64>, f64, Eval)>> {
+        let jw = jac.transpose() * DMatrix::from_diagonal(w);
+        let mut a = &jw * jac;
+        for d in 0..a.nrows() {
+            a[(d, d)] *= 1.0 + lambda;
+        }
+        let Some(step) = a.lu().solve(&(&jw * (t - m))) else {
+            return Ok(None);
+        };
+        let step = step.map(|s| s.clamp(-0.7, 0.7));
+        let mut th = theta.to_vec();
+        for (i, &k) in free.iter().enumerate() {
+            let (lo, hi) = self.knobs[k].bounds;
+            th[k] = (th[k] + step[i]).clamp(lo.max(1e-6).ln(), hi.ln());
+        }
+        let e = self.run(&th)?;
+        Ok(Some((th, step.amax(), e)))
+    }
+
+    /// The profile criterion of knob `k` at the log-value `v`: the criterion minimized over
+    /// the knobs `others` from `start` (`k` set to `v`) by up to `PROFILE_STEPS` damped
+    /// Gauss–Newton steps, their Jacobian recomputed for each; with the parameters reached.
+    fn profile(
+        &self,
+        start: &[f64],
+        k: usize,
+        v: f64,
+        others: &[usize],
+        t: &DVector<f64>,
+        w: &DVector<f64>,
+    ) -> Result<(f64, Vec<f64>)> {
+        let mut theta = start.to_vec();
+        theta[k] = v;
+        let (mut m, _) = self.moments(&self.run(&theta)?);
+        let mut q = objective(&m, t, w);
+        let mut lambda = 1e-3;
+        for _ in 0..PROFILE_STEPS {
+            if others.is_empty() {
+                break;
+            }
+            let jac = self.jacobian(&theta, &m, others)?;
+            let mut moved = None;
+            for _ in 0..3 {
+                let Some((th, largest, e)) =
+                    self.damped_step(&theta, others, &jac, &m, t, w, lambda)?
+                else {
+                    break;
+                };
+                let (mt, _) = self.moments(&e);
+                let o = objective(&mt, t, w);
+                if o < q {
+                    moved = Some((th, largest, mt, o));
+                    lambda = (lambda / 10.0).max(1e-6);
+                    break;
+                }
+                lambda *= 10.0;
+            }
+            let Some((th, largest, mt, o)) = moved else {
+                break;
+            };
+            (theta, m, q) = (th, mt, o);
+            if largest < 0.01 {
+                break;
+            }
+        }
+        Ok((q, theta))
+    }
+
+    /// Both ends of the interval of `identified[i]` (log scale) carried from the
+    /// bootstrap's ends `boot` onto its profile. The delay–gain ridge is curved and the
+    /// bootstrap, linearized at the fit, follows only its tangent: so each end is put where
+    /// the profile criterion rises above the fit's (`q_min`) as far as the linear model's
+    /// criterion does at the bootstrap's end on that side, (end − fit)² / `var` (`var` the
+    /// parameter's variance in (JᵀWJ)⁻¹) — the bootstrap's end where the model is linear.
+    /// The rise is the bootstrap's, not χ²₁'s, because the criterion's weights leave out the
+    /// cells' correlation that the bootstrap carries. Found by secant steps on the square
+    /// root of the rise (nearly linear in the parameter), each profile point started on the
+    /// linear model's ridge at the fit (`jac`, every knob's column) or at the previous point.
+    #[allow(clippy::too_many_arguments)]
+    fn profile_ends(
+        &self,
+        theta: &[f64],
+        identified: &[usize],
+        i: usize,
+        var: f64,
+        boot: [f64; 2],
+        q_min: f64,
+        jac: &DMatrix<f64>,
+        (t, w): (&DVector<f64>, &DVector<f64>),
+    ) -> Result<[f64; 2]> {
+        let k = identified[i];
+        let others: Vec<usize> = identified.iter().copied().filter(|&o| o != k).collect();
+        let jo = jac.select_columns(others.iter());
+        let jow = jo.transpose() * DMatrix::from_diagonal(w);
+        // How the others move with the parameter along the linear model's ridge.
+        let ridge = (&jow * &jo)
+            .lu()
+            .solve(&-(&jow * jac.column(k)))
+            .unwrap_or_else(|| DVector::zeros(others.len()));
+        let (lo, hi) = self.knobs[k].bounds;
+        let (lo, hi) = (lo.max(1e-6).ln(), hi.ln());
+        let fit = theta[k];
+        let mut ends = boot;
+        for end in &mut ends {
+            let half = (*end - fit).abs();
+            if half <= 0.0 || !var.is_finite() || var <= 0.0 {
+                continue;
+            }
+            let target = half / var.sqrt();
+            let side = (*end - fit).signum();
+            let mut start = theta.to_vec();
+            for (j, &o) in others.iter().enumerate() {
+                start[o] += ridge[j] * (*end - fit);
+            }
+            let gap = |q: f64| (q - q_min).max(0.0).sqrt() - target;
+            let (mut v0, mut g0) = (fit, -target);
+            let (q, mut at) = self.profile(&start, k, *end, &others, t, w)?;
+            let (mut v1, mut g1) = (*end, gap(q));
+            for _ in 0..PROFILE_SECANTS {
+                if g1.abs() <= 0.01 * target || (g1 - g0).abs() < 1e-12 {
+                    break;
+                }
+                // On its side of the fit, within the knob's bounds, at most 3 half-widths out.
+                let v2 = (v1 - g1 * (v1 - v0) / (g1 - g0)).clamp(
+                    (fit - 3.0 * half).max(lo).min(fit),
+                    (fit + 3.0 * half).min(hi).max(fit),
+                );
+                if (v2 - fit) * side <= 0.0 {
+                    break;
+                }
+                let (q, next) = self.profile(&at, k, v2, &others, t, w)?;
+                (v0, g0) = (v1, g1);
+                (v1, g1, at) = (v2, gap(q), next);
+            }
+            *end = v1;
+        }
+        Ok(ends)
     }
 
     /// Moments of an evaluation, and their Monte-Carlo variances: per target cell the mean
@@ -282,6 +436,11 @@ impl Problem<'_> {
     }
 }
 
+/// The fit's criterion: Σ weight·(moment − target)².
+fn objective(m: &DVector<f64>, t: &DVector<f64>, w: &DVector<f64>) -> f64 {
+    (m - t).component_mul(&(m - t)).dot(w)
+}
+
 /// Refuses a target with fewer moments than the parameters it would fit (422).
 pub fn check_enough(target: &Target) -> Result<()> {
     let spread = !target.with_spread().is_empty();
@@ -301,6 +460,15 @@ pub fn check_enough(target: &Target) -> Result<()> {
 
 /// Forward-difference step of the Jacobian (log units: 16 %).
 const JACOBIAN_STEP: f64 = 0.15;
+
+/// The delay's knob (`MEDIANS[0]`): its interval is carried onto its profile.
+const DELAY: usize = 0;
+
+/// Damped Gauss–Newton steps of a profile point's refit.
+const PROFILE_STEPS: usize = 2;
+
+/// Secant steps of a profile end after its first point.
+const PROFILE_SECANTS: usize = 3;
 
 /// Bootstrap resamples for the intervals.
 const BOOTSTRAP: usize = 400;
@@ -350,62 +518,47 @@ pub fn fit(
         .map(|k| (k.get)(&params.population).max(k.bounds.0))
         .collect();
     let (t, t_var) = problem.target_moments(target);
-    let objective = |m: &DVector<f64>, w: &DVector<f64>| (m - &t).component_mul(&(m - &t)).dot(w);
     let mut theta: Vec<f64> = before.iter().map(|v| v.ln()).collect();
     let mut eval = problem.run(&theta)?;
     let (mut m, mc) = problem.moments(&eval);
     let w: DVector<f64> = (&t_var + &mc).map(|v| 1.0 / v.max(1e-12));
-    let objective_before = objective(&m, &w);
+    let objective_before = objective(&m, &t, &w);
     let mut current = objective_before;
     let mut lambda = 1e-2;
     let mut iterations = 0;
     let mut jac;
     let mut identified: Vec<usize>;
+    let all: Vec<usize> = (0..problem.knobs.len()).collect();
     loop {
         iterations += 1;
-        jac = problem.jacobian(&theta, &m)?;
-        let p = problem.knobs.len();
+        jac = problem.jacobian(&theta, &m, &all)?;
         // Identified: half an e-fold of the parameter moves the moments by at least one
         // standard error (weighted norm of the column).
-        identified = (0..p)
+        identified = all
+            .iter()
+            .copied()
             .filter(|&k| 0.5 * jac.column(k).component_mul(&jac.column(k)).dot(&w).sqrt() >= 1.0)
             .collect();
         if identified.is_empty() || iterations > 8 {
             break;
         }
         let j = jac.select_columns(identified.iter());
-        let jw = j.transpose() * DMatrix::from_diagonal(&w);
-        let jtj = &jw * &j;
-        let g = &jw * (&t - &m);
         let mut accepted = false;
         for _ in 0..4 {
-            let mut a = jtj.clone();
-            for d in 0..a.nrows() {
-                a[(d, d)] *= 1.0 + lambda;
-            }
-            let Some(step) = a.lu().solve(&g) else {
+            let Some((th, _, e)) =
+                problem.damped_step(&theta, &identified, &j, &m, &t, &w, lambda)?
+            else {
                 break;
             };
-            let step = step.map(|s| s.clamp(-0.7, 0.7));
-            let mut th = theta.clone();
-            for (i, &k) in identified.iter().enumerate() {
-                let (lo, hi) = problem.knobs[k].bounds;
-                th[k] = (th[k] + step[i]).clamp(lo.max(1e-6).ln(), hi.ln());
-            }
-            let e = problem.run(&th)?;
             let (mt, _) = problem.moments(&e);
-            let o = objective(&mt, &w);
+            let o = objective(&mt, &t, &w);
             if o < current {
-                let small = step.amax() < 0.01;
                 theta = th;
                 eval = e;
                 m = mt;
                 current = o;
                 lambda = (lambda / 10.0).max(1e-6);
                 accepted = true;
-                if small {
-                    break;
-                }
                 break;
             }
             lambda *= 10.0;
@@ -415,7 +568,7 @@ pub fn fit(
             break;
         }
         if current < 1e-3 {
-            jac = problem.jacobian(&theta, &m)?;
+            jac = problem.jacobian(&theta, &m, &all)?;
             break;
         }
     }
@@ -472,7 +625,7 @@ pub fn fit(
                     draws[i].push(theta[identified[i]] + d);
                 }
             }
-            let ci = draws
+            let mut ci: Vec<(f64, f64)> = draws
                 .into_iter()
                 .map(|mut d| {
                     if d.is_empty() {
@@ -484,6 +637,24 @@ pub fn fit(
                     (at(0.025).exp(), at(0.975).exp())
                 })
                 .collect();
+            // The delay's ends carried onto its profile (`Problem::profile_ends`).
+            let profiled = match identified.iter().position(|&k| k == DELAY) {
+                Some(i) if ci[i].0 > 0.0 && ci[i].1.is_finite() => {
+                    let ends = problem.profile_ends(
+                        &theta,
+                        &identified,
+                        i,
+                        cov[(i, i)],
+                        [ci[i].0.ln(), ci[i].1.ln()],
+                        current,
+                        &jac,
+                        (&t, &w),
+                    )?;
+                    ci[i] = (ends[0].exp(), ends[1].exp());
+                    "; the delay's ends then carried onto its profile (the other identified parameters refitted at each delay, each end where the criterion rises above the fit's as far as the linear model's does at the bootstrap's end: the bootstrap's interval where the model is linear, bending with the delay–gain ridge where it is not)"
+                }
+                _ => "",
+            };
             let data = if target.subjects.is_some() {
                 "the study's subjects resampled".to_string()
             } else {
@@ -500,7 +671,7 @@ pub fn fit(
             (
                 ci,
                 format!(
-                    "95 % bootstrap ({BOOTSTRAP} resamples, linearized at the fit): {data}, and the simulated subjects resampled (the Monte-Carlo error)"
+                    "95 % bootstrap ({BOOTSTRAP} resamples, linearized at the fit): {data}, and the simulated subjects resampled (the Monte-Carlo error){profiled}"
                 ),
             )
         }

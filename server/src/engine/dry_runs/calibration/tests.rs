@@ -371,8 +371,15 @@ mod calibrate {
             .expect("the delay is identified by tracking error");
         assert!(report.objective < report.objective_before, "{report:#?}");
         intervals_hold(&report, &truth().population);
-        // The start (0.25 s) is outside the delay's interval: the data moved it.
-        assert!(delay.low > 0.25, "{delay:?}");
+        // The data moved the delay towards the truth (from 0.25 s) and pin it to within a
+        // factor of 1.5. (Not "the start is outside the interval": the interval, carried
+        // onto the curved delay–gain ridge, reaches down to 0.2496 s here.)
+        let truth_delay = truth().population.reaction_delay_s.median;
+        assert!(
+            (delay.fitted / truth_delay).ln().abs() < (0.25 / truth_delay).ln().abs(),
+            "{delay:?}"
+        );
+        assert!(delay.high / delay.low < 1.5, "{delay:?}");
     }
 
     #[test]
@@ -408,11 +415,12 @@ mod calibrate {
     /// The calibration benchmark's scenario (docs/benchmarks.md, issue 21) with the 20 s
     /// tests a dev-profile test affords: the table of an 8-subject pilot (seed 11) of the
     /// population with the medians delay 0.30 s, error gain 0.36, slowing 3.0 per m/s² and
-    /// k_h 0.50. With the cells redrawn together (`table_error`) the delay's interval is
-    /// still [0.319, 0.482] s here (the cells' correlation with 20 s tests is only 0.12),
-    /// and in the 140 s benchmark [0.325, 0.457] s (was [0.350, 0.433]).
+    /// k_h 0.50. The pilot's eight people are slower and more correcting than their
+    /// population's medians, and the table cannot tell a slower person from a less
+    /// correcting one: the fit lands up the curved delay–gain ridge (0.396 s). The
+    /// bootstrap, linearized at the fit, gave the delay [0.319, 0.482] s, missing 0.30;
+    /// carried onto the delay's profile (`Problem::profile_ends`) the interval holds it.
     #[test]
-    #[ignore = "not reproduced yet (docs/benchmarks.md, calibration): the delay's interval from an 8-subject pilot's table still misses its population's 0.30 s"]
     fn a_small_pilots_table_gives_intervals_that_hold_its_populations_medians() {
         let mut truth = study();
         truth.population.reaction_delay_s.median = 0.30;
