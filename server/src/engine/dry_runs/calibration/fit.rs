@@ -326,11 +326,16 @@ impl Problem<'_> {
         let others: Vec<usize> = identified.iter().copied().filter(|&o| o != k).collect();
         let jo = jac.select_columns(others.iter());
         let jow = jo.transpose() * DMatrix::from_diagonal(w);
-        // How the others move with the parameter along the linear model's ridge.
-        let ridge = (&jow * &jo)
-            .lu()
-            .solve(&-(&jow * jac.column(k)))
-            .unwrap_or_else(|| DVector::zeros(others.len()));
+        // How the others move with the parameter along the linear model's ridge (none
+        // when it is the only one identified: nalgebra's LU cannot solve a 0 × 0 system).
+        let ridge = if others.is_empty() {
+            DVector::zeros(0)
+        } else {
+            (&jow * &jo)
+                .lu()
+                .solve(&-(&jow * jac.column(k)))
+                .unwrap_or_else(|| DVector::zeros(others.len()))
+        };
         let (lo, hi) = self.knobs[k].bounds;
         let (lo, hi) = (lo.max(1e-6).ln(), hi.ln());
         let fit = theta[k];
