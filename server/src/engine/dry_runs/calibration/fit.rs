@@ -222,23 +222,21 @@ impl Problem<'_> {
     /// `jac` their Jacobian columns at the moments `m`: the new parameters (within the
     /// knobs' bounds), the step's largest component and the new parameters' evaluation;
     /// none when the damped normal equations are singular.
-    #[allow(clippy::too_many_arguments)]
     fn damped_step(
         &self,
         theta: &[f64],
         free: &[usize],
         jac: &DMatrix<f64>,
         m: &DVector<f64>,
-        t: &DVector<f64>,
-        w: &DVector<f64>,
+        c: Criterion,
         lambda: f64,
     ) -> Result<Option<(Vec<f64>, f64, Eval)>> {
-        let jw = jac.transpose() * DMatrix::from_diagonal(w);
+        let jw = jac.transpose() * DMatrix::from_diagonal(c.weights);
         let mut a = &jw * jac;
         for d in 0..a.nrows() {
             a[(d, d)] *= 1.0 + lambda;
         }
-        let Some(step) = a.lu().solve(&(&jw * (t - m))) else {
+        let Some(step) = a.lu().solve(&(&jw * (c.target - m))) else {
             return Ok(None);
         };
         let step = step.map(|s| s.clamp(-0.7, 0.7));
@@ -260,13 +258,12 @@ impl Problem<'_> {
         k: usize,
         v: f64,
         others: &[usize],
-        t: &DVector<f64>,
-        w: &DVector<f64>,
+        c: Criterion,
     ) -> Result<(f64, Vec<f64>)> {
         let mut theta = start.to_vec();
         theta[k] = v;
         let (mut m, _) = self.moments(&self.run(&theta)?);
-        let mut q = objective(&m, t, w);
+        let mut q = c.of(&m);
         let mut lambda = 1e-3;
         for _ in 0..PROFILE_STEPS {
             if others.is_empty() {
@@ -276,12 +273,12 @@ impl Problem<'_> {
             let mut moved = None;
             for _ in 0..3 {
                 let Some((th, largest, e)) =
-                    self.damped_step(&theta, others, &jac, &m, t, w, lambda)?
+                    self.damped_step(&theta, others, &jac, &m, c, lambda)?
                 else {
                     break;
                 };
                 let (mt, _) = self.moments(&e);
-                let o = objective(&mt, t, w);
+                let o = c.of(&mt);
                 if o < q {
                     moved = Some((th, largest, mt, o));
                     lambda = (lambda / 10.0).max(1e-6);
@@ -300,32 +297,34 @@ impl Problem<'_> {
         Ok((q, theta))
     }
 
-    /// Both ends of the interval of `identified[i]` (log scale) carried from the
+    /// Both ends of the interval of `at.identified[i]` (log scale) carried from the
     /// bootstrap's ends `boot` onto its profile. The delay–gain ridge is curved and the
     /// bootstrap, linearized at the fit, follows only its tangent: so each end is put where
-    /// the profile criterion rises above the fit's (`q_min`) as far as the linear model's
+    /// the profile criterion rises above the fit's as far as the linear model's
     /// criterion does at the bootstrap's end on that side, (end − fit)² / `var` (`var` the
     /// parameter's variance in (JᵀWJ)⁻¹) — the bootstrap's end where the model is linear.
     /// The rise is the bootstrap's, not χ²₁'s, because the criterion's weights leave out the
     /// cells' correlation that the bootstrap carries. Found by secant steps on the square
     /// root of the rise (nearly linear in the parameter), each profile point started on the
-    /// linear model's ridge at the fit (`jac`, every knob's column) or at the previous point.
-    #[allow(clippy::too_many_arguments)]
+    /// linear model's ridge at the fit or at the previous point.
     fn profile_ends(
         &self,
-        theta: &[f64],
-        identified: &[usize],
+        at: &Optimum,
         i: usize,
         var: f64,
         boot: [f64; 2],
-        q_min: f64,
-        jac: &DMatrix<f64>,
-        (t, w): (&DVector<f64>, &DVector<f64>),
+        c: Criterion,
     ) -> Result<[f64; 2]> {
+        let Optimum {
+            theta,
+            identified,
+            criterion: q_min,
+            jac,
+        } = *at;
         let k = identified[i];
         let others: Vec<usize> = identified.iter().copied().filter(|&o| o != k).collect();
         let jo = jac.select_columns(others.iter());
-        let jow = jo.transpose() * DMatrix::from_diagonal(w);
+        let jow = jo.transpose() * DMatrix::from_diagonal(c.weights);
         // How the others move with the parameter along the linear model's ridge (none
         // when it is the only one identified: nalgebra's LU cannot solve a 0 × 0 system).
         let ridge = if others.is_empty() {
@@ -353,7 +352,7 @@ impl Problem<'_> {
             }
             let gap = |q: f64| (q - q_min).max(0.0).sqrt() - target;
             let (mut v0, mut g0) = (fit, -target);
-            let (q, mut at) = self.profile(&start, k, *end, &others, t, w)?;
+            let (q, mut reached) = self.profile(&start, k, *end, &others, c)?;
             let (mut v1, mut g1) = (*end, gap(q));
             for _ in 0..PROFILE_SECANTS {
                 if g1.abs() <= 0.01 * target || (g1 - g0).abs() < 1e-12 {
@@ -367,9 +366,9 @@ impl Problem<'_> {
                 if (v2 - fit) * side <= 0.0 {
                     break;
                 }
-                let (q, next) = self.profile(&at, k, v2, &others, t, w)?;
+                let (q, next) = self.profile(&reached, k, v2, &others, c)?;
                 (v0, g0) = (v1, g1);
-                (v1, g1, at) = (v2, gap(q), next);
+                (v1, g1, reached) = (v2, gap(q), next);
             }
             *end = v1;
         }
@@ -441,9 +440,29 @@ impl Problem<'_> {
     }
 }
 
-/// The fit's criterion: Σ weight·(moment − target)².
-fn objective(m: &DVector<f64>, t: &DVector<f64>, w: &DVector<f64>) -> f64 {
-    (m - t).component_mul(&(m - t)).dot(w)
+/// The fit's criterion: the target's moments and their weights.
+#[derive(Clone, Copy)]
+struct Criterion<'a> {
+    target: &'a DVector<f64>,
+    weights: &'a DVector<f64>,
+}
+
+impl Criterion<'_> {
+    /// Σ weight·(moment − target)² of the moments `m`.
+    fn of(&self, m: &DVector<f64>) -> f64 {
+        let r = m - self.target;
+        r.component_mul(&r).dot(self.weights)
+    }
+}
+
+/// The fit where it ended: the log-parameters, the knobs identified, the criterion's value
+/// and the Jacobian of every knob.
+#[derive(Clone, Copy)]
+struct Optimum<'a> {
+    theta: &'a [f64],
+    identified: &'a [usize],
+    criterion: f64,
+    jac: &'a DMatrix<f64>,
 }
 
 /// Refuses a target with fewer moments than the parameters it would fit (422).
@@ -527,7 +546,11 @@ pub fn fit(
     let mut eval = problem.run(&theta)?;
     let (mut m, mc) = problem.moments(&eval);
     let w: DVector<f64> = (&t_var + &mc).map(|v| 1.0 / v.max(1e-12));
-    let objective_before = objective(&m, &t, &w);
+    let criterion = Criterion {
+        target: &t,
+        weights: &w,
+    };
+    let objective_before = criterion.of(&m);
     let mut current = objective_before;
     let mut lambda = 1e-2;
     let mut iterations = 0;
@@ -551,12 +574,12 @@ pub fn fit(
         let mut accepted = false;
         for _ in 0..4 {
             let Some((th, _, e)) =
-                problem.damped_step(&theta, &identified, &j, &m, &t, &w, lambda)?
+                problem.damped_step(&theta, &identified, &j, &m, criterion, lambda)?
             else {
                 break;
             };
             let (mt, _) = problem.moments(&e);
-            let o = objective(&mt, &t, &w);
+            let o = criterion.of(&mt);
             if o < current {
                 theta = th;
                 eval = e;
@@ -645,15 +668,18 @@ pub fn fit(
             // The delay's ends carried onto its profile (`Problem::profile_ends`).
             let profiled = match identified.iter().position(|&k| k == DELAY) {
                 Some(i) if ci[i].0 > 0.0 && ci[i].1.is_finite() => {
+                    let optimum = Optimum {
+                        theta: &theta,
+                        identified: &identified,
+                        criterion: current,
+                        jac: &jac,
+                    };
                     let ends = problem.profile_ends(
-                        &theta,
-                        &identified,
+                        &optimum,
                         i,
                         cov[(i, i)],
                         [ci[i].0.ln(), ci[i].1.ln()],
-                        current,
-                        &jac,
-                        (&t, &w),
+                        criterion,
                     )?;
                     ci[i] = (ends[0].exp(), ends[1].exp());
                     "; the delay's ends then carried onto its profile (the other identified parameters refitted at each delay, each end where the criterion rises above the fit's as far as the linear model's does at the bootstrap's end: the bootstrap's interval where the model is linear, bending with the delay–gain ridge where it is not)"
