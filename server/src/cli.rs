@@ -309,7 +309,7 @@ fn read_params(path: &std::path::Path) -> anyhow::Result<bdft_protocol::study::S
     .with_context(|| format!("{}: study parameters", path.display()))
 }
 
-async fn newest_study(pool: &sqlx::SqlitePool, study: Option<i64>) -> anyhow::Result<i64> {
+async fn newest_study(pool: &sqlx::AnyPool, study: Option<i64>) -> anyhow::Result<i64> {
     match study {
         Some(id) => Ok(id),
         None => store::studies::all(pool)

@@ -106,13 +106,14 @@ impl From<bdft_protocol::params::ParamError> for AppError {
 
 #[cfg(test)]
 mod tests {
-    use sqlx::{Connection, SqliteConnection};
+    use sqlx::{AnyConnection, Connection};
 
     use super::*;
 
     /// The error SQLite gives for `statement` after `schema`, as the server maps it.
     async fn mapped(schema: &str, statement: &str) -> AppError {
-        let mut db = SqliteConnection::connect("sqlite::memory:").await.unwrap();
+        crate::store::db::drivers();
+        let mut db = AnyConnection::connect("sqlite::memory:").await.unwrap();
         sqlx::raw_sql(schema).execute(&mut db).await.unwrap();
         sqlx::query(statement)
             .execute(&mut db)

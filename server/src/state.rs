@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use crate::engine::accounts::login_limiter::LoginLimiter;
 use crate::engine::dry_runs::calibration::run::CalibrationJob;
@@ -18,7 +18,7 @@ use crate::engine::study::stability::StabilityCache;
 
 #[derive(Clone, Debug)]
 pub struct AppState {
-    pub pool: SqlitePool,
+    pub pool: AnyPool,
     pub controller: ControllerLink,
     pub login: Arc<LoginLimiter>,
     pub pairing: Arc<Pairing>,
@@ -43,7 +43,7 @@ pub struct AppState {
 }
 
 impl AppState {
-    pub fn new(pool: SqlitePool, controller: ControllerLink) -> Self {
+    pub fn new(pool: AnyPool, controller: ControllerLink) -> Self {
         Self {
             pool,
             controller,

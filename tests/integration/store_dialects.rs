@@ -340,11 +340,22 @@ fn same<T: Ord + std::fmt::Debug>(what: &str, sqlite: &BTreeSet<T>, postgres: &B
     );
 }
 
-/// The schema a fresh SQLite store has, opened as the server opens it.
+/// A fresh SQLite store, made as the server makes it (migrated, its log chained), then
+/// reopened through SQLite's own driver, whose rows name the declared column types.
 async fn sqlite_store(dir: &TempDir) -> SqlitePool {
-    bdft_server::store::db::open(&dir.path().join("store.db"))
+    let path = dir.path().join("store.db");
+    bdft_server::store::db::open(&path)
         .await
         .unwrap()
+        .close()
+        .await;
+    SqlitePool::connect_with(
+        sqlx::sqlite::SqliteConnectOptions::new()
+            .filename(&path)
+            .foreign_keys(true),
+    )
+    .await
+    .unwrap()
 }
 
 fn runtime() -> tokio::runtime::Runtime {

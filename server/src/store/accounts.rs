@@ -2,7 +2,7 @@
 //! sessions, and the one-time set-up tokens.
 
 use serde::{Deserialize, Serialize};
-use sqlx::{SqliteConnection, SqliteExecutor};
+use sqlx::{AnyConnection, AnyExecutor};
 
 use super::db::{now_ms, rfc3339};
 use super::tokens::token_hash;
@@ -58,7 +58,7 @@ pub struct SessionOwner {
     pub csrf: String,
 }
 
-pub async fn session<'c>(db: impl SqliteExecutor<'c>, token: &str) -> Result<Option<SessionOwner>> {
+pub async fn session<'c>(db: impl AnyExecutor<'c>, token: &str) -> Result<Option<SessionOwner>> {
     let row: Option<(i64, String, String, String)> = sqlx::query_as(
         "SELECT e.id, e.username, e.role, s.csrf FROM sessions s JOIN experimenters e ON e.id = s.experimenter_id WHERE s.token_hash = ? AND s.expires_at > ? AND e.disabled_at IS NULL",
     )
@@ -78,7 +78,7 @@ pub async fn session<'c>(db: impl SqliteExecutor<'c>, token: &str) -> Result<Opt
 }
 
 pub async fn insert_session(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     token: &str,
     experimenter_id: i64,
     csrf: &str,
@@ -96,7 +96,7 @@ pub async fn insert_session(
     Ok(())
 }
 
-pub async fn delete_session(db: &mut SqliteConnection, token: &str) -> Result<()> {
+pub async fn delete_session(db: &mut AnyConnection, token: &str) -> Result<()> {
     sqlx::query("DELETE FROM sessions WHERE token_hash = ?")
         .bind(token_hash(token))
         .execute(db)
@@ -114,10 +114,10 @@ pub struct Credentials {
 }
 
 pub async fn credentials<'c>(
-    db: impl SqliteExecutor<'c>,
+    db: impl AnyExecutor<'c>,
     username: &str,
 ) -> Result<Option<Credentials>> {
-    let row: Option<(i64, String, String, bool)> = sqlx::query_as(
+    let row: Option<(i64, String, String, super::db::Flag)> = sqlx::query_as(
         "SELECT id, password_hash, role, disabled_at IS NOT NULL FROM experimenters WHERE username = ?",
     )
     .bind(username)
@@ -128,29 +128,29 @@ pub async fn credentials<'c>(
             role: stored_role(id, &role)?,
             id,
             password_hash,
-            disabled,
+            disabled: disabled.0,
         })
     })
     .transpose()
 }
 
 pub async fn insert_experimenter(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     username: &str,
     password_hash: &str,
     role: Role,
 ) -> Result<i64> {
-    let r = sqlx::query(
-        "INSERT INTO experimenters (username, password_hash, role, created_at) VALUES (?, ?, ?, ?)",
+    let r = sqlx::query_scalar::<_, i64>(
+        "INSERT INTO experimenters (username, password_hash, role, created_at) VALUES (?, ?, ?, ?) RETURNING id",
     )
     .bind(username)
     .bind(password_hash)
     .bind(role.name())
     .bind(now_ms())
-    .execute(db)
+    .fetch_one(db)
     .await;
     match r {
-        Ok(r) => Ok(r.last_insert_rowid()),
+        Ok(r) => Ok(r),
         Err(sqlx::Error::Database(e)) if e.is_unique_violation() => Err(AppError::Conflict(
             format!("the username {username} is taken"),
         )),
@@ -158,7 +158,7 @@ pub async fn insert_experimenter(
     }
 }
 
-pub async fn experimenter_count<'c>(db: impl SqliteExecutor<'c>) -> Result<i64> {
+pub async fn experimenter_count<'c>(db: impl AnyExecutor<'c>) -> Result<i64> {
     let (n,): (i64,) = sqlx::query_as("SELECT COUNT(*) FROM experimenters")
         .fetch_one(db)
         .await?;
@@ -192,7 +192,7 @@ fn account_of((id, username, role, disabled_at, created_at): AccountRow) -> Resu
 
 const ACCOUNT_COLUMNS: &str = "id, username, role, disabled_at, created_at";
 
-pub async fn accounts<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<Account>> {
+pub async fn accounts<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<Account>> {
     let rows: Vec<AccountRow> = sqlx::query_as(&format!(
         "SELECT {ACCOUNT_COLUMNS} FROM experimenters ORDER BY id"
     ))
@@ -201,7 +201,7 @@ pub async fn accounts<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<Account>> {
     rows.into_iter().map(account_of).collect()
 }
 
-pub async fn account<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Account> {
+pub async fn account<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Account> {
     let row: Option<AccountRow> = sqlx::query_as(&format!(
         "SELECT {ACCOUNT_COLUMNS} FROM experimenters WHERE id = ?"
     ))
@@ -212,7 +212,7 @@ pub async fn account<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Account
 }
 
 /// Active admins other than `id` (the last-admin rule counts them inside its change).
-pub async fn other_active_admins<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<i64> {
+pub async fn other_active_admins<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<i64> {
     let (n,): (i64,) = sqlx::query_as(
         "SELECT COUNT(*) FROM experimenters WHERE role = 'admin' AND disabled_at IS NULL AND id <> ?",
     )
@@ -222,7 +222,7 @@ pub async fn other_active_admins<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Re
     Ok(n)
 }
 
-pub async fn set_role(db: &mut SqliteConnection, id: i64, role: Role) -> Result<()> {
+pub async fn set_role(db: &mut AnyConnection, id: i64, role: Role) -> Result<()> {
     sqlx::query("UPDATE experimenters SET role = ? WHERE id = ?")
         .bind(role.name())
         .bind(id)
@@ -232,7 +232,7 @@ pub async fn set_role(db: &mut SqliteConnection, id: i64, role: Role) -> Result<
 }
 
 /// Disables an account and ends its sessions; returns how many sessions ended.
-pub async fn disable(db: &mut SqliteConnection, id: i64) -> Result<u64> {
+pub async fn disable(db: &mut AnyConnection, id: i64) -> Result<u64> {
     sqlx::query("UPDATE experimenters SET disabled_at = ? WHERE id = ? AND disabled_at IS NULL")
         .bind(now_ms())
         .bind(id)
@@ -247,7 +247,7 @@ pub async fn disable(db: &mut SqliteConnection, id: i64) -> Result<u64> {
     )
 }
 
-pub async fn enable(db: &mut SqliteConnection, id: i64) -> Result<()> {
+pub async fn enable(db: &mut AnyConnection, id: i64) -> Result<()> {
     sqlx::query("UPDATE experimenters SET disabled_at = NULL WHERE id = ?")
         .bind(id)
         .execute(db)
@@ -257,7 +257,7 @@ pub async fn enable(db: &mut SqliteConnection, id: i64) -> Result<()> {
 
 /// Stores a new set-up token and deletes every unused earlier one (at most one set-up link
 /// is valid); returns how many were deleted.
-pub async fn replace_setup_token(db: &mut SqliteConnection, token: &str) -> Result<u64> {
+pub async fn replace_setup_token(db: &mut AnyConnection, token: &str) -> Result<u64> {
     let replaced = sqlx::query("DELETE FROM setup_tokens WHERE used_at IS NULL")
         .execute(&mut *db)
         .await?
@@ -277,10 +277,7 @@ pub struct SetupToken {
     pub used_at: Option<i64>,
 }
 
-pub async fn setup_token<'c>(
-    db: impl SqliteExecutor<'c>,
-    token: &str,
-) -> Result<Option<SetupToken>> {
+pub async fn setup_token<'c>(db: impl AnyExecutor<'c>, token: &str) -> Result<Option<SetupToken>> {
     Ok(
         sqlx::query_as("SELECT created_at, used_at FROM setup_tokens WHERE token_hash = ?")
             .bind(token_hash(token))
@@ -290,7 +287,7 @@ pub async fn setup_token<'c>(
 }
 
 /// Marks a set-up token used (the caller checked it is unused, inside its transaction).
-pub async fn use_setup_token(db: &mut SqliteConnection, token: &str) -> Result<()> {
+pub async fn use_setup_token(db: &mut AnyConnection, token: &str) -> Result<()> {
     sqlx::query("UPDATE setup_tokens SET used_at = ? WHERE token_hash = ? AND used_at IS NULL")
         .bind(now_ms())
         .bind(token_hash(token))

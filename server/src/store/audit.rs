@@ -12,14 +12,14 @@
 
 use serde::Serialize;
 use serde_json::Value;
-use sqlx::{SqliteConnection, SqliteExecutor};
+use sqlx::{AnyConnection, AnyExecutor};
 
 use super::db::{now_ms, rfc3339};
 use crate::error::Result;
 
 /// Appends a row; returns its id.
 pub(super) async fn append(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     actor: &str,
     action: &str,
     target: Option<String>,
@@ -79,11 +79,7 @@ pub use super::audit_chain::AuditRow;
 
 /// Up to `limit` rows after the row `after`, oldest first, with `at` in ms (an export reads
 /// the whole log page by page).
-pub async fn page<'c>(
-    db: impl SqliteExecutor<'c>,
-    after: i64,
-    limit: i64,
-) -> Result<Vec<AuditRow>> {
+pub async fn page<'c>(db: impl AnyExecutor<'c>, after: i64, limit: i64) -> Result<Vec<AuditRow>> {
     Ok(sqlx::query_as(
         "SELECT id, at, actor, actor_id, action, target, detail_json FROM audit_log WHERE id > ? ORDER BY id LIMIT ?",
     )
@@ -94,7 +90,7 @@ pub async fn page<'c>(
 }
 
 /// The newest `limit` rows, newest first.
-pub async fn newest<'c>(db: impl SqliteExecutor<'c>, limit: i64) -> Result<Vec<AuditEntry>> {
+pub async fn newest<'c>(db: impl AnyExecutor<'c>, limit: i64) -> Result<Vec<AuditEntry>> {
     let rows: Vec<AuditRow> = sqlx::query_as(
         "SELECT id, at, actor, actor_id, action, target, detail_json FROM audit_log ORDER BY id DESC LIMIT ?",
     )

@@ -16,7 +16,7 @@ use serde::Serialize;
 use std::collections::{HashMap, HashSet};
 
 use futures_util::TryStreamExt;
-use sqlx::SqliteConnection;
+use sqlx::AnyConnection;
 
 use crate::error::{AppError, Result};
 
@@ -70,7 +70,7 @@ impl Entry {
     }
 }
 
-async fn head(db: &mut SqliteConnection) -> Result<Option<(i64, String)>> {
+async fn head(db: &mut AnyConnection) -> Result<Option<(i64, String)>> {
     Ok(
         sqlx::query_as("SELECT entry_id, hash FROM audit_chain ORDER BY entry_id DESC LIMIT 1")
             .fetch_optional(db)
@@ -78,7 +78,7 @@ async fn head(db: &mut SqliteConnection) -> Result<Option<(i64, String)>> {
     )
 }
 
-async fn link(db: &mut SqliteConnection, entry: &Entry, prev: &str, late: bool) -> Result<String> {
+async fn link(db: &mut AnyConnection, entry: &Entry, prev: &str, late: bool) -> Result<String> {
     let detail_hash = detail_hash(entry.detail_json.as_deref());
     let hash = entry.hash(prev, &detail_hash);
     sqlx::query(
@@ -95,7 +95,7 @@ async fn link(db: &mut SqliteConnection, entry: &Entry, prev: &str, late: bool) 
 }
 
 /// Chains the row just appended (on the appending transaction's connection).
-pub(super) async fn chain(db: &mut SqliteConnection, entry: &Entry) -> Result<()> {
+pub(super) async fn chain(db: &mut AnyConnection, entry: &Entry) -> Result<()> {
     let prev = head(db)
         .await?
         .map_or_else(|| GENESIS.to_string(), |(_, h)| h);
@@ -106,7 +106,7 @@ pub(super) async fn chain(db: &mut SqliteConnection, entry: &Entry) -> Result<()
 /// Chains the rows written before the chain existed (a database of an earlier release), in
 /// order, marked as chained late; returns how many. Run at every open, before anything is
 /// appended.
-pub async fn chain_late(db: &mut SqliteConnection) -> Result<u64> {
+pub async fn chain_late(db: &mut AnyConnection) -> Result<u64> {
     // In batches, so a long log from an earlier release is chained in bounded memory.
     const BATCH: i64 = 10_000;
     let mut chained = 0;
@@ -142,11 +142,7 @@ pub fn public_key_hex(key: &VerifyingKey) -> String {
 
 /// Signs the chain's head with `key` unless the newest checkpoint already holds it; returns
 /// the entry it signed.
-pub async fn checkpoint(
-    db: &mut SqliteConnection,
-    key: &SigningKey,
-    at: i64,
-) -> Result<Option<i64>> {
+pub async fn checkpoint(db: &mut AnyConnection, key: &SigningKey, at: i64) -> Result<Option<i64>> {
     let Some((entry_id, hash)) = head(db).await? else {
         return Ok(None);
     };
@@ -237,7 +233,7 @@ const PAGE: i64 = 2000;
 /// SQLite hands them over as one JSON text per page: row by row, sqlx's worker thread
 /// would copy every value and switch threads once a row, several times the cost of the
 /// hashing (a million entries must verify in seconds). JSON carries the texts unchanged.
-async fn page(db: &mut SqliteConnection, after: i64) -> Result<Vec<Row>> {
+async fn page(db: &mut AnyConnection, after: i64) -> Result<Vec<Row>> {
     type Fields = (
         AuditRow,
         Option<String>,
@@ -300,11 +296,7 @@ fn redacted_by_erasure(detail: Option<&str>, entry: i64, erasures: &[i64]) -> bo
 /// The other place in the chain where `e`'s content (its details hashing to `detail_hash`)
 /// belongs, if any: a row moved rather than edited. Searched only once something failed,
 /// by a second pass over the chain (streamed, like the first).
-async fn moved_from(
-    db: &mut SqliteConnection,
-    e: &Entry,
-    detail_hash: &str,
-) -> Result<Option<i64>> {
+async fn moved_from(db: &mut AnyConnection, e: &Entry, detail_hash: &str) -> Result<Option<i64>> {
     let mut chain = sqlx::query_as::<_, (i64, String, String)>(
         "SELECT entry_id, prev_hash, hash FROM audit_chain ORDER BY entry_id",
     )
@@ -328,7 +320,7 @@ fn fail(verdict: &mut Verdict, entry: i64, why: String) {
 
 /// Checks the whole log against its chain and its checkpoints, the checkpoints against
 /// `trusted` (the server's public key; none: the key each checkpoint names).
-pub async fn verify(db: &mut SqliteConnection, trusted: Option<&VerifyingKey>) -> Result<Verdict> {
+pub async fn verify(db: &mut AnyConnection, trusted: Option<&VerifyingKey>) -> Result<Verdict> {
     let erasures: Vec<i64> =
         sqlx::query_scalar("SELECT id FROM audit_log WHERE action = 'subject.erase'")
             .fetch_all(&mut *db)

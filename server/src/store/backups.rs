@@ -6,14 +6,14 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use sqlx::{SqliteConnection, SqliteExecutor};
+use sqlx::{AnyConnection, AnyExecutor};
 
 use crate::error::{AppError, Result};
 
 /// Writes a copy of the database to `out` (which must not exist): SQLite reads it in one read
 /// transaction, so the copy is the database as one moment left it, whatever is written
 /// meanwhile (WAL: writers are not held up), and compact (free pages left out).
-pub async fn vacuum_into<'c>(db: impl SqliteExecutor<'c>, out: &Path) -> Result<()> {
+pub async fn vacuum_into<'c>(db: impl AnyExecutor<'c>, out: &Path) -> Result<()> {
     let path = out.to_str().ok_or_else(|| {
         AppError::BadRequest(format!(
             "{}: the path is not valid UTF-8; choose another name",
@@ -25,7 +25,7 @@ pub async fn vacuum_into<'c>(db: impl SqliteExecutor<'c>, out: &Path) -> Result<
 }
 
 /// SQLite's `PRAGMA integrity_check`: `["ok"]`, or the problems it found (at most 100).
-pub async fn integrity_check(db: &mut SqliteConnection) -> Result<Vec<String>> {
+pub async fn integrity_check(db: &mut AnyConnection) -> Result<Vec<String>> {
     let rows: Vec<(String,)> = sqlx::query_as("PRAGMA integrity_check(100)")
         .fetch_all(db)
         .await?;
@@ -33,7 +33,7 @@ pub async fn integrity_check(db: &mut SqliteConnection) -> Result<Vec<String>> {
 }
 
 /// Every table's number of rows, by name (SQLite's own tables left out).
-pub async fn row_counts(db: &mut SqliteConnection) -> Result<BTreeMap<String, i64>> {
+pub async fn row_counts(db: &mut AnyConnection) -> Result<BTreeMap<String, i64>> {
     let tables: Vec<(String,)> = sqlx::query_as(
         "SELECT name FROM sqlite_schema WHERE type = 'table' AND name NOT LIKE 'sqlite\\_%' ESCAPE '\\' ORDER BY name",
     )
@@ -63,7 +63,7 @@ pub struct AppliedMigration {
 
 /// The migrations the file has applied, oldest first (none for a file that is not a
 /// database of this program).
-pub async fn applied_migrations(db: &mut SqliteConnection) -> Result<Vec<AppliedMigration>> {
+pub async fn applied_migrations(db: &mut AnyConnection) -> Result<Vec<AppliedMigration>> {
     let has_table: Option<(String,)> = sqlx::query_as(
         "SELECT name FROM sqlite_schema WHERE type = 'table' AND name = '_sqlx_migrations'",
     )
@@ -88,7 +88,7 @@ pub async fn applied_migrations(db: &mut SqliteConnection) -> Result<Vec<Applied
 }
 
 /// Each locked study's id, stored parameters (JSON) and protocol hash.
-pub async fn locked_studies<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<(i64, String, String)>> {
+pub async fn locked_studies<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<(i64, String, String)>> {
     Ok(sqlx::query_as(
         "SELECT id, params_json, protocol_hash FROM studies WHERE protocol_hash IS NOT NULL ORDER BY id",
     )
@@ -97,7 +97,7 @@ pub async fn locked_studies<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<(i64,
 }
 
 /// Trials that carry a protocol hash other than their study's: (trial, study).
-pub async fn trials_off_their_protocol<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<(i64, i64)>> {
+pub async fn trials_off_their_protocol<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<(i64, i64)>> {
     Ok(sqlx::query_as(
         "SELECT t.id, st.id FROM trials t JOIN subjects s ON s.id = t.subject_id JOIN studies st ON st.id = s.study_id \
          WHERE t.protocol_hash IS NOT NULL AND t.protocol_hash IS NOT st.protocol_hash ORDER BY t.id",
@@ -107,7 +107,7 @@ pub async fn trials_off_their_protocol<'c>(db: impl SqliteExecutor<'c>) -> Resul
 }
 
 /// The number of trials that carry a protocol hash.
-pub async fn hashed_trials<'c>(db: impl SqliteExecutor<'c>) -> Result<i64> {
+pub async fn hashed_trials<'c>(db: impl AnyExecutor<'c>) -> Result<i64> {
     let (n,): (i64,) =
         sqlx::query_as("SELECT count(*) FROM trials WHERE protocol_hash IS NOT NULL")
             .fetch_one(db)
@@ -116,7 +116,7 @@ pub async fn hashed_trials<'c>(db: impl SqliteExecutor<'c>) -> Result<i64> {
 }
 
 /// Rows of the audit log.
-pub async fn audit_rows<'c>(db: impl SqliteExecutor<'c>) -> Result<i64> {
+pub async fn audit_rows<'c>(db: impl AnyExecutor<'c>) -> Result<i64> {
     let (n,): (i64,) = sqlx::query_as("SELECT count(*) FROM audit_log")
         .fetch_one(db)
         .await?;
@@ -124,7 +124,7 @@ pub async fn audit_rows<'c>(db: impl SqliteExecutor<'c>) -> Result<i64> {
 }
 
 /// The last migration the database has applied.
-pub async fn schema_version<'c>(db: impl SqliteExecutor<'c>) -> Result<i64> {
+pub async fn schema_version<'c>(db: impl AnyExecutor<'c>) -> Result<i64> {
     let (v,): (i64,) =
         sqlx::query_as("SELECT COALESCE(MAX(version), 0) FROM _sqlx_migrations WHERE success")
             .fetch_one(db)

@@ -3,7 +3,7 @@
 
 use bdft_protocol::params::CompensatorKind;
 use serde::Serialize;
-use sqlx::{SqliteConnection, SqliteExecutor};
+use sqlx::{AnyConnection, AnyExecutor};
 use utoipa::ToSchema;
 
 use super::db::now_ms;
@@ -78,7 +78,7 @@ pub struct NewResult<'a> {
     pub trace_json: &'a str,
 }
 
-pub async fn insert_run(db: &mut SqliteConnection, run: &NewRun<'_>) -> Result<i64> {
+pub async fn insert_run(db: &mut AnyConnection, run: &NewRun<'_>) -> Result<i64> {
     let (id,): (i64,) = sqlx::query_as(
         "INSERT INTO bench_runs (study_id, rig, signal_json, duration_s, seed, created_by, created_at) \
          VALUES (?, ?, ?, ?, ?, ?, ?) RETURNING id",
@@ -95,11 +95,7 @@ pub async fn insert_run(db: &mut SqliteConnection, run: &NewRun<'_>) -> Result<i
     Ok(id)
 }
 
-pub async fn insert_result(
-    db: &mut SqliteConnection,
-    run_id: i64,
-    r: &NewResult<'_>,
-) -> Result<i64> {
+pub async fn insert_result(db: &mut AnyConnection, run_id: i64, r: &NewResult<'_>) -> Result<i64> {
     let (id,): (i64,) = sqlx::query_as(
         "INSERT INTO bench_results (run_id, position, label, kind, config_id, spec_json, outcome, ticks, \
          mse_tracking_mm2, ms_cab_accel, decimation, trace_json) \
@@ -123,7 +119,7 @@ pub async fn insert_result(
 }
 
 /// Ends a running run: `done`, or `failed` with `error`.
-pub async fn finish(db: &mut SqliteConnection, run_id: i64, error: Option<&str>) -> Result<()> {
+pub async fn finish(db: &mut AnyConnection, run_id: i64, error: Option<&str>) -> Result<()> {
     sqlx::query(
         "UPDATE bench_runs SET status = ?, error = ?, finished_at = ? WHERE id = ? AND status = 'running'",
     )
@@ -137,7 +133,7 @@ pub async fn finish(db: &mut SqliteConnection, run_id: i64, error: Option<&str>)
 }
 
 /// Runs the server left running when it stopped: failed, with why.
-pub async fn fail_unfinished(db: &mut SqliteConnection, why: &str) -> Result<u64> {
+pub async fn fail_unfinished(db: &mut AnyConnection, why: &str) -> Result<u64> {
     let done = sqlx::query(
         "UPDATE bench_runs SET status = 'failed', error = ?, finished_at = ? WHERE status = 'running'",
     )
@@ -149,7 +145,7 @@ pub async fn fail_unfinished(db: &mut SqliteConnection, why: &str) -> Result<u64
 }
 
 /// The newest runs first, at most `limit`.
-pub async fn runs<'c>(db: impl SqliteExecutor<'c>, limit: i64) -> Result<Vec<BenchRun>> {
+pub async fn runs<'c>(db: impl AnyExecutor<'c>, limit: i64) -> Result<Vec<BenchRun>> {
     Ok(
         sqlx::query_as("SELECT * FROM bench_runs ORDER BY id DESC LIMIT ?")
             .bind(limit)
@@ -158,7 +154,7 @@ pub async fn runs<'c>(db: impl SqliteExecutor<'c>, limit: i64) -> Result<Vec<Ben
     )
 }
 
-pub async fn run<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<BenchRun> {
+pub async fn run<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<BenchRun> {
     sqlx::query_as("SELECT * FROM bench_runs WHERE id = ?")
         .bind(id)
         .fetch_optional(db)
@@ -167,7 +163,7 @@ pub async fn run<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<BenchRun> {
 }
 
 /// A run's results in the order the compensators were picked.
-pub async fn results<'c>(db: impl SqliteExecutor<'c>, run_id: i64) -> Result<Vec<BenchResult>> {
+pub async fn results<'c>(db: impl AnyExecutor<'c>, run_id: i64) -> Result<Vec<BenchResult>> {
     Ok(
         sqlx::query_as("SELECT * FROM bench_results WHERE run_id = ? ORDER BY position")
             .bind(run_id)

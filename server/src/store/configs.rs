@@ -3,7 +3,7 @@
 
 use bdft_protocol::params::{CompensatorKind, CompensatorSpec};
 use serde::Serialize;
-use sqlx::{SqliteConnection, SqliteExecutor};
+use sqlx::{AnyConnection, AnyExecutor};
 use utoipa::ToSchema;
 
 use super::db::now_ms;
@@ -56,7 +56,7 @@ pub fn spec_text(spec: &CompensatorSpec) -> String {
 
 /// Adds the next version of `name` (1 for a new name); returns its id and version.
 pub async fn insert(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     name: &str,
     spec: &CompensatorSpec,
 ) -> Result<(i64, i64)> {
@@ -80,7 +80,7 @@ pub async fn insert(
 }
 
 /// Every version, by name then version.
-pub async fn all<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<ConfigVersion>> {
+pub async fn all<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<ConfigVersion>> {
     let rows: Vec<Row> = sqlx::query_as(&format!(
         "SELECT {COLUMNS} FROM compensator_configs ORDER BY name, version"
     ))
@@ -89,7 +89,7 @@ pub async fn all<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<ConfigVersion>> 
     rows.into_iter().map(ConfigVersion::try_from).collect()
 }
 
-pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<ConfigVersion> {
+pub async fn get<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<ConfigVersion> {
     let row: Option<Row> = sqlx::query_as(&format!(
         "SELECT {COLUMNS} FROM compensator_configs WHERE id = ?"
     ))
@@ -101,7 +101,7 @@ pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<ConfigVersi
 }
 
 /// The versions `study_id` picked, as (kind name, configuration id).
-pub async fn picked<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<Vec<(String, i64)>> {
+pub async fn picked<'c>(db: impl AnyExecutor<'c>, study_id: i64) -> Result<Vec<(String, i64)>> {
     Ok(
         sqlx::query_as(
             "SELECT kind, config_id FROM study_configs WHERE study_id = ? ORDER BY kind",
@@ -115,7 +115,7 @@ pub async fn picked<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<Ve
 /// `study_id` takes `config_id` for its design of the version's kind (replacing an earlier
 /// pick of that kind).
 pub async fn pick(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     study_id: i64,
     kind: CompensatorKind,
     config_id: i64,

@@ -1,96 +1,275 @@
-//! The SQLite database: one file, WAL mode, deleted content overwritten (`secure_delete`),
-//! created if missing, migrations applied at start; the time unit of every column.
+//! The database: by default one SQLite file (WAL mode, deleted content overwritten by
+//! `secure_delete`, created if missing); or a PostgreSQL database shared by several labs
+//! (`--db postgres://…`). Both through sqlx's `Any` driver, so every query is written once;
+//! each dialect has its own migrations (`migrations/`, `migrations/postgres/`), applied at
+//! start. Also the time unit of every column.
 
 use std::path::Path;
-use std::str::FromStr;
 use std::time::Duration;
 
 use anyhow::Context;
-use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
-use sqlx::{ConnectOptions, Connection, SqliteConnection, SqlitePool};
+use sqlx::any::{AnyConnectOptions, AnyPoolOptions};
+use sqlx::{AnyConnection, AnyPool, ConnectOptions, Connection, Executor};
+
+/// Which SQL a connection speaks, where the two differ (locking, an upsert, a backup).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Dialect {
+    Sqlite,
+    Postgres,
+}
+
+impl Dialect {
+    /// The dialect of an open connection.
+    pub fn of(conn: &AnyConnection) -> Self {
+        Self::named(conn.backend_name())
+    }
+
+    /// The dialect of a pool's connections.
+    pub fn of_pool(pool: &AnyPool) -> Self {
+        if pool
+            .connect_options()
+            .database_url
+            .scheme()
+            .starts_with("postgres")
+        {
+            Self::Postgres
+        } else {
+            Self::Sqlite
+        }
+    }
+
+    fn named(backend: &str) -> Self {
+        if backend == "PostgreSQL" {
+            Self::Postgres
+        } else {
+            Self::Sqlite
+        }
+    }
+
+    /// The statement that starts a change: it takes the store's one write lock at the
+    /// start, so two changes racing wait for each other instead of one failing when it
+    /// upgrades a read to a write (SQLite's `IMMEDIATE`; on PostgreSQL a transaction-scoped
+    /// advisory lock, which every change takes, gives the same one-writer order).
+    pub fn begin_write(self) -> &'static str {
+        match self {
+            Self::Sqlite => "BEGIN IMMEDIATE",
+            Self::Postgres => "BEGIN",
+        }
+    }
+
+    /// What runs right after [`Self::begin_write`] to complete the write lock, if anything.
+    pub fn write_lock(self) -> Option<&'static str> {
+        match self {
+            Self::Sqlite => None,
+            Self::Postgres => Some("SELECT pg_advisory_xact_lock(2026120401)"),
+        }
+    }
+}
+
+/// Starts a write transaction on `conn` holding the store's write lock ([`Dialect::begin_write`]).
+pub async fn begin_write(conn: &mut AnyConnection) -> sqlx::Result<()> {
+    let dialect = Dialect::of(conn);
+    conn.execute(dialect.begin_write()).await?;
+    if let Some(lock) = dialect.write_lock() {
+        conn.execute(lock).await?;
+    }
+    Ok(())
+}
+
+/// A transaction on `pool` holding the store's write lock ([`Dialect::begin_write`]).
+pub async fn write_transaction(
+    pool: &AnyPool,
+) -> sqlx::Result<sqlx::Transaction<'static, sqlx::Any>> {
+    let dialect = Dialect::of_pool(pool);
+    let mut tx = pool.begin_with(dialect.begin_write()).await?;
+    if let Some(lock) = dialect.write_lock() {
+        tx.execute(lock).await?;
+    }
+    Ok(tx)
+}
+
+/// Makes sqlx's `Any` driver know SQLite and PostgreSQL (idempotent).
+pub(crate) fn drivers() {
+    sqlx::any::install_default_drivers();
+}
+
+/// Where the data live: a SQLite file, or a PostgreSQL database's URL.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Location {
+    File(std::path::PathBuf),
+    Postgres(String),
+}
+
+impl std::str::FromStr for Location {
+    type Err = std::convert::Infallible;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Ok(
+            if s.starts_with("postgres://") || s.starts_with("postgresql://") {
+                Self::Postgres(s.to_string())
+            } else {
+                Self::File(s.into())
+            },
+        )
+    }
+}
+
+impl std::fmt::Display for Location {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::File(path) => write!(f, "{}", path.display()),
+            // The URL may carry a password: only its host part is shown.
+            Self::Postgres(url) => write!(
+                f,
+                "postgres://…{}",
+                url.rsplit('@')
+                    .next()
+                    .filter(|_| url.contains('@'))
+                    .map(|h| format!("@{h}"))
+                    .unwrap_or_default()
+            ),
+        }
+    }
+}
 
 /// Opens (creating if needed) the database at `path` and brings its schema up to date.
-pub async fn open(path: &Path) -> anyhow::Result<SqlitePool> {
+pub async fn open(path: &Path) -> anyhow::Result<AnyPool> {
     open_with(path, 8, None).await
+}
+
+/// Opens the store at `location` (a SQLite file as [`open_capped`] does, or a PostgreSQL
+/// database) and brings its schema up to date.
+pub async fn open_location(location: &Location, max_pages: Option<u32>) -> anyhow::Result<AnyPool> {
+    match location {
+        Location::File(path) => open_with(path, 8, max_pages).await,
+        Location::Postgres(url) => open_postgres(url).await,
+    }
 }
 
 /// [`open`], every connection refusing to grow the file beyond `max_pages` pages when given
 /// (SQLite's `max_page_count`: a write that needs another page fails with "database or disk
 /// is full", as on a full disk; the soak test's full disk).
-pub async fn open_capped(path: &Path, max_pages: Option<u32>) -> anyhow::Result<SqlitePool> {
+pub async fn open_capped(path: &Path, max_pages: Option<u32>) -> anyhow::Result<AnyPool> {
     open_with(path, 8, max_pages).await
 }
 
 /// As [`open`], with one connection: a database only this process works on (a restore's
 /// copy), whose journal mode [`leave_wal`] can then change.
-pub async fn open_alone(path: &Path) -> anyhow::Result<SqlitePool> {
+pub async fn open_alone(path: &Path) -> anyhow::Result<AnyPool> {
     open_with(path, 1, None).await
 }
+
+/// The `sqlite://` URL of a file: the path's bytes outside the unreserved set and `/`
+/// percent-encoded (sqlx decodes them back), so a `?`, `#` or `%` in a path stays a path.
+fn sqlite_url(path: &Path, mode: &str) -> String {
+    let mut url = String::from("sqlite://");
+    for b in path.as_os_str().as_encoded_bytes() {
+        match b {
+            b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'-' | b'.' | b'_' | b'~' | b'/' => {
+                url.push(char::from(*b));
+            }
+            _ => url.push_str(&format!("%{b:02X}")),
+        }
+    }
+    url.push_str("?mode=");
+    url.push_str(mode);
+    url
+}
+
+/// How long a statement waits for another connection's write lock before "busy".
+const BUSY_TIMEOUT: Duration = Duration::from_secs(10);
 
 async fn open_with(
     path: &Path,
     connections: u32,
     max_pages: Option<u32>,
-) -> anyhow::Result<SqlitePool> {
-    let url = format!("sqlite://{}", path.display());
-    let opts = SqliteConnectOptions::from_str(&url)
-        .with_context(|| format!("database path {}", path.display()))?
-        .create_if_missing(true)
-        .journal_mode(SqliteJournalMode::Wal)
+) -> anyhow::Result<AnyPool> {
+    drivers();
+    let opts: AnyConnectOptions = sqlite_url(path, "rwc")
+        .parse()
+        .with_context(|| format!("database path {}", path.display()))?;
+    let mut pragmas = vec![
+        "PRAGMA journal_mode = WAL".to_string(),
         // NORMAL in WAL mode: a power cut may lose the last transactions but never corrupts.
-        .synchronous(SqliteSynchronous::Normal)
-        .foreign_keys(true)
+        "PRAGMA synchronous = NORMAL".into(),
+        "PRAGMA foreign_keys = ON".into(),
         // Deleted rows are overwritten with zeros, not left in free pages: an erased
         // subject's data must not stay readable in the file (`erasure`).
-        .pragma("secure_delete", "on")
-        .busy_timeout(Duration::from_secs(10));
-    let opts = match max_pages {
-        Some(n) => opts.pragma("max_page_count", n.to_string()),
-        None => opts,
-    };
-    let pool = SqlitePoolOptions::new()
+        "PRAGMA secure_delete = ON".into(),
+        format!("PRAGMA busy_timeout = {}", BUSY_TIMEOUT.as_millis()),
+    ];
+    if let Some(n) = max_pages {
+        pragmas.push(format!("PRAGMA max_page_count = {n}"));
+    }
+    let pool = AnyPoolOptions::new()
         .max_connections(connections)
+        .after_connect(move |conn, _| {
+            let pragmas = pragmas.clone();
+            Box::pin(async move {
+                for pragma in &pragmas {
+                    conn.execute(pragma.as_str()).await?;
+                }
+                Ok(())
+            })
+        })
         .connect_with(opts)
         .await
         .with_context(|| format!("opening the database {}", path.display()))?;
-    MIGRATOR.run(&pool).await.context("applying migrations")?;
+    migrate(&pool, &MIGRATOR).await?;
+    Ok(pool)
+}
+
+/// Opens the PostgreSQL database at `url` (which must exist) and migrates it.
+async fn open_postgres(url: &str) -> anyhow::Result<AnyPool> {
+    drivers();
+    let opts: AnyConnectOptions = url.parse().context("the PostgreSQL URL")?;
+    let pool = AnyPoolOptions::new()
+        .max_connections(8)
+        .acquire_timeout(BUSY_TIMEOUT)
+        .connect_with(opts)
+        .await
+        .context("connecting to PostgreSQL")?;
+    migrate(&pool, &POSTGRES_MIGRATOR).await?;
+    Ok(pool)
+}
+
+async fn migrate(pool: &AnyPool, migrator: &sqlx::migrate::Migrator) -> anyhow::Result<()> {
+    migrator.run(pool).await.context("applying migrations")?;
     // Rows an earlier release wrote join the audit chain before anything is appended.
-    let mut tx = pool.begin_with("BEGIN IMMEDIATE").await?;
+    let mut tx = write_transaction(pool).await?;
     super::audit_chain::chain_late(&mut tx)
         .await
         .map_err(|e| anyhow::anyhow!(e.describe()))
         .context("chaining the audit log")?;
     tx.commit().await?;
-    Ok(pool)
+    Ok(())
 }
 
-/// The migrations this program knows (embedded at build time).
+/// The migrations this program knows (embedded at build time), SQLite's.
 pub static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations");
 
-/// How many rows a connection's worker reads ahead of its reader.
-const READ_BATCH_ROWS: usize = 4096;
+/// The same schema in PostgreSQL's dialect: its first migration is SQLite's schema at
+/// version 26 in one file; every later one exists in both.
+pub static POSTGRES_MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations/postgres");
 
 /// One read-only connection to the database file at `path`, as it is: nothing created,
 /// nothing migrated (a backup being checked, or a database a restore would replace).
-pub async fn open_read_only(path: &Path) -> anyhow::Result<SqliteConnection> {
+pub async fn open_read_only(path: &Path) -> anyhow::Result<AnyConnection> {
     if !path.is_file() {
         anyhow::bail!("no such file");
     }
-    SqliteConnectOptions::new()
-        .filename(path)
-        .read_only(true)
-        .busy_timeout(Duration::from_secs(10))
-        // Whole tables are read through it (a backup's checks, the audit chain's
-        // verification): rows handed over in large batches, not one thread switch each.
-        .row_buffer_size(READ_BATCH_ROWS)
-        .connect()
+    drivers();
+    let opts: AnyConnectOptions = sqlite_url(path, "ro").parse()?;
+    let mut conn = opts.connect().await.context("opening it read-only")?;
+    conn.execute(format!("PRAGMA busy_timeout = {}", BUSY_TIMEOUT.as_millis()).as_str())
         .await
-        .context("opening it read-only")
+        .context("opening it read-only")?;
+    Ok(conn)
 }
 
 /// Folds the write-ahead log of a database opened with [`open_alone`] into its file and
 /// leaves it in rollback-journal mode: one file, whole, once the pool is closed.
-pub async fn leave_wal(pool: &SqlitePool) -> anyhow::Result<()> {
+pub async fn leave_wal(pool: &AnyPool) -> anyhow::Result<()> {
     let (mode,): (String,) = sqlx::query_as("PRAGMA journal_mode = DELETE")
         .fetch_one(pool)
         .await?;
@@ -102,11 +281,15 @@ pub async fn leave_wal(pool: &SqlitePool) -> anyhow::Result<()> {
 /// mode, one file that can be renamed whole (the server turns WAL back on when it opens it).
 /// Nobody else may have it open.
 pub async fn fold_into_one_file(path: &Path) -> anyhow::Result<()> {
-    let conn = SqliteConnectOptions::new()
-        .filename(path)
-        .journal_mode(SqliteJournalMode::Delete)
-        .busy_timeout(Duration::from_secs(10))
+    drivers();
+    let opts: AnyConnectOptions = sqlite_url(path, "rw").parse()?;
+    let mut conn = opts
         .connect()
+        .await
+        .context("folding its write-ahead log in")?;
+    conn.execute(format!("PRAGMA busy_timeout = {}", BUSY_TIMEOUT.as_millis()).as_str())
+        .await?;
+    conn.execute("PRAGMA journal_mode = DELETE")
         .await
         .context("folding its write-ahead log in")?;
     conn.close().await?;
@@ -119,6 +302,39 @@ pub async fn fold_into_one_file(path: &Path) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// A 0/1 flag column read as a `bool`. Both stores keep flags as integers (SQLite has no
+/// boolean; the PostgreSQL schema mirrors it), and sqlx's `Any` driver decodes a `bool` only
+/// from a boolean value: a row field is read as `#[sqlx(try_from = "Flag")] field: bool`,
+/// a tuple's as `Flag` and then `.0`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Flag(pub bool);
+
+impl From<Flag> for bool {
+    fn from(f: Flag) -> Self {
+        f.0
+    }
+}
+
+impl sqlx::Type<sqlx::Any> for Flag {
+    fn type_info() -> sqlx::any::AnyTypeInfo {
+        <i64 as sqlx::Type<sqlx::Any>>::type_info()
+    }
+
+    fn compatible(ty: &sqlx::any::AnyTypeInfo) -> bool {
+        <i64 as sqlx::Type<sqlx::Any>>::compatible(ty)
+            || <bool as sqlx::Type<sqlx::Any>>::compatible(ty)
+    }
+}
+
+impl<'r> sqlx::Decode<'r, sqlx::Any> for Flag {
+    fn decode(value: sqlx::any::AnyValueRef<'r>) -> Result<Self, sqlx::error::BoxDynError> {
+        if <bool as sqlx::Type<sqlx::Any>>::compatible(&sqlx::ValueRef::type_info(&value)) {
+            return <bool as sqlx::Decode<sqlx::Any>>::decode(value).map(Flag);
+        }
+        <i64 as sqlx::Decode<sqlx::Any>>::decode(value).map(|v| Flag(v != 0))
+    }
 }
 
 /// Milliseconds since the Unix epoch, the unit of every time column.

@@ -7,7 +7,7 @@
 //! [`clear_wal`] empties the write-ahead log after the erasure.
 
 use serde::Serialize;
-use sqlx::{SqliteConnection, SqliteExecutor, SqlitePool};
+use sqlx::{AnyConnection, AnyExecutor, AnyPool};
 
 use crate::error::{AppError, Result};
 
@@ -32,10 +32,7 @@ pub struct Removed {
 }
 
 /// The subject's running test, if one is running.
-pub async fn running_trial<'c>(
-    db: impl SqliteExecutor<'c>,
-    subject_id: i64,
-) -> Result<Option<i64>> {
+pub async fn running_trial<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result<Option<i64>> {
     Ok(sqlx::query_scalar(
         "SELECT id FROM trials WHERE subject_id = ? AND status = 'running' ORDER BY id LIMIT 1",
     )
@@ -50,7 +47,7 @@ pub async fn running_trial<'c>(
 /// matches anything; `created_at` becomes that time too, so the enrolment time is gone);
 /// the details of the older audit rows about it are redacted; its stations are released;
 /// its notes, surveys, records and trials are deleted.
-pub async fn erase(db: &mut SqliteConnection, subject_id: i64, erasure_id: i64) -> Result<Removed> {
+pub async fn erase(db: &mut AnyConnection, subject_id: i64, erasure_id: i64) -> Result<Removed> {
     let marked = sqlx::query(
         "UPDATE subjects SET erased_at = (SELECT at FROM audit_log WHERE id = ?1), \
          created_at = (SELECT at FROM audit_log WHERE id = ?1), token_hash = 'erased:' || id, \
@@ -123,7 +120,7 @@ pub async fn erase(db: &mut SqliteConnection, subject_id: i64, erasure_id: i64) 
 /// erasure changed no longer exist in their old form anywhere in the files. Waits for readers
 /// (the busy timeout); returns false when one kept it from finishing (the log is then cleared
 /// by a later checkpoint).
-pub async fn clear_wal(pool: &SqlitePool) -> Result<bool> {
+pub async fn clear_wal(pool: &AnyPool) -> Result<bool> {
     let (busy, _, _): (i64, i64, i64) = sqlx::query_as("PRAGMA wal_checkpoint(TRUNCATE)")
         .fetch_one(pool)
         .await?;
@@ -145,7 +142,7 @@ pub struct ErasureRow {
 }
 
 /// Every erasure, oldest first.
-pub async fn erasures<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<ErasureRow>> {
+pub async fn erasures<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<ErasureRow>> {
     Ok(sqlx::query_as(
         "SELECT a.id AS audit_id, a.at, a.actor AS by, s.id AS subject_id, s.study_id, s.code, \
          COALESCE(json_extract(a.detail_json, '$.reason'), '') AS reason \

@@ -3,7 +3,7 @@
 
 use bdft_protocol::params::{CompensatorKind, Seat};
 use bdft_protocol::records::{TestPhase, TrialStatus};
-use sqlx::SqliteExecutor;
+use sqlx::AnyExecutor;
 
 use crate::error::Result;
 
@@ -14,6 +14,7 @@ pub struct TrialExportRow {
     pub trial_id: i64,
     pub code: String,
     pub enrol_index: i64,
+    #[sqlx(try_from = "crate::store::db::Flag")]
     pub synthetic: bool,
     #[sqlx(try_from = "String")]
     pub starting_station: Seat,
@@ -56,10 +57,12 @@ pub struct TrialExportRow {
     pub timing_json: Option<String>,
     pub accepted_reason: Option<String>,
     /// This row is the latest attempt of its test (subject and slot).
+    #[sqlx(try_from = "crate::store::db::Flag")]
     pub latest: bool,
     /// The configuration version the trial ran, as "name vN" (none: not from a version).
     pub config_version: Option<String>,
     /// The design was tuned to the subject (migration 0026).
+    #[sqlx(try_from = "crate::store::db::Flag")]
     pub personalized: bool,
     /// The design the trial ran (`CompensatorSpec`).
     pub compensator_json: String,
@@ -87,7 +90,7 @@ pub enum Withdrawn {
 /// Every attempt of every test of the study's subjects (who have not withdrawn, unless
 /// `Withdrawn::Included`).
 pub async fn trial_rows<'c>(
-    db: impl SqliteExecutor<'c>,
+    db: impl AnyExecutor<'c>,
     study_id: i64,
     withdrawn: Withdrawn,
 ) -> Result<Vec<TrialExportRow>> {
@@ -113,7 +116,7 @@ pub struct RecordedTrial {
 /// The trials of the study's remaining subjects that have a record, in schedule order:
 /// all, or only subject `code`'s, or only trial `trial_id`.
 pub async fn recorded_trials<'c>(
-    db: impl SqliteExecutor<'c>,
+    db: impl AnyExecutor<'c>,
     study_id: i64,
     code: Option<&str>,
     trial_id: Option<i64>,
@@ -140,6 +143,7 @@ pub struct SubjectExportRow {
     pub id: i64,
     pub code: String,
     pub enrol_index: i64,
+    #[sqlx(try_from = "crate::store::db::Flag")]
     pub synthetic: bool,
     pub starting_station: String,
     pub consent_version: Option<String>,
@@ -152,7 +156,7 @@ pub struct SubjectExportRow {
 /// Every subject of the study, withdrawn or not, in enrolment order; not the erased (whose
 /// tests are gone with their data, so no other export has them either).
 pub async fn subject_rows<'c>(
-    db: impl SqliteExecutor<'c>,
+    db: impl AnyExecutor<'c>,
     study_id: i64,
 ) -> Result<Vec<SubjectExportRow>> {
     Ok(sqlx::query_as(
@@ -166,7 +170,7 @@ pub async fn subject_rows<'c>(
 
 /// The codes of the study's subjects who have not withdrawn (nor been erased), in enrolment
 /// order (what a per-subject export may name).
-pub async fn subject_codes<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<Vec<String>> {
+pub async fn subject_codes<'c>(db: impl AnyExecutor<'c>, study_id: i64) -> Result<Vec<String>> {
     Ok(sqlx::query_scalar(
         "SELECT code FROM subjects WHERE study_id = ? AND withdrawn_at IS NULL AND erased_at IS NULL ORDER BY enrol_index",
     )
@@ -200,7 +204,7 @@ const REASON_ACTIONS: &str =
 
 /// Every note and reason about the study's subjects who have not withdrawn and their tests,
 /// in schedule order, then time.
-pub async fn note_rows<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<Vec<NoteRow>> {
+pub async fn note_rows<'c>(db: impl AnyExecutor<'c>, study_id: i64) -> Result<Vec<NoteRow>> {
     let sql = format!(
         "SELECT s.study_id, x.trial_id, s.code, t.slot, t.attempt, x.kind, t.status, x.at, x.author, x.text FROM ( \
            SELECT n.subject_id, n.trial_id, 'note' AS kind, n.created_at AS at, n.author, n.text FROM notes n \

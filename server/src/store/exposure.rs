@@ -1,6 +1,6 @@
 //! The tests a subject rode the machine in: what their vibration exposure is summed from.
 
-use sqlx::SqliteExecutor;
+use sqlx::AnyExecutor;
 
 use crate::error::Result;
 
@@ -20,7 +20,7 @@ pub struct RiddenTest {
 
 /// The subject's tests on the machine that started at or after `since_ms`, oldest first.
 pub async fn ridden_since<'c>(
-    db: impl SqliteExecutor<'c>,
+    db: impl AnyExecutor<'c>,
     subject_id: i64,
     since_ms: i64,
 ) -> Result<Vec<RiddenTest>> {

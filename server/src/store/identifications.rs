@@ -5,7 +5,7 @@
 use bdft_controller::analysis::personal::PersonalDesign;
 use bdft_protocol::identification::{BodyFit, FrfPoint};
 use serde::Serialize;
-use sqlx::{SqliteConnection, SqliteExecutor};
+use sqlx::{AnyConnection, AnyExecutor};
 
 use super::db::now_ms;
 use crate::error::{AppError, Result};
@@ -71,7 +71,7 @@ impl TryFrom<Row> for Identification {
 /// Stores what trial `trial_id` of subject `subject_id` measured: the points, and the fit
 /// or why it failed, and the designs tuned to it in a personalized study.
 pub async fn insert(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     trial_id: i64,
     subject_id: i64,
     points: &[FrfPoint],
@@ -103,7 +103,7 @@ pub async fn insert(
 
 /// The subject's identifications, oldest first.
 pub async fn of_subject<'c>(
-    db: impl SqliteExecutor<'c>,
+    db: impl AnyExecutor<'c>,
     subject_id: i64,
 ) -> Result<Vec<Identification>> {
     let rows: Vec<Row> =
@@ -115,10 +115,7 @@ pub async fn of_subject<'c>(
 }
 
 /// The body fitted by the subject's latest identification test with a fit.
-pub async fn latest_fit<'c>(
-    db: impl SqliteExecutor<'c>,
-    subject_id: i64,
-) -> Result<Option<BodyFit>> {
+pub async fn latest_fit<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result<Option<BodyFit>> {
     let json: Option<(String,)> = sqlx::query_as(
         "SELECT fit_json FROM identifications WHERE subject_id = ? AND fit_json IS NOT NULL \
          ORDER BY trial_id DESC LIMIT 1",
@@ -139,7 +136,7 @@ pub async fn latest_fit<'c>(
 /// The identifications of a study's subjects who have not withdrawn, with their codes, in
 /// enrolment order.
 pub async fn of_study<'c>(
-    db: impl SqliteExecutor<'c>,
+    db: impl AnyExecutor<'c>,
     study_id: i64,
 ) -> Result<Vec<(String, Identification)>> {
     #[derive(sqlx::FromRow)]

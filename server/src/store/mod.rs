@@ -32,15 +32,15 @@ pub mod trials;
 use anyhow::Context;
 use serde::Serialize;
 use sqlx::pool::PoolConnection;
-use sqlx::{Sqlite, SqliteConnection, SqlitePool};
+use sqlx::{Any, AnyConnection, AnyPool};
 
 use crate::error::Result;
 
 /// One change to the data and the audit row that records it, committed together.
 ///
-/// The transaction is `BEGIN IMMEDIATE`: it takes SQLite's write lock at the start, so two
-/// changes racing wait for each other (up to the busy timeout) instead of one failing with
-/// "database is locked" when it upgrades a read to a write.
+/// The transaction takes the store's write lock at the start ([`db::begin_write`]: SQLite's
+/// `BEGIN IMMEDIATE`), so two changes racing wait for each other (up to the busy timeout)
+/// instead of one failing with "database is locked" when it upgrades a read to a write.
 ///
 /// A change dropped before it committed (a refusal, an error on the way) is rolled back by
 /// closing its connection rather than handing it back to the pool: after some errors (a
@@ -49,7 +49,7 @@ use crate::error::Result;
 /// change ("non-zero transaction depth") until it was recycled.
 #[derive(Debug)]
 pub struct Change {
-    conn: PoolConnection<Sqlite>,
+    conn: PoolConnection<Any>,
     actor: String,
     committed: bool,
 }
@@ -57,9 +57,9 @@ pub struct Change {
 impl Change {
     /// Starts a change made by `actor`: a username, or a non-person actor as `audit` lists
     /// them (`subject:S01`, `station:NAME`, `system:WHAT`, `pilot (by NAME)`).
-    pub async fn begin(pool: &SqlitePool, actor: impl Into<String>) -> Result<Self> {
+    pub async fn begin(pool: &AnyPool, actor: impl Into<String>) -> Result<Self> {
         let mut conn = pool.acquire().await?;
-        sqlx::query("BEGIN IMMEDIATE").execute(&mut *conn).await?;
+        db::begin_write(&mut conn).await?;
         Ok(Self {
             conn,
             actor: actor.into(),
@@ -68,7 +68,7 @@ impl Change {
     }
 
     /// The connection the change's statements run on.
-    pub fn db(&mut self) -> &mut SqliteConnection {
+    pub fn db(&mut self) -> &mut AnyConnection {
         &mut self.conn
     }
 
@@ -135,7 +135,7 @@ pub struct Audited {
 
 impl Audited {
     /// The connection the change's statements run on.
-    pub fn db(&mut self) -> &mut SqliteConnection {
+    pub fn db(&mut self) -> &mut AnyConnection {
         self.change.db()
     }
 

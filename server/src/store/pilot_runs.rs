@@ -2,14 +2,14 @@
 //! heartbeats, and the trials each started (`pilot_trials`): how a killed pilot's trials
 //! are found.
 
-use sqlx::{SqliteConnection, SqliteExecutor};
+use sqlx::{AnyConnection, AnyExecutor};
 
 use super::db::now_ms;
 use super::process_runs;
 use crate::error::Result;
 
 /// Registers a pilot process; returns the run's id.
-pub async fn start(db: &mut SqliteConnection, pid: u32) -> Result<i64> {
+pub async fn start(db: &mut AnyConnection, pid: u32) -> Result<i64> {
     let now = now_ms();
     let (id,): (i64,) = sqlx::query_as(
         "INSERT INTO pilot_runs (pid, started_at, beat_at) VALUES (?, ?, ?) RETURNING id",
@@ -23,12 +23,12 @@ pub async fn start(db: &mut SqliteConnection, pid: u32) -> Result<i64> {
 }
 
 /// The run is alive. Not audited: a heartbeat changes no state of the study.
-pub async fn beat<'c>(db: impl SqliteExecutor<'c>, run_id: i64) -> Result<()> {
+pub async fn beat<'c>(db: impl AnyExecutor<'c>, run_id: i64) -> Result<()> {
     process_runs::beat(db, "pilot_runs", run_id).await
 }
 
 /// `trial_id` is run by the pilot `run_id` (in the transaction that marks it running).
-pub async fn claim(db: &mut SqliteConnection, run_id: i64, trial_id: i64) -> Result<()> {
+pub async fn claim(db: &mut AnyConnection, run_id: i64, trial_id: i64) -> Result<()> {
     sqlx::query("INSERT INTO pilot_trials (trial_id, run_id) VALUES (?, ?)")
         .bind(trial_id)
         .bind(run_id)
@@ -38,7 +38,7 @@ pub async fn claim(db: &mut SqliteConnection, run_id: i64, trial_id: i64) -> Res
 }
 
 /// Runs that have not ended and last beat before `before` (ms): (id, pid).
-pub async fn silent_since<'c>(db: impl SqliteExecutor<'c>, before: i64) -> Result<Vec<(i64, i64)>> {
+pub async fn silent_since<'c>(db: impl AnyExecutor<'c>, before: i64) -> Result<Vec<(i64, i64)>> {
     Ok(sqlx::query_as(
         "SELECT id, pid FROM pilot_runs WHERE ended_at IS NULL AND beat_at < ? ORDER BY id",
     )
@@ -49,7 +49,7 @@ pub async fn silent_since<'c>(db: impl SqliteExecutor<'c>, before: i64) -> Resul
 
 /// Ends a run: the trials it left running are filed incomplete with `reason`; returns
 /// their ids.
-pub async fn end(db: &mut SqliteConnection, run_id: i64, reason: &str) -> Result<Vec<i64>> {
+pub async fn end(db: &mut AnyConnection, run_id: i64, reason: &str) -> Result<Vec<i64>> {
     let now = now_ms();
     let ids: Vec<(i64,)> = sqlx::query_as(
         "UPDATE trials SET status = 'incomplete', status_reason = ?, finished_at = MAX(?, COALESCE(started_at, 0)) \

@@ -1,7 +1,7 @@
 //! Calibrated versions of a study's synthetic population (`population_versions`).
 
 use bdft_protocol::params::PopulationParams;
-use sqlx::SqliteConnection;
+use sqlx::AnyConnection;
 
 use super::db::now_ms;
 use crate::error::Result;
@@ -9,7 +9,7 @@ use crate::error::Result;
 /// Stores `population` as the study's next version, with the report it came from; returns
 /// the version.
 pub async fn insert(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     study_id: i64,
     population: &PopulationParams,
     report: &serde_json::Value,

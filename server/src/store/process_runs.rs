@@ -1,14 +1,14 @@
 //! What `server_runs` and `pilot_runs` share: a row for each process working on the
 //! database, which beats on it (`beat_at`) while it runs and is ended (`ended_at`) once.
 
-use sqlx::SqliteExecutor;
+use sqlx::AnyExecutor;
 
 use super::db::now_ms;
 use crate::error::Result;
 
 /// The run `run_id` in `table` (`server_runs` or `pilot_runs`) is alive, unless it has
 /// ended. Not audited: a heartbeat changes no state of a study.
-pub(super) async fn beat<'c>(db: impl SqliteExecutor<'c>, table: &str, run_id: i64) -> Result<()> {
+pub(super) async fn beat<'c>(db: impl AnyExecutor<'c>, table: &str, run_id: i64) -> Result<()> {
     sqlx::query(&format!(
         "UPDATE {table} SET beat_at = ? WHERE id = ? AND ended_at IS NULL"
     ))
@@ -22,7 +22,7 @@ pub(super) async fn beat<'c>(db: impl SqliteExecutor<'c>, table: &str, run_id: i
 /// Ends the run `run_id` in `table` (`server_runs` or `pilot_runs`) at `at` (ms), unless
 /// it has ended already.
 pub(super) async fn end<'c>(
-    db: impl SqliteExecutor<'c>,
+    db: impl AnyExecutor<'c>,
     table: &str,
     run_id: i64,
     at: i64,

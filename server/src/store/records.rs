@@ -4,7 +4,7 @@
 use bdft_protocol::controller_to_server::TrialResult;
 use bdft_protocol::records::TrialStatus;
 use bdft_protocol::trial::RECORD_CHANNELS;
-use sqlx::{SqliteConnection, SqliteExecutor};
+use sqlx::{AnyConnection, AnyExecutor};
 
 use super::db::now_ms;
 use crate::error::Result;
@@ -33,7 +33,7 @@ fn unblob(bytes: &[u8]) -> Vec<f32> {
 /// running trial takes a result: `None` when it was no longer running (a result arriving
 /// after a restart marked it incomplete is dropped).
 pub async fn file_result(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     result: &TrialResult,
     status: TrialStatus,
     reason: Option<&str>,
@@ -80,7 +80,7 @@ pub async fn file_result(
 }
 
 /// The record of one trial (about 5 MB for 140 s), channels in `RECORD_CHANNELS` order.
-pub async fn get<'c>(db: impl SqliteExecutor<'c>, trial_id: i64) -> Result<Record> {
+pub async fn get<'c>(db: impl AnyExecutor<'c>, trial_id: i64) -> Result<Record> {
     use sqlx::Row;
     let channels = RECORD_CHANNELS.map(|c| c.name).join(", ");
     let row = sqlx::query(&format!(

@@ -1,14 +1,14 @@
 //! The `bdft-server serve` processes working on the database (`server_runs`) and their
 //! heartbeats: how a restore tells that a server holds the database it would replace.
 
-use sqlx::{SqliteConnection, SqliteExecutor};
+use sqlx::{AnyConnection, AnyExecutor};
 
 use super::db::now_ms;
 use super::process_runs;
 use crate::error::Result;
 
 /// Registers a serving process; returns the run's id.
-pub async fn start<'c>(db: impl SqliteExecutor<'c>, pid: u32, listen: &str) -> Result<i64> {
+pub async fn start<'c>(db: impl AnyExecutor<'c>, pid: u32, listen: &str) -> Result<i64> {
     let now = now_ms();
     let (id,): (i64,) = sqlx::query_as(
         "INSERT INTO server_runs (pid, listen, started_at, beat_at) VALUES (?, ?, ?, ?) RETURNING id",
@@ -23,18 +23,18 @@ pub async fn start<'c>(db: impl SqliteExecutor<'c>, pid: u32, listen: &str) -> R
 }
 
 /// The server is alive. Not audited: a heartbeat changes no state of a study.
-pub async fn beat<'c>(db: impl SqliteExecutor<'c>, run_id: i64) -> Result<()> {
+pub async fn beat<'c>(db: impl AnyExecutor<'c>, run_id: i64) -> Result<()> {
     process_runs::beat(db, "server_runs", run_id).await
 }
 
 /// The server stopped serving.
-pub async fn end<'c>(db: impl SqliteExecutor<'c>, run_id: i64) -> Result<()> {
+pub async fn end<'c>(db: impl AnyExecutor<'c>, run_id: i64) -> Result<()> {
     process_runs::end(db, "server_runs", run_id, now_ms()).await
 }
 
 /// Ends every run that has not ended, at its last beat: a restored copy's runs were
 /// processes on the database the backup was taken from, not on this one.
-pub async fn end_all<'c>(db: impl SqliteExecutor<'c>) -> Result<u64> {
+pub async fn end_all<'c>(db: impl AnyExecutor<'c>) -> Result<u64> {
     Ok(
         sqlx::query("UPDATE server_runs SET ended_at = beat_at WHERE ended_at IS NULL")
             .execute(db)
@@ -57,7 +57,7 @@ pub struct Holder {
 /// Servers and `bdft-server pilot` processes that have not ended and beat at `since` (ms) or
 /// later, newest beat first. A database older than `server_runs` was never served by a
 /// program that beats: none.
-pub async fn holders(db: &mut SqliteConnection, since: i64) -> Result<Vec<Holder>> {
+pub async fn holders(db: &mut AnyConnection, since: i64) -> Result<Vec<Holder>> {
     let served: Option<(String,)> = sqlx::query_as(
         "SELECT name FROM sqlite_schema WHERE type = 'table' AND name = 'server_runs'",
     )

@@ -3,7 +3,7 @@
 
 use bdft_protocol::records::StationRole;
 use serde::Serialize;
-use sqlx::{SqliteConnection, SqliteExecutor};
+use sqlx::{AnyConnection, AnyExecutor};
 
 use super::db::now_ms;
 use super::tokens::token_hash;
@@ -22,7 +22,7 @@ pub struct Station {
 
 const COLUMNS: &str = "id, study_id, name, role, subject_id";
 
-pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Station> {
+pub async fn get<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Station> {
     sqlx::query_as(&format!("SELECT {COLUMNS} FROM stations WHERE id = ?"))
         .bind(id)
         .fetch_optional(db)
@@ -31,7 +31,7 @@ pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Station> {
 }
 
 /// The station whose bearer token this is.
-pub async fn by_token<'c>(db: impl SqliteExecutor<'c>, token: &str) -> Result<Option<Station>> {
+pub async fn by_token<'c>(db: impl AnyExecutor<'c>, token: &str) -> Result<Option<Station>> {
     Ok(sqlx::query_as(&format!(
         "SELECT {COLUMNS} FROM stations WHERE token_hash = ?"
     ))
@@ -40,7 +40,7 @@ pub async fn by_token<'c>(db: impl SqliteExecutor<'c>, token: &str) -> Result<Op
     .await?)
 }
 
-pub async fn of_study<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<Vec<Station>> {
+pub async fn of_study<'c>(db: impl AnyExecutor<'c>, study_id: i64) -> Result<Vec<Station>> {
     Ok(sqlx::query_as(&format!(
         "SELECT {COLUMNS} FROM stations WHERE study_id = ? ORDER BY id"
     ))
@@ -50,7 +50,7 @@ pub async fn of_study<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<
 }
 
 /// The stations a subject is assigned to.
-pub async fn of_subject<'c>(db: impl SqliteExecutor<'c>, subject_id: i64) -> Result<Vec<Station>> {
+pub async fn of_subject<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result<Vec<Station>> {
     Ok(sqlx::query_as(&format!(
         "SELECT {COLUMNS} FROM stations WHERE subject_id = ? ORDER BY id"
     ))
@@ -61,7 +61,7 @@ pub async fn of_subject<'c>(db: impl SqliteExecutor<'c>, subject_id: i64) -> Res
 
 /// Stores a newly paired station; returns its id.
 pub async fn insert(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     study_id: i64,
     name: &str,
     role: StationRole,
@@ -69,7 +69,7 @@ pub async fn insert(
     pairing_code: &str,
 ) -> Result<i64> {
     let now = now_ms();
-    Ok(sqlx::query("INSERT INTO stations (study_id, name, role, token_hash, pairing_code, paired_at, created_at) VALUES (?, ?, ?, ?, ?, ?, ?)")
+    Ok(sqlx::query_scalar::<_, i64>("INSERT INTO stations (study_id, name, role, token_hash, pairing_code, paired_at, created_at) VALUES (?, ?, ?, ?, ?, ?, ?) RETURNING id")
         .bind(study_id)
         .bind(name)
         .bind(role.as_str())
@@ -77,13 +77,12 @@ pub async fn insert(
         .bind(pairing_code)
         .bind(now)
         .bind(now)
-        .execute(db)
-        .await?
-        .last_insert_rowid())
+        .fetch_one(db)
+        .await?)
 }
 
 /// Assigns a subject to the station (or none).
-pub async fn assign(db: &mut SqliteConnection, id: i64, subject_id: Option<i64>) -> Result<()> {
+pub async fn assign(db: &mut AnyConnection, id: i64, subject_id: Option<i64>) -> Result<()> {
     sqlx::query("UPDATE stations SET subject_id = ? WHERE id = ?")
         .bind(subject_id)
         .bind(id)

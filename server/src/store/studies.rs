@@ -3,7 +3,7 @@
 
 use bdft_protocol::study::StudyParams;
 use serde::{Deserialize, Serialize};
-use sqlx::{SqliteConnection, SqliteExecutor};
+use sqlx::{AnyConnection, AnyExecutor};
 
 use super::db::now_ms;
 use crate::error::{AppError, Result};
@@ -97,26 +97,25 @@ fn params_json(params: &StudyParams) -> String {
 
 /// Stores a new study (its parameters already validated); returns its id.
 pub async fn insert(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     name: &str,
     params: &StudyParams,
     seed: u64,
 ) -> Result<i64> {
     Ok(
-        sqlx::query(
-            "INSERT INTO studies (name, params_json, seed, created_at) VALUES (?, ?, ?, ?)",
+        sqlx::query_scalar::<_, i64>(
+            "INSERT INTO studies (name, params_json, seed, created_at) VALUES (?, ?, ?, ?) RETURNING id",
         )
         .bind(name)
         .bind(params_json(params))
         .bind(seed as i64)
         .bind(now_ms())
-        .execute(db)
-        .await?
-        .last_insert_rowid(),
+        .fetch_one(db)
+        .await?,
     )
 }
 
-pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Study> {
+pub async fn get<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Study> {
     let row: Option<StudyRow> = sqlx::query_as(&format!("{SELECT} WHERE s.id = ?"))
         .bind(id)
         .fetch_optional(db)
@@ -124,7 +123,7 @@ pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Study> {
     row.ok_or(AppError::NotFound("study"))?.try_into()
 }
 
-pub async fn all<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<Study>> {
+pub async fn all<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<Study>> {
     let rows: Vec<StudyRow> = sqlx::query_as(&format!("{SELECT} ORDER BY s.id"))
         .fetch_all(db)
         .await?;
@@ -142,7 +141,7 @@ pub enum Edit {
 /// Replaces the name and parameters of a study whose protocol is not locked, if it is still
 /// at `version` (then it goes to the next version).
 pub async fn update(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     id: i64,
     version: i64,
     name: &str,
@@ -169,7 +168,7 @@ pub async fn update(
 
 /// The answer to an UPDATE guarded by `locked_at IS NULL`: 404 for no such study, 409 when
 /// it matched nothing because the protocol is locked.
-async fn unless_locked(db: &mut SqliteConnection, id: i64, rows: u64) -> Result<()> {
+async fn unless_locked(db: &mut AnyConnection, id: i64, rows: u64) -> Result<()> {
     if rows == 0 {
         get(&mut *db, id).await?;
         return Err(locked());
@@ -182,7 +181,7 @@ fn locked() -> AppError {
 }
 
 /// Locks the protocol with its hash (the first enrolment does this).
-pub async fn lock(db: &mut SqliteConnection, id: i64, hash: &str) -> Result<()> {
+pub async fn lock(db: &mut AnyConnection, id: i64, hash: &str) -> Result<()> {
     sqlx::query(
         "UPDATE studies SET locked_at = ?, protocol_hash = ? WHERE id = ? AND locked_at IS NULL",
     )
@@ -196,7 +195,7 @@ pub async fn lock(db: &mut SqliteConnection, id: i64, hash: &str) -> Result<()> 
 
 /// Records the acknowledgement that a design is unstable (before the lock only).
 pub async fn acknowledge_instability(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     id: i64,
     ack: &InstabilityAck,
 ) -> Result<()> {

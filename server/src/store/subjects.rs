@@ -4,7 +4,7 @@
 use bdft_protocol::params::{Seat, SubjectDraw};
 use bdft_protocol::records::ConsentDecision;
 use serde::Serialize;
-use sqlx::{SqliteConnection, SqliteExecutor};
+use sqlx::{AnyConnection, AnyExecutor};
 
 use super::db::now_ms;
 use super::tokens::token_hash;
@@ -39,6 +39,7 @@ struct SubjectRow {
     study_id: i64,
     code: String,
     enrol_index: i64,
+    #[sqlx(try_from = "crate::store::db::Flag")]
     synthetic: bool,
     starting_station: String,
     consent_version: Option<String>,
@@ -90,7 +91,7 @@ impl TryFrom<SubjectRow> for Subject {
 
 const COLUMNS: &str = "id, study_id, code, enrol_index, synthetic, starting_station, consent_version, consent_decision, consent_at, withdrawn_at, withdraw_reason, created_at, drawn_json, erased_at";
 
-pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Subject> {
+pub async fn get<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Subject> {
     let row: Option<SubjectRow> =
         sqlx::query_as(&format!("SELECT {COLUMNS} FROM subjects WHERE id = ?"))
             .bind(id)
@@ -100,7 +101,7 @@ pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Subject> {
 }
 
 /// The subject whose page token this is.
-pub async fn by_token<'c>(db: impl SqliteExecutor<'c>, token: &str) -> Result<Option<Subject>> {
+pub async fn by_token<'c>(db: impl AnyExecutor<'c>, token: &str) -> Result<Option<Subject>> {
     let row: Option<SubjectRow> = sqlx::query_as(&format!(
         "SELECT {COLUMNS} FROM subjects WHERE token_hash = ?"
     ))
@@ -110,7 +111,7 @@ pub async fn by_token<'c>(db: impl SqliteExecutor<'c>, token: &str) -> Result<Op
     row.map(Subject::try_from).transpose()
 }
 
-pub async fn of_study<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<Vec<Subject>> {
+pub async fn of_study<'c>(db: impl AnyExecutor<'c>, study_id: i64) -> Result<Vec<Subject>> {
     let rows: Vec<SubjectRow> = sqlx::query_as(&format!(
         "SELECT {COLUMNS} FROM subjects WHERE study_id = ? ORDER BY enrol_index"
     ))
@@ -120,7 +121,7 @@ pub async fn of_study<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<
     rows.into_iter().map(Subject::try_from).collect()
 }
 
-pub async fn count_in_study<'c>(db: impl SqliteExecutor<'c>, study_id: i64) -> Result<u32> {
+pub async fn count_in_study<'c>(db: impl AnyExecutor<'c>, study_id: i64) -> Result<u32> {
     let (n,): (i64,) = sqlx::query_as("SELECT COUNT(*) FROM subjects WHERE study_id = ?")
         .bind(study_id)
         .fetch_one(db)
@@ -140,9 +141,9 @@ pub struct NewSubject<'a> {
     pub drawn: Option<&'a SubjectDraw>,
 }
 
-pub async fn insert(db: &mut SqliteConnection, s: &NewSubject<'_>) -> Result<i64> {
-    Ok(sqlx::query(
-        "INSERT INTO subjects (study_id, code, enrol_index, synthetic, token_hash, starting_station, created_at, drawn_json) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+pub async fn insert(db: &mut AnyConnection, s: &NewSubject<'_>) -> Result<i64> {
+    Ok(sqlx::query_scalar::<_, i64>(
+        "INSERT INTO subjects (study_id, code, enrol_index, synthetic, token_hash, starting_station, created_at, drawn_json) VALUES (?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
     )
     .bind(s.study_id)
     .bind(s.code)
@@ -155,9 +156,8 @@ pub async fn insert(db: &mut SqliteConnection, s: &NewSubject<'_>) -> Result<i64
         s.drawn
             .map(|d| serde_json::to_string(d).expect("a draw serializes")),
     )
-    .execute(db)
-    .await?
-    .last_insert_rowid())
+    .fetch_one(db)
+    .await?)
 }
 
 /// The refusal of a change to an erased subject (a SQL trigger refuses it as well).
@@ -171,7 +171,7 @@ pub fn refuse_erased(subject: &Subject) -> AppError {
 /// Records the subject's decision on the consent form `version`; only the first decision
 /// counts.
 pub async fn record_consent(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     subject_id: i64,
     version: &str,
     decision: ConsentDecision,
@@ -189,7 +189,7 @@ pub async fn record_consent(
     Ok(())
 }
 
-pub async fn withdraw(db: &mut SqliteConnection, subject_id: i64, reason: &str) -> Result<()> {
+pub async fn withdraw(db: &mut AnyConnection, subject_id: i64, reason: &str) -> Result<()> {
     let done = sqlx::query("UPDATE subjects SET withdrawn_at = ?, withdraw_reason = ? WHERE id = ? AND withdrawn_at IS NULL AND erased_at IS NULL")
         .bind(now_ms())
         .bind(reason)
@@ -204,7 +204,7 @@ pub async fn withdraw(db: &mut SqliteConnection, subject_id: i64, reason: &str) 
 
 /// The refusal of a one-time change to `subject_id` (consent, withdrawal) that changed
 /// nothing: the subject was erased, or else the change was made before (`already`).
-async fn refuse_unchanged(db: &mut SqliteConnection, subject_id: i64, already: &str) -> Result<()> {
+async fn refuse_unchanged(db: &mut AnyConnection, subject_id: i64, already: &str) -> Result<()> {
     let subject = get(&mut *db, subject_id).await?;
     if subject.erased_at.is_some() {
         return Err(refuse_erased(&subject));
@@ -221,7 +221,7 @@ pub struct Note {
     pub created_at: i64,
 }
 
-pub async fn notes<'c>(db: impl SqliteExecutor<'c>, subject_id: i64) -> Result<Vec<Note>> {
+pub async fn notes<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result<Vec<Note>> {
     Ok(sqlx::query_as(
         "SELECT id, trial_id, text, author, created_at FROM notes WHERE subject_id = ? ORDER BY id",
     )
@@ -231,21 +231,20 @@ pub async fn notes<'c>(db: impl SqliteExecutor<'c>, subject_id: i64) -> Result<V
 }
 
 pub async fn add_note(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     subject_id: i64,
     trial_id: i64,
     text: &str,
     author: &str,
 ) -> Result<i64> {
-    Ok(sqlx::query(
-        "INSERT INTO notes (subject_id, trial_id, text, author, created_at) VALUES (?, ?, ?, ?, ?)",
+    Ok(sqlx::query_scalar::<_, i64>(
+        "INSERT INTO notes (subject_id, trial_id, text, author, created_at) VALUES (?, ?, ?, ?, ?) RETURNING id",
     )
     .bind(subject_id)
     .bind(trial_id)
     .bind(text)
     .bind(author)
     .bind(now_ms())
-    .execute(db)
-    .await?
-    .last_insert_rowid())
+    .fetch_one(db)
+    .await?)
 }

@@ -8,7 +8,7 @@ use bdft_protocol::params::{CompensatorKind, Seat};
 use bdft_protocol::records::{TestPhase, TrialStatus};
 use bdft_protocol::study::SurveyAnswer;
 use serde::Serialize;
-use sqlx::{SqliteConnection, SqliteExecutor};
+use sqlx::{AnyConnection, AnyExecutor};
 
 use super::db::now_ms;
 use crate::error::{AppError, Result};
@@ -38,6 +38,7 @@ pub struct Trial {
     pub compensator_json: String,
     /// The design is the one tuned to the subject's identified body (a personalized study's
     /// LQR designs, once their identification test is filed).
+    #[sqlx(try_from = "crate::store::db::Flag")]
     pub personalized: bool,
     pub k_bf: f64,
     pub duration_s: f64,
@@ -94,7 +95,7 @@ pub fn latest_attempts(trials: &[Trial]) -> impl Iterator<Item = &Trial> {
     })
 }
 
-pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Trial> {
+pub async fn get<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Trial> {
     sqlx::query_as("SELECT * FROM trials WHERE id = ?")
         .bind(id)
         .fetch_optional(db)
@@ -103,7 +104,7 @@ pub async fn get<'c>(db: impl SqliteExecutor<'c>, id: i64) -> Result<Trial> {
 }
 
 /// Every attempt of every test of a subject, in schedule order.
-pub async fn of_subject<'c>(db: impl SqliteExecutor<'c>, subject_id: i64) -> Result<Vec<Trial>> {
+pub async fn of_subject<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result<Vec<Trial>> {
     Ok(
         sqlx::query_as("SELECT * FROM trials WHERE subject_id = ? ORDER BY slot, attempt")
             .bind(subject_id)
@@ -114,7 +115,7 @@ pub async fn of_subject<'c>(db: impl SqliteExecutor<'c>, subject_id: i64) -> Res
 
 /// The subject's next test: the first in the queue (block by block, the practice's first,
 /// then in queue order) whose latest attempt is scheduled or running.
-pub async fn next<'c>(db: impl SqliteExecutor<'c>, subject_id: i64) -> Result<Option<Trial>> {
+pub async fn next<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result<Option<Trial>> {
     Ok(sqlx::query_as(
         "SELECT t.* FROM trials t WHERE t.subject_id = ? AND t.status IN ('scheduled', 'running') \
          AND t.attempt = (SELECT MAX(attempt) FROM trials u WHERE u.subject_id = t.subject_id AND u.slot = t.slot) \
@@ -127,7 +128,7 @@ pub async fn next<'c>(db: impl SqliteExecutor<'c>, subject_id: i64) -> Result<Op
 
 /// The first completed test of the subject whose survey is still missing.
 pub async fn pending_survey<'c>(
-    db: impl SqliteExecutor<'c>,
+    db: impl AnyExecutor<'c>,
     subject_id: i64,
 ) -> Result<Option<Trial>> {
     Ok(sqlx::query_as(
@@ -164,10 +165,10 @@ pub struct NewTrial<'a> {
 }
 
 /// Stores a scheduled test; it is queued in schedule order.
-pub async fn insert(db: &mut SqliteConnection, t: &NewTrial<'_>) -> Result<i64> {
-    Ok(sqlx::query(
+pub async fn insert(db: &mut AnyConnection, t: &NewTrial<'_>) -> Result<i64> {
+    Ok(sqlx::query_scalar::<_, i64>(
         "INSERT INTO trials (subject_id, slot, phase, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order) \
-         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
     )
     .bind(t.subject_id)
     .bind(i64::from(t.slot))
@@ -187,13 +188,12 @@ pub async fn insert(db: &mut SqliteConnection, t: &NewTrial<'_>) -> Result<i64> 
     .bind(t.target_ms_step_mm2)
     .bind(t.protocol_hash)
     .bind(i64::from(t.queue_order))
-    .execute(db)
-    .await?
-    .last_insert_rowid())
+    .fetch_one(db)
+    .await?)
 }
 
 /// The highest attempt of `trial`'s slot.
-pub async fn latest_attempt<'c>(db: impl SqliteExecutor<'c>, trial: &Trial) -> Result<i64> {
+pub async fn latest_attempt<'c>(db: impl AnyExecutor<'c>, trial: &Trial) -> Result<i64> {
     let (latest,): (i64,) =
         sqlx::query_as("SELECT MAX(attempt) FROM trials WHERE subject_id = ? AND slot = ?")
             .bind(trial.subject_id)
@@ -206,22 +206,21 @@ pub async fn latest_attempt<'c>(db: impl SqliteExecutor<'c>, trial: &Trial) -> R
 /// A new scheduled attempt of `trial_id`'s test, with the same design and target, queued at
 /// the end of its block; returns its id. (The unique (subject, slot, attempt) makes a racing
 /// second re-queue fail.)
-pub async fn insert_next_attempt(db: &mut SqliteConnection, trial_id: i64) -> Result<i64> {
-    Ok(sqlx::query(
+pub async fn insert_next_attempt(db: &mut AnyConnection, trial_id: i64) -> Result<i64> {
+    Ok(sqlx::query_scalar::<_, i64>(
         "INSERT INTO trials (subject_id, slot, attempt, phase, station, block, position, controller, blinded_label, compensator_json, personalized, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order) \
          SELECT subject_id, slot, attempt + 1, phase, station, block, position, controller, blinded_label, compensator_json, personalized, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, \
-         (SELECT MAX(queue_order) + 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.block = t.block) FROM trials t WHERE id = ?",
+         (SELECT MAX(queue_order) + 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.block = t.block) FROM trials t WHERE id = ? RETURNING id",
     )
     .bind(trial_id)
-    .execute(db)
-    .await?
-    .last_insert_rowid())
+    .fetch_one(db)
+    .await?)
 }
 
 /// Puts `spec_json`, the subject's own design of `kind`, in place of the design of each of
 /// their scored tests of that kind not yet run (every scheduled attempt); returns how many.
 pub async fn personalize_scheduled(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     subject_id: i64,
     kind: CompensatorKind,
     spec_json: &str,
@@ -239,7 +238,7 @@ pub async fn personalize_scheduled(
 }
 
 /// Marks a scheduled trial running; fails if it is not scheduled (two starts racing).
-pub async fn mark_running(db: &mut SqliteConnection, trial_id: i64) -> Result<()> {
+pub async fn mark_running(db: &mut AnyConnection, trial_id: i64) -> Result<()> {
     let done = sqlx::query(
         "UPDATE trials SET status = 'running', started_at = ? WHERE id = ? AND status = 'scheduled'",
     )
@@ -257,7 +256,7 @@ pub async fn mark_running(db: &mut SqliteConnection, trial_id: i64) -> Result<()
 
 /// Puts a trial that could not be started back in the queue; `false` when it was no longer
 /// running (something filed it meanwhile).
-pub async fn unmark_running(db: &mut SqliteConnection, trial_id: i64) -> Result<bool> {
+pub async fn unmark_running(db: &mut AnyConnection, trial_id: i64) -> Result<bool> {
     let done = sqlx::query("UPDATE trials SET status = 'scheduled', started_at = NULL WHERE id = ? AND status = 'running'")
         .bind(trial_id)
         .execute(db)
@@ -268,11 +267,7 @@ pub async fn unmark_running(db: &mut SqliteConnection, trial_id: i64) -> Result<
 /// The experimenter accepts an attempt as incomplete with `reason`: a scheduled or
 /// complete one is filed incomplete, a failed one keeps its status. Refused while it runs
 /// or when it is not the latest attempt of its test.
-pub async fn accept_incomplete(
-    db: &mut SqliteConnection,
-    trial_id: i64,
-    reason: &str,
-) -> Result<()> {
+pub async fn accept_incomplete(db: &mut AnyConnection, trial_id: i64, reason: &str) -> Result<()> {
     let done = sqlx::query(
         "UPDATE trials SET accepted_reason = ?1, \
          status = CASE WHEN status IN ('scheduled', 'complete') THEN 'incomplete' ELSE status END, \
@@ -299,7 +294,7 @@ pub async fn accept_incomplete(
 
 /// The server found a running trial invalid: its result will be filed so. `false` when
 /// it was not running or already found invalid.
-pub async fn mark_invalid(db: &mut SqliteConnection, trial_id: i64, reason: &str) -> Result<bool> {
+pub async fn mark_invalid(db: &mut AnyConnection, trial_id: i64, reason: &str) -> Result<bool> {
     let done = sqlx::query(
         "UPDATE trials SET invalid_reason = ? WHERE id = ? AND status = 'running' AND invalid_reason IS NULL",
     )
@@ -312,7 +307,7 @@ pub async fn mark_invalid(db: &mut SqliteConnection, trial_id: i64, reason: &str
 
 /// The running trials of this server's controller, by id. A pilot process's trials
 /// (`pilot_trials`) run on its own controller and are left to its heartbeat.
-pub async fn running_ids<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<i64>> {
+pub async fn running_ids<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<i64>> {
     let ids: Vec<(i64,)> = sqlx::query_as(
         "SELECT id FROM trials WHERE status = 'running' AND id NOT IN (SELECT trial_id FROM pilot_trials) ORDER BY id",
     )
@@ -323,7 +318,7 @@ pub async fn running_ids<'c>(db: impl SqliteExecutor<'c>) -> Result<Vec<i64>> {
 
 /// Marks those of `ids` that still run incomplete with `reason` (after a server restart or a
 /// controller death), or invalid when they were found so; returns the ids marked.
-pub async fn interrupt(db: &mut SqliteConnection, ids: &[i64], reason: &str) -> Result<Vec<i64>> {
+pub async fn interrupt(db: &mut AnyConnection, ids: &[i64], reason: &str) -> Result<Vec<i64>> {
     let marked: Vec<(i64,)> = sqlx::query_as("UPDATE trials SET status = CASE WHEN invalid_reason IS NULL THEN 'incomplete' ELSE 'invalid' END, status_reason = COALESCE(invalid_reason, ?), finished_at = MAX(?, COALESCE(started_at, 0)) WHERE status = 'running' AND id IN (SELECT value FROM json_each(?)) RETURNING id")
         .bind(reason)
         .bind(now_ms())
@@ -334,7 +329,7 @@ pub async fn interrupt(db: &mut SqliteConnection, ids: &[i64], reason: &str) -> 
 }
 
 /// The station's figures of how the display kept up (JSON), kept with the trial.
-pub async fn set_client_timing(db: &mut SqliteConnection, trial_id: i64, json: &str) -> Result<()> {
+pub async fn set_client_timing(db: &mut AnyConnection, trial_id: i64, json: &str) -> Result<()> {
     sqlx::query("UPDATE trials SET client_timing_json = ? WHERE id = ?")
         .bind(json)
         .bind(trial_id)
@@ -355,7 +350,7 @@ pub struct Survey {
 
 /// Surveys of a subject's trials, by trial id.
 pub async fn surveys_of_subject<'c>(
-    db: impl SqliteExecutor<'c>,
+    db: impl AnyExecutor<'c>,
     subject_id: i64,
 ) -> Result<Vec<(i64, Survey)>> {
     let rows: Vec<(i64, i64, i64, i64, i64, String)> = sqlx::query_as(
@@ -385,7 +380,7 @@ pub async fn surveys_of_subject<'c>(
 
 /// Stores a survey's validated ratings; a second answer to the same test is refused.
 pub async fn insert_survey(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     trial_id: i64,
     ratings: [u8; 4],
     answer: &SurveyAnswer,

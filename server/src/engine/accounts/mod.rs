@@ -10,7 +10,7 @@ use std::net::IpAddr;
 use std::time::{Duration, Instant};
 
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use self::login_limiter::LoginLimiter;
 use crate::error::{AppError, Result};
@@ -65,7 +65,7 @@ struct Created<'a> {
 /// Creates an account with `role` on behalf of `actor` (an admin, or `system:startup` for
 /// `--admin-password`); returns it.
 pub async fn create_experimenter(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     actor: &str,
     username: &str,
     password: &str,
@@ -87,7 +87,7 @@ pub async fn create_experimenter(
 }
 
 /// Refuses a change that would leave no active admin (nobody could manage accounts then).
-async fn keep_an_admin(db: &mut sqlx::SqliteConnection, account: &Account) -> Result<()> {
+async fn keep_an_admin(db: &mut sqlx::AnyConnection, account: &Account) -> Result<()> {
     let active_admin = account.role == Role::Admin && account.disabled_at.is_none();
     if active_admin && store::accounts::other_active_admins(&mut *db, account.id).await? == 0 {
         return Err(AppError::Conflict(format!(
@@ -107,7 +107,7 @@ struct RoleChanged<'a> {
 }
 
 /// Gives an account another role (`admin` is the admin making the change).
-pub async fn set_role(pool: &SqlitePool, admin: &str, id: i64, role: Role) -> Result<Account> {
+pub async fn set_role(pool: &AnyPool, admin: &str, id: i64, role: Role) -> Result<Account> {
     let mut change = Change::begin(pool, admin).await?;
     let before = store::accounts::account(change.db(), id).await?;
     if role != Role::Admin {
@@ -139,12 +139,7 @@ struct Named<'a> {
 }
 
 /// Disables an account (it cannot log in; its sessions end at once) or enables it again.
-pub async fn set_disabled(
-    pool: &SqlitePool,
-    admin: &str,
-    id: i64,
-    disabled: bool,
-) -> Result<Account> {
+pub async fn set_disabled(pool: &AnyPool, admin: &str, id: i64, disabled: bool) -> Result<Account> {
     let mut change = Change::begin(pool, admin).await?;
     let before = store::accounts::account(change.db(), id).await?;
     let (action, sessions_ended) = if disabled {
@@ -174,7 +169,7 @@ struct SetupLink {
 
 /// A one-time set-up token (printed at a start with no account); only its hash is stored.
 /// It replaces any earlier unused one, so at most one set-up link is ever valid.
-pub async fn new_setup_token(pool: &SqlitePool) -> Result<String> {
+pub async fn new_setup_token(pool: &AnyPool) -> Result<String> {
     let token = random_token();
     let mut change = Change::begin(pool, "system:startup").await?;
     let replaced = store::accounts::replace_setup_token(change.db(), &token).await?;
@@ -195,7 +190,7 @@ fn setup_done() -> AppError {
 }
 
 /// Why a set-up token cannot be used, if it cannot.
-async fn check_setup_token<'c>(db: impl sqlx::SqliteExecutor<'c>, token: &str) -> Result<()> {
+async fn check_setup_token<'c>(db: impl sqlx::AnyExecutor<'c>, token: &str) -> Result<()> {
     let lifetime_ms = SETUP_LINK_LIFETIME.as_millis() as i64;
     match store::accounts::setup_token(db, token).await? {
         None => Err(AppError::Forbidden(
@@ -218,7 +213,7 @@ async fn check_setup_token<'c>(db: impl sqlx::SqliteExecutor<'c>, token: &str) -
 /// account made in one immediate transaction, so of two concurrent uses exactly one makes
 /// an account.
 pub async fn first_account(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     token: &str,
     username: &str,
     password: &str,
@@ -274,7 +269,7 @@ pub enum Login {
 
 /// A new session of an account, audited as `login`.
 pub async fn new_session(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     experimenter_id: i64,
     username: &str,
     role: Role,
@@ -294,7 +289,7 @@ pub async fn new_session(
     Ok(NewSession { token, csrf, role })
 }
 
-pub async fn end_session(pool: &SqlitePool, username: &str, token: Option<&str>) -> Result<()> {
+pub async fn end_session(pool: &AnyPool, username: &str, token: Option<&str>) -> Result<()> {
     let mut change = Change::begin(pool, username).await?;
     if let Some(token) = token {
         store::accounts::delete_session(change.db(), token).await?;
@@ -314,7 +309,7 @@ struct LoginFailed<'a> {
 /// Checks a password, rate-limited per username and client address and per address (the
 /// attempt is counted before the check); returns the new session. A disabled account is refused. Every failure is in the audit log.
 pub async fn login(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     limiter: &LoginLimiter,
     username: &str,
     password: &str,
@@ -373,7 +368,7 @@ pub async fn login(
 }
 
 /// Every account, for the admin.
-pub async fn list(pool: &SqlitePool) -> Result<Vec<Account>> {
+pub async fn list(pool: &AnyPool) -> Result<Vec<Account>> {
     store::accounts::accounts(pool).await
 }
 

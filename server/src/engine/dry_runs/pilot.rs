@@ -5,7 +5,7 @@
 use std::sync::Arc;
 
 use anyhow::Context;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use bdft_protocol::records::ConsentDecision;
 use serde::Serialize;
@@ -60,7 +60,7 @@ pub const BEAT: std::time::Duration = std::time::Duration::from_secs(1);
 /// other than the default, whose pilot makes data to calibrate against); only into a
 /// database with no study yet, so the pilot's "newest study" stays unambiguous.
 pub async fn new_study(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     params: &bdft_protocol::study::StudyParams,
     seed: Option<u64>,
 ) -> anyhow::Result<i64> {
@@ -78,7 +78,7 @@ pub async fn new_study(
 /// created study. The run beats while it works, so a server can tell when this process was
 /// killed and file the trials it left running; if it fails, it files them itself.
 pub async fn run(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     study_id: Option<i64>,
     subjects: u32,
     seed: Option<u64>,
@@ -126,7 +126,7 @@ pub async fn run(
 /// finished trials in `progress` (the dashboard's progress bar). A pilot process passes its
 /// `run_id` (`pilot_runs`), so each trial it starts is known to be its own.
 pub async fn run_with_progress(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     requested_by: &str,
     study_id: Option<i64>,
     subjects: u32,
@@ -284,7 +284,7 @@ impl PilotJob {
     /// refused while another runs.
     pub async fn start(
         &self,
-        pool: &SqlitePool,
+        pool: &AnyPool,
         actor: &str,
         study_id: i64,
         subjects: u32,

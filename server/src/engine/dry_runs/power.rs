@@ -10,7 +10,7 @@
 
 use bdft_controller::rng::Rng;
 use serde::{Deserialize, Serialize};
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use std::sync::Arc;
 
@@ -157,7 +157,7 @@ fn check_population_work(params: &StudyParams, req: &PlanRequest) -> Result<usiz
 /// plan on its dry-run copy, or on the study's own first subjects); with the population, by
 /// running its simulated subjects' trials (`progress` counts them).
 pub async fn plan_study(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     study_id: i64,
     req: PlanRequest,
     progress: Arc<Progress>,
@@ -262,7 +262,7 @@ pub type PlanStatus = JobStatus<PlanReport>;
 impl PlanJob {
     /// Checks `req` and starts planning `study_id` in the background; refused while another
     /// plan runs.
-    pub async fn start(&self, pool: &SqlitePool, study_id: i64, req: PlanRequest) -> Result<()> {
+    pub async fn start(&self, pool: &AnyPool, study_id: i64, req: PlanRequest) -> Result<()> {
         req.check()?;
         let study = store::studies::get(pool, study_id).await?;
         if req.source == PlanSource::Population {

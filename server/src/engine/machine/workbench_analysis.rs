@@ -19,7 +19,7 @@ use bdft_controller::error::DesignError;
 use bdft_protocol::params::{CompensatorSpec, MAX_KBF, check};
 use bdft_protocol::study::StudyParams;
 use serde::Deserialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use crate::engine::COMPUTE;
 use crate::engine::study::stability::{analysis_key, study_loop};
@@ -164,7 +164,7 @@ static REPORTS: LazyLock<Mutex<HashMap<String, Arc<FrequencyReport>>>> =
 /// identification test fitted it, or as they are without a subject: what the workbench and
 /// the per-subject stability analyse. A 409 when the subject has no fitted body yet.
 pub async fn params_for(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     study: &Study,
     subject: Option<i64>,
 ) -> Result<StudyParams> {
@@ -192,7 +192,7 @@ pub async fn params_for(
 }
 
 pub async fn frequency_report(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     study_id: i64,
     kbf: Option<f64>,
     subject: Option<i64>,
@@ -239,7 +239,7 @@ pub async fn frequency_report(
 
 /// The robustness map and pass rate of one of the study's designs.
 pub async fn robustness_report(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     study_id: i64,
     q: RobustnessQuery,
 ) -> Result<RobustnessReport> {

@@ -10,7 +10,7 @@ use std::time::Duration;
 use anyhow::Context;
 use bdft_protocol::hex;
 use ed25519_dalek::{SigningKey, VerifyingKey};
-use sqlx::{Connection, SqlitePool};
+use sqlx::{AnyPool, Connection};
 
 use crate::error::{AppError, Result};
 use crate::store::audit_chain::Verdict;
@@ -78,8 +78,8 @@ pub fn trusted_key(db: &Path, given: Option<&str>) -> anyhow::Result<Option<Veri
 }
 
 /// Signs the chain's head unless the newest checkpoint holds it already.
-pub async fn checkpoint_now(pool: &SqlitePool, key: &SigningKey) -> crate::error::Result<()> {
-    let mut tx = pool.begin_with("BEGIN IMMEDIATE").await?;
+pub async fn checkpoint_now(pool: &AnyPool, key: &SigningKey) -> crate::error::Result<()> {
+    let mut tx = store::db::write_transaction(pool).await?;
     audit_chain::checkpoint(&mut tx, key, store::db::now_ms()).await?;
     tx.commit().await?;
     Ok(())
@@ -87,7 +87,7 @@ pub async fn checkpoint_now(pool: &SqlitePool, key: &SigningKey) -> crate::error
 
 /// Signs the head every [`CHECKPOINT_EVERY`] while the server runs (the start signed it
 /// once already).
-pub async fn run_checkpoints(pool: SqlitePool, key: SigningKey) {
+pub async fn run_checkpoints(pool: AnyPool, key: SigningKey) {
     loop {
         tokio::time::sleep(CHECKPOINT_EVERY).await;
         if let Err(e) = checkpoint_now(&pool, &key).await {

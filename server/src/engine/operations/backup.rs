@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use super::checks::check_file;
 use super::manifest::{self, FORMAT, Manifest, io_error};
@@ -21,7 +21,7 @@ pub const COMMAND_LINE: &str = "system:backup-command";
 /// Backs the database of `pool` up to `out` (which must not exist) with its manifest beside
 /// it; `made_by` is who asked (an account or a `system:` actor). Audited as `backup.create`,
 /// or `backup.fail` with the reason.
-pub async fn make(pool: &SqlitePool, out: &Path, made_by: &str) -> Result<Manifest> {
+pub async fn make(pool: &AnyPool, out: &Path, made_by: &str) -> Result<Manifest> {
     refuse_to_overwrite(out)?;
     let partial = partial_of(out);
     let outcome = write_checked(pool, out, &partial, made_by).await;
@@ -96,7 +96,7 @@ fn partial_of(out: &Path) -> PathBuf {
 }
 
 async fn write_checked(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     out: &Path,
     partial: &Path,
     made_by: &str,

@@ -139,7 +139,7 @@ fn named(m: &AppliedMigration) -> String {
 
 /// Recomputes each locked study's protocol hash from its stored parameters and checks that
 /// every trial carries its study's hash.
-async fn protocol_hashes(file: &Path, db: &mut sqlx::SqliteConnection) -> Result<ProtocolHashes> {
+async fn protocol_hashes(file: &Path, db: &mut sqlx::AnyConnection) -> Result<ProtocolHashes> {
     let shown = file.display();
     let studies = store::backups::locked_studies(&mut *db).await?;
     for (id, params, stored) in &studies {

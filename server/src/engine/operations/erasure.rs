@@ -22,7 +22,7 @@
 use std::path::Path;
 
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use super::manifest;
 use crate::error::{AppError, Result};
@@ -89,7 +89,7 @@ struct Erased<'a> {
 /// Erases subject `subject_id` for `reason`, as the admin `actor`; lists the backups in
 /// `backup_dir` that still hold the data.
 pub async fn erase(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     actor: &str,
     subject_id: i64,
     reason: &str,
@@ -174,7 +174,7 @@ pub async fn erase(
 
 /// Every erasure so far, oldest first, each with the backups in `backup_dir` that still hold
 /// its data.
-pub async fn erasures(pool: &SqlitePool, backup_dir: Option<&Path>) -> Result<Vec<Erasure>> {
+pub async fn erasures(pool: &AnyPool, backup_dir: Option<&Path>) -> Result<Vec<Erasure>> {
     let backups = backup_dir.map(backups).transpose()?.unwrap_or_default();
     Ok(store::erasure::erasures(pool)
         .await?

@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::time::Duration;
 
-use sqlx::{Connection, SqlitePool};
+use sqlx::{AnyPool, Connection};
 
 use crate::error::{AppError, Result};
 use crate::store;
@@ -18,7 +18,7 @@ pub const SILENT_AFTER: Duration = Duration::from_secs(5);
 
 /// Registers this serving process (`listen`: its address) and beats until the returned
 /// handle is ended.
-pub async fn announce(pool: &SqlitePool, listen: &str) -> Result<Presence> {
+pub async fn announce(pool: &AnyPool, listen: &str) -> Result<Presence> {
     let run_id = store::server_runs::start(pool, std::process::id(), listen).await?;
     let beating = {
         let pool = pool.clone();
@@ -37,7 +37,7 @@ pub async fn announce(pool: &SqlitePool, listen: &str) -> Result<Presence> {
 /// A serving process's registration; `end` it when the server stops.
 #[derive(Debug)]
 pub struct Presence {
-    pool: SqlitePool,
+    pool: AnyPool,
     run_id: i64,
     beating: tokio::task::JoinHandle<()>,
 }

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use super::backup;
 use super::manifest::{self, Manifest};
@@ -108,7 +108,7 @@ impl Backups {
     }
 
     /// Backs up into the directory now, then keeps the newest `keep`.
-    pub async fn now(&self, pool: &SqlitePool, made_by: &str) -> Result<Manifest> {
+    pub async fn now(&self, pool: &AnyPool, made_by: &str) -> Result<Manifest> {
         let policy = self.policy()?;
         let _one = self.busy.try_lock().map_err(|_| {
             AppError::Conflict("a backup is being made now; try again when it has ended".into())
@@ -116,7 +116,7 @@ impl Backups {
         self.make(pool, policy, made_by).await
     }
 
-    async fn make(&self, pool: &SqlitePool, policy: &Policy, made_by: &str) -> Result<Manifest> {
+    async fn make(&self, pool: &AnyPool, policy: &Policy, made_by: &str) -> Result<Manifest> {
         let name = format!("bdft-backup-{}.db", rfc3339(now_ms()).replace(':', "-"));
         let made = backup::make(pool, &policy.dir.join(name), made_by).await?;
         let older = listed(&policy.dir).unwrap_or_default();
@@ -158,7 +158,7 @@ impl Backups {
 
     /// Makes a backup every period, for as long as the server runs: the first when the
     /// newest in the directory is a period old (at once if there is none).
-    pub async fn run_schedule(self: Arc<Self>, pool: SqlitePool) {
+    pub async fn run_schedule(self: Arc<Self>, pool: AnyPool) {
         let Some(policy) = self.policy.clone() else {
             return;
         };

@@ -4,7 +4,7 @@
 
 use bdft_protocol::records::TestPhase;
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use crate::engine::study::schedule::{protocol_hash, schedule, starting_station, target};
 use crate::engine::study::stability::{StabilityCache, check_lockable};
@@ -23,7 +23,7 @@ struct Enrolled<'a> {
 /// Enrols the study's next subject; returns it and the token of its own page. The first
 /// enrolment passes the stability gate before it locks the protocol.
 pub async fn enrol(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     stability: &StabilityCache,
     actor: &str,
     study_id: i64,

@@ -14,7 +14,7 @@ use bdft_protocol::params::Seat;
 use bdft_protocol::records::{TestPhase, TrialStatus};
 use bdft_protocol::trial::{FaultKind, Metrics, Outcome};
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use super::identification::{self, Measured};
 use super::lsl;
@@ -53,7 +53,7 @@ struct Finished<'a> {
 /// Files a finished trial's result and record with its audit row. `false` when the trial
 /// was no longer running (then nothing is stored).
 pub async fn file_result(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     actor: &str,
     result: &TrialResult,
     record: &Record,
@@ -94,7 +94,7 @@ pub async fn file_result(
 
 /// What the record of `result`'s trial measured, when it is an identification test.
 async fn measure_identification(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     result: &TrialResult,
     record: &Record,
 ) -> Result<Option<(Trial, Measured)>> {
@@ -176,7 +176,7 @@ const RETRY_EVERY: Duration = Duration::from_secs(1);
 /// shows as running meanwhile: nothing else can be stored either.
 #[derive(Debug)]
 pub struct LinkFiling {
-    pool: SqlitePool,
+    pool: AnyPool,
     unfiled: Mutex<Vec<Unfiled>>,
     /// Told about a trial filed late, so that its station and the dashboards show it.
     link: OnceLock<ControllerLink>,
@@ -198,7 +198,7 @@ const LINK_ACTOR: &str = "system:controller";
 
 impl LinkFiling {
     /// A filing on `pool`; what it could not write is written again every second.
-    pub fn start(pool: SqlitePool) -> Arc<Self> {
+    pub fn start(pool: AnyPool) -> Arc<Self> {
         let filing = Arc::new(Self {
             pool,
             unfiled: Mutex::new(Vec::new()),
@@ -322,14 +322,14 @@ struct Interrupted<'a> {
 /// Marks every running trial of this server's controller incomplete with `reason` (server
 /// restart, controller lost); returns their ids. A pilot process's trials run on its own
 /// controller: they end with its heartbeat (`end_lost_pilots`), not with this server's.
-pub async fn interrupt_running(pool: &SqlitePool, reason: &str) -> Result<Vec<i64>> {
+pub async fn interrupt_running(pool: &AnyPool, reason: &str) -> Result<Vec<i64>> {
     let trials = store::trials::running_ids(pool).await?;
     interrupt(pool, &trials, reason).await
 }
 
 /// Marks those of `trials` that still run incomplete with `reason`, re-queues them and audits
 /// it; returns the ids marked.
-async fn interrupt(pool: &SqlitePool, trials: &[i64], reason: &str) -> Result<Vec<i64>> {
+async fn interrupt(pool: &AnyPool, trials: &[i64], reason: &str) -> Result<Vec<i64>> {
     let mut change = Change::begin(pool, "system:trial-filing").await?;
     let ids = store::trials::interrupt(change.db(), trials, reason).await?;
     if !ids.is_empty() {
@@ -365,7 +365,7 @@ struct PilotEnded<'a> {
 
 /// Ends the pilot run `run_id`: the trials it left running are marked incomplete with
 /// `reason`, audited with the run; returns their ids.
-pub async fn end_pilot_run(pool: &SqlitePool, run_id: i64, reason: &str) -> Result<Vec<i64>> {
+pub async fn end_pilot_run(pool: &AnyPool, run_id: i64, reason: &str) -> Result<Vec<i64>> {
     let mut change = Change::begin(pool, "system:pilot-watch").await?;
     let ids = store::pilot_runs::end(change.db(), run_id, reason).await?;
     change
@@ -383,7 +383,7 @@ pub async fn end_pilot_run(pool: &SqlitePool, run_id: i64, reason: &str) -> Resu
 
 /// Ends every pilot run that has been silent for `PILOT_SILENCE` (its process was killed)
 /// and files its running trials incomplete; returns those trials' ids.
-pub async fn end_lost_pilots(pool: &SqlitePool) -> Result<Vec<i64>> {
+pub async fn end_lost_pilots(pool: &AnyPool) -> Result<Vec<i64>> {
     let before = store::db::now_ms() - PILOT_SILENCE.as_millis() as i64;
     let mut ids = Vec::new();
     for (run_id, pid) in store::pilot_runs::silent_since(pool, before).await? {
@@ -398,7 +398,7 @@ pub async fn end_lost_pilots(pool: &SqlitePool) -> Result<Vec<i64>> {
 
 /// The server's watch over pilot processes: every second, a killed pilot's trials are
 /// filed (so none stays "running" until a restart).
-pub async fn watch_pilots(pool: SqlitePool) {
+pub async fn watch_pilots(pool: AnyPool) {
     let mut tick = tokio::time::interval(std::time::Duration::from_secs(1));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {

@@ -21,7 +21,7 @@ use bdft_protocol::trial::{FaultKind, Outcome};
 use labstream_net::Outlet;
 use labstream_wire::{Sample, Value};
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use crate::engine::machine::controller_link::ControllerLink;
 use crate::error::Result;
@@ -124,7 +124,7 @@ impl Markers {
 }
 
 /// The tags of station `station_id` with the subject now assigned to it; None without one.
-async fn tags_of(pool: &SqlitePool, station_id: i64) -> Result<Option<StreamTags>> {
+async fn tags_of(pool: &AnyPool, station_id: i64) -> Result<Option<StreamTags>> {
     let station = store::stations::get(pool, station_id).await?;
     let Some(subject_id) = station.subject_id else {
         return Ok(None);
@@ -143,7 +143,7 @@ async fn tags_of(pool: &SqlitePool, station_id: i64) -> Result<Option<StreamTags
 /// Publishes station `station_id`'s streams (markers here, signals on the controller) for
 /// the subject assigned to it, and names `trial` as the one about to start there.
 async fn publish(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     link: &ControllerLink,
     station_id: i64,
     trial: Option<i64>,
@@ -172,7 +172,7 @@ async fn publish(
 }
 
 /// A subject was assigned to the station (or unassigned: then nothing changes).
-pub async fn station_assigned(pool: &SqlitePool, link: &ControllerLink, station_id: i64) {
+pub async fn station_assigned(pool: &AnyPool, link: &ControllerLink, station_id: i64) {
     logged(publish(pool, link, station_id, None).await);
 }
 
@@ -184,7 +184,7 @@ fn logged(r: Result<()>) {
 }
 
 /// The station `trial` runs at: its subject's station that serves its seat.
-async fn station_of(pool: &SqlitePool, trial: &Trial) -> Result<Option<i64>> {
+async fn station_of(pool: &AnyPool, trial: &Trial) -> Result<Option<i64>> {
     let stations = store::stations::of_subject(pool, trial.subject_id).await?;
     Ok(stations
         .iter()
@@ -195,7 +195,7 @@ async fn station_of(pool: &SqlitePool, trial: &Trial) -> Result<Option<i64>> {
 /// Before `trial` starts: its station's streams are up and its ticks go to them. Sent
 /// before the start on the same link, so the controller routes the trial before its first
 /// tick.
-pub async fn trial_starting(pool: &SqlitePool, link: &ControllerLink, trial: &Trial) {
+pub async fn trial_starting(pool: &AnyPool, link: &ControllerLink, trial: &Trial) {
     if !enabled() {
         return;
     }
@@ -207,11 +207,11 @@ pub async fn trial_starting(pool: &SqlitePool, link: &ControllerLink, trial: &Tr
 }
 
 /// Puts `marker` on the stream of the station `trial` runs at.
-pub async fn mark_trial(pool: &SqlitePool, trial_id: i64, marker: Marker<'_>) {
+pub async fn mark_trial(pool: &AnyPool, trial_id: i64, marker: Marker<'_>) {
     logged(try_mark_trial(pool, trial_id, marker).await);
 }
 
-async fn try_mark_trial(pool: &SqlitePool, trial_id: i64, marker: Marker<'_>) -> Result<()> {
+async fn try_mark_trial(pool: &AnyPool, trial_id: i64, marker: Marker<'_>) -> Result<()> {
     let Some(m) = markers() else { return Ok(()) };
     let trial = store::trials::get(pool, trial_id).await?;
     if let Some(station) = station_of(pool, &trial).await? {
@@ -221,7 +221,7 @@ async fn try_mark_trial(pool: &SqlitePool, trial_id: i64, marker: Marker<'_>) ->
 }
 
 /// The test-start marker of `trial`.
-pub async fn test_started(pool: &SqlitePool, trial: &Trial) {
+pub async fn test_started(pool: &AnyPool, trial: &Trial) {
     let marker = Marker::TestStart {
         trial_id: trial.id,
         phase: trial.phase,
@@ -234,7 +234,7 @@ pub async fn test_started(pool: &SqlitePool, trial: &Trial) {
 }
 
 /// The markers of a filed result: the interlock when it stopped the test, then the end.
-pub async fn test_filed(pool: &SqlitePool, result: &TrialResult, status: &str) {
+pub async fn test_filed(pool: &AnyPool, result: &TrialResult, status: &str) {
     if !enabled() {
         return;
     }

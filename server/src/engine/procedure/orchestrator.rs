@@ -8,7 +8,7 @@ use bdft_protocol::server_to_controller::StartTrial;
 use bdft_protocol::study::StudyParams;
 use bdft_protocol::trial::{InputSource, TargetSpec};
 
-use sqlx::SqliteConnection;
+use sqlx::AnyConnection;
 
 use crate::engine::study::exposure::allowance_for;
 use crate::engine::study::schedule::identification_target;
@@ -85,7 +85,7 @@ pub fn start_message(study: &Study, trial: &Trial, operator: Operator) -> Result
 /// its subject's day has left, read on `db` — the change that marks the trial running, so
 /// no other test of the subject slips in between —, or the 409 when nothing is left.
 pub async fn start_now(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     study: &Study,
     trial: &Trial,
     subject: &Subject,

@@ -6,7 +6,7 @@
 
 use bdft_protocol::records::TrialStatus;
 use bdft_protocol::server_to_browser::StopNotice;
-use sqlx::SqliteConnection;
+use sqlx::AnyConnection;
 
 use crate::error::Result;
 use crate::store;
@@ -19,7 +19,7 @@ pub const MAX_ATTEMPTS: i64 = 3;
 /// Re-queues the failed trial `trial_id` (in the caller's transaction) when it is a
 /// person's, its test's latest attempt, the subject is still taking part and the test has
 /// had fewer than [`MAX_ATTEMPTS`]; returns the new attempt's id.
-pub async fn requeue_failed(db: &mut SqliteConnection, trial_id: i64) -> Result<Option<i64>> {
+pub async fn requeue_failed(db: &mut AnyConnection, trial_id: i64) -> Result<Option<i64>> {
     let t = store::trials::get(&mut *db, trial_id).await?;
     if !t.status.failed() || t.accepted_reason.is_some() {
         return Ok(None);

@@ -11,7 +11,7 @@ use bdft_protocol::server_to_browser::{
     MonitorStation, MonitorTest, MonitorView, Phase, StationInfo, StationView, TestView,
 };
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use bdft_protocol::study::{ConsentForm, StudyParams, StudyTexts};
 
@@ -121,12 +121,7 @@ impl Pairing {
 
     /// Waits until the station of `token` is paired, for at most `limit`: a page that shows
     /// its code asks this instead of polling (and logging a 401 every second).
-    pub async fn wait(
-        &self,
-        pool: &SqlitePool,
-        token: &str,
-        limit: Duration,
-    ) -> Result<PairingState> {
+    pub async fn wait(&self, pool: &AnyPool, token: &str, limit: Duration) -> Result<PairingState> {
         let _waiting = Waiter::enter(&self.waiting)?;
         let deadline = tokio::time::Instant::now() + limit;
         loop {
@@ -192,7 +187,7 @@ struct Paired<'a> {
 
 /// Pairs the station showing `pairing_code` with a study; returns its id.
 pub async fn pair(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     pairing: &Pairing,
     actor: &str,
     study_id: i64,
@@ -230,7 +225,7 @@ struct Assigned {
 
 /// Assigns a subject of the station's study to it (or none).
 pub async fn assign(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     actor: &str,
     station_id: i64,
     subject_id: Option<i64>,
@@ -289,7 +284,7 @@ pub fn rendered_texts(params: &StudyParams) -> (ConsentForm, StudyTexts) {
 /// What `station` shows now, with each test given by `test` (blinded for the subject,
 /// with the compensator for the experimenter), and the study's texts filled in.
 async fn phase<T>(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     station: &Station,
     test: impl Fn(TestView, &Trial) -> T,
 ) -> Result<(Phase<T>, Option<StudyTexts>)> {
@@ -305,7 +300,7 @@ async fn phase<T>(
 
 /// Where the station's subject is in the protocol.
 async fn subject_phase<T>(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     station: &Station,
     subject: &Subject,
     study: &Study,
@@ -414,7 +409,7 @@ async fn subject_phase<T>(
 
 /// What the station shows its subject now (never a compensator's name), with what
 /// happened to the last test when it was stopped.
-pub async fn station_view(pool: &SqlitePool, station: &Station) -> Result<StationView> {
+pub async fn station_view(pool: &AnyPool, station: &Station) -> Result<StationView> {
     let (phase, texts) = phase(pool, station, |view, _| view).await?;
     let stopped = match (&phase, station.subject_id) {
         (Phase::Ready { .. } | Phase::Move { .. } | Phase::Held { .. }, Some(subject_id)) => {
@@ -436,7 +431,7 @@ pub async fn station_view(pool: &SqlitePool, station: &Station) -> Result<Statio
 /// What a station shows, for the experimenter's live monitor (with the compensator of the
 /// test at hand).
 pub async fn monitor_view(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     sockets: &StationSockets,
     station_id: i64,
 ) -> Result<MonitorView> {
@@ -460,7 +455,7 @@ pub async fn monitor_view(
 
 /// The trial a station may feed with operator input now: its subject's running test at a
 /// seat the station serves.
-pub async fn running_trial(pool: &SqlitePool, station_id: i64) -> Result<Option<i64>> {
+pub async fn running_trial(pool: &AnyPool, station_id: i64) -> Result<Option<i64>> {
     let station = store::stations::get(pool, station_id).await?;
     let Some(subject_id) = station.subject_id else {
         return Ok(None);
@@ -472,7 +467,7 @@ pub async fn running_trial(pool: &SqlitePool, station_id: i64) -> Result<Option<
 }
 
 /// A test of the station's subject (a station never touches another subject's data).
-pub async fn own_trial(pool: &SqlitePool, station: &Station, trial_id: i64) -> Result<Trial> {
+pub async fn own_trial(pool: &AnyPool, station: &Station, trial_id: i64) -> Result<Trial> {
     let subject_id = subject_of(station)?;
     let trial = store::trials::get(pool, trial_id).await?;
     if trial.subject_id != subject_id {

@@ -6,7 +6,7 @@ use bdft_protocol::browser_to_server::{RttPercentiles, SurveySubmission, TimingR
 use bdft_protocol::records::{ConsentDecision, TestPhase, TrialStatus};
 use bdft_protocol::server_to_controller::ServerToController;
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use super::lsl::{self, Marker};
 use crate::engine::machine::controller_link::ControllerLink;
@@ -26,7 +26,7 @@ struct Consented<'a> {
 
 /// Records the subject's consent decision on the study's current form.
 pub async fn consent(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     subject_id: i64,
     decision: ConsentDecision,
     station_name: &str,
@@ -59,11 +59,7 @@ struct Answered {
 
 /// Stores the survey of a completed test of the subject; every bad field is reported and
 /// nothing is stored unless all are right.
-pub async fn answer_survey(
-    pool: &SqlitePool,
-    trial: &Trial,
-    answer: &SurveySubmission,
-) -> Result<()> {
+pub async fn answer_survey(pool: &AnyPool, trial: &Trial, answer: &SurveySubmission) -> Result<()> {
     if !trial.phase.scored() || trial.status != TrialStatus::Complete {
         return Err(AppError::Conflict(
             "only a completed test has a survey".into(),
@@ -105,7 +101,7 @@ struct StationTiming<'a> {
 
 /// Keeps the station's figures of how its display kept up during a test.
 pub async fn report_timing(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     station_name: &str,
     report: &TimingReport,
 ) -> Result<()> {
@@ -142,7 +138,7 @@ struct Withdrawn<'a> {
 /// Records the withdrawal and stops the subject's running test at once (the controller
 /// files it aborted); returns the stopped trial, if one was running.
 pub async fn withdraw(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     link: &ControllerLink,
     actor: &str,
     subject_id: i64,
@@ -183,7 +179,7 @@ const NO_REASON: &str = "withdrawn by the subject on their own page (no reason g
 
 /// The subject withdraws on their own page; the reason is optional.
 pub async fn withdraw_own(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     link: &ControllerLink,
     subject: &Subject,
     reason: Option<&str>,
@@ -206,7 +202,7 @@ pub struct SubjectProgress {
     pub tests: usize,
 }
 
-pub async fn progress_of_study(pool: &SqlitePool, study_id: i64) -> Result<Vec<SubjectProgress>> {
+pub async fn progress_of_study(pool: &AnyPool, study_id: i64) -> Result<Vec<SubjectProgress>> {
     store::studies::get(pool, study_id).await?;
     let mut out = Vec::new();
     for subject in store::subjects::of_study(pool, study_id).await? {
@@ -240,7 +236,7 @@ pub struct SubjectDetail {
     pub exposure: SubjectExposure,
 }
 
-pub async fn detail(pool: &SqlitePool, subject_id: i64) -> Result<SubjectDetail> {
+pub async fn detail(pool: &AnyPool, subject_id: i64) -> Result<SubjectDetail> {
     let subject = store::subjects::get(pool, subject_id).await?;
     let mut surveys = store::trials::surveys_of_subject(pool, subject_id).await?;
     let trials = store::trials::of_subject(pool, subject_id)
@@ -286,7 +282,7 @@ pub struct OwnProgress {
     pub tests: Vec<OwnTest>,
 }
 
-pub async fn own_progress(pool: &SqlitePool, subject: Subject) -> Result<OwnProgress> {
+pub async fn own_progress(pool: &AnyPool, subject: Subject) -> Result<OwnProgress> {
     let trials = store::trials::of_subject(pool, subject.id).await?;
     let scored = || latest_attempts(&trials).filter(|t| t.phase.scored());
     Ok(OwnProgress {

@@ -7,7 +7,7 @@ use bdft_protocol::records::{ConsentDecision, TrialStatus};
 use bdft_protocol::server_to_controller::ServerToController;
 use bdft_protocol::study::RigKind;
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use super::lsl::{self, Marker};
 use super::orchestrator::{Operator, start_now};
@@ -36,7 +36,7 @@ struct Started {
 
 /// Checks that `trial` may start now and starts it on the controller.
 pub async fn start(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     link: &ControllerLink,
     actor: &str,
     trial_id: i64,
@@ -141,7 +141,7 @@ pub async fn start(
 
 /// Stops a running trial early; the controller files it aborted with `reason`.
 pub async fn abort(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     link: &ControllerLink,
     actor: &str,
     trial_id: i64,
@@ -180,7 +180,7 @@ struct Redone<'a> {
 /// Adds the next attempt of a finished test (the latest attempt only), queued at the end of
 /// its block like a failed test's; returns it. The experimenter may repeat a test that
 /// failed more often than the server repeats it by itself.
-pub async fn redo(pool: &SqlitePool, actor: &str, trial_id: i64, reason: &str) -> Result<Trial> {
+pub async fn redo(pool: &AnyPool, actor: &str, trial_id: i64, reason: &str) -> Result<Trial> {
     if reason.chars().count() > 500 {
         return Err(AppError::BadRequest(
             "reason: at most 500 characters".into(),
@@ -223,7 +223,7 @@ pub async fn redo(pool: &SqlitePool, actor: &str, trial_id: i64, reason: &str) -
 /// counts as missing with the reason. `trial_id` may be any attempt of the test; the latest
 /// is the one accepted (a failed attempt, its re-queued successor, or a complete one).
 pub async fn accept_incomplete(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     actor: &str,
     trial_id: i64,
     reason: &str,
@@ -257,7 +257,7 @@ struct Noted<'a> {
 }
 
 /// A note about a test, by its author; returns the note's id.
-pub async fn add_note(pool: &SqlitePool, author: &str, trial_id: i64, text: &str) -> Result<i64> {
+pub async fn add_note(pool: &AnyPool, author: &str, trial_id: i64, text: &str) -> Result<i64> {
     if text.trim().is_empty() || text.chars().count() > 2000 {
         return Err(AppError::BadRequest("text: 1 to 2000 characters".into()));
     }
@@ -286,7 +286,7 @@ struct EStopped {
 /// experimenter resets it — and audited; an error when it could not be sent.
 /// Returns how long the controller took to confirm.
 pub async fn estop(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     link: &ControllerLink,
     actor: &str,
 ) -> Result<std::time::Duration> {
@@ -317,7 +317,7 @@ const ESTOP_CONFIRMATION: std::time::Duration = std::time::Duration::from_millis
 
 /// Clears the E-stop latch: the server's first (so a controller that connects meanwhile is
 /// told the same), then the controller's.
-pub async fn reset_estop(pool: &SqlitePool, link: &ControllerLink, actor: &str) -> Result<()> {
+pub async fn reset_estop(pool: &AnyPool, link: &ControllerLink, actor: &str) -> Result<()> {
     let mut change = Change::begin(pool, actor).await?;
     store::latch::set(change.db(), false).await?;
     change

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use bdft_protocol::server_to_controller::ServerToController;
 use bdft_protocol::study::StudyParams;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use crate::engine::machine::controller_link::{ControllerEvent, ControllerLink};
 use crate::error::Result;
@@ -112,7 +112,7 @@ impl DisplayWatch {
 
 /// The display limits of a running test when it is a person's (a synthetic subject's has
 /// none).
-pub async fn limits_of(pool: &SqlitePool, trial_id: i64) -> Result<Option<DisplayLimits>> {
+pub async fn limits_of(pool: &AnyPool, trial_id: i64) -> Result<Option<DisplayLimits>> {
     let trial = store::trials::get(pool, trial_id).await?;
     let subject = store::subjects::get(pool, trial.subject_id).await?;
     if subject.synthetic {
@@ -125,7 +125,7 @@ pub async fn limits_of(pool: &SqlitePool, trial_id: i64) -> Result<Option<Displa
 /// Files the running trial invalid with `reason` and stops it on the controller at once.
 /// Its result (or a lost link) then files it invalid. `false` when it was no longer running.
 pub async fn invalidate(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     link: &ControllerLink,
     actor: &str,
     trial_id: i64,

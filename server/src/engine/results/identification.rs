@@ -11,7 +11,7 @@ use bdft_protocol::params::{BodyModel, MAX_KBF, check};
 use bdft_protocol::study::StudyParams;
 use nalgebra::Complex;
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use super::inference::quantile::quantile;
 use crate::engine::COMPUTE;
@@ -61,7 +61,7 @@ pub struct IdentificationView {
     pub population: Vec<BandPoint>,
 }
 
-pub async fn view(pool: &SqlitePool, subject_id: i64) -> Result<IdentificationView> {
+pub async fn view(pool: &AnyPool, subject_id: i64) -> Result<IdentificationView> {
     let subject = store::subjects::get(pool, subject_id).await?;
     let study = store::studies::get(pool, subject.study_id).await?;
     let tests = store::identifications::of_subject(pool, subject_id).await?;
@@ -95,7 +95,7 @@ pub struct SubjectStability {
 /// study's), and with what margin? The gate's analysis on the study's plant with the body
 /// the subject's identification test fitted; a 409 when the subject has none yet.
 pub async fn subject_stability(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     cache: &StabilityCache,
     subject_id: i64,
     k_bf: Option<f64>,

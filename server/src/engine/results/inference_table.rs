@@ -7,7 +7,7 @@
 //! are ordinal: rank tests only.
 
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use super::inference::bootstrap::median_interval;
 use super::inference::nonparametric::{friedman, holm, wilcoxon, wilcoxon_floor};
@@ -59,7 +59,7 @@ pub struct StatsRow {
 }
 
 /// The study's table.
-pub async fn study_table(pool: &SqlitePool, study_id: i64) -> Result<Vec<StatsRow>> {
+pub async fn study_table(pool: &AnyPool, study_id: i64) -> Result<Vec<StatsRow>> {
     let data = StudyData::load(pool, study_id).await?;
     // Ten thousand resamples for each of some 150 comparisons: off the async threads.
     let _turn = crate::engine::COMPUTE

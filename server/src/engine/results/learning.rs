@@ -6,7 +6,7 @@
 use std::collections::BTreeMap;
 
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use super::inference::quantile::quantile;
 use super::study_data::analysable;
@@ -131,7 +131,7 @@ impl LearningCurve {
 }
 
 /// The study's learning curve from its trials.
-pub async fn learning_curve(pool: &SqlitePool, study_id: i64) -> Result<LearningCurve> {
+pub async fn learning_curve(pool: &AnyPool, study_id: i64) -> Result<LearningCurve> {
     let study = store::studies::get(pool, study_id).await?;
     let k = study.params.controllers.len() as u32;
     let rows =

@@ -1,7 +1,7 @@
 //! The results page's figures: a box plot per summary variable, by compensator and seat,
 //! titled and scaled for what it shows, and the learning curve.
 
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use super::learning::learning_curve;
 use super::plots::{Group, box_plot_svg, learning_curve_svg, png};
@@ -85,7 +85,7 @@ fn labels(index: usize, scale_points: u8) -> (&'static str, &'static str, Option
 }
 
 /// A figure of a study in `format`.
-pub async fn plot(pool: &SqlitePool, study_id: i64, plot: Plot, format: Format) -> Result<Vec<u8>> {
+pub async fn plot(pool: &AnyPool, study_id: i64, plot: Plot, format: Format) -> Result<Vec<u8>> {
     let svg = match plot {
         Plot::Box(index) => box_plot(pool, study_id, index).await?,
         Plot::LearningCurve => {
@@ -109,7 +109,7 @@ pub async fn plot(pool: &SqlitePool, study_id: i64, plot: Plot, format: Format) 
 }
 
 /// The box plot of summary variable `index` for a study, as SVG.
-async fn box_plot(pool: &SqlitePool, study_id: i64, index: usize) -> Result<String> {
+async fn box_plot(pool: &AnyPool, study_id: i64, index: usize) -> Result<String> {
     let study = store::studies::get(pool, study_id).await?;
     let groups: Vec<Group> = group_values(pool, study_id)
         .await?

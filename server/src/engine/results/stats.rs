@@ -2,7 +2,7 @@
 //! table of averages and the summary export. Only the latest attempt of each test counts,
 //! when it is complete, of subjects who have not withdrawn (`study_data`).
 
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use super::inference::quantile::quantile;
 use super::study_data::{SUMMARY_VARIABLES, StudyData};
@@ -30,7 +30,7 @@ pub struct Stats {
 /// (compensator, seat) name: a redone test counts once.
 pub type GroupValues = std::collections::BTreeMap<(String, String), Vec<[Option<f64>; 6]>>;
 
-pub async fn group_values(pool: &SqlitePool, study_id: i64) -> Result<GroupValues> {
+pub async fn group_values(pool: &AnyPool, study_id: i64) -> Result<GroupValues> {
     let mut groups = GroupValues::new();
     for subject in StudyData::load(pool, study_id).await?.subjects {
         for (key, values) in subject {
@@ -42,7 +42,7 @@ pub async fn group_values(pool: &SqlitePool, study_id: i64) -> Result<GroupValue
 
 /// Per compensator × seat statistics: the numbers behind the box plots and the table of
 /// averages.
-pub async fn summary_stats(pool: &SqlitePool, study_id: i64) -> Result<Vec<Stats>> {
+pub async fn summary_stats(pool: &AnyPool, study_id: i64) -> Result<Vec<Stats>> {
     let mut out = Vec::new();
     for ((controller, station), values) in group_values(pool, study_id).await? {
         for (i, variable) in SUMMARY_VARIABLES.iter().enumerate() {

@@ -7,7 +7,7 @@
 use std::collections::BTreeMap;
 
 use bdft_protocol::records::TrialStatus;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use crate::error::Result;
 use crate::store;
@@ -54,7 +54,7 @@ pub fn analysable(rows: &[TrialExportRow]) -> impl Iterator<Item = &TrialExportR
 }
 
 impl StudyData {
-    pub async fn load(pool: &SqlitePool, study_id: i64) -> Result<Self> {
+    pub async fn load(pool: &AnyPool, study_id: i64) -> Result<Self> {
         let study = store::studies::get(pool, study_id).await?;
         let rows = store::exports::trial_rows(pool, study_id, Withdrawn::LeftOut).await?;
         let mut subjects: BTreeMap<i64, Cells> = BTreeMap::new();

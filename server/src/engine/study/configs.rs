@@ -5,7 +5,7 @@
 
 use bdft_protocol::params::{CompensatorKind, CompensatorSpec};
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use super::schedule::default_params;
 use crate::engine::check_name;
@@ -27,7 +27,7 @@ struct Created<'a> {
 
 /// Adds the next version of `name` with design `spec`.
 pub async fn create(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     actor: &str,
     name: &str,
     spec: &CompensatorSpec,
@@ -74,7 +74,7 @@ struct PickedVersion<'a> {
 
 /// Puts each of `config_ids` in place of the study's design of the same kind (a new study
 /// version, audited as `study.configs`); refused for a locked study.
-pub async fn pick(pool: &SqlitePool, actor: &str, study_id: i64, config_ids: &[i64]) -> Result<()> {
+pub async fn pick(pool: &AnyPool, actor: &str, study_id: i64, config_ids: &[i64]) -> Result<()> {
     if config_ids.is_empty() || config_ids.len() > MAX_PICKS {
         return Err(AppError::BadRequest(format!(
             "config_ids: 1 to {MAX_PICKS} configuration versions"

@@ -4,7 +4,7 @@
 //! parameters and seed, linked to it), made on the first pilot.
 
 use serde::Serialize;
-use sqlx::{SqliteConnection, SqlitePool};
+use sqlx::{AnyConnection, AnyPool};
 
 use crate::error::{AppError, Result};
 use crate::store::{self, Change};
@@ -21,7 +21,7 @@ pub struct DryRunInfo {
     pub dry_run_copy: Option<i64>,
 }
 
-pub async fn info(pool: &SqlitePool, study_id: i64) -> Result<DryRunInfo> {
+pub async fn info(pool: &AnyPool, study_id: i64) -> Result<DryRunInfo> {
     store::studies::get(pool, study_id).await?;
     let of = store::dry_runs::dry_run(pool, study_id).await?;
     Ok(DryRunInfo {
@@ -33,11 +33,7 @@ pub async fn info(pool: &SqlitePool, study_id: i64) -> Result<DryRunInfo> {
 }
 
 /// Refuses a subject the study must not hold (checked inside the enrolment transaction).
-pub async fn check_enrolment(
-    db: &mut SqliteConnection,
-    study_id: i64,
-    synthetic: bool,
-) -> Result<()> {
+pub async fn check_enrolment(db: &mut AnyConnection, study_id: i64, synthetic: bool) -> Result<()> {
     match (
         synthetic,
         store::dry_runs::dry_run(&mut *db, study_id).await?,
@@ -62,7 +58,7 @@ struct Copied<'a> {
 
 /// The dry run a pilot of `study_id` writes into: the study itself if it is one, else its
 /// dry-run copy (made now, in one transaction with its audit row, if there is none).
-pub async fn for_pilot(pool: &SqlitePool, actor: &str, study_id: i64) -> Result<i64> {
+pub async fn for_pilot(pool: &AnyPool, actor: &str, study_id: i64) -> Result<i64> {
     let study = store::studies::get(pool, study_id).await?;
     if store::dry_runs::dry_run(pool, study_id).await?.is_some() {
         return Ok(study_id);
@@ -91,7 +87,7 @@ pub async fn for_pilot(pool: &SqlitePool, actor: &str, study_id: i64) -> Result<
 /// A new stand-alone dry run of `params` (a pilot with no study to copy), in one
 /// transaction with its audit row.
 pub async fn create(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     actor: &str,
     params: &bdft_protocol::study::StudyParams,
     seed: Option<u64>,

@@ -25,7 +25,7 @@ use bdft_protocol::exposure::{
 use bdft_protocol::params::Seat;
 use bdft_protocol::study::StudyParams;
 use serde::Serialize;
-use sqlx::SqliteConnection;
+use sqlx::AnyConnection;
 
 use crate::error::{AppError, Result};
 use crate::store;
@@ -62,7 +62,7 @@ fn dose(params: &StudyParams, test: &RiddenTest) -> (DoseSum, bool) {
 
 /// The subject's exposure from the tests that started in the 24 hours before `now_ms`.
 pub async fn last_24h(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     params: &StudyParams,
     subject_id: i64,
     now_ms: i64,
@@ -104,7 +104,7 @@ pub struct SubjectExposure {
 
 /// The subject's exposure per UTC day, oldest first.
 pub async fn days(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     params: &StudyParams,
     subject_id: i64,
 ) -> Result<SubjectExposure> {
@@ -181,7 +181,7 @@ pub fn allowance(
 /// The allowance a test of the subject on `seat` starts with now: none at the desk (nobody
 /// rides the cab), else the remainder of the budget after the last 24 hours, or the 409.
 pub async fn allowance_for(
-    db: &mut SqliteConnection,
+    db: &mut AnyConnection,
     params: &StudyParams,
     subject: &Subject,
     seat: Seat,

@@ -3,7 +3,7 @@
 
 use bdft_protocol::study::StudyParams;
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use super::stability::{StabilityCache, StabilityReport, Verdict};
 use crate::engine::check_name;
@@ -26,7 +26,7 @@ struct Created<'a> {
 
 /// Creates a study (default seed: a random one); returns its id.
 pub async fn create(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     actor: &str,
     name: &str,
     params: &StudyParams,
@@ -47,7 +47,7 @@ pub async fn create(
 /// Stores a new study (a stand-alone dry run if `dry_run`) with its `study.create` audit
 /// row, in one transaction; returns its id.
 pub(super) async fn insert(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     actor: &str,
     name: &str,
     params: &StudyParams,
@@ -92,7 +92,7 @@ struct Updated<'a> {
 /// Replaces the name and parameters of a study that has not started, if nobody changed it
 /// since `version` (the version the edit was based on).
 pub async fn update(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     actor: &str,
     id: i64,
     version: i64,
@@ -131,7 +131,7 @@ struct Acknowledged<'a> {
 /// Records that `actor` knows the study's design is unstable on the machine and wants it run
 /// in simulation all the same (a real-machine study cannot be acknowledged).
 pub async fn acknowledge_instability(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     stability: &StabilityCache,
     actor: &str,
     id: i64,

@@ -9,7 +9,7 @@ use bdft_protocol::params::{BodyModel, OperatorParams, SubjectDraw};
 use bdft_protocol::records::TrialStatus;
 use bdft_protocol::study::{StudyParams, SurveyAnswer};
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use crate::error::{AppError, Result};
 use crate::store::records::Record;
@@ -82,7 +82,7 @@ struct Perceived {
 /// test's record, through the same store and audit as a person's answers. Nothing for a
 /// practice, an unfinished test or a subject without a draw.
 pub async fn answer_survey(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     actor: &str,
     study: &Study,
     subject: &Subject,

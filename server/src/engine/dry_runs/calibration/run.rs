@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex};
 use bdft_protocol::records::{TestPhase, TrialStatus};
 use bdft_protocol::trial::Metrics;
 use serde::{Deserialize, Serialize};
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 use super::fit::{FitReport, check_enough, fit};
 use super::sim::all_cells;
@@ -48,7 +48,7 @@ pub struct CalibrationReport {
 /// The study's own completed tests: each subject's latest completed attempt of each scored
 /// test, in the study's cells.
 async fn study_target(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     study_id: i64,
     cells: &[super::sim::Cell],
     params: &bdft_protocol::study::StudyParams,
@@ -100,7 +100,7 @@ pub struct Prepared {
 
 /// Checks the request and reads its target: a bad table or a study without data is refused
 /// here (422), before anything runs.
-pub async fn prepare(pool: &SqlitePool, study_id: i64, req: CalibrateRequest) -> Result<Prepared> {
+pub async fn prepare(pool: &AnyPool, study_id: i64, req: CalibrateRequest) -> Result<Prepared> {
     if !(8..=super::fit::MAX_SUBJECTS).contains(&req.simulated_subjects) {
         return Err(AppError::BadRequest(format!(
             "simulated_subjects: 8 to {}",
@@ -128,7 +128,7 @@ pub async fn prepare(pool: &SqlitePool, study_id: i64, req: CalibrateRequest) ->
 /// Calibrates `study_id` on behalf of `actor` and stores the result as its next population
 /// version. `progress` counts simulated trials; `cancel` stops the fit (409, nothing stored).
 pub async fn calibrate(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     actor: &str,
     study_id: i64,
     req: CalibrateRequest,
@@ -140,7 +140,7 @@ pub async fn calibrate(
 }
 
 async fn run_prepared(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     actor: &str,
     prepared: Prepared,
     progress: Arc<Progress>,
@@ -209,7 +209,7 @@ impl CalibrationJob {
     /// Starts a calibration of `study_id` in the background; a bad target is refused now.
     pub async fn start(
         &self,
-        pool: &SqlitePool,
+        pool: &AnyPool,
         actor: &str,
         study_id: i64,
         req: CalibrateRequest,

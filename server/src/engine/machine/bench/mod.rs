@@ -26,7 +26,7 @@ use bdft_protocol::server_to_controller::StartTrial;
 use bdft_protocol::study::RigKind;
 use bdft_protocol::trial::{InputSource, Metrics, Outcome, TargetSpec};
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 use utoipa::ToSchema;
 
 use super::controller_link::ControllerLink;
@@ -127,7 +127,7 @@ impl BenchJob {
     /// another runs; on a study with the real rig, refused unless the rig can take it.
     pub async fn start(
         self: &Arc<Self>,
-        pool: &SqlitePool,
+        pool: &AnyPool,
         link: &ControllerLink,
         actor: &str,
         req: &BenchRequest,
@@ -256,7 +256,7 @@ const RESTART: &str = "server restart";
 
 /// Runs the server left running when it stopped are failed (audited), so none shows as
 /// running forever.
-pub async fn fail_interrupted(pool: &SqlitePool) -> Result<()> {
+pub async fn fail_interrupted(pool: &AnyPool) -> Result<()> {
     let mut change = Change::begin(pool, "system:startup").await?;
     let n = store::bench::fail_unfinished(change.db(), RESTART).await?;
     if n > 0 {
@@ -297,7 +297,7 @@ impl Rig {
 const BENCH_TRIAL_IDS: u64 = 1 << 50;
 
 /// A bench run on the real rig needs the E-stop reset and a controller with a real rig.
-async fn check_real_rig(pool: &SqlitePool, link: &ControllerLink) -> Result<()> {
+async fn check_real_rig(pool: &AnyPool, link: &ControllerLink) -> Result<()> {
     if store::latch::latched(pool).await? || link.estop_latched() {
         return Err(AppError::Conflict(
             "the E-stop is latched: reset it before a bench run on the real rig".into(),
@@ -337,7 +337,7 @@ fn signal_kind(t: &TargetSpec) -> Result<&'static str> {
 
 /// Runs each compensator in turn off the async threads and stores its result.
 async fn run_all(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     actor: &str,
     run_id: i64,
     rig: &Rig,

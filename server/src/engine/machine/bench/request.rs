@@ -7,7 +7,7 @@ use bdft_controller::signals::{StepParams, StepTarget, SweptSine, Trapezoid};
 use bdft_protocol::params::CompensatorSpec;
 use bdft_protocol::trial::{MAX_SAMPLES, TargetSpec};
 use serde::Deserialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 use utoipa::ToSchema;
 
 use super::{DT, MAX_COMPENSATORS, MAX_DURATION_S};
@@ -158,7 +158,7 @@ pub(super) struct Resolved {
 }
 
 pub(super) async fn resolve(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     choices: &[BenchChoice],
     plant: &bdft_protocol::params::PlantParams,
 ) -> Result<Vec<Resolved>> {

@@ -4,7 +4,7 @@
 use bdft_protocol::params::CompensatorKind;
 use bdft_protocol::trial::record_channel;
 use serde::{Deserialize, Serialize};
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 use utoipa::ToSchema;
 
 use super::DECIMATION;
@@ -106,7 +106,7 @@ pub fn with_reductions(results: Vec<BenchResult>) -> Vec<ResultView> {
         .collect()
 }
 
-pub async fn view(pool: &SqlitePool, run_id: i64) -> Result<RunView> {
+pub async fn view(pool: &AnyPool, run_id: i64) -> Result<RunView> {
     let run = store::bench::run(pool, run_id).await?;
     let results = store::bench::results(pool, run_id).await?;
     let traces = results

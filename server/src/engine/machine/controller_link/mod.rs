@@ -23,7 +23,7 @@ use bdft_protocol::framing;
 use bdft_protocol::link_auth::LinkKey;
 use bdft_protocol::server_to_controller::{ServerToController, StartTrial};
 use bdft_protocol::trial::TrialId;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
 use crate::store::records::Record;
@@ -128,7 +128,7 @@ impl ControllerLink {
     /// Starts the supervisor; the link comes up in the background. `key` is the link key
     /// both ends prove (handed to a controller this server starts).
     pub fn start(
-        pool: SqlitePool,
+        pool: AnyPool,
         source: ControllerSource,
         key: LinkKey,
         silence: Duration,
@@ -377,7 +377,7 @@ impl ControllerLink {
 
 async fn supervise(
     link: ControllerLink,
-    pool: SqlitePool,
+    pool: AnyPool,
     source: ControllerSource,
     key: LinkKey,
     silence: Duration,

@@ -8,7 +8,7 @@ use bdft_protocol::controller_to_server::ControllerToServer;
 use bdft_protocol::link_auth::{LinkKey, LinkRole};
 use bdft_protocol::server_to_controller::ServerToController;
 use bdft_protocol::trial::RECORD_CHANNELS;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 use tokio::io::AsyncWriteExt;
 use tokio::sync::mpsc;
 
@@ -19,7 +19,7 @@ use crate::store::records::Record;
 /// Runs the control connection until it fails; returns why.
 pub(super) async fn control(
     link: &ControllerLink,
-    pool: &SqlitePool,
+    pool: &AnyPool,
     addr: std::net::SocketAddr,
     key: &LinkKey,
     silence: Duration,

@@ -17,7 +17,7 @@ mod tables;
 
 use bdft_protocol::study::SurveyParams;
 use serde::Serialize;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 use tokio::io::{AsyncWrite, BufWriter};
 
 pub use columns::{Column, ColumnType};
@@ -188,7 +188,7 @@ const CODES_LISTED: usize = 20;
 
 /// Checks a request against the study before anything is written: the study exists, and a
 /// cut is of the samples and names one of its remaining subjects or recorded tests.
-pub async fn check(pool: &SqlitePool, study_id: i64, req: &ExportRequest) -> Result<(), AppError> {
+pub async fn check(pool: &AnyPool, study_id: i64, req: &ExportRequest) -> Result<(), AppError> {
     if req.kind.per_study() {
         store::studies::get(pool, study_id).await?;
     }
@@ -241,7 +241,7 @@ pub async fn check(pool: &SqlitePool, study_id: i64, req: &ExportRequest) -> Res
 /// Writes the export `req` of `study_id` to `out` (`audit`: the whole log, whatever the
 /// study), after `check`.
 pub async fn write(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     study_id: i64,
     req: &ExportRequest,
     out: impl AsyncWrite + Unpin,

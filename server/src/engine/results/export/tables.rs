@@ -6,7 +6,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use bdft_protocol::identification::{BodyFit, Estimate};
 use bdft_protocol::records::TestPhase;
 use bdft_protocol::study::SurveyParams;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 use tokio::io::AsyncWrite;
 
 use super::columns::{self, Column, IDENTIFIED};
@@ -40,7 +40,7 @@ impl StudyContext {
 
     /// The study's context (none for the audit log, which is no study's).
     pub async fn load(
-        pool: &SqlitePool,
+        pool: &AnyPool,
         study_id: i64,
         kind: ExportKind,
     ) -> Result<Self, ExportError> {
@@ -84,7 +84,7 @@ pub fn columns_of(kind: ExportKind, cx: &StudyContext) -> Vec<Column> {
 type Table<'w, W> = &'w mut TableWriter<W>;
 
 pub async fn write_rows<W: AsyncWrite + Unpin>(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     study_id: i64,
     req: &ExportRequest,
     cx: &StudyContext,
@@ -127,7 +127,7 @@ fn test_only(p: TestPhase, cell: Cell<'_>) -> Cell<'_> {
 }
 
 async fn trials<W: AsyncWrite + Unpin>(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     study_id: i64,
     t: Table<'_, W>,
 ) -> Result<(), ExportError> {
@@ -234,7 +234,7 @@ fn validity_cells(r: &TrialExportRow) -> [Cell<'_>; 10] {
 const SAMPLE_KEYS: usize = 7;
 
 async fn samples<W: AsyncWrite + Unpin>(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     study_id: i64,
     cut: &SampleCut,
     t: Table<'_, W>,
@@ -272,7 +272,7 @@ async fn samples<W: AsyncWrite + Unpin>(
 }
 
 async fn subjects<W: AsyncWrite + Unpin>(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     study_id: i64,
     t: Table<'_, W>,
 ) -> Result<(), ExportError> {
@@ -345,7 +345,7 @@ fn identified(f: &BodyFit) -> Vec<Estimate> {
 }
 
 async fn identification<W: AsyncWrite + Unpin>(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     study_id: i64,
     t: Table<'_, W>,
 ) -> Result<(), ExportError> {
@@ -415,7 +415,7 @@ async fn codebook<W: AsyncWrite + Unpin>(
 }
 
 async fn summary<W: AsyncWrite + Unpin>(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     study_id: i64,
     survey: &SurveyParams,
     t: Table<'_, W>,
@@ -439,7 +439,7 @@ async fn summary<W: AsyncWrite + Unpin>(
 }
 
 async fn stats<W: AsyncWrite + Unpin>(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     study_id: i64,
     survey: &SurveyParams,
     t: Table<'_, W>,
@@ -472,7 +472,7 @@ async fn stats<W: AsyncWrite + Unpin>(
 }
 
 async fn notes<W: AsyncWrite + Unpin>(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     study_id: i64,
     t: Table<'_, W>,
 ) -> Result<(), ExportError> {
@@ -497,10 +497,7 @@ async fn notes<W: AsyncWrite + Unpin>(
 /// Rows of the audit log read at a time.
 const AUDIT_PAGE: i64 = 2000;
 
-async fn audit<W: AsyncWrite + Unpin>(
-    pool: &SqlitePool,
-    t: Table<'_, W>,
-) -> Result<(), ExportError> {
+async fn audit<W: AsyncWrite + Unpin>(pool: &AnyPool, t: Table<'_, W>) -> Result<(), ExportError> {
     let mut after = 0;
     loop {
         let rows = store::audit::page(pool, after, AUDIT_PAGE).await?;

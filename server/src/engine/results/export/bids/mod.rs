@@ -21,7 +21,7 @@ use std::collections::BTreeMap;
 
 use bdft_protocol::numbers::format_number;
 use bdft_protocol::trial::RECORD_CHANNELS;
-use sqlx::SqlitePool;
+use sqlx::AnyPool;
 
 pub use sink::{DatasetSink, DirSink, ZipSink};
 
@@ -46,7 +46,7 @@ pub struct Written {
 }
 
 /// Refuses a study without a recorded test: a BIDS dataset needs at least one run.
-pub async fn check(pool: &SqlitePool, study_id: i64) -> Result<(), AppError> {
+pub async fn check(pool: &AnyPool, study_id: i64) -> Result<(), AppError> {
     store::studies::get(pool, study_id).await?;
     if store::exports::recorded_trials(pool, study_id, None, None)
         .await?
@@ -82,7 +82,7 @@ impl<S: DatasetSink> Counted<'_, S> {
 
 /// Writes study `study_id` as a BIDS dataset into `sink`, after [`check`].
 pub async fn write(
-    pool: &SqlitePool,
+    pool: &AnyPool,
     study_id: i64,
     sink: &mut impl DatasetSink,
 ) -> Result<Written, ExportError> {
