@@ -60,7 +60,7 @@ pub struct SessionOwner {
 
 pub async fn session<'c>(db: impl AnyExecutor<'c>, token: &str) -> Result<Option<SessionOwner>> {
     let row: Option<(i64, String, String, String)> = sqlx::query_as(
-        "SELECT e.id, e.username, e.role, s.csrf FROM sessions s JOIN experimenters e ON e.id = s.experimenter_id WHERE s.token_hash = ? AND s.expires_at > ? AND e.disabled_at IS NULL",
+        "SELECT e.id, e.username, e.role, s.csrf FROM sessions s JOIN experimenters e ON e.id = s.experimenter_id WHERE s.token_hash = $1 AND s.expires_at > $2 AND e.disabled_at IS NULL",
     )
     .bind(token_hash(token))
     .bind(now_ms())
@@ -85,7 +85,7 @@ pub async fn insert_session(
     lifetime_ms: i64,
 ) -> Result<()> {
     let now = now_ms();
-    sqlx::query("INSERT INTO sessions (token_hash, experimenter_id, csrf, created_at, expires_at) VALUES (?, ?, ?, ?, ?)")
+    sqlx::query("INSERT INTO sessions (token_hash, experimenter_id, csrf, created_at, expires_at) VALUES ($1, $2, $3, $4, $5)")
         .bind(token_hash(token))
         .bind(experimenter_id)
         .bind(csrf)
@@ -97,7 +97,7 @@ pub async fn insert_session(
 }
 
 pub async fn delete_session(db: &mut AnyConnection, token: &str) -> Result<()> {
-    sqlx::query("DELETE FROM sessions WHERE token_hash = ?")
+    sqlx::query("DELETE FROM sessions WHERE token_hash = $1")
         .bind(token_hash(token))
         .execute(db)
         .await?;
@@ -118,7 +118,7 @@ pub async fn credentials<'c>(
     username: &str,
 ) -> Result<Option<Credentials>> {
     let row: Option<(i64, String, String, super::db::Flag)> = sqlx::query_as(
-        "SELECT id, password_hash, role, disabled_at IS NOT NULL FROM experimenters WHERE username = ?",
+        "SELECT id, password_hash, role, disabled_at IS NOT NULL FROM experimenters WHERE username = $1",
     )
     .bind(username)
     .fetch_optional(db)
@@ -141,7 +141,7 @@ pub async fn insert_experimenter(
     role: Role,
 ) -> Result<i64> {
     let r = sqlx::query_scalar::<_, i64>(
-        "INSERT INTO experimenters (username, password_hash, role, created_at) VALUES (?, ?, ?, ?) RETURNING id",
+        "INSERT INTO experimenters (username, password_hash, role, created_at) VALUES ($1, $2, $3, $4) RETURNING id",
     )
     .bind(username)
     .bind(password_hash)
@@ -203,7 +203,7 @@ pub async fn accounts<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<Account>> {
 
 pub async fn account<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Account> {
     let row: Option<AccountRow> = sqlx::query_as(&format!(
-        "SELECT {ACCOUNT_COLUMNS} FROM experimenters WHERE id = ?"
+        "SELECT {ACCOUNT_COLUMNS} FROM experimenters WHERE id = $1"
     ))
     .bind(id)
     .fetch_optional(db)
@@ -214,7 +214,7 @@ pub async fn account<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Account> {
 /// Active admins other than `id` (the last-admin rule counts them inside its change).
 pub async fn other_active_admins<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<i64> {
     let (n,): (i64,) = sqlx::query_as(
-        "SELECT COUNT(*) FROM experimenters WHERE role = 'admin' AND disabled_at IS NULL AND id <> ?",
+        "SELECT COUNT(*) FROM experimenters WHERE role = 'admin' AND disabled_at IS NULL AND id <> $1",
     )
     .bind(id)
     .fetch_one(db)
@@ -223,7 +223,7 @@ pub async fn other_active_admins<'c>(db: impl AnyExecutor<'c>, id: i64) -> Resul
 }
 
 pub async fn set_role(db: &mut AnyConnection, id: i64, role: Role) -> Result<()> {
-    sqlx::query("UPDATE experimenters SET role = ? WHERE id = ?")
+    sqlx::query("UPDATE experimenters SET role = $1 WHERE id = $2")
         .bind(role.name())
         .bind(id)
         .execute(db)
@@ -233,13 +233,13 @@ pub async fn set_role(db: &mut AnyConnection, id: i64, role: Role) -> Result<()>
 
 /// Disables an account and ends its sessions; returns how many sessions ended.
 pub async fn disable(db: &mut AnyConnection, id: i64) -> Result<u64> {
-    sqlx::query("UPDATE experimenters SET disabled_at = ? WHERE id = ? AND disabled_at IS NULL")
+    sqlx::query("UPDATE experimenters SET disabled_at = $1 WHERE id = $2 AND disabled_at IS NULL")
         .bind(now_ms())
         .bind(id)
         .execute(&mut *db)
         .await?;
     Ok(
-        sqlx::query("DELETE FROM sessions WHERE experimenter_id = ?")
+        sqlx::query("DELETE FROM sessions WHERE experimenter_id = $1")
             .bind(id)
             .execute(db)
             .await?
@@ -248,7 +248,7 @@ pub async fn disable(db: &mut AnyConnection, id: i64) -> Result<u64> {
 }
 
 pub async fn enable(db: &mut AnyConnection, id: i64) -> Result<()> {
-    sqlx::query("UPDATE experimenters SET disabled_at = NULL WHERE id = ?")
+    sqlx::query("UPDATE experimenters SET disabled_at = NULL WHERE id = $1")
         .bind(id)
         .execute(db)
         .await?;
@@ -262,7 +262,7 @@ pub async fn replace_setup_token(db: &mut AnyConnection, token: &str) -> Result<
         .execute(&mut *db)
         .await?
         .rows_affected();
-    sqlx::query("INSERT INTO setup_tokens (token_hash, created_at) VALUES (?, ?)")
+    sqlx::query("INSERT INTO setup_tokens (token_hash, created_at) VALUES ($1, $2)")
         .bind(token_hash(token))
         .bind(now_ms())
         .execute(db)
@@ -279,7 +279,7 @@ pub struct SetupToken {
 
 pub async fn setup_token<'c>(db: impl AnyExecutor<'c>, token: &str) -> Result<Option<SetupToken>> {
     Ok(
-        sqlx::query_as("SELECT created_at, used_at FROM setup_tokens WHERE token_hash = ?")
+        sqlx::query_as("SELECT created_at, used_at FROM setup_tokens WHERE token_hash = $1")
             .bind(token_hash(token))
             .fetch_optional(db)
             .await?,
@@ -288,7 +288,7 @@ pub async fn setup_token<'c>(db: impl AnyExecutor<'c>, token: &str) -> Result<Op
 
 /// Marks a set-up token used (the caller checked it is unused, inside its transaction).
 pub async fn use_setup_token(db: &mut AnyConnection, token: &str) -> Result<()> {
-    sqlx::query("UPDATE setup_tokens SET used_at = ? WHERE token_hash = ? AND used_at IS NULL")
+    sqlx::query("UPDATE setup_tokens SET used_at = $1 WHERE token_hash = $2 AND used_at IS NULL")
         .bind(now_ms())
         .bind(token_hash(token))
         .execute(db)

@@ -26,7 +26,7 @@ pub(super) async fn append(
     detail: &str,
 ) -> Result<i64> {
     let (id, at, actor_id): (i64, i64, Option<i64>) = sqlx::query_as(
-        "INSERT INTO audit_log (at, actor, actor_id, action, target, detail_json) VALUES (?, ?, (SELECT id FROM experimenters WHERE username = ?), ?, ?, ?) RETURNING id, at, actor_id",
+        "INSERT INTO audit_log (at, actor, actor_id, action, target, detail_json) VALUES ($1, $2, (SELECT id FROM experimenters WHERE username = $3), $4, $5, $6) RETURNING id, at, actor_id",
     )
     .bind(now_ms())
     .bind(actor)
@@ -81,7 +81,7 @@ pub use super::audit_chain::AuditRow;
 /// the whole log page by page).
 pub async fn page<'c>(db: impl AnyExecutor<'c>, after: i64, limit: i64) -> Result<Vec<AuditRow>> {
     Ok(sqlx::query_as(
-        "SELECT id, at, actor, actor_id, action, target, detail_json FROM audit_log WHERE id > ? ORDER BY id LIMIT ?",
+        "SELECT id, at, actor, actor_id, action, target, detail_json FROM audit_log WHERE id > $1 ORDER BY id LIMIT $2",
     )
     .bind(after)
     .bind(limit)
@@ -92,7 +92,7 @@ pub async fn page<'c>(db: impl AnyExecutor<'c>, after: i64, limit: i64) -> Resul
 /// The newest `limit` rows, newest first.
 pub async fn newest<'c>(db: impl AnyExecutor<'c>, limit: i64) -> Result<Vec<AuditEntry>> {
     let rows: Vec<AuditRow> = sqlx::query_as(
-        "SELECT id, at, actor, actor_id, action, target, detail_json FROM audit_log ORDER BY id DESC LIMIT ?",
+        "SELECT id, at, actor, actor_id, action, target, detail_json FROM audit_log ORDER BY id DESC LIMIT $1",
     )
     .bind(limit)
     .fetch_all(db)

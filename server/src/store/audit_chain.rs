@@ -82,13 +82,13 @@ async fn link(db: &mut AnyConnection, entry: &Entry, prev: &str, late: bool) -> 
     let detail_hash = detail_hash(entry.detail_json.as_deref());
     let hash = entry.hash(prev, &detail_hash);
     sqlx::query(
-        "INSERT INTO audit_chain (entry_id, prev_hash, detail_hash, hash, chained_late) VALUES (?, ?, ?, ?, ?)",
+        "INSERT INTO audit_chain (entry_id, prev_hash, detail_hash, hash, chained_late) VALUES ($1, $2, $3, $4, $5)",
     )
     .bind(entry.id)
     .bind(prev)
     .bind(&detail_hash)
     .bind(&hash)
-    .bind(late)
+    .bind(i64::from(late))
     .execute(db)
     .await?;
     Ok(hash)
@@ -115,7 +115,7 @@ pub async fn chain_late(db: &mut AnyConnection) -> Result<u64> {
             .await?
             .map_or_else(|| (0, GENESIS.to_string()), |(id, h)| (id, h));
         let rows: Vec<Entry> = sqlx::query_as(
-            "SELECT id, at, actor, actor_id, action, target, detail_json FROM audit_log WHERE id > ? ORDER BY id LIMIT ?",
+            "SELECT id, at, actor, actor_id, action, target, detail_json FROM audit_log WHERE id > $1 ORDER BY id LIMIT $2",
         )
         .bind(last)
         .bind(BATCH)
@@ -156,7 +156,7 @@ pub async fn checkpoint(db: &mut AnyConnection, key: &SigningKey, at: i64) -> Re
     let signature = key.sign(checkpoint_message(entry_id, &hash, at).as_bytes());
     let signature = hex::encode(&signature.to_bytes());
     sqlx::query(
-        "INSERT INTO audit_checkpoints (entry_id, head_hash, at, public_key, signature) VALUES (?, ?, ?, ?, ?)",
+        "INSERT INTO audit_checkpoints (entry_id, head_hash, at, public_key, signature) VALUES ($1, $2, $3, $4, $5)",
     )
     .bind(entry_id)
     .bind(&hash)
@@ -244,7 +244,7 @@ async fn page(db: &mut AnyConnection, after: i64) -> Result<Vec<Row>> {
     let text: String = sqlx::query_scalar(
         "SELECT json_group_array(json_array(json_array(id, at, actor, actor_id, action, target, detail_json), prev_hash, detail_hash, hash, chained_late)) \
          FROM (SELECT a.id, a.at, a.actor, a.actor_id, a.action, a.target, a.detail_json, c.prev_hash, c.detail_hash, c.hash, c.chained_late \
-               FROM audit_log a LEFT JOIN audit_chain c ON c.entry_id = a.id WHERE a.id > ? ORDER BY a.id LIMIT ?)",
+               FROM audit_log a LEFT JOIN audit_chain c ON c.entry_id = a.id WHERE a.id > $1 ORDER BY a.id LIMIT $2)",
     )
     .bind(after)
     .bind(PAGE)

@@ -81,7 +81,7 @@ pub struct NewResult<'a> {
 pub async fn insert_run(db: &mut AnyConnection, run: &NewRun<'_>) -> Result<i64> {
     let (id,): (i64,) = sqlx::query_as(
         "INSERT INTO bench_runs (study_id, rig, signal_json, duration_s, seed, created_by, created_at) \
-         VALUES (?, ?, ?, ?, ?, ?, ?) RETURNING id",
+         VALUES ($1, $2, $3, $4, $5, $6, $7) RETURNING id",
     )
     .bind(run.study_id)
     .bind(run.rig)
@@ -99,7 +99,7 @@ pub async fn insert_result(db: &mut AnyConnection, run_id: i64, r: &NewResult<'_
     let (id,): (i64,) = sqlx::query_as(
         "INSERT INTO bench_results (run_id, position, label, kind, config_id, spec_json, outcome, ticks, \
          mse_tracking_mm2, ms_cab_accel, decimation, trace_json) \
-         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
+         VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12) RETURNING id",
     )
     .bind(run_id)
     .bind(r.position)
@@ -121,7 +121,7 @@ pub async fn insert_result(db: &mut AnyConnection, run_id: i64, r: &NewResult<'_
 /// Ends a running run: `done`, or `failed` with `error`.
 pub async fn finish(db: &mut AnyConnection, run_id: i64, error: Option<&str>) -> Result<()> {
     sqlx::query(
-        "UPDATE bench_runs SET status = ?, error = ?, finished_at = ? WHERE id = ? AND status = 'running'",
+        "UPDATE bench_runs SET status = $1, error = $2, finished_at = $3 WHERE id = $4 AND status = 'running'",
     )
     .bind(if error.is_some() { "failed" } else { "done" })
     .bind(error)
@@ -135,7 +135,7 @@ pub async fn finish(db: &mut AnyConnection, run_id: i64, error: Option<&str>) ->
 /// Runs the server left running when it stopped: failed, with why.
 pub async fn fail_unfinished(db: &mut AnyConnection, why: &str) -> Result<u64> {
     let done = sqlx::query(
-        "UPDATE bench_runs SET status = 'failed', error = ?, finished_at = ? WHERE status = 'running'",
+        "UPDATE bench_runs SET status = 'failed', error = $1, finished_at = $2 WHERE status = 'running'",
     )
     .bind(why)
     .bind(now_ms())
@@ -147,7 +147,7 @@ pub async fn fail_unfinished(db: &mut AnyConnection, why: &str) -> Result<u64> {
 /// The newest runs first, at most `limit`.
 pub async fn runs<'c>(db: impl AnyExecutor<'c>, limit: i64) -> Result<Vec<BenchRun>> {
     Ok(
-        sqlx::query_as("SELECT * FROM bench_runs ORDER BY id DESC LIMIT ?")
+        sqlx::query_as("SELECT * FROM bench_runs ORDER BY id DESC LIMIT $1")
             .bind(limit)
             .fetch_all(db)
             .await?,
@@ -155,7 +155,7 @@ pub async fn runs<'c>(db: impl AnyExecutor<'c>, limit: i64) -> Result<Vec<BenchR
 }
 
 pub async fn run<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<BenchRun> {
-    sqlx::query_as("SELECT * FROM bench_runs WHERE id = ?")
+    sqlx::query_as("SELECT * FROM bench_runs WHERE id = $1")
         .bind(id)
         .fetch_optional(db)
         .await?
@@ -165,7 +165,7 @@ pub async fn run<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<BenchRun> {
 /// A run's results in the order the compensators were picked.
 pub async fn results<'c>(db: impl AnyExecutor<'c>, run_id: i64) -> Result<Vec<BenchResult>> {
     Ok(
-        sqlx::query_as("SELECT * FROM bench_results WHERE run_id = ? ORDER BY position")
+        sqlx::query_as("SELECT * FROM bench_results WHERE run_id = $1 ORDER BY position")
             .bind(run_id)
             .fetch_all(db)
             .await?,

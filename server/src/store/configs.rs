@@ -61,13 +61,13 @@ pub async fn insert(
     spec: &CompensatorSpec,
 ) -> Result<(i64, i64)> {
     let (next,): (i64,) = sqlx::query_as(
-        "SELECT COALESCE(MAX(version), 0) + 1 FROM compensator_configs WHERE name = ?",
+        "SELECT COALESCE(MAX(version), 0) + 1 FROM compensator_configs WHERE name = $1",
     )
     .bind(name)
     .fetch_one(&mut *db)
     .await?;
     let (id,): (i64,) = sqlx::query_as(
-        "INSERT INTO compensator_configs (name, version, kind, spec_json, created_at) VALUES (?, ?, ?, ?, ?) RETURNING id",
+        "INSERT INTO compensator_configs (name, version, kind, spec_json, created_at) VALUES ($1, $2, $3, $4, $5) RETURNING id",
     )
     .bind(name)
     .bind(next)
@@ -91,7 +91,7 @@ pub async fn all<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<ConfigVersion>> {
 
 pub async fn get<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<ConfigVersion> {
     let row: Option<Row> = sqlx::query_as(&format!(
-        "SELECT {COLUMNS} FROM compensator_configs WHERE id = ?"
+        "SELECT {COLUMNS} FROM compensator_configs WHERE id = $1"
     ))
     .bind(id)
     .fetch_optional(db)
@@ -102,14 +102,12 @@ pub async fn get<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<ConfigVersion>
 
 /// The versions `study_id` picked, as (kind name, configuration id).
 pub async fn picked<'c>(db: impl AnyExecutor<'c>, study_id: i64) -> Result<Vec<(String, i64)>> {
-    Ok(
-        sqlx::query_as(
-            "SELECT kind, config_id FROM study_configs WHERE study_id = ? ORDER BY kind",
-        )
-        .bind(study_id)
-        .fetch_all(db)
-        .await?,
+    Ok(sqlx::query_as(
+        "SELECT kind, config_id FROM study_configs WHERE study_id = $1 ORDER BY kind",
     )
+    .bind(study_id)
+    .fetch_all(db)
+    .await?)
 }
 
 /// `study_id` takes `config_id` for its design of the version's kind (replacing an earlier
@@ -121,7 +119,7 @@ pub async fn pick(
     config_id: i64,
 ) -> Result<()> {
     sqlx::query(
-        "INSERT INTO study_configs (study_id, kind, config_id) VALUES (?, ?, ?) \
+        "INSERT INTO study_configs (study_id, kind, config_id) VALUES ($1, $2, $3) \
          ON CONFLICT (study_id, kind) DO UPDATE SET config_id = excluded.config_id",
     )
     .bind(study_id)

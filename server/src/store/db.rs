@@ -93,7 +93,7 @@ pub(crate) fn drivers() {
     sqlx::any::install_default_drivers();
 }
 
-/// Where the data live: a SQLite file, or a PostgreSQL database's URL.
+/// Where the data live: a SQLite file, or a PostgreSQL database's URL (`postgres://…`).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Location {
     File(std::path::PathBuf),
@@ -111,24 +111,6 @@ impl std::str::FromStr for Location {
                 Self::File(s.into())
             },
         )
-    }
-}
-
-impl std::fmt::Display for Location {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::File(path) => write!(f, "{}", path.display()),
-            // The URL may carry a password: only its host part is shown.
-            Self::Postgres(url) => write!(
-                f,
-                "postgres://…{}",
-                url.rsplit('@')
-                    .next()
-                    .filter(|_| url.contains('@'))
-                    .map(|h| format!("@{h}"))
-                    .unwrap_or_default()
-            ),
-        }
     }
 }
 
@@ -377,7 +359,7 @@ mod tests {
             .await
             .unwrap();
         let insert = |mib: i64| {
-            sqlx::query("INSERT INTO fill VALUES (zeroblob(?))")
+            sqlx::query("INSERT INTO fill VALUES (zeroblob($1))")
                 .bind(mib * 1024 * 1024)
                 .execute(&pool)
         };

@@ -34,7 +34,7 @@ pub struct Removed {
 /// The subject's running test, if one is running.
 pub async fn running_trial<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result<Option<i64>> {
     Ok(sqlx::query_scalar(
-        "SELECT id FROM trials WHERE subject_id = ? AND status = 'running' ORDER BY id LIMIT 1",
+        "SELECT id FROM trials WHERE subject_id = $1 AND status = 'running' ORDER BY id LIMIT 1",
     )
     .bind(subject_id)
     .fetch_optional(db)
@@ -49,11 +49,11 @@ pub async fn running_trial<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Res
 /// its notes, surveys, records and trials are deleted.
 pub async fn erase(db: &mut AnyConnection, subject_id: i64, erasure_id: i64) -> Result<Removed> {
     let marked = sqlx::query(
-        "UPDATE subjects SET erased_at = (SELECT at FROM audit_log WHERE id = ?1), \
-         created_at = (SELECT at FROM audit_log WHERE id = ?1), token_hash = 'erased:' || id, \
+        "UPDATE subjects SET erased_at = (SELECT at FROM audit_log WHERE id = $1), \
+         created_at = (SELECT at FROM audit_log WHERE id = $1), token_hash = 'erased:' || id, \
          consent_version = NULL, consent_decision = NULL, consent_at = NULL, \
          withdrawn_at = NULL, withdraw_reason = NULL, drawn_json = NULL \
-         WHERE id = ?2 AND erased_at IS NULL",
+         WHERE id = $2 AND erased_at IS NULL",
     )
     .bind(erasure_id)
     .bind(subject_id)
@@ -66,10 +66,10 @@ pub async fn erase(db: &mut AnyConnection, subject_id: i64, erasure_id: i64) -> 
     }
     // Before the trials go: a row is the subject's when it targets one of its trials.
     let redacted = sqlx::query(
-        "UPDATE audit_log SET detail_json = json_object('erasure', ?1, 'redacted', 'subject.erase') \
-         WHERE id < ?1 AND action IS NOT 'subject.erase' AND (target = 'subject:' || ?2 \
-           OR target IN (SELECT 'trial:' || id FROM trials WHERE subject_id = ?2) \
-           OR json_extract(detail_json, '$.subject_id') = ?2)",
+        "UPDATE audit_log SET detail_json = json_object('erasure', $1, 'redacted', 'subject.erase') \
+         WHERE id < $1 AND action IS NOT 'subject.erase' AND (target = 'subject:' || $2 \
+           OR target IN (SELECT 'trial:' || id FROM trials WHERE subject_id = $2) \
+           OR json_extract(detail_json, '$.subject_id') = $2)",
     )
     .bind(erasure_id)
     .bind(subject_id)
@@ -79,13 +79,13 @@ pub async fn erase(db: &mut AnyConnection, subject_id: i64, erasure_id: i64) -> 
     // Children before the trials they name (foreign keys), in this order.
     let mut counts = [0u64; 7];
     for (n, sql) in [
-        "UPDATE stations SET subject_id = NULL WHERE subject_id = ?1",
-        "DELETE FROM notes WHERE subject_id = ?1",
-        "DELETE FROM identifications WHERE subject_id = ?1",
-        "DELETE FROM surveys WHERE trial_id IN (SELECT id FROM trials WHERE subject_id = ?1)",
-        "DELETE FROM trial_records WHERE trial_id IN (SELECT id FROM trials WHERE subject_id = ?1)",
-        "DELETE FROM pilot_trials WHERE trial_id IN (SELECT id FROM trials WHERE subject_id = ?1)",
-        "DELETE FROM trials WHERE subject_id = ?1",
+        "UPDATE stations SET subject_id = NULL WHERE subject_id = $1",
+        "DELETE FROM notes WHERE subject_id = $1",
+        "DELETE FROM identifications WHERE subject_id = $1",
+        "DELETE FROM surveys WHERE trial_id IN (SELECT id FROM trials WHERE subject_id = $1)",
+        "DELETE FROM trial_records WHERE trial_id IN (SELECT id FROM trials WHERE subject_id = $1)",
+        "DELETE FROM pilot_trials WHERE trial_id IN (SELECT id FROM trials WHERE subject_id = $1)",
+        "DELETE FROM trials WHERE subject_id = $1",
     ]
     .into_iter()
     .enumerate()

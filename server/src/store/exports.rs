@@ -76,7 +76,7 @@ const TRIALS_SQL: &str = "SELECT s.study_id, t.id AS trial_id, s.code, s.enrol_i
      c.name || ' v' || c.version AS config_version, t.personalized, t.compensator_json \
      FROM trials t JOIN subjects s ON s.id = t.subject_id LEFT JOIN surveys v ON v.trial_id = t.id \
      LEFT JOIN compensator_configs c ON c.id = t.config_id \
-     WHERE s.study_id = ?1 AND (?2 OR s.withdrawn_at IS NULL) ORDER BY s.enrol_index, t.slot, t.attempt";
+     WHERE s.study_id = $1 AND ($2 OR s.withdrawn_at IS NULL) ORDER BY s.enrol_index, t.slot, t.attempt";
 
 /// Whose tests a query reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -123,8 +123,8 @@ pub async fn recorded_trials<'c>(
 ) -> Result<Vec<RecordedTrial>> {
     Ok(sqlx::query_as(
         "SELECT t.id AS trial_id, s.code, t.station, t.controller, t.attempt, t.phase FROM trials t JOIN subjects s ON s.id = t.subject_id \
-         JOIN trial_records r ON r.trial_id = t.id WHERE s.study_id = ?1 AND s.withdrawn_at IS NULL \
-         AND (?2 IS NULL OR s.code = ?2) AND (?3 IS NULL OR t.id = ?3) ORDER BY s.enrol_index, t.slot, t.attempt",
+         JOIN trial_records r ON r.trial_id = t.id WHERE s.study_id = $1 AND s.withdrawn_at IS NULL \
+         AND ($2 IS NULL OR s.code = $2) AND ($3 IS NULL OR t.id = $3) ORDER BY s.enrol_index, t.slot, t.attempt",
     )
     .bind(study_id)
     .bind(code)
@@ -161,7 +161,7 @@ pub async fn subject_rows<'c>(
 ) -> Result<Vec<SubjectExportRow>> {
     Ok(sqlx::query_as(
         "SELECT id, code, enrol_index, synthetic, starting_station, consent_version, consent_decision, consent_at, withdrawn_at, drawn_json \
-         FROM subjects WHERE study_id = ? AND erased_at IS NULL ORDER BY enrol_index",
+         FROM subjects WHERE study_id = $1 AND erased_at IS NULL ORDER BY enrol_index",
     )
     .bind(study_id)
     .fetch_all(db)
@@ -172,7 +172,7 @@ pub async fn subject_rows<'c>(
 /// order (what a per-subject export may name).
 pub async fn subject_codes<'c>(db: impl AnyExecutor<'c>, study_id: i64) -> Result<Vec<String>> {
     Ok(sqlx::query_scalar(
-        "SELECT code FROM subjects WHERE study_id = ? AND withdrawn_at IS NULL AND erased_at IS NULL ORDER BY enrol_index",
+        "SELECT code FROM subjects WHERE study_id = $1 AND withdrawn_at IS NULL AND erased_at IS NULL ORDER BY enrol_index",
     )
     .bind(study_id)
     .fetch_all(db)
@@ -214,7 +214,7 @@ pub async fn note_rows<'c>(db: impl AnyExecutor<'c>, study_id: i64) -> Result<Ve
            UNION ALL \
            SELECT tt.subject_id, tt.id, 'status', tt.finished_at, '', tt.status_reason FROM trials tt WHERE tt.status_reason IS NOT NULL \
          ) x JOIN subjects s ON s.id = x.subject_id LEFT JOIN trials t ON t.id = x.trial_id \
-         WHERE s.study_id = ? AND s.withdrawn_at IS NULL ORDER BY s.enrol_index, t.slot, t.attempt, x.at"
+         WHERE s.study_id = $1 AND s.withdrawn_at IS NULL ORDER BY s.enrol_index, t.slot, t.attempt, x.at"
     );
     Ok(sqlx::query_as(&sql).bind(study_id).fetch_all(db).await?)
 }

@@ -26,7 +26,7 @@ pub async fn ridden_since<'c>(
 ) -> Result<Vec<RiddenTest>> {
     Ok(sqlx::query_as(
         "SELECT id AS trial_id, started_at, finished_at, duration_s, cab_aw_m_s2, cab_vdv_m_s175, exposure_s \
-         FROM trials WHERE subject_id = ? AND station = 'on' AND started_at IS NOT NULL AND started_at >= ? \
+         FROM trials WHERE subject_id = $1 AND station = 'on' AND started_at IS NOT NULL AND started_at >= $2 \
          ORDER BY started_at, id",
     )
     .bind(subject_id)

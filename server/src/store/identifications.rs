@@ -87,7 +87,7 @@ pub async fn insert(
     };
     sqlx::query(
         "INSERT INTO identifications (trial_id, subject_id, points_json, fit_json, fit_error, designs_json, created_at) \
-         VALUES (?, ?, ?, ?, ?, ?, ?)",
+         VALUES ($1, $2, $3, $4, $5, $6, $7)",
     )
     .bind(trial_id)
     .bind(subject_id)
@@ -107,7 +107,7 @@ pub async fn of_subject<'c>(
     subject_id: i64,
 ) -> Result<Vec<Identification>> {
     let rows: Vec<Row> =
-        sqlx::query_as("SELECT * FROM identifications WHERE subject_id = ? ORDER BY trial_id")
+        sqlx::query_as("SELECT * FROM identifications WHERE subject_id = $1 ORDER BY trial_id")
             .bind(subject_id)
             .fetch_all(db)
             .await?;
@@ -117,7 +117,7 @@ pub async fn of_subject<'c>(
 /// The body fitted by the subject's latest identification test with a fit.
 pub async fn latest_fit<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result<Option<BodyFit>> {
     let json: Option<(String,)> = sqlx::query_as(
-        "SELECT fit_json FROM identifications WHERE subject_id = ? AND fit_json IS NOT NULL \
+        "SELECT fit_json FROM identifications WHERE subject_id = $1 AND fit_json IS NOT NULL \
          ORDER BY trial_id DESC LIMIT 1",
     )
     .bind(subject_id)
@@ -147,7 +147,7 @@ pub async fn of_study<'c>(
     }
     let rows: Vec<Coded> = sqlx::query_as(
         "SELECT s.code, i.* FROM identifications i JOIN subjects s ON s.id = i.subject_id \
-         WHERE s.study_id = ? AND s.withdrawn_at IS NULL ORDER BY s.enrol_index, i.trial_id",
+         WHERE s.study_id = $1 AND s.withdrawn_at IS NULL ORDER BY s.enrol_index, i.trial_id",
     )
     .bind(study_id)
     .fetch_all(db)

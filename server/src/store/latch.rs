@@ -15,8 +15,8 @@ pub async fn latched<'c>(db: impl AnyExecutor<'c>) -> Result<bool> {
 }
 
 pub async fn set(db: &mut AnyConnection, latched: bool) -> Result<()> {
-    sqlx::query("UPDATE estop_latch SET latched = ?, changed_at = ? WHERE id = 1")
-        .bind(latched)
+    sqlx::query("UPDATE estop_latch SET latched = $1, changed_at = $2 WHERE id = 1")
+        .bind(i64::from(latched))
         .bind(now_ms())
         .execute(db)
         .await?;

@@ -12,7 +12,7 @@ use crate::error::Result;
 pub async fn start(db: &mut AnyConnection, pid: u32) -> Result<i64> {
     let now = now_ms();
     let (id,): (i64,) = sqlx::query_as(
-        "INSERT INTO pilot_runs (pid, started_at, beat_at) VALUES (?, ?, ?) RETURNING id",
+        "INSERT INTO pilot_runs (pid, started_at, beat_at) VALUES ($1, $2, $3) RETURNING id",
     )
     .bind(i64::from(pid))
     .bind(now)
@@ -29,7 +29,7 @@ pub async fn beat<'c>(db: impl AnyExecutor<'c>, run_id: i64) -> Result<()> {
 
 /// `trial_id` is run by the pilot `run_id` (in the transaction that marks it running).
 pub async fn claim(db: &mut AnyConnection, run_id: i64, trial_id: i64) -> Result<()> {
-    sqlx::query("INSERT INTO pilot_trials (trial_id, run_id) VALUES (?, ?)")
+    sqlx::query("INSERT INTO pilot_trials (trial_id, run_id) VALUES ($1, $2)")
         .bind(trial_id)
         .bind(run_id)
         .execute(db)
@@ -40,7 +40,7 @@ pub async fn claim(db: &mut AnyConnection, run_id: i64, trial_id: i64) -> Result
 /// Runs that have not ended and last beat before `before` (ms): (id, pid).
 pub async fn silent_since<'c>(db: impl AnyExecutor<'c>, before: i64) -> Result<Vec<(i64, i64)>> {
     Ok(sqlx::query_as(
-        "SELECT id, pid FROM pilot_runs WHERE ended_at IS NULL AND beat_at < ? ORDER BY id",
+        "SELECT id, pid FROM pilot_runs WHERE ended_at IS NULL AND beat_at < $1 ORDER BY id",
     )
     .bind(before)
     .fetch_all(db)
@@ -52,8 +52,8 @@ pub async fn silent_since<'c>(db: impl AnyExecutor<'c>, before: i64) -> Result<V
 pub async fn end(db: &mut AnyConnection, run_id: i64, reason: &str) -> Result<Vec<i64>> {
     let now = now_ms();
     let ids: Vec<(i64,)> = sqlx::query_as(
-        "UPDATE trials SET status = 'incomplete', status_reason = ?, finished_at = MAX(?, COALESCE(started_at, 0)) \
-         WHERE status = 'running' AND id IN (SELECT trial_id FROM pilot_trials WHERE run_id = ?) RETURNING id",
+        "UPDATE trials SET status = 'incomplete', status_reason = $1, finished_at = MAX($2, COALESCE(started_at, 0)) \
+         WHERE status = 'running' AND id IN (SELECT trial_id FROM pilot_trials WHERE run_id = $3) RETURNING id",
     )
     .bind(reason)
     .bind(now)

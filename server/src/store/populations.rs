@@ -16,13 +16,13 @@ pub async fn insert(
     created_by: &str,
 ) -> Result<i64> {
     let version: i64 = sqlx::query_scalar(
-        "SELECT COALESCE(MAX(version), 0) + 1 FROM population_versions WHERE study_id = ?",
+        "SELECT COALESCE(MAX(version), 0) + 1 FROM population_versions WHERE study_id = $1",
     )
     .bind(study_id)
     .fetch_one(&mut *db)
     .await?;
     sqlx::query(
-        "INSERT INTO population_versions (study_id, version, population_json, report_json, created_by, created_at) VALUES (?, ?, ?, ?, ?, ?)",
+        "INSERT INTO population_versions (study_id, version, population_json, report_json, created_by, created_at) VALUES ($1, $2, $3, $4, $5, $6)",
     )
     .bind(study_id)
     .bind(version)

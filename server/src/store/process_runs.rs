@@ -10,7 +10,7 @@ use crate::error::Result;
 /// ended. Not audited: a heartbeat changes no state of a study.
 pub(super) async fn beat<'c>(db: impl AnyExecutor<'c>, table: &str, run_id: i64) -> Result<()> {
     sqlx::query(&format!(
-        "UPDATE {table} SET beat_at = ? WHERE id = ? AND ended_at IS NULL"
+        "UPDATE {table} SET beat_at = $1 WHERE id = $2 AND ended_at IS NULL"
     ))
     .bind(now_ms())
     .bind(run_id)
@@ -28,7 +28,7 @@ pub(super) async fn end<'c>(
     at: i64,
 ) -> Result<()> {
     sqlx::query(&format!(
-        "UPDATE {table} SET ended_at = ? WHERE id = ? AND ended_at IS NULL"
+        "UPDATE {table} SET ended_at = $1 WHERE id = $2 AND ended_at IS NULL"
     ))
     .bind(at)
     .bind(run_id)

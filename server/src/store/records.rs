@@ -40,9 +40,9 @@ pub async fn file_result(
     record: &Record,
 ) -> Result<Option<(TrialStatus, Option<String>)>> {
     let filed: Option<(String, Option<String>)> = sqlx::query_as(
-        "UPDATE trials SET status = CASE WHEN invalid_reason IS NULL THEN ?1 ELSE 'invalid' END, status_reason = COALESCE(invalid_reason, ?2), \
-         finished_at = MAX(?3, COALESCE(started_at, 0)), mse_tracking_mm2 = ?4, ms_cab_accel = ?5, timing_json = ?6, \
-         cab_aw_m_s2 = ?8, cab_vdv_m_s175 = ?9, exposure_s = ?10 WHERE id = ?7 AND status = 'running' \
+        "UPDATE trials SET status = CASE WHEN invalid_reason IS NULL THEN $1 ELSE 'invalid' END, status_reason = COALESCE(invalid_reason, $2), \
+         finished_at = MAX($3, COALESCE(started_at, 0)), mse_tracking_mm2 = $4, ms_cab_accel = $5, timing_json = $6, \
+         cab_aw_m_s2 = $8, cab_vdv_m_s175 = $9, exposure_s = $10 WHERE id = $7 AND status = 'running' \
          RETURNING status, status_reason",
     )
     .bind(status.as_str())
@@ -66,7 +66,7 @@ pub async fn file_result(
     if record.channels.len() == RECORD_CHANNELS.len() && !record.channels[0].is_empty() {
         let mut q = sqlx::query(
             "INSERT OR REPLACE INTO trial_records (trial_id, dt, samples, target_mm, hand_mm, feedthrough_mm, cyl_ref_mm, valve_cmd, cyl_pos_mm, cab_accel_mm_s2, device_mm, tick_latency_us) \
-             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12)",
         )
         .bind(result.trial_id as i64)
         .bind(record.dt)
@@ -84,7 +84,7 @@ pub async fn get<'c>(db: impl AnyExecutor<'c>, trial_id: i64) -> Result<Record> 
     use sqlx::Row;
     let channels = RECORD_CHANNELS.map(|c| c.name).join(", ");
     let row = sqlx::query(&format!(
-        "SELECT dt, {channels} FROM trial_records WHERE trial_id = ?"
+        "SELECT dt, {channels} FROM trial_records WHERE trial_id = $1"
     ))
     .bind(trial_id)
     .fetch_one(db)

@@ -11,7 +11,7 @@ use crate::error::Result;
 pub async fn start<'c>(db: impl AnyExecutor<'c>, pid: u32, listen: &str) -> Result<i64> {
     let now = now_ms();
     let (id,): (i64,) = sqlx::query_as(
-        "INSERT INTO server_runs (pid, listen, started_at, beat_at) VALUES (?, ?, ?, ?) RETURNING id",
+        "INSERT INTO server_runs (pid, listen, started_at, beat_at) VALUES ($1, $2, $3, $4) RETURNING id",
     )
     .bind(i64::from(pid))
     .bind(listen)
@@ -67,8 +67,8 @@ pub async fn holders(db: &mut AnyConnection, since: i64) -> Result<Vec<Holder>> 
         return Ok(Vec::new());
     }
     Ok(sqlx::query_as(
-        "SELECT 'bdft-server serve' AS what, pid, listen, started_at, beat_at FROM server_runs WHERE ended_at IS NULL AND beat_at >= ?1 \
-         UNION ALL SELECT 'bdft-server pilot', pid, NULL, started_at, beat_at FROM pilot_runs WHERE ended_at IS NULL AND beat_at >= ?1 \
+        "SELECT 'bdft-server serve' AS what, pid, listen, started_at, beat_at FROM server_runs WHERE ended_at IS NULL AND beat_at >= $1 \
+         UNION ALL SELECT 'bdft-server pilot', pid, NULL, started_at, beat_at FROM pilot_runs WHERE ended_at IS NULL AND beat_at >= $1 \
          ORDER BY beat_at DESC",
     )
     .bind(since)

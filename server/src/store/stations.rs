@@ -23,7 +23,7 @@ pub struct Station {
 const COLUMNS: &str = "id, study_id, name, role, subject_id";
 
 pub async fn get<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Station> {
-    sqlx::query_as(&format!("SELECT {COLUMNS} FROM stations WHERE id = ?"))
+    sqlx::query_as(&format!("SELECT {COLUMNS} FROM stations WHERE id = $1"))
         .bind(id)
         .fetch_optional(db)
         .await?
@@ -33,7 +33,7 @@ pub async fn get<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Station> {
 /// The station whose bearer token this is.
 pub async fn by_token<'c>(db: impl AnyExecutor<'c>, token: &str) -> Result<Option<Station>> {
     Ok(sqlx::query_as(&format!(
-        "SELECT {COLUMNS} FROM stations WHERE token_hash = ?"
+        "SELECT {COLUMNS} FROM stations WHERE token_hash = $1"
     ))
     .bind(token_hash(token))
     .fetch_optional(db)
@@ -42,7 +42,7 @@ pub async fn by_token<'c>(db: impl AnyExecutor<'c>, token: &str) -> Result<Optio
 
 pub async fn of_study<'c>(db: impl AnyExecutor<'c>, study_id: i64) -> Result<Vec<Station>> {
     Ok(sqlx::query_as(&format!(
-        "SELECT {COLUMNS} FROM stations WHERE study_id = ? ORDER BY id"
+        "SELECT {COLUMNS} FROM stations WHERE study_id = $1 ORDER BY id"
     ))
     .bind(study_id)
     .fetch_all(db)
@@ -52,7 +52,7 @@ pub async fn of_study<'c>(db: impl AnyExecutor<'c>, study_id: i64) -> Result<Vec
 /// The stations a subject is assigned to.
 pub async fn of_subject<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result<Vec<Station>> {
     Ok(sqlx::query_as(&format!(
-        "SELECT {COLUMNS} FROM stations WHERE subject_id = ? ORDER BY id"
+        "SELECT {COLUMNS} FROM stations WHERE subject_id = $1 ORDER BY id"
     ))
     .bind(subject_id)
     .fetch_all(db)
@@ -69,7 +69,7 @@ pub async fn insert(
     pairing_code: &str,
 ) -> Result<i64> {
     let now = now_ms();
-    Ok(sqlx::query_scalar::<_, i64>("INSERT INTO stations (study_id, name, role, token_hash, pairing_code, paired_at, created_at) VALUES (?, ?, ?, ?, ?, ?, ?) RETURNING id")
+    Ok(sqlx::query_scalar::<_, i64>("INSERT INTO stations (study_id, name, role, token_hash, pairing_code, paired_at, created_at) VALUES ($1, $2, $3, $4, $5, $6, $7) RETURNING id")
         .bind(study_id)
         .bind(name)
         .bind(role.as_str())
@@ -83,7 +83,7 @@ pub async fn insert(
 
 /// Assigns a subject to the station (or none).
 pub async fn assign(db: &mut AnyConnection, id: i64, subject_id: Option<i64>) -> Result<()> {
-    sqlx::query("UPDATE stations SET subject_id = ? WHERE id = ?")
+    sqlx::query("UPDATE stations SET subject_id = $1 WHERE id = $2")
         .bind(subject_id)
         .bind(id)
         .execute(db)

@@ -104,7 +104,7 @@ pub async fn insert(
 ) -> Result<i64> {
     Ok(
         sqlx::query_scalar::<_, i64>(
-            "INSERT INTO studies (name, params_json, seed, created_at) VALUES (?, ?, ?, ?) RETURNING id",
+            "INSERT INTO studies (name, params_json, seed, created_at) VALUES ($1, $2, $3, $4) RETURNING id",
         )
         .bind(name)
         .bind(params_json(params))
@@ -116,7 +116,7 @@ pub async fn insert(
 }
 
 pub async fn get<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Study> {
-    let row: Option<StudyRow> = sqlx::query_as(&format!("{SELECT} WHERE s.id = ?"))
+    let row: Option<StudyRow> = sqlx::query_as(&format!("{SELECT} WHERE s.id = $1"))
         .bind(id)
         .fetch_optional(db)
         .await?;
@@ -148,7 +148,7 @@ pub async fn update(
     params: &StudyParams,
 ) -> Result<Edit> {
     let done = sqlx::query(
-        "UPDATE studies SET name = ?, params_json = ?, instability_ack_json = NULL, version = version + 1 WHERE id = ? AND locked_at IS NULL AND version = ?",
+        "UPDATE studies SET name = $1, params_json = $2, instability_ack_json = NULL, version = version + 1 WHERE id = $3 AND locked_at IS NULL AND version = $4",
     )
     .bind(name)
     .bind(params_json(params))
@@ -183,7 +183,7 @@ fn locked() -> AppError {
 /// Locks the protocol with its hash (the first enrolment does this).
 pub async fn lock(db: &mut AnyConnection, id: i64, hash: &str) -> Result<()> {
     sqlx::query(
-        "UPDATE studies SET locked_at = ?, protocol_hash = ? WHERE id = ? AND locked_at IS NULL",
+        "UPDATE studies SET locked_at = $1, protocol_hash = $2 WHERE id = $3 AND locked_at IS NULL",
     )
     .bind(now_ms())
     .bind(hash)
@@ -200,7 +200,7 @@ pub async fn acknowledge_instability(
     ack: &InstabilityAck,
 ) -> Result<()> {
     let done = sqlx::query(
-        "UPDATE studies SET instability_ack_json = ? WHERE id = ? AND locked_at IS NULL",
+        "UPDATE studies SET instability_ack_json = $1 WHERE id = $2 AND locked_at IS NULL",
     )
     .bind(super::json_text(ack)?)
     .bind(id)

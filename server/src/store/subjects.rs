@@ -93,7 +93,7 @@ const COLUMNS: &str = "id, study_id, code, enrol_index, synthetic, starting_stat
 
 pub async fn get<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Subject> {
     let row: Option<SubjectRow> =
-        sqlx::query_as(&format!("SELECT {COLUMNS} FROM subjects WHERE id = ?"))
+        sqlx::query_as(&format!("SELECT {COLUMNS} FROM subjects WHERE id = $1"))
             .bind(id)
             .fetch_optional(db)
             .await?;
@@ -103,7 +103,7 @@ pub async fn get<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Subject> {
 /// The subject whose page token this is.
 pub async fn by_token<'c>(db: impl AnyExecutor<'c>, token: &str) -> Result<Option<Subject>> {
     let row: Option<SubjectRow> = sqlx::query_as(&format!(
-        "SELECT {COLUMNS} FROM subjects WHERE token_hash = ?"
+        "SELECT {COLUMNS} FROM subjects WHERE token_hash = $1"
     ))
     .bind(token_hash(token))
     .fetch_optional(db)
@@ -113,7 +113,7 @@ pub async fn by_token<'c>(db: impl AnyExecutor<'c>, token: &str) -> Result<Optio
 
 pub async fn of_study<'c>(db: impl AnyExecutor<'c>, study_id: i64) -> Result<Vec<Subject>> {
     let rows: Vec<SubjectRow> = sqlx::query_as(&format!(
-        "SELECT {COLUMNS} FROM subjects WHERE study_id = ? ORDER BY enrol_index"
+        "SELECT {COLUMNS} FROM subjects WHERE study_id = $1 ORDER BY enrol_index"
     ))
     .bind(study_id)
     .fetch_all(db)
@@ -122,7 +122,7 @@ pub async fn of_study<'c>(db: impl AnyExecutor<'c>, study_id: i64) -> Result<Vec
 }
 
 pub async fn count_in_study<'c>(db: impl AnyExecutor<'c>, study_id: i64) -> Result<u32> {
-    let (n,): (i64,) = sqlx::query_as("SELECT COUNT(*) FROM subjects WHERE study_id = ?")
+    let (n,): (i64,) = sqlx::query_as("SELECT COUNT(*) FROM subjects WHERE study_id = $1")
         .bind(study_id)
         .fetch_one(db)
         .await?;
@@ -143,12 +143,12 @@ pub struct NewSubject<'a> {
 
 pub async fn insert(db: &mut AnyConnection, s: &NewSubject<'_>) -> Result<i64> {
     Ok(sqlx::query_scalar::<_, i64>(
-        "INSERT INTO subjects (study_id, code, enrol_index, synthetic, token_hash, starting_station, created_at, drawn_json) VALUES (?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
+        "INSERT INTO subjects (study_id, code, enrol_index, synthetic, token_hash, starting_station, created_at, drawn_json) VALUES ($1, $2, $3, $4, $5, $6, $7, $8) RETURNING id",
     )
     .bind(s.study_id)
     .bind(s.code)
     .bind(i64::from(s.enrol_index))
-    .bind(s.synthetic)
+    .bind(i64::from(s.synthetic))
     .bind(token_hash(s.token))
     .bind(s.starting_station.as_str())
     .bind(now_ms())
@@ -176,7 +176,7 @@ pub async fn record_consent(
     version: &str,
     decision: ConsentDecision,
 ) -> Result<()> {
-    let done = sqlx::query("UPDATE subjects SET consent_version = ?, consent_decision = ?, consent_at = ? WHERE id = ? AND consent_decision IS NULL AND erased_at IS NULL")
+    let done = sqlx::query("UPDATE subjects SET consent_version = $1, consent_decision = $2, consent_at = $3 WHERE id = $4 AND consent_decision IS NULL AND erased_at IS NULL")
         .bind(version)
         .bind(decision.as_str())
         .bind(now_ms())
@@ -190,7 +190,7 @@ pub async fn record_consent(
 }
 
 pub async fn withdraw(db: &mut AnyConnection, subject_id: i64, reason: &str) -> Result<()> {
-    let done = sqlx::query("UPDATE subjects SET withdrawn_at = ?, withdraw_reason = ? WHERE id = ? AND withdrawn_at IS NULL AND erased_at IS NULL")
+    let done = sqlx::query("UPDATE subjects SET withdrawn_at = $1, withdraw_reason = $2 WHERE id = $3 AND withdrawn_at IS NULL AND erased_at IS NULL")
         .bind(now_ms())
         .bind(reason)
         .bind(subject_id)
@@ -223,7 +223,7 @@ pub struct Note {
 
 pub async fn notes<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result<Vec<Note>> {
     Ok(sqlx::query_as(
-        "SELECT id, trial_id, text, author, created_at FROM notes WHERE subject_id = ? ORDER BY id",
+        "SELECT id, trial_id, text, author, created_at FROM notes WHERE subject_id = $1 ORDER BY id",
     )
     .bind(subject_id)
     .fetch_all(db)
@@ -238,7 +238,7 @@ pub async fn add_note(
     author: &str,
 ) -> Result<i64> {
     Ok(sqlx::query_scalar::<_, i64>(
-        "INSERT INTO notes (subject_id, trial_id, text, author, created_at) VALUES (?, ?, ?, ?, ?) RETURNING id",
+        "INSERT INTO notes (subject_id, trial_id, text, author, created_at) VALUES ($1, $2, $3, $4, $5) RETURNING id",
     )
     .bind(subject_id)
     .bind(trial_id)

@@ -96,7 +96,7 @@ pub fn latest_attempts(trials: &[Trial]) -> impl Iterator<Item = &Trial> {
 }
 
 pub async fn get<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Trial> {
-    sqlx::query_as("SELECT * FROM trials WHERE id = ?")
+    sqlx::query_as("SELECT * FROM trials WHERE id = $1")
         .bind(id)
         .fetch_optional(db)
         .await?
@@ -106,7 +106,7 @@ pub async fn get<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Trial> {
 /// Every attempt of every test of a subject, in schedule order.
 pub async fn of_subject<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result<Vec<Trial>> {
     Ok(
-        sqlx::query_as("SELECT * FROM trials WHERE subject_id = ? ORDER BY slot, attempt")
+        sqlx::query_as("SELECT * FROM trials WHERE subject_id = $1 ORDER BY slot, attempt")
             .bind(subject_id)
             .fetch_all(db)
             .await?,
@@ -117,7 +117,7 @@ pub async fn of_subject<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result
 /// then in queue order) whose latest attempt is scheduled or running.
 pub async fn next<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result<Option<Trial>> {
     Ok(sqlx::query_as(
-        "SELECT t.* FROM trials t WHERE t.subject_id = ? AND t.status IN ('scheduled', 'running') \
+        "SELECT t.* FROM trials t WHERE t.subject_id = $1 AND t.status IN ('scheduled', 'running') \
          AND t.attempt = (SELECT MAX(attempt) FROM trials u WHERE u.subject_id = t.subject_id AND u.slot = t.slot) \
          ORDER BY t.block, t.queue_order LIMIT 1",
     )
@@ -132,7 +132,7 @@ pub async fn pending_survey<'c>(
     subject_id: i64,
 ) -> Result<Option<Trial>> {
     Ok(sqlx::query_as(
-        "SELECT t.* FROM trials t WHERE t.subject_id = ? AND t.phase = 'test' AND t.status = 'complete' \
+        "SELECT t.* FROM trials t WHERE t.subject_id = $1 AND t.phase = 'test' AND t.status = 'complete' \
          AND NOT EXISTS (SELECT 1 FROM surveys v WHERE v.trial_id = t.id) \
          AND t.attempt = (SELECT MAX(attempt) FROM trials u WHERE u.subject_id = t.subject_id AND u.slot = t.slot) ORDER BY t.slot LIMIT 1",
     )
@@ -168,7 +168,7 @@ pub struct NewTrial<'a> {
 pub async fn insert(db: &mut AnyConnection, t: &NewTrial<'_>) -> Result<i64> {
     Ok(sqlx::query_scalar::<_, i64>(
         "INSERT INTO trials (subject_id, slot, phase, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order) \
-         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
+         VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15, $16, $17, $18) RETURNING id",
     )
     .bind(t.subject_id)
     .bind(i64::from(t.slot))
@@ -195,7 +195,7 @@ pub async fn insert(db: &mut AnyConnection, t: &NewTrial<'_>) -> Result<i64> {
 /// The highest attempt of `trial`'s slot.
 pub async fn latest_attempt<'c>(db: impl AnyExecutor<'c>, trial: &Trial) -> Result<i64> {
     let (latest,): (i64,) =
-        sqlx::query_as("SELECT MAX(attempt) FROM trials WHERE subject_id = ? AND slot = ?")
+        sqlx::query_as("SELECT MAX(attempt) FROM trials WHERE subject_id = $1 AND slot = $2")
             .bind(trial.subject_id)
             .bind(trial.slot)
             .fetch_one(db)
@@ -210,7 +210,7 @@ pub async fn insert_next_attempt(db: &mut AnyConnection, trial_id: i64) -> Resul
     Ok(sqlx::query_scalar::<_, i64>(
         "INSERT INTO trials (subject_id, slot, attempt, phase, station, block, position, controller, blinded_label, compensator_json, personalized, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order) \
          SELECT subject_id, slot, attempt + 1, phase, station, block, position, controller, blinded_label, compensator_json, personalized, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, \
-         (SELECT MAX(queue_order) + 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.block = t.block) FROM trials t WHERE id = ? RETURNING id",
+         (SELECT MAX(queue_order) + 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.block = t.block) FROM trials t WHERE id = $1 RETURNING id",
     )
     .bind(trial_id)
     .fetch_one(db)
@@ -226,8 +226,8 @@ pub async fn personalize_scheduled(
     spec_json: &str,
 ) -> Result<u64> {
     Ok(sqlx::query(
-        "UPDATE trials SET compensator_json = ?, personalized = 1 \
-         WHERE subject_id = ? AND controller = ? AND phase = 'test' AND status = 'scheduled'",
+        "UPDATE trials SET compensator_json = $1, personalized = 1 \
+         WHERE subject_id = $2 AND controller = $3 AND phase = 'test' AND status = 'scheduled'",
     )
     .bind(spec_json)
     .bind(subject_id)
@@ -240,7 +240,7 @@ pub async fn personalize_scheduled(
 /// Marks a scheduled trial running; fails if it is not scheduled (two starts racing).
 pub async fn mark_running(db: &mut AnyConnection, trial_id: i64) -> Result<()> {
     let done = sqlx::query(
-        "UPDATE trials SET status = 'running', started_at = ? WHERE id = ? AND status = 'scheduled'",
+        "UPDATE trials SET status = 'running', started_at = $1 WHERE id = $2 AND status = 'scheduled'",
     )
     .bind(now_ms())
     .bind(trial_id)
@@ -257,7 +257,7 @@ pub async fn mark_running(db: &mut AnyConnection, trial_id: i64) -> Result<()> {
 /// Puts a trial that could not be started back in the queue; `false` when it was no longer
 /// running (something filed it meanwhile).
 pub async fn unmark_running(db: &mut AnyConnection, trial_id: i64) -> Result<bool> {
-    let done = sqlx::query("UPDATE trials SET status = 'scheduled', started_at = NULL WHERE id = ? AND status = 'running'")
+    let done = sqlx::query("UPDATE trials SET status = 'scheduled', started_at = NULL WHERE id = $1 AND status = 'running'")
         .bind(trial_id)
         .execute(db)
         .await?;
@@ -269,10 +269,10 @@ pub async fn unmark_running(db: &mut AnyConnection, trial_id: i64) -> Result<boo
 /// or when it is not the latest attempt of its test.
 pub async fn accept_incomplete(db: &mut AnyConnection, trial_id: i64, reason: &str) -> Result<()> {
     let done = sqlx::query(
-        "UPDATE trials SET accepted_reason = ?1, \
+        "UPDATE trials SET accepted_reason = $1, \
          status = CASE WHEN status IN ('scheduled', 'complete') THEN 'incomplete' ELSE status END, \
-         status_reason = CASE WHEN status IN ('scheduled', 'complete') THEN ?1 ELSE status_reason END \
-         WHERE id = ?2 AND status != 'running' AND accepted_reason IS NULL \
+         status_reason = CASE WHEN status IN ('scheduled', 'complete') THEN $1 ELSE status_reason END \
+         WHERE id = $2 AND status != 'running' AND accepted_reason IS NULL \
          AND attempt = (SELECT MAX(attempt) FROM trials u WHERE u.subject_id = trials.subject_id AND u.slot = trials.slot)",
     )
     .bind(reason)
@@ -296,7 +296,7 @@ pub async fn accept_incomplete(db: &mut AnyConnection, trial_id: i64, reason: &s
 /// it was not running or already found invalid.
 pub async fn mark_invalid(db: &mut AnyConnection, trial_id: i64, reason: &str) -> Result<bool> {
     let done = sqlx::query(
-        "UPDATE trials SET invalid_reason = ? WHERE id = ? AND status = 'running' AND invalid_reason IS NULL",
+        "UPDATE trials SET invalid_reason = $1 WHERE id = $2 AND status = 'running' AND invalid_reason IS NULL",
     )
     .bind(reason)
     .bind(trial_id)
@@ -319,7 +319,7 @@ pub async fn running_ids<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<i64>> {
 /// Marks those of `ids` that still run incomplete with `reason` (after a server restart or a
 /// controller death), or invalid when they were found so; returns the ids marked.
 pub async fn interrupt(db: &mut AnyConnection, ids: &[i64], reason: &str) -> Result<Vec<i64>> {
-    let marked: Vec<(i64,)> = sqlx::query_as("UPDATE trials SET status = CASE WHEN invalid_reason IS NULL THEN 'incomplete' ELSE 'invalid' END, status_reason = COALESCE(invalid_reason, ?), finished_at = MAX(?, COALESCE(started_at, 0)) WHERE status = 'running' AND id IN (SELECT value FROM json_each(?)) RETURNING id")
+    let marked: Vec<(i64,)> = sqlx::query_as("UPDATE trials SET status = CASE WHEN invalid_reason IS NULL THEN 'incomplete' ELSE 'invalid' END, status_reason = COALESCE(invalid_reason, $1), finished_at = MAX($2, COALESCE(started_at, 0)) WHERE status = 'running' AND id IN (SELECT value FROM json_each($3)) RETURNING id")
         .bind(reason)
         .bind(now_ms())
         .bind(serde_json::to_string(ids).expect("ids serialize"))
@@ -330,7 +330,7 @@ pub async fn interrupt(db: &mut AnyConnection, ids: &[i64], reason: &str) -> Res
 
 /// The station's figures of how the display kept up (JSON), kept with the trial.
 pub async fn set_client_timing(db: &mut AnyConnection, trial_id: i64, json: &str) -> Result<()> {
-    sqlx::query("UPDATE trials SET client_timing_json = ? WHERE id = ?")
+    sqlx::query("UPDATE trials SET client_timing_json = $1 WHERE id = $2")
         .bind(json)
         .bind(trial_id)
         .execute(db)
@@ -354,7 +354,7 @@ pub async fn surveys_of_subject<'c>(
     subject_id: i64,
 ) -> Result<Vec<(i64, Survey)>> {
     let rows: Vec<(i64, i64, i64, i64, i64, String)> = sqlx::query_as(
-        "SELECT v.trial_id, v.accuracy, v.speed, v.smoothness, v.controllability, v.comment FROM surveys v JOIN trials t ON t.id = v.trial_id WHERE t.subject_id = ?",
+        "SELECT v.trial_id, v.accuracy, v.speed, v.smoothness, v.controllability, v.comment FROM surveys v JOIN trials t ON t.id = v.trial_id WHERE t.subject_id = $1",
     )
     .bind(subject_id)
     .fetch_all(db)
@@ -385,7 +385,7 @@ pub async fn insert_survey(
     ratings: [u8; 4],
     answer: &SurveyAnswer,
 ) -> Result<()> {
-    let done = sqlx::query("INSERT OR IGNORE INTO surveys (trial_id, accuracy, speed, smoothness, controllability, comment, submitted_at) VALUES (?, ?, ?, ?, ?, ?, ?)")
+    let done = sqlx::query("INSERT OR IGNORE INTO surveys (trial_id, accuracy, speed, smoothness, controllability, comment, submitted_at) VALUES ($1, $2, $3, $4, $5, $6, $7)")
         .bind(trial_id)
         .bind(i64::from(ratings[0]))
         .bind(i64::from(ratings[1]))
