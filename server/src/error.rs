@@ -52,6 +52,35 @@ impl AppError {
 const SQLITE_BUSY: i32 = 5;
 const SQLITE_FULL: i32 = 13;
 
+/// PostgreSQL's SQLSTATEs of the same two states: a lock not granted in time, a
+/// serialization failure or a deadlock (busy); no space left on the server's disk (full).
+const POSTGRES_BUSY: [&str; 3] = ["55P03", "40001", "40P01"];
+const POSTGRES_FULL: &str = "53100";
+
+/// Busy or full, as either store says it; `None` for any other error.
+fn store_state(db: &dyn sqlx::error::DatabaseError) -> Option<AppError> {
+    let code = db.code()?;
+    let (busy, full) = if db.try_downcast_ref::<sqlx::sqlite::SqliteError>().is_some() {
+        // sqlx gives the extended code; its low byte is the primary one.
+        let primary = code.parse::<i32>().ok()? & 0xff;
+        (primary == SQLITE_BUSY, primary == SQLITE_FULL)
+    } else {
+        (
+            POSTGRES_BUSY.contains(&code.as_ref()),
+            code == POSTGRES_FULL,
+        )
+    };
+    if busy {
+        Some(AppError::Unavailable(
+            "the database is busy; try again".into(),
+        ))
+    } else if full {
+        Some(AppError::Unavailable(DISK_FULL.into()))
+    } else {
+        None
+    }
+}
+
 /// What the server answers while its disk is full.
 pub const DISK_FULL: &str =
     "the server's disk is full: nothing can be stored until there is room on it again";
@@ -69,17 +98,8 @@ impl From<sqlx::Error> for AppError {
                         .into(),
                 );
             }
-            // sqlx gives the extended code; its low byte is the primary one.
-            match db
-                .code()
-                .and_then(|c| c.parse::<i32>().ok())
-                .map(|c| c & 0xff)
-            {
-                Some(SQLITE_BUSY) => {
-                    return Self::Unavailable("the database is busy; try again".into());
-                }
-                Some(SQLITE_FULL) => return Self::Unavailable(DISK_FULL.into()),
-                _ => {}
+            if let Some(state) = store_state(db.as_ref()) {
+                return state;
             }
             // A row this change refers to was deleted since it was read (an erasure removed
             // the subject's trials while a survey or a note was on its way): a race.

@@ -788,3 +788,51 @@ fn the_servers_store_runs_on_postgres() {
         pg.drop().await;
     });
 }
+
+/// A PostgreSQL store that cannot grant a lock in time answers as a busy SQLite store does
+/// (503, "try again"), not as a bug; a statement that is wrong stays a bug.
+#[test]
+fn a_busy_postgres_store_is_unavailable_not_a_bug() {
+    use bdft_server::error::AppError;
+    use bdft_server::store::db::Location;
+    runtime().block_on(async {
+        let pg = PgDatabase::new("busy").await;
+        let url = pg
+            .server
+            .clone()
+            .database(&pg.name)
+            .to_url_lossy()
+            .to_string();
+        let pool = bdft_server::store::db::open_location(&Location::Postgres(url), None)
+            .await
+            .unwrap();
+        let mut holder = pool.begin().await.unwrap();
+        sqlx::query("UPDATE estop_latch SET changed_at = 1 WHERE id = 1")
+            .execute(&mut *holder)
+            .await
+            .unwrap();
+        let mut waiter = pool.acquire().await.unwrap();
+        sqlx::query("SET lock_timeout = '20ms'")
+            .execute(&mut *waiter)
+            .await
+            .unwrap();
+        let e = sqlx::query("UPDATE estop_latch SET changed_at = 2 WHERE id = 1")
+            .execute(&mut *waiter)
+            .await
+            .unwrap_err();
+        let e = AppError::from(e);
+        assert!(
+            matches!(&e, AppError::Unavailable(m) if m.contains("busy")),
+            "{e:?}"
+        );
+        let wrong = sqlx::query("SELEC 1")
+            .execute(&mut *waiter)
+            .await
+            .unwrap_err();
+        assert!(matches!(AppError::from(wrong), AppError::Internal(_)));
+        holder.rollback().await.unwrap();
+        drop(waiter);
+        pool.close().await;
+        pg.drop().await;
+    });
+}
