@@ -59,6 +59,15 @@ impl PgDatabase {
         pool
     }
 
+    /// This database's `postgres://` URL, as the server's `--db` takes it.
+    fn url(&self) -> String {
+        self.server
+            .clone()
+            .database(&self.name)
+            .to_url_lossy()
+            .to_string()
+    }
+
     async fn drop(self) {
         let mut admin = self.server.connect().await.unwrap();
         sqlx::raw_sql(&format!("DROP DATABASE {} WITH (FORCE)", self.name))
@@ -729,12 +738,7 @@ fn the_servers_store_runs_on_postgres() {
     use bdft_server::store::{self, db::Location};
     runtime().block_on(async {
         let pg = PgDatabase::new("server").await;
-        let url = pg
-            .server
-            .clone()
-            .database(&pg.name)
-            .to_url_lossy()
-            .to_string();
+        let url = pg.url();
         let at: Location = url.parse().unwrap();
         assert_eq!(
             at,
@@ -797,13 +801,7 @@ fn a_busy_postgres_store_is_unavailable_not_a_bug() {
     use bdft_server::store::db::Location;
     runtime().block_on(async {
         let pg = PgDatabase::new("busy").await;
-        let url = pg
-            .server
-            .clone()
-            .database(&pg.name)
-            .to_url_lossy()
-            .to_string();
-        let pool = bdft_server::store::db::open_location(&Location::Postgres(url), None)
+        let pool = bdft_server::store::db::open_location(&Location::Postgres(pg.url()), None)
             .await
             .unwrap();
         let mut holder = pool.begin().await.unwrap();
