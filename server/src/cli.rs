@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 
-use crate::config::{DbConfig, ServeConfig};
+use crate::config::{DbConfig, KeysConfig, ServeConfig};
 use crate::engine::accounts;
 use crate::engine::accounts::login_limiter::LoginLimiter;
 use crate::engine::dry_runs::calibration::run::{CalibrateRequest, calibrate};
@@ -233,8 +233,10 @@ enum AuditCommand {
     Verify {
         #[command(flatten)]
         db: DbConfig,
+        #[command(flatten)]
+        keys: KeysConfig,
         /// The server's audit public key (64 hex digits, printed at its start) [default:
-        /// the key file beside the database].
+        /// the key file beside the database, or in --keys-dir].
         #[arg(long)]
         public_key: Option<String>,
     },
@@ -333,7 +335,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             identification,
             personalized,
         } => {
-            let pool = store::db::open(&db.db).await?;
+            let pool = db.db.open().await?;
             let identification = identification || personalized;
             let with_identification = |mut p: bdft_protocol::study::StudyParams| {
                 if identification && p.identification.is_none() {
@@ -397,7 +399,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             alpha,
             seed,
         } => {
-            let pool = store::db::open(&db.db).await?;
+            let pool = db.db.open().await?;
             let study = newest_study(&pool, study).await?;
             let req = PlanRequest {
                 source: match source {
@@ -426,7 +428,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             subjects,
             seed,
         } => {
-            let pool = store::db::open(&db.db).await?;
+            let pool = db.db.open().await?;
             let study = newest_study(&pool, study).await?;
             let table = match table {
                 Some(path) => Some(
@@ -496,34 +498,46 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             println!("{}", table?);
         }
         Command::Audit {
-            command: AuditCommand::Verify { db, public_key },
+            command:
+                AuditCommand::Verify {
+                    db,
+                    keys,
+                    public_key,
+                },
         } => {
-            let trusted = audit_signing::trusted_key(&db.db, public_key.as_deref())?;
-            let verdict = audit_signing::verify_file(&db.db, trusted.as_ref())
+            let trusted = match public_key {
+                Some(given) => Some(audit_signing::given_key(&given)?),
+                None => match keys.stem(&db.db) {
+                    Ok(stem) => audit_signing::trusted_key(&stem)?,
+                    Err(_) => None,
+                },
+            };
+            let verdict = audit_signing::verify_store(&db.db, trusted.as_ref())
                 .await
-                .map_err(|e| anyhow::anyhow!("{}: {}", db.db.display(), e.describe()))?;
+                .map_err(|e| anyhow::anyhow!("{}: {}", db.db, e.describe()))?;
             if trusted.is_none() {
                 println!(
-                    "(no key file beside the database and no --public-key: checkpoints are checked against the key each names)"
+                    "(no key file beside the database or in --keys-dir and no --public-key: checkpoints are checked against the key each names)"
                 );
             }
             println!("{verdict}");
             if !verdict.intact {
-                anyhow::bail!("the audit log of {} is not intact", db.db.display());
+                anyhow::bail!("the audit log of {} is not intact", db.db);
             }
         }
         Command::Backup { db, out } => {
-            if !db.db.is_file() {
-                anyhow::bail!("--db {}: no such database", db.db.display());
+            let path = db.db.file("a backup")?;
+            if !path.is_file() {
+                anyhow::bail!("--db {}: no such database", path.display());
             }
-            let pool = store::db::open(&db.db).await?;
+            let pool = db.db.open().await?;
             let made = backup::make(&pool, &out, backup::COMMAND_LINE)
                 .await
                 .map_err(|e| anyhow::anyhow!(e.describe()))?;
             println!("{}", serde_json::to_string_pretty(&made)?);
         }
         Command::Restore { from, db } => {
-            let restored = restore::restore(&from, &db.db)
+            let restored = restore::restore(&from, db.db.file("a restore")?)
                 .await
                 .map_err(|e| anyhow::anyhow!(e.describe()))?;
             println!("{}", serde_json::to_string_pretty(&restored)?);
@@ -553,7 +567,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
                     "--format, --subject, --trial: a BIDS dataset is every recorded test of the study, as TSV; give none of them with --kind bids"
                 );
             }
-            let pool = store::db::open(&db.db).await?;
+            let pool = db.db.open().await?;
             let study = newest_study(&pool, study).await?;
             let mut sink = bids::DirSink::create(&out)?;
             let written = bids::write(&pool, study, &mut sink).await?;
@@ -574,7 +588,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
                 format,
                 cut: SampleCut::from_options(subject, trial)?,
             };
-            let pool = store::db::open(&db.db).await?;
+            let pool = db.db.open().await?;
             let study = if kind.per_study() {
                 newest_study(&pool, study).await?
             } else {
@@ -601,6 +615,9 @@ async fn execute(command: Command) -> anyhow::Result<()> {
 async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     // The backup directory is checked before anything starts.
     let backups = match config.backup.backup_dir {
+        Some(_) if matches!(config.db.db, store::db::Location::Postgres(_)) => {
+            anyhow::bail!("--backup-dir: a backup {}", store::db::ONLY_SQLITE_BACKUPS)
+        }
         Some(dir) => std::sync::Arc::new(Backups::new(Policy {
             dir,
             every: config.backup.backup_every,
@@ -608,8 +625,9 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
         })?),
         None => std::sync::Arc::default(),
     };
-    let pool = store::db::open_capped(&config.db.db, config.db_max_pages).await?;
-    let audit_key = audit_signing::load_or_create(&config.db.db)?;
+    let keys = config.keys.stem(&config.db.db)?;
+    let pool = store::db::open_location(&config.db.db, config.db_max_pages).await?;
+    let audit_key = audit_signing::load_or_create(&keys)?;
     let audit_public = audit_key.verifying_key();
     let interrupted = filing::interrupt_running(&pool, "server restart").await?;
     if !interrupted.is_empty() {
@@ -626,7 +644,7 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     let tls = match (&config.tls.tls_cert, &config.tls.tls_key) {
         (Some(cert), Some(key)) => Some(crate::tls::from_files(cert, key)?),
         _ if config.tls.tls_self_signed => Some(crate::tls::self_signed(
-            &config.db.db,
+            &keys,
             &crate::tls::machine_names(addr),
         )?),
         _ => None,

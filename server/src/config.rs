@@ -8,13 +8,46 @@ use std::time::Duration;
 use bdft_controller::lsl::streams::Scope;
 
 use crate::engine::accounts::login_limiter::LoginLimits;
+use crate::store::db::Location;
 
 /// Where the data live.
 #[derive(Debug, Clone, clap::Args)]
 pub struct DbConfig {
-    /// SQLite database file (created if missing, migrations applied at start).
+    /// The store: a SQLite file (created if missing), or a PostgreSQL database's URL
+    /// (`postgres://…`, one store for several labs); migrations are applied at start.
     #[arg(long, env = "BDFT_DB", default_value = "bdft-lab.db")]
-    pub db: PathBuf,
+    pub db: Location,
+}
+
+/// Where the server keeps its own secrets.
+#[derive(Debug, Clone, clap::Args)]
+pub struct KeysConfig {
+    /// Directory of the audit log's signing key and the self-signed certificate
+    /// [default: beside the SQLite file]; needed with a PostgreSQL store, whose server has
+    /// no file of its own.
+    #[arg(long, env = "BDFT_KEYS_DIR")]
+    pub keys_dir: Option<PathBuf>,
+}
+
+impl KeysConfig {
+    /// The path the key files are named after (`<stem>.audit-key`, `<stem>.tls-cert.pem`):
+    /// the SQLite file itself, or `bdft-lab` in --keys-dir.
+    pub fn stem(&self, db: &Location) -> anyhow::Result<PathBuf> {
+        match (&self.keys_dir, db) {
+            (Some(dir), _) => {
+                anyhow::ensure!(
+                    dir.is_dir(),
+                    "--keys-dir {}: no such directory",
+                    dir.display()
+                );
+                Ok(dir.join("bdft-lab"))
+            }
+            (None, Location::File(path)) => Ok(path.clone()),
+            (None, Location::Postgres(_)) => anyhow::bail!(
+                "--db {db}: a PostgreSQL store needs --keys-dir DIR, where this server keeps the audit log's signing key (and a self-signed certificate)"
+            ),
+        }
+    }
 }
 
 /// `bdft-server serve`.
@@ -22,6 +55,8 @@ pub struct DbConfig {
 pub struct ServeConfig {
     #[command(flatten)]
     pub db: DbConfig,
+    #[command(flatten)]
+    pub keys: KeysConfig,
     /// Address the server listens on.
     #[arg(long, env = "BDFT_LISTEN", default_value = "127.0.0.1:8080")]
     pub listen: SocketAddr,

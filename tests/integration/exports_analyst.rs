@@ -6,14 +6,13 @@
 //! kinds, formats and cuts (HTTP and command line).
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::Path;
 use std::process::{Command, Output};
 
 use arrow_array::cast::AsArray;
 use arrow_array::types::{Float64Type, Int64Type};
 use arrow_array::{Array, RecordBatch};
 use arrow_schema::DataType;
-use bdft_tests::server::{Server, pilot_copy, short_study, with_db};
+use bdft_tests::server::{Server, pilot_copy, short_study, with_store};
 use bdft_tests::{TempDir, binary, controller};
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use serde_json::{Value, json};
@@ -96,10 +95,10 @@ fn values<'a>(rows: &'a [Vec<String>], name: &str) -> Vec<&'a str> {
 
 /// Writes `drawn_json` of every subject of `study` straight into the server's database
 /// (another part of the platform fills it at enrolment; no API writes it).
-fn set_drawn(db: &Path, study: i64, drawn: &[(&str, Value)]) {
-    with_db(db, async |pool| {
+fn set_drawn(server: &Server, study: i64, drawn: &[(&str, Value)]) {
+    with_store(server, async |pool| {
         for (code, value) in drawn {
-            sqlx::query("UPDATE subjects SET drawn_json = ? WHERE study_id = ? AND code = ?")
+            sqlx::query("UPDATE subjects SET drawn_json = $1 WHERE study_id = $2 AND code = $3")
                 .bind(value.to_string())
                 .bind(study)
                 .bind(code)
@@ -117,7 +116,7 @@ fn a_pilots_analyst_exports_are_tidy_and_parquet_equals_csv() {
     let study = short_study(&api, 1.0, 0.5);
     let copy = pilot_copy(&api, study, 2);
     set_drawn(
-        &server.db,
+        &server,
         copy,
         &[
             (

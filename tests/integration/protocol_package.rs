@@ -5,7 +5,7 @@
 //! strict CSP (no inline script or style; its stylesheet repeats head and foot on every
 //! printed page).
 
-use bdft_tests::server::{Api, Server, with_db};
+use bdft_tests::server::{Api, Server, with_store};
 use serde_json::{Value, json};
 use sha2::{Digest, Sha256};
 
@@ -83,7 +83,7 @@ fn the_package_is_the_hashed_protocol_with_its_hash_on_every_page() {
     assert_no_inline_code(&html);
     assert!(!html.contains("<script>alert"), "user text unescaped");
     // The key that signs the audit log's checkpoints, as the server signed its first one.
-    let key: String = with_db(&server.db, async |pool| {
+    let key: String = with_store(&server, async |pool| {
         sqlx::query_scalar("SELECT public_key FROM audit_checkpoints ORDER BY id DESC LIMIT 1")
             .fetch_one(pool)
             .await

@@ -13,70 +13,10 @@
 use std::collections::BTreeSet;
 
 use bdft_tests::TempDir;
+use bdft_tests::postgres::PgDatabase;
 use sqlx::error::ErrorKind;
-use sqlx::postgres::{PgConnectOptions, PgPool};
-use sqlx::{ConnectOptions, Connection, Row, SqlitePool};
-
-/// A database of its own on the test command's PostgreSQL server, dropped at the end.
-struct PgDatabase {
-    server: PgConnectOptions,
-    name: String,
-}
-
-impl PgDatabase {
-    async fn new(tag: &str) -> Self {
-        let url = std::env::var("BDFT_TEST_POSTGRES").expect(
-            "BDFT_TEST_POSTGRES is not set: run the tests with scripts/test.sh, which starts a \
-             PostgreSQL server for them (or set it to a postgres:// URL of a server whose user \
-             may create databases)",
-        );
-        let server: PgConnectOptions = url.parse().expect("BDFT_TEST_POSTGRES is a postgres URL");
-        let name = format!(
-            "bdft_{tag}_{}_{}",
-            std::process::id(),
-            std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(0, |d| d.as_nanos())
-        );
-        let mut admin = server.connect().await.expect("connecting to PostgreSQL");
-        sqlx::raw_sql(&format!("CREATE DATABASE {name}"))
-            .execute(&mut admin)
-            .await
-            .unwrap();
-        admin.close().await.unwrap();
-        Self { server, name }
-    }
-
-    /// A pool on this database with the PostgreSQL migrations applied.
-    async fn migrated(&self) -> PgPool {
-        let pool = PgPool::connect_with(self.server.clone().database(&self.name))
-            .await
-            .unwrap();
-        sqlx::migrate!("../migrations/postgres")
-            .run(&pool)
-            .await
-            .expect("the PostgreSQL migrations apply to an empty database");
-        pool
-    }
-
-    /// This database's `postgres://` URL, as the server's `--db` takes it.
-    fn url(&self) -> String {
-        self.server
-            .clone()
-            .database(&self.name)
-            .to_url_lossy()
-            .to_string()
-    }
-
-    async fn drop(self) {
-        let mut admin = self.server.connect().await.unwrap();
-        sqlx::raw_sql(&format!("DROP DATABASE {} WITH (FORCE)", self.name))
-            .execute(&mut admin)
-            .await
-            .unwrap();
-        admin.close().await.unwrap();
-    }
-}
+use sqlx::postgres::PgPool;
+use sqlx::{Row, SqlitePool};
 
 /// A column as both dialects can say it.
 #[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
@@ -383,7 +323,6 @@ fn both_dialects_migrate_to_the_same_schema() {
         let pool = pg.migrated().await;
         let postgres = postgres_schema(&pool).await;
         pool.close().await;
-        pg.drop().await;
         // The comparison can fail: the store has its tables, keys and rules.
         assert!(sqlite.tables.len() >= 24, "{:?}", sqlite.tables);
         assert!(sqlite.triggers.len() >= 14, "{:?}", sqlite.triggers);
@@ -725,7 +664,6 @@ fn both_dialects_refuse_what_the_stores_rules_refuse() {
             assert_eq!(on_postgres, want, "PostgreSQL: {sql}");
         }
         postgres.close().await;
-        pg.drop().await;
     });
 }
 
@@ -789,7 +727,6 @@ fn the_servers_store_runs_on_postgres() {
         let again = store::db::open_location(&at, None).await.unwrap();
         assert_eq!(store::studies::all(&again).await.unwrap().len(), 1);
         again.close().await;
-        pg.drop().await;
     });
 }
 
@@ -831,6 +768,5 @@ fn a_busy_postgres_store_is_unavailable_not_a_bug() {
         holder.rollback().await.unwrap();
         drop(waiter);
         pool.close().await;
-        pg.drop().await;
     });
 }

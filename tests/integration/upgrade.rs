@@ -113,12 +113,12 @@ fn audit_chained_late(fixture: &Path, server: &Server) -> Option<String> {
     std::fs::copy(fixture.join("bdft-lab.db"), &before).unwrap();
     // The fixture's entries without a chain row: all of them before the chain existed.
     let held: i64 = with_db(&before, async |pool| {
-        let has_chain: bool =
-            sqlx::query_scalar("SELECT COUNT(*) > 0 FROM sqlite_master WHERE name = 'audit_chain'")
+        let has_chain: i64 =
+            sqlx::query_scalar("SELECT COUNT(*) FROM sqlite_master WHERE name = 'audit_chain'")
                 .fetch_one(pool)
                 .await
                 .unwrap();
-        let unchained = if has_chain {
+        let unchained = if has_chain > 0 {
             "SELECT COUNT(*) FROM audit_log WHERE id NOT IN (SELECT entry_id FROM audit_chain)"
         } else {
             "SELECT COUNT(*) FROM audit_log"

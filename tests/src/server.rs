@@ -9,14 +9,19 @@ use serde_json::{Value, json};
 
 use crate::TempDir;
 use crate::controller_link::Proc;
+use crate::postgres::{PgDatabase, servers_on_postgres};
 
 pub const ADMIN_PASSWORD: &str = "test-password-42";
 
-/// A running server with its own database in a temporary directory.
+/// A running server with its own database: a SQLite file in a temporary directory, or with
+/// `BDFT_TEST_STORE=postgres` a PostgreSQL database of its own (its keys in the directory).
 #[derive(Debug)]
 pub struct Server {
     pub proc: Proc,
+    /// Its PostgreSQL database, if it runs on one; dropped after the server stopped.
+    pub postgres: Option<PgDatabase>,
     pub base: String,
+    /// Its SQLite file (on PostgreSQL: where that file would be; nothing is there).
     pub db: PathBuf,
     pub dir: TempDir,
     /// Its arguments after `serve --db … --listen …`.
@@ -65,12 +70,25 @@ impl Server {
         Self::start_in(dir, args, None)
     }
 
-    /// A server on `dir`'s `bdft-lab.db`.
+    /// A server on `dir`'s `bdft-lab.db`, or on a PostgreSQL database of its own with its
+    /// keys in `dir` when this run's servers use PostgreSQL.
     fn start_in(dir: TempDir, args: &[&str], log: Option<PathBuf>) -> Self {
         let db = dir.path().join("bdft-lab.db");
-        let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
-        let proc = Self::spawn(&db, "127.0.0.1:0", &args, log.as_deref())
-            .unwrap_or_else(|e| panic!("{e}"));
+        let postgres =
+            (servers_on_postgres() && !db.exists()).then(|| PgDatabase::blocking_new("server"));
+        let mut args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
+        let store = match &postgres {
+            Some(pg) => vec![
+                "--db".to_string(),
+                pg.url(),
+                "--keys-dir".into(),
+                dir.path().display().to_string(),
+            ],
+            None => vec!["--db".to_string(), db.display().to_string()],
+        };
+        args.splice(0..0, store);
+        let proc =
+            Self::spawn("127.0.0.1:0", &args, log.as_deref()).unwrap_or_else(|e| panic!("{e}"));
         let cert = args
             .iter()
             .any(|a| a == "--tls-self-signed")
@@ -78,6 +96,7 @@ impl Server {
         let mut server = Self {
             base: String::new(),
             proc,
+            postgres,
             db,
             dir,
             args,
@@ -110,13 +129,19 @@ impl Server {
         Api::with_agent(&self.base, agent(self.cert.as_deref()))
     }
 
-    fn spawn(
-        db: &Path,
-        listen: &str,
-        extra: &[String],
-        log: Option<&Path>,
-    ) -> Result<Proc, String> {
-        let mut args = vec!["serve", "--db", db.to_str().unwrap(), "--listen", listen];
+    /// The value of `--db` for this server's database (a file's path or a URL), as the
+    /// command-line tools take it.
+    pub fn store(&self) -> String {
+        match &self.postgres {
+            Some(pg) => pg.url(),
+            None => self.db.display().to_string(),
+        }
+    }
+
+    /// `serve --listen listen` with `args` (its `--db` first).
+    fn spawn(listen: &str, args: &[String], log: Option<&Path>) -> Result<Proc, String> {
+        let extra = args;
+        let mut args = vec!["serve", "--listen", listen];
         args.extend(extra.iter().map(String::as_str));
         let https = extra.iter().any(|a| a == "--tls-self-signed");
         let prefix = if https {
@@ -140,7 +165,7 @@ impl Server {
     /// database.
     pub fn crash_and_restart(&mut self) {
         self.proc.kill();
-        self.proc = Self::spawn(&self.db, "127.0.0.1:0", &self.args, self.log.as_deref())
+        self.proc = Self::spawn("127.0.0.1:0", &self.args, self.log.as_deref())
             .unwrap_or_else(|e| panic!("{e}"));
         self.base = self.base_url();
     }
@@ -152,9 +177,9 @@ impl Server {
     pub fn restart(&mut self, how: Stop, limit: Duration) -> Result<(), String> {
         self.stop(how, limit)?;
         let addr = self.proc.addr.to_string();
-        self.proc = match Self::spawn(&self.db, &addr, &self.args, self.log.as_deref()) {
+        self.proc = match Self::spawn(&addr, &self.args, self.log.as_deref()) {
             Ok(p) => p,
-            Err(_) => Self::spawn(&self.db, "127.0.0.1:0", &self.args, self.log.as_deref())?,
+            Err(_) => Self::spawn("127.0.0.1:0", &self.args, self.log.as_deref())?,
         };
         self.base = self.base_url();
         Ok(())
@@ -422,18 +447,30 @@ impl Api {
     }
 }
 
-/// Runs `f` on a pool of the database file `db` — beside its running server, as WAL allows —
+/// Runs `f` on a pool of the SQLite file `db` — beside its running server, as WAL allows —
 /// and closes the pool: for what no API does (write a value in, read every table back).
-pub fn with_db<T>(db: &Path, f: impl AsyncFnOnce(&sqlx::SqlitePool) -> T) -> T {
+pub fn with_db<T>(db: &Path, f: impl AsyncFnOnce(&sqlx::AnyPool) -> T) -> T {
+    with_url(&format!("sqlite://{}", db.display()), f)
+}
+
+/// [`with_db`] on `server`'s store, whichever it is.
+pub fn with_store<T>(server: &Server, f: impl AsyncFnOnce(&sqlx::AnyPool) -> T) -> T {
+    match &server.postgres {
+        Some(pg) => with_url(&pg.url(), f),
+        None => with_db(&server.db, f),
+    }
+}
+
+/// Runs `f` on a pool of the database at `url` through sqlx's `Any` driver, as the server
+/// reads its store (flags are integers there).
+fn with_url<T>(url: &str, f: impl AsyncFnOnce(&sqlx::AnyPool) -> T) -> T {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
         .unwrap();
     rt.block_on(async {
-        let opts = sqlx::sqlite::SqliteConnectOptions::new()
-            .filename(db)
-            .busy_timeout(Duration::from_secs(10));
-        let pool = sqlx::SqlitePool::connect_with(opts).await.unwrap();
+        sqlx::any::install_default_drivers();
+        let pool = sqlx::AnyPool::connect(url).await.unwrap();
         let out = f(&pool).await;
         pool.close().await;
         out

@@ -77,6 +77,23 @@ pub struct AuditEntry {
 
 pub use super::audit_chain::AuditRow;
 
+/// A field of an audit row's detail (JSON text), read here rather than in SQL: the two
+/// stores' JSON functions differ, and a detail that is not an object has no fields.
+pub fn detail_field(detail_json: &str, key: &str) -> Option<Value> {
+    match serde_json::from_str::<Value>(detail_json) {
+        Ok(Value::Object(mut fields)) => fields.remove(key),
+        _ => None,
+    }
+}
+
+/// The `reason` an audit row's detail carries, or "" when it has none.
+pub fn reason_of(detail_json: &str) -> String {
+    match detail_field(detail_json, "reason") {
+        Some(Value::String(reason)) => reason,
+        _ => String::new(),
+    }
+}
+
 /// Up to `limit` rows after the row `after`, oldest first, with `at` in ms (an export reads
 /// the whole log page by page).
 pub async fn page<'c>(db: impl AnyExecutor<'c>, after: i64, limit: i64) -> Result<Vec<AuditRow>> {

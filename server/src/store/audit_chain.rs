@@ -241,15 +241,24 @@ async fn page(db: &mut AnyConnection, after: i64) -> Result<Vec<Row>> {
         Option<String>,
         Option<i64>,
     );
-    let text: String = sqlx::query_scalar(
-        "SELECT json_group_array(json_array(json_array(id, at, actor, actor_id, action, target, detail_json), prev_hash, detail_hash, hash, chained_late)) \
-         FROM (SELECT a.id, a.at, a.actor, a.actor_id, a.action, a.target, a.detail_json, c.prev_hash, c.detail_hash, c.hash, c.chained_late \
-               FROM audit_log a LEFT JOIN audit_chain c ON c.entry_id = a.id WHERE a.id > $1 ORDER BY a.id LIMIT $2)",
-    )
-    .bind(after)
-    .bind(PAGE)
-    .fetch_one(&mut *db)
-    .await?;
+    let sql = match super::db::Dialect::of(db) {
+        super::db::Dialect::Sqlite => {
+            "SELECT json_group_array(json_array(json_array(id, at, actor, actor_id, action, target, detail_json), prev_hash, detail_hash, hash, chained_late)) \
+             FROM (SELECT a.id, a.at, a.actor, a.actor_id, a.action, a.target, a.detail_json, c.prev_hash, c.detail_hash, c.hash, c.chained_late \
+                   FROM audit_log a LEFT JOIN audit_chain c ON c.entry_id = a.id WHERE a.id > $1 ORDER BY a.id LIMIT $2) p"
+        }
+        // The same array from PostgreSQL's JSON functions (an empty page is NULL there).
+        super::db::Dialect::Postgres => {
+            "SELECT COALESCE(json_agg(json_build_array(json_build_array(id, at, actor, actor_id, action, target, detail_json), prev_hash, detail_hash, hash, chained_late) ORDER BY id), '[]')::text \
+             FROM (SELECT a.id, a.at, a.actor, a.actor_id, a.action, a.target, a.detail_json, c.prev_hash, c.detail_hash, c.hash, c.chained_late \
+                   FROM audit_log a LEFT JOIN audit_chain c ON c.entry_id = a.id WHERE a.id > $1 ORDER BY a.id LIMIT $2) p"
+        }
+    };
+    let text: String = sqlx::query_scalar(sql)
+        .bind(after)
+        .bind(PAGE)
+        .fetch_one(&mut *db)
+        .await?;
     let fields: Vec<Fields> = serde_json::from_str(&text)
         .map_err(|e| AppError::Internal(anyhow::anyhow!("reading the audit log: {e}")))?;
     Ok(fields

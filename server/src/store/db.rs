@@ -114,6 +114,58 @@ impl std::str::FromStr for Location {
     }
 }
 
+impl std::fmt::Display for Location {
+    /// The file's path, or the URL without its password (it goes into messages and logs).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::File(path) => write!(f, "{}", path.display()),
+            Self::Postgres(url) => f.write_str(&without_password(url)),
+        }
+    }
+}
+
+/// `url` with the password of its `user:password@` part, if any, written as `***`.
+fn without_password(url: &str) -> String {
+    let Some(scheme_end) = url.find("://").map(|i| i + 3) else {
+        return url.to_string();
+    };
+    let authority_end = url[scheme_end..]
+        .find(['/', '?', '#'])
+        .map_or(url.len(), |i| scheme_end + i);
+    let authority = &url[scheme_end..authority_end];
+    match authority
+        .rfind('@')
+        .and_then(|at| Some((at, authority[..at].find(':')?)))
+    {
+        Some((at, colon)) => format!(
+            "{}{}***{}",
+            &url[..scheme_end],
+            &authority[..=colon],
+            &url[scheme_end + at..]
+        ),
+        None => url.to_string(),
+    }
+}
+
+impl Location {
+    /// The SQLite file, or an error naming `what` cannot be done on a PostgreSQL store
+    /// (a file copy, a restore) and what to use there instead.
+    pub fn file(&self, what: &str) -> anyhow::Result<&Path> {
+        match self {
+            Self::File(path) => Ok(path),
+            Self::Postgres(_) => anyhow::bail!("--db {self}: {what} {ONLY_SQLITE_BACKUPS}"),
+        }
+    }
+
+    /// Opens the store as [`open_location`] does, without a size cap.
+    pub async fn open(&self) -> anyhow::Result<AnyPool> {
+        open_location(self, None).await
+    }
+}
+
+/// Why a backup or a restore is refused on a PostgreSQL store, and what to use there.
+pub const ONLY_SQLITE_BACKUPS: &str = "works on a SQLite file; a PostgreSQL store is backed up and restored with PostgreSQL's own tools (pg_dump and pg_restore, or continuous archiving)";
+
 /// Opens (creating if needed) the database at `path` and brings its schema up to date.
 pub async fn open(path: &Path) -> anyhow::Result<AnyPool> {
     open_with(path, 8, None).await
@@ -249,6 +301,40 @@ pub async fn open_read_only(path: &Path) -> anyhow::Result<AnyConnection> {
     Ok(conn)
 }
 
+/// One read-only connection to the store at `location`, nothing created or migrated: the
+/// file as [`open_read_only`] opens it, or a PostgreSQL session whose transactions are all
+/// read-only.
+pub async fn connect_read_only(location: &Location) -> anyhow::Result<AnyConnection> {
+    match location {
+        Location::File(path) => open_read_only(path).await,
+        Location::Postgres(url) => {
+            drivers();
+            let opts: AnyConnectOptions = url.parse().context("the PostgreSQL URL")?;
+            let mut conn = opts.connect().await.context("connecting to PostgreSQL")?;
+            conn.execute("SET default_transaction_read_only = on")
+                .await?;
+            Ok(conn)
+        }
+    }
+}
+
+/// Which of `names` are tables of the connection's database (its schema on PostgreSQL).
+pub async fn tables_named(conn: &mut AnyConnection, names: &[&str]) -> sqlx::Result<Vec<String>> {
+    let sql = match Dialect::of(conn) {
+        Dialect::Sqlite => "SELECT name FROM sqlite_master WHERE type = 'table'",
+        // information_schema's names are a domain over `name`, which the Any driver does
+        // not decode: cast to text.
+        Dialect::Postgres => {
+            "SELECT table_name::text FROM information_schema.tables WHERE table_schema = current_schema()"
+        }
+    };
+    let all: Vec<String> = sqlx::query_scalar(sql).fetch_all(&mut *conn).await?;
+    Ok(all
+        .into_iter()
+        .filter(|t| names.contains(&t.as_str()))
+        .collect())
+}
+
 /// Folds the write-ahead log of a database opened with [`open_alone`] into its file and
 /// leaves it in rollback-journal mode: one file, whole, once the pool is closed.
 pub async fn leave_wal(pool: &AnyPool) -> anyhow::Result<()> {
@@ -378,6 +464,24 @@ mod tests {
         for suffix in ["", "-wal", "-shm"] {
             let _ = std::fs::remove_file(format!("{}{suffix}", path.display()));
         }
+    }
+
+    #[test]
+    fn a_postgres_location_is_shown_without_its_password() {
+        let shown = |s: &str| s.parse::<super::Location>().unwrap().to_string();
+        assert_eq!(
+            shown("postgres://lab:s3cr:et@db.example:5432/bdft?sslmode=require"),
+            "postgres://lab:***@db.example:5432/bdft?sslmode=require"
+        );
+        assert_eq!(
+            shown("postgres:///bdft?host=/run/postgresql&user=lab"),
+            "postgres:///bdft?host=/run/postgresql&user=lab"
+        );
+        assert_eq!(
+            shown("postgresql://lab@db/bdft"),
+            "postgresql://lab@db/bdft"
+        );
+        assert_eq!(shown("data/bdft-lab.db"), "data/bdft-lab.db");
     }
 
     #[test]

@@ -4,7 +4,7 @@
 //! erased and redact the subject's older audit rows. Also the erasures recorded so far.
 //!
 //! Deleted rows leave no copy in the file: the database runs with `secure_delete` (`db`), and
-//! [`clear_wal`] empties the write-ahead log after the erasure.
+//! [`purge_old_copies`] empties the write-ahead log after the erasure.
 
 use serde::Serialize;
 use sqlx::{AnyConnection, AnyExecutor, AnyPool};
@@ -64,18 +64,43 @@ pub async fn erase(db: &mut AnyConnection, subject_id: i64, erasure_id: i64) -> 
             "the subject's data were erased already".into(),
         ));
     }
-    // Before the trials go: a row is the subject's when it targets one of its trials.
-    let redacted = sqlx::query(
-        "UPDATE audit_log SET detail_json = json_object('erasure', $1, 'redacted', 'subject.erase') \
-         WHERE id < $1 AND action IS NOT 'subject.erase' AND (target = 'subject:' || $2 \
+    // Before the trials go: a row is the subject's when it targets one of its trials, or
+    // its detail names the subject (read in Rust from the rows that may: the stores' JSON
+    // functions differ).
+    let candidates: Vec<(i64, String, String)> = sqlx::query_as(
+        "SELECT id, target, detail_json FROM audit_log \
+         WHERE id < $1 AND action <> 'subject.erase' AND (target = 'subject:' || $2 \
            OR target IN (SELECT 'trial:' || id FROM trials WHERE subject_id = $2) \
-           OR json_extract(detail_json, '$.subject_id') = $2)",
+           OR detail_json LIKE '%\"subject\\_id\"%' ESCAPE '\\')",
     )
     .bind(erasure_id)
     .bind(subject_id)
-    .execute(&mut *db)
-    .await?
-    .rows_affected();
+    .fetch_all(&mut *db)
+    .await?;
+    let trial_targets: Vec<String> =
+        sqlx::query_scalar("SELECT 'trial:' || id FROM trials WHERE subject_id = $1")
+            .bind(subject_id)
+            .fetch_all(&mut *db)
+            .await?;
+    let subject_target = format!("subject:{subject_id}");
+    let mut redacted = 0;
+    for (id, target, detail) in candidates {
+        let about = target == subject_target
+            || trial_targets.contains(&target)
+            || super::audit::detail_field(&detail, "subject_id").and_then(|v| v.as_i64())
+                == Some(subject_id);
+        if about {
+            // The one detail migration 0021's trigger lets an erasure write.
+            redacted += sqlx::query(
+                "UPDATE audit_log SET detail_json = '{\"erasure\":' || $1 || ',\"redacted\":\"subject.erase\"}' WHERE id = $2",
+            )
+            .bind(erasure_id)
+            .bind(id)
+            .execute(&mut *db)
+            .await?
+            .rows_affected();
+        }
+    }
     // Children before the trials they name (foreign keys), in this order.
     let mut counts = [0u64; 7];
     for (n, sql) in [
@@ -116,15 +141,30 @@ pub async fn erase(db: &mut AnyConnection, subject_id: i64, erasure_id: i64) -> 
     })
 }
 
-/// Copies the write-ahead log into the database file and truncates it, so that the pages an
-/// erasure changed no longer exist in their old form anywhere in the files. Waits for readers
-/// (the busy timeout); returns false when one kept it from finishing (the log is then cleared
-/// by a later checkpoint).
-pub async fn clear_wal(pool: &AnyPool) -> Result<bool> {
-    let (busy, _, _): (i64, i64, i64) = sqlx::query_as("PRAGMA wal_checkpoint(TRUNCATE)")
-        .fetch_one(pool)
-        .await?;
-    Ok(busy == 0)
+/// Removes the old copies of what an erasure changed. SQLite: copies the write-ahead log
+/// into the database file and truncates it, so that the changed pages no longer exist in
+/// their old form anywhere in the files; waits for readers (the busy timeout) and returns
+/// false when one kept it from finishing (a later checkpoint clears it). PostgreSQL: vacuums
+/// the tables an erasure touches, which removes their dead row versions (PostgreSQL's own
+/// write-ahead log and its archives keep them until they are recycled: README, "Running a
+/// lab").
+pub async fn purge_old_copies(pool: &AnyPool) -> Result<bool> {
+    match super::db::Dialect::of_pool(pool) {
+        super::db::Dialect::Sqlite => {
+            let (busy, _, _): (i64, i64, i64) = sqlx::query_as("PRAGMA wal_checkpoint(TRUNCATE)")
+                .fetch_one(pool)
+                .await?;
+            Ok(busy == 0)
+        }
+        super::db::Dialect::Postgres => {
+            sqlx::query(
+                "VACUUM subjects, audit_log, stations, notes, identifications, surveys, trial_records, pilot_trials, trials",
+            )
+            .execute(pool)
+            .await?;
+            Ok(true)
+        }
+    }
 }
 
 /// One recorded erasure, as its audit row keeps it.
@@ -143,12 +183,17 @@ pub struct ErasureRow {
 
 /// Every erasure, oldest first.
 pub async fn erasures<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<ErasureRow>> {
-    Ok(sqlx::query_as(
+    let mut rows: Vec<ErasureRow> = sqlx::query_as(
         "SELECT a.id AS audit_id, a.at, a.actor AS by, s.id AS subject_id, s.study_id, s.code, \
-         COALESCE(json_extract(a.detail_json, '$.reason'), '') AS reason \
+         a.detail_json AS reason \
          FROM audit_log a JOIN subjects s ON a.target = 'subject:' || s.id \
          WHERE a.action = 'subject.erase' ORDER BY a.id",
     )
     .fetch_all(db)
-    .await?)
+    .await?;
+    // The query gives the row's detail; its reason is read here.
+    for row in &mut rows {
+        row.reason = super::audit::reason_of(&row.reason);
+    }
+    Ok(rows)
 }

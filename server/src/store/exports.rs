@@ -209,12 +209,19 @@ pub async fn note_rows<'c>(db: impl AnyExecutor<'c>, study_id: i64) -> Result<Ve
         "SELECT s.study_id, x.trial_id, s.code, t.slot, t.attempt, x.kind, t.status, x.at, x.author, x.text FROM ( \
            SELECT n.subject_id, n.trial_id, 'note' AS kind, n.created_at AS at, n.author, n.text FROM notes n \
            UNION ALL \
-           SELECT tt.subject_id, tt.id, substr(a.action, 7), a.at, a.actor, COALESCE(json_extract(a.detail_json, '$.reason'), '') \
-             FROM audit_log a JOIN trials tt ON tt.id = CAST(substr(a.target, 7) AS INTEGER) WHERE a.action IN ({REASON_ACTIONS}) AND a.target LIKE 'trial:%' \
+           SELECT tt.subject_id, tt.id, substr(a.action, 7), a.at, a.actor, a.detail_json \
+             FROM audit_log a JOIN trials tt ON tt.id = CAST(substr(a.target, 7) AS BIGINT) WHERE a.action IN ({REASON_ACTIONS}) AND a.target LIKE 'trial:%' \
            UNION ALL \
            SELECT tt.subject_id, tt.id, 'status', tt.finished_at, '', tt.status_reason FROM trials tt WHERE tt.status_reason IS NOT NULL \
          ) x JOIN subjects s ON s.id = x.subject_id LEFT JOIN trials t ON t.id = x.trial_id \
          WHERE s.study_id = $1 AND s.withdrawn_at IS NULL ORDER BY s.enrol_index, t.slot, t.attempt, x.at"
     );
-    Ok(sqlx::query_as(&sql).bind(study_id).fetch_all(db).await?)
+    let mut rows: Vec<NoteRow> = sqlx::query_as(&sql).bind(study_id).fetch_all(db).await?;
+    // A reason's row carries its audit detail: the reason is read from it here.
+    for row in &mut rows {
+        if row.kind != "note" && row.kind != "status" {
+            row.text = super::audit::reason_of(&row.text);
+        }
+    }
+    Ok(rows)
 }

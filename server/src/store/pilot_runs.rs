@@ -52,7 +52,7 @@ pub async fn silent_since<'c>(db: impl AnyExecutor<'c>, before: i64) -> Result<V
 pub async fn end(db: &mut AnyConnection, run_id: i64, reason: &str) -> Result<Vec<i64>> {
     let now = now_ms();
     let ids: Vec<(i64,)> = sqlx::query_as(
-        "UPDATE trials SET status = 'incomplete', status_reason = $1, finished_at = MAX($2, COALESCE(started_at, 0)) \
+        "UPDATE trials SET status = 'incomplete', status_reason = $1, finished_at = CASE WHEN COALESCE(started_at, 0) > $2 THEN COALESCE(started_at, 0) ELSE $2 END \
          WHERE status = 'running' AND id IN (SELECT trial_id FROM pilot_trials WHERE run_id = $3) RETURNING id",
     )
     .bind(reason)

@@ -41,7 +41,7 @@ pub async fn file_result(
 ) -> Result<Option<(TrialStatus, Option<String>)>> {
     let filed: Option<(String, Option<String>)> = sqlx::query_as(
         "UPDATE trials SET status = CASE WHEN invalid_reason IS NULL THEN $1 ELSE 'invalid' END, status_reason = COALESCE(invalid_reason, $2), \
-         finished_at = MAX($3, COALESCE(started_at, 0)), mse_tracking_mm2 = $4, ms_cab_accel = $5, timing_json = $6, \
+         finished_at = CASE WHEN COALESCE(started_at, 0) > $3 THEN COALESCE(started_at, 0) ELSE $3 END, mse_tracking_mm2 = $4, ms_cab_accel = $5, timing_json = $6, \
          cab_aw_m_s2 = $8, cab_vdv_m_s175 = $9, exposure_s = $10 WHERE id = $7 AND status = 'running' \
          RETURNING status, status_reason",
     )
@@ -65,8 +65,12 @@ pub async fn file_result(
         .map_err(|e: String| crate::error::AppError::Internal(anyhow::anyhow!(e)))?;
     if record.channels.len() == RECORD_CHANNELS.len() && !record.channels[0].is_empty() {
         let mut q = sqlx::query(
-            "INSERT OR REPLACE INTO trial_records (trial_id, dt, samples, target_mm, hand_mm, feedthrough_mm, cyl_ref_mm, valve_cmd, cyl_pos_mm, cab_accel_mm_s2, device_mm, tick_latency_us) \
-             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12)",
+            "INSERT INTO trial_records (trial_id, dt, samples, target_mm, hand_mm, feedthrough_mm, cyl_ref_mm, valve_cmd, cyl_pos_mm, cab_accel_mm_s2, device_mm, tick_latency_us) \
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12) \
+             ON CONFLICT (trial_id) DO UPDATE SET dt = excluded.dt, samples = excluded.samples, target_mm = excluded.target_mm, \
+             hand_mm = excluded.hand_mm, feedthrough_mm = excluded.feedthrough_mm, cyl_ref_mm = excluded.cyl_ref_mm, \
+             valve_cmd = excluded.valve_cmd, cyl_pos_mm = excluded.cyl_pos_mm, cab_accel_mm_s2 = excluded.cab_accel_mm_s2, \
+             device_mm = excluded.device_mm, tick_latency_us = excluded.tick_latency_us",
         )
         .bind(result.trial_id as i64)
         .bind(record.dt)

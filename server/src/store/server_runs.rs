@@ -58,12 +58,10 @@ pub struct Holder {
 /// later, newest beat first. A database older than `server_runs` was never served by a
 /// program that beats: none.
 pub async fn holders(db: &mut AnyConnection, since: i64) -> Result<Vec<Holder>> {
-    let served: Option<(String,)> = sqlx::query_as(
-        "SELECT name FROM sqlite_schema WHERE type = 'table' AND name = 'server_runs'",
-    )
-    .fetch_optional(&mut *db)
-    .await?;
-    if served.is_none() {
+    if super::db::tables_named(db, &["server_runs"])
+        .await?
+        .is_empty()
+    {
         return Ok(Vec::new());
     }
     Ok(sqlx::query_as(

@@ -319,10 +319,19 @@ pub async fn running_ids<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<i64>> {
 /// Marks those of `ids` that still run incomplete with `reason` (after a server restart or a
 /// controller death), or invalid when they were found so; returns the ids marked.
 pub async fn interrupt(db: &mut AnyConnection, ids: &[i64], reason: &str) -> Result<Vec<i64>> {
-    let marked: Vec<(i64,)> = sqlx::query_as("UPDATE trials SET status = CASE WHEN invalid_reason IS NULL THEN 'incomplete' ELSE 'invalid' END, status_reason = COALESCE(invalid_reason, $1), finished_at = MAX($2, COALESCE(started_at, 0)) WHERE status = 'running' AND id IN (SELECT value FROM json_each($3)) RETURNING id")
+    if ids.is_empty() {
+        return Ok(Vec::new());
+    }
+    // The ids are this program's integers, written into the statement: the two stores
+    // share no way to bind a list.
+    let list = ids
+        .iter()
+        .map(i64::to_string)
+        .collect::<Vec<_>>()
+        .join(", ");
+    let marked: Vec<(i64,)> = sqlx::query_as(&format!("UPDATE trials SET status = CASE WHEN invalid_reason IS NULL THEN 'incomplete' ELSE 'invalid' END, status_reason = COALESCE(invalid_reason, $1), finished_at = CASE WHEN COALESCE(started_at, 0) > $2 THEN COALESCE(started_at, 0) ELSE $2 END WHERE status = 'running' AND id IN ({list}) RETURNING id"))
         .bind(reason)
         .bind(now_ms())
-        .bind(serde_json::to_string(ids).expect("ids serialize"))
         .fetch_all(db)
         .await?;
     Ok(marked.into_iter().map(|r| r.0).collect())
@@ -385,7 +394,7 @@ pub async fn insert_survey(
     ratings: [u8; 4],
     answer: &SurveyAnswer,
 ) -> Result<()> {
-    let done = sqlx::query("INSERT OR IGNORE INTO surveys (trial_id, accuracy, speed, smoothness, controllability, comment, submitted_at) VALUES ($1, $2, $3, $4, $5, $6, $7)")
+    let done = sqlx::query("INSERT INTO surveys (trial_id, accuracy, speed, smoothness, controllability, comment, submitted_at) VALUES ($1, $2, $3, $4, $5, $6, $7) ON CONFLICT (trial_id) DO NOTHING")
         .bind(trial_id)
         .bind(i64::from(ratings[0]))
         .bind(i64::from(ratings[1]))

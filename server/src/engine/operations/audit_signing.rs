@@ -58,16 +58,9 @@ pub fn load_or_create(db: &Path) -> anyhow::Result<SigningKey> {
     Ok(SigningKey::from_bytes(&bytes))
 }
 
-/// The public key to trust when verifying `db`: `given` (hex), else the key file's beside
-/// it, else none (each checkpoint's own key, which proves less).
-pub fn trusted_key(db: &Path, given: Option<&str>) -> anyhow::Result<Option<VerifyingKey>> {
-    if let Some(given) = given {
-        let bytes = hex::decode::<32>(given.trim())
-            .context("--public-key: 64 hex digits (the key the server prints at start)")?;
-        return Ok(Some(
-            VerifyingKey::from_bytes(&bytes).context("--public-key: not an Ed25519 public key")?,
-        ));
-    }
+/// The public key to trust when verifying: the key file's named after `db` (beside the
+/// SQLite file, or in --keys-dir), else none (each checkpoint's own key, which proves less).
+pub fn trusted_key(db: &Path) -> anyhow::Result<Option<VerifyingKey>> {
     let path = key_path(db);
     if !path.exists() {
         return Ok(None);
@@ -75,6 +68,13 @@ pub fn trusted_key(db: &Path, given: Option<&str>) -> anyhow::Result<Option<Veri
     let text =
         std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
     Ok(Some(parse_key(&text, &path)?.verifying_key()))
+}
+
+/// The public key given as `--public-key` (64 hex digits, as the server prints it).
+pub fn given_key(given: &str) -> anyhow::Result<VerifyingKey> {
+    let bytes = hex::decode::<32>(given.trim())
+        .context("--public-key: 64 hex digits (the key the server prints at start)")?;
+    VerifyingKey::from_bytes(&bytes).context("--public-key: not an Ed25519 public key")
 }
 
 /// Signs the chain's head unless the newest checkpoint holds it already.
@@ -96,21 +96,18 @@ pub async fn run_checkpoints(pool: AnyPool, key: SigningKey) {
     }
 }
 
-/// Verifies the database file at `path` as it is, read-only (a server may be running on
-/// it): refuses a file that is no bdft-lab database, or one whose log was never chained.
-pub async fn verify_file(
-    path: &std::path::Path,
+/// Verifies the store at `location` as it is, read-only (a server may be running on it):
+/// refuses one that is no bdft-lab database, or one whose log was never chained.
+pub async fn verify_store(
+    location: &store::db::Location,
     trusted: Option<&VerifyingKey>,
 ) -> Result<Verdict> {
-    let mut conn = store::db::open_read_only(path)
+    let mut conn = store::db::connect_read_only(location)
         .await
         .map_err(|e| AppError::BadRequest(format!("not a database: {e:#}")))?;
-    let tables: Vec<String> = sqlx::query_scalar(
-        "SELECT name FROM sqlite_master WHERE type = 'table' AND name IN ('audit_log', 'audit_chain')",
-    )
-    .fetch_all(&mut conn)
-    .await
-    .map_err(|e| AppError::BadRequest(format!("not a bdft-lab database: {e}")))?;
+    let tables = store::db::tables_named(&mut conn, &["audit_log", "audit_chain"])
+        .await
+        .map_err(|e| AppError::BadRequest(format!("not a bdft-lab database: {e}")))?;
     if !tables.iter().any(|t| t == "audit_log") {
         return Err(AppError::BadRequest(
             "not a bdft-lab database: it has no audit log".into(),

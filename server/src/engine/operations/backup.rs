@@ -22,6 +22,12 @@ pub const COMMAND_LINE: &str = "system:backup-command";
 /// it; `made_by` is who asked (an account or a `system:` actor). Audited as `backup.create`,
 /// or `backup.fail` with the reason.
 pub async fn make(pool: &AnyPool, out: &Path, made_by: &str) -> Result<Manifest> {
+    if store::db::Dialect::of_pool(pool) == store::db::Dialect::Postgres {
+        return Err(AppError::Conflict(format!(
+            "a backup {}",
+            store::db::ONLY_SQLITE_BACKUPS
+        )));
+    }
     refuse_to_overwrite(out)?;
     let partial = partial_of(out);
     let outcome = write_checked(pool, out, &partial, made_by).await;

@@ -75,7 +75,8 @@ pub struct ErasureReport {
     /// Why the backup directory could not be looked in, when it could not (the erasure is
     /// done all the same; `GET /api/erasures` lists the backups again).
     pub backups_unchecked: Option<String>,
-    /// The write-ahead log was cleared at once (else at the next checkpoint).
+    /// The old copies of the erased rows were removed at once: SQLite's write-ahead log
+    /// cleared (else at the next checkpoint), or PostgreSQL's tables vacuumed.
     pub wal_cleared: bool,
 }
 
@@ -128,17 +129,17 @@ pub async fn erase(
     let erased = store::subjects::get(audited.db(), subject_id).await?;
     audited.commit().await?;
     // The erasure is committed: what follows reports, and fails nothing.
-    let wal_cleared = match store::erasure::clear_wal(pool).await {
-        Ok(cleared) => cleared,
+    let purged = match store::erasure::purge_old_copies(pool).await {
+        Ok(purged) => purged,
         Err(e) => {
             tracing::warn!(
-                "erasure of subject {subject_id}: clearing the write-ahead log failed: {}",
+                "erasure of subject {subject_id}: removing the old copies of the erased rows failed: {}",
                 e.describe()
             );
             false
         }
     };
-    if !wal_cleared {
+    if !purged {
         tracing::warn!(
             "erasure of subject {subject_id}: the write-ahead log was not cleared (a reader held it); the next checkpoint clears it"
         );
@@ -168,7 +169,7 @@ pub async fn erase(
         removed,
         backup_dir: backup_dir.map(|d| d.display().to_string()),
         backups_unchecked,
-        wal_cleared,
+        wal_cleared: purged,
     })
 }
 
