@@ -241,14 +241,14 @@ async fn page(db: &mut AnyConnection, after: i64) -> Result<Vec<Row>> {
         Option<String>,
         Option<i64>,
     );
-    let sql = match super::db::Dialect::of(db) {
-        super::db::Dialect::Sqlite => {
+    let sql = match super::dialect::Dialect::of(db) {
+        super::dialect::Dialect::Sqlite => {
             "SELECT json_group_array(json_array(json_array(id, at, actor, actor_id, action, target, detail_json), prev_hash, detail_hash, hash, chained_late)) \
              FROM (SELECT a.id, a.at, a.actor, a.actor_id, a.action, a.target, a.detail_json, c.prev_hash, c.detail_hash, c.hash, c.chained_late \
                    FROM audit_log a LEFT JOIN audit_chain c ON c.entry_id = a.id WHERE a.id > $1 ORDER BY a.id LIMIT $2) p"
         }
         // The same array from PostgreSQL's JSON functions (an empty page is NULL there).
-        super::db::Dialect::Postgres => {
+        super::dialect::Dialect::Postgres => {
             "SELECT COALESCE(json_agg(json_build_array(json_build_array(id, at, actor, actor_id, action, target, detail_json), prev_hash, detail_hash, hash, chained_late) ORDER BY id), '[]')::text \
              FROM (SELECT a.id, a.at, a.actor, a.actor_id, a.action, a.target, a.detail_json, c.prev_hash, c.detail_hash, c.hash, c.chained_late \
                    FROM audit_log a LEFT JOIN audit_chain c ON c.entry_id = a.id WHERE a.id > $1 ORDER BY a.id LIMIT $2) p"

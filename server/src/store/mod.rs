@@ -12,6 +12,7 @@ pub mod backups;
 pub mod bench;
 pub mod configs;
 pub mod db;
+pub mod dialect;
 pub mod dry_runs;
 pub mod erasure;
 pub mod exports;
