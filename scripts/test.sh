@@ -85,3 +85,36 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 # does not rebuild another package's binaries, so build them first.
 cargo build --workspace --bins --locked
 cargo test --workspace --locked ${args[@]+"${args[@]}"}
+
+# The same end-to-end tests again with every server on a PostgreSQL database of its own
+# (the multi-site store), but for these, named with why, never skipped silently:
+pg_skips=(
+  # They start no server: nothing of theirs touches a store.
+  "controller_cli::" "controller_estop::" "controller_identification::"
+  "controller_input_udp::" "controller_link_loss::" "controller_messages::"
+  "controller_rig_udp::" "controller_starts::" "controller_trials::" "structure::"
+  # It runs both stores itself.
+  "store_dialects::"
+  # A backup is a SQLite file (refused on PostgreSQL, which backups::on_postgresql_… tests).
+  "backups::backups_taken_while_a_pilot_runs"
+  "backups::a_restore_refuses_a_running_server"
+  "backups::scheduled_backups_keep_the_newest"
+  # Its fixtures are earlier releases' SQLite files.
+  "upgrade::"
+  # It tampers with a copy of the SQLite file, triggers dropped, as a file's holder would.
+  "audit_chain::audit_verify_names_every_kind_of_tampering"
+  # It reads every table from sqlite_master, the file's bytes after the erasure, and the
+  # erasure's report on older backups (all SQLite's); the other erasure tests run here.
+  "erasure::an_erased_subject_leaves_only_the_erasure_in_every_table"
+  # Its disk-full fault caps the SQLite file's page count (PostgreSQL has no such cap: its
+  # full-disk SQLSTATE is answered as SQLite's is, which no test here makes happen).
+  "soak::"
+)
+echo "again on PostgreSQL: the end-to-end tests but ${pg_skips[*]}"
+pg_args=(${args[@]+"${args[@]}"})
+case " ${pg_args[*]-} " in
+  *" -- "*) ;;
+  *) pg_args+=(--) ;;
+esac
+for s in "${pg_skips[@]}"; do pg_args+=(--skip "$s"); done
+BDFT_TEST_STORE=postgres cargo test -p bdft-tests --test integration --locked "${pg_args[@]}"

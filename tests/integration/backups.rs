@@ -614,3 +614,49 @@ fn scheduled_backups_keep_the_newest_and_only_admins_see_them() {
     );
     assert_eq!(admin.get("/api/backups").1["dir"], Value::Null);
 }
+
+/// On a PostgreSQL store every way to a backup or a restore is refused, naming PostgreSQL's
+/// own tools, and nothing is written: the command line, the scheduled backups at start and
+/// the dashboard's button.
+#[test]
+fn on_postgresql_backups_and_restores_are_refused_naming_its_own_tools() {
+    let server = Server::start_on_postgres("backups-postgres", &[]);
+    let url = server.store();
+    let dir = TempDir::new("backups-postgres-files");
+    let out = dir.path().join("copy.db");
+    let tools = "pg_dump and pg_restore, or continuous archiving";
+    let e = refused(
+        bdft(&["backup", "--db", &url, "--out", path(&out)]),
+        "a backup of a PostgreSQL store",
+    );
+    assert!(e.contains(tools), "{e}");
+    assert!(!out.exists(), "nothing written");
+    std::fs::write(&out, "a file").unwrap();
+    let e = refused(
+        bdft(&["restore", "--from", path(&out), "--db", &url]),
+        "a restore onto a PostgreSQL store",
+    );
+    assert!(e.contains(tools), "{e}");
+    let e = refused(
+        bdft(&[
+            "serve",
+            "--listen",
+            "127.0.0.1:0",
+            "--db",
+            &url,
+            "--keys-dir",
+            path(dir.path()),
+            "--backup-dir",
+            path(dir.path()),
+        ]),
+        "scheduled backups of a PostgreSQL store",
+    );
+    assert!(e.contains("--backup-dir") && e.contains(tools), "{e}");
+
+    let api = server.login("admin", ADMIN_PASSWORD);
+    let (code, body) = api.post("/api/backups", json!({}));
+    assert_eq!(code, 409, "{body}");
+    assert!(body.to_string().contains(tools), "{body}");
+    // The study data is still there to read.
+    assert_eq!(api.get("/api/studies").0, 200);
+}

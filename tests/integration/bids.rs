@@ -101,7 +101,7 @@ fn a_pilots_bids_export_passes_the_validator_and_holds_every_run() {
     let copy = pilot_copy(&api, study, 2);
     let dir = TempDir::new("bids-out");
     let dataset = dir.path().join("dataset");
-    let db = server.db.to_str().unwrap().to_string();
+    let db = server.store();
     let copy_arg = copy.to_string();
     let export = |out: &Path| {
         run(&[

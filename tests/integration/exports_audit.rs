@@ -106,7 +106,7 @@ fn notes_and_reasons_are_exported_and_the_audit_log_too() {
             "--kind",
             "audit",
             "--db",
-            server.db.to_str().unwrap(),
+            &server.store(),
             "--out",
         ])
         .arg(&out)
@@ -155,7 +155,7 @@ fn a_killed_pilot_process_leaves_no_trial_running() {
             "--subjects",
             "2",
             "--db",
-            server.db.to_str().unwrap(),
+            &server.store(),
         ])
         .stdout(Stdio::null())
         .stderr(Stdio::null())

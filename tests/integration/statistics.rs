@@ -224,7 +224,7 @@ fn the_population_planner_runs_whole_simulated_studies_in_the_background_with_pr
     // another thread split — is the same plan.
     assert_eq!(run()["report"], *report);
     let out = std::process::Command::new(bdft_tests::binary("bdft-server"))
-        .args(["plan", "--db", server.db.to_str().unwrap(), "--study"])
+        .args(["plan", "--db", &server.store(), "--study"])
         .arg(study.to_string())
         .args([
             "--subjects",
@@ -250,7 +250,7 @@ fn the_population_planner_runs_whole_simulated_studies_in_the_background_with_pr
         .args([
             "plan",
             "--db",
-            server.db.to_str().unwrap(),
+            &server.store(),
             "--subjects",
             "8",
             "--source",

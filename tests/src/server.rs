@@ -73,9 +73,28 @@ impl Server {
     /// A server on `dir`'s `bdft-lab.db`, or on a PostgreSQL database of its own with its
     /// keys in `dir` when this run's servers use PostgreSQL.
     fn start_in(dir: TempDir, args: &[&str], log: Option<PathBuf>) -> Self {
+        let postgres = (servers_on_postgres() && !dir.path().join("bdft-lab.db").exists())
+            .then(|| PgDatabase::blocking_new("server"));
+        Self::start_on(dir, postgres, args, log)
+    }
+
+    /// A server with the account "admin" and `args` on a PostgreSQL database of its own,
+    /// whichever store this run's other servers use.
+    pub fn start_on_postgres(tag: &str, args: &[&str]) -> Self {
+        let mut all = vec!["--admin-password", ADMIN_PASSWORD];
+        all.extend_from_slice(args);
+        let postgres = Some(PgDatabase::blocking_new("server"));
+        Self::start_on(TempDir::new(tag), postgres, &all, None)
+    }
+
+    /// A server on `postgres` if given, else on `dir`'s `bdft-lab.db`; its keys in `dir`.
+    fn start_on(
+        dir: TempDir,
+        postgres: Option<PgDatabase>,
+        args: &[&str],
+        log: Option<PathBuf>,
+    ) -> Self {
         let db = dir.path().join("bdft-lab.db");
-        let postgres =
-            (servers_on_postgres() && !db.exists()).then(|| PgDatabase::blocking_new("server"));
         let mut args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
         let store = match &postgres {
             Some(pg) => vec![

@@ -28,7 +28,7 @@ async fn list_backups(State(s): State<AppState>) -> ApiResult<BackupsView> {
 /// copy has passed its checks (the oldest beyond the number kept are then deleted).
 #[utoipa::path(post, path = "/api/backups", tag = "backups",
     responses((status = 200, body = Manifest),
-              (status = 409, body = ErrorBody, description = "backups are off (no --backup-dir), or a backup is being made")))]
+              (status = 409, body = ErrorBody, description = "backups are off (no --backup-dir, or a PostgreSQL store), or a backup is being made")))]
 async fn back_up_now(State(s): State<AppState>, who: Experimenter) -> ApiResult<Manifest> {
     Ok(AppJson(s.backups.now(&s.pool, &who.username).await?))
 }

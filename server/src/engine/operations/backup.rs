@@ -15,6 +15,17 @@ use super::manifest::{self, FORMAT, Manifest, io_error};
 use crate::error::{AppError, Result};
 use crate::store::{self, Change};
 
+/// A conflict when `pool` is not a SQLite store: a backup is a copy of its file.
+pub fn only_of_sqlite(pool: &AnyPool) -> Result<()> {
+    if store::db::Dialect::of_pool(pool) == store::db::Dialect::Postgres {
+        return Err(AppError::Conflict(format!(
+            "a backup {}",
+            store::db::ONLY_SQLITE_BACKUPS
+        )));
+    }
+    Ok(())
+}
+
 /// Who the audit log names for a backup made from the command line.
 pub const COMMAND_LINE: &str = "system:backup-command";
 
@@ -22,12 +33,7 @@ pub const COMMAND_LINE: &str = "system:backup-command";
 /// it; `made_by` is who asked (an account or a `system:` actor). Audited as `backup.create`,
 /// or `backup.fail` with the reason.
 pub async fn make(pool: &AnyPool, out: &Path, made_by: &str) -> Result<Manifest> {
-    if store::db::Dialect::of_pool(pool) == store::db::Dialect::Postgres {
-        return Err(AppError::Conflict(format!(
-            "a backup {}",
-            store::db::ONLY_SQLITE_BACKUPS
-        )));
-    }
+    only_of_sqlite(pool)?;
     refuse_to_overwrite(out)?;
     let partial = partial_of(out);
     let outcome = write_checked(pool, out, &partial, made_by).await;

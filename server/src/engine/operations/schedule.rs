@@ -109,6 +109,8 @@ impl Backups {
 
     /// Backs up into the directory now, then keeps the newest `keep`.
     pub async fn now(&self, pool: &AnyPool, made_by: &str) -> Result<Manifest> {
+        // On PostgreSQL first: there, --backup-dir is refused, so "start with it" misleads.
+        backup::only_of_sqlite(pool)?;
         let policy = self.policy()?;
         let _one = self.busy.try_lock().map_err(|_| {
             AppError::Conflict("a backup is being made now; try again when it has ended".into())
