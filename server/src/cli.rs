@@ -13,6 +13,7 @@ use crate::engine::dry_runs::calibration::run::{CalibrateRequest, calibrate};
 use crate::engine::dry_runs::pilot;
 use crate::engine::dry_runs::power::{self, PlanRequest, PlanSource};
 use crate::engine::machine::controller_link;
+use crate::engine::machine::sites::{self, Sites};
 use crate::engine::operations::schedule::{Backups, Policy};
 use crate::engine::operations::{audit_signing, backup, presence, restore};
 use crate::engine::procedure::filing;
@@ -40,7 +41,7 @@ enum Command {
     #[command(hide = true)]
     Controller(bdft_controller::runtime::ServeArgs),
     /// Run the experiment server: the API and pages on --listen, a supervised controller.
-    Serve(ServeConfig),
+    Serve(Box<ServeConfig>),
     /// Run the whole protocol for N synthetic subjects, faster than real time, into the
     /// database (subjects flagged synthetic, each with its own drawn parameters, answering
     /// the surveys).
@@ -324,7 +325,7 @@ async fn newest_study(pool: &sqlx::AnyPool, study: Option<i64>) -> anyhow::Resul
 
 async fn execute(command: Command) -> anyhow::Result<()> {
     match command {
-        Command::Serve(config) => serve(config).await?,
+        Command::Serve(config) => serve(*config).await?,
         Command::Controller(_) => unreachable!("handled before the runtime starts"),
         Command::Pilot {
             db,
@@ -614,17 +615,19 @@ async fn execute(command: Command) -> anyhow::Result<()> {
 /// set-up link exists, starts the controller link and serves until a signal.
 async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     // The backup directory is checked before anything starts.
-    let backups = match config.backup.backup_dir {
+    let backups = match &config.backup.backup_dir {
         Some(_) if matches!(config.db.db, store::db::Location::Postgres(_)) => {
             anyhow::bail!("--backup-dir: a backup {}", store::db::ONLY_SQLITE_BACKUPS)
         }
         Some(dir) => std::sync::Arc::new(Backups::new(Policy {
-            dir,
+            dir: dir.clone(),
             every: config.backup.backup_every,
             keep: config.backup.backup_keep as usize,
         })?),
         None => std::sync::Arc::default(),
     };
+    // So are the sites and their key files.
+    let site_links = site_links(&config)?;
     let keys = config.keys.stem(&config.db.db)?;
     let pool = store::db::open_location(&config.db.db, config.db_max_pages).await?;
     let audit_key = audit_signing::load_or_create(&keys)?;
@@ -673,49 +676,24 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
             "LSL: each station's signal and marker streams are published"
         );
     }
-    let source = match config.controller {
-        Some(a) => controller_link::ControllerSource::Connect(a),
-        None => {
-            let (bin, sub) = match config.controller_bin {
-                Some(bin) => (bin, "serve"),
-                None => (
-                    std::env::current_exe().context("locating this executable")?,
-                    "controller",
-                ),
-            };
-            let lsl = config.lsl.then(|| {
-                [
-                    "--lsl".to_string(),
-                    format!("--lsl-scope={}", config.lsl_scope.as_str()),
-                ]
-            });
-            let args = std::iter::once(sub.to_string())
-                .chain(lsl.into_iter().flatten())
-                .chain(config.controller_args)
-                .collect();
-            controller_link::ControllerSource::Spawn { bin, args }
-        }
-    };
-    let key = match (&config.controller_key_file, &source) {
-        (Some(path), _) => LinkKey::load(path)?,
-        (None, controller_link::ControllerSource::Connect(a)) => anyhow::bail!(
-            "--controller {a} needs --controller-key-file FILE: the key the controller was started with (`bdft-controller keygen FILE`, then `bdft-controller serve --key-file FILE` there)"
-        ),
-        (None, controller_link::ControllerSource::Spawn { .. }) => LinkKey::generate()?,
-    };
-    let filing = filing::LinkFiling::start(pool.clone());
-    let link = controller_link::ControllerLink::start(
-        pool.clone(),
-        source,
-        key,
-        std::time::Duration::from_millis(config.controller_silence_ms),
-        filing.clone(),
-    );
-    filing.attach(link.clone());
+    let events = controller_link::event_channel();
+    let filing = filing::LinkFiling::start(pool.clone(), events.clone());
+    let links = site_links
+        .into_iter()
+        .map(|site| {
+            controller_link::ControllerLink::start(
+                pool.clone(),
+                site,
+                events.clone(),
+                filing.clone(),
+            )
+        })
+        .collect();
+    let sites = Sites::new(links, events);
     tokio::spawn(backups.clone().run_schedule(pool.clone()));
     // A restore refuses to replace the database while this beats.
     let presence = presence::announce(&pool, &addr.to_string()).await?;
-    let mut state = crate::state::AppState::new(pool, link);
+    let mut state = crate::state::AppState::new(pool, sites);
     state.web_dir = config.web_dir;
     state.login = std::sync::Arc::new(LoginLimiter::new(config.login.limits()));
     state.https = tls.is_some();
@@ -743,6 +721,83 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     crate::run(state, listener, &config.connections, tls, shutdown_signal()).await?;
     presence.end().await?;
     Ok(())
+}
+
+/// Each site's controller: where it comes from and its link key. Without --site, the one
+/// site "main" with --controller or a started controller.
+fn site_links(config: &ServeConfig) -> anyhow::Result<Vec<controller_link::LinkConfig>> {
+    let silence = std::time::Duration::from_millis(config.controller_silence_ms);
+    // A controller this server starts: this executable's own (or --controller-bin), with
+    // --lsl when the server publishes streams and the --controller-arg given.
+    let spawn = || -> anyhow::Result<controller_link::ControllerSource> {
+        let (bin, sub) = match &config.controller_bin {
+            Some(bin) => (bin.clone(), "serve"),
+            None => (
+                std::env::current_exe().context("locating this executable")?,
+                "controller",
+            ),
+        };
+        let lsl = config.lsl.then(|| {
+            [
+                "--lsl".to_string(),
+                format!("--lsl-scope={}", config.lsl_scope.as_str()),
+            ]
+        });
+        let args = std::iter::once(sub.to_string())
+            .chain(lsl.into_iter().flatten())
+            .chain(config.controller_args.iter().cloned())
+            .collect();
+        Ok(controller_link::ControllerSource::Spawn { bin, args })
+    };
+    // A started controller gets --controller-key-file's key, or a new one at every start.
+    let started_key = || match &config.controller_key_file {
+        Some(path) => LinkKey::load(path),
+        None => LinkKey::generate(),
+    };
+    if config.sites.is_empty() {
+        let (source, key) = match config.controller {
+            Some(a) => {
+                let Some(path) = &config.controller_key_file else {
+                    anyhow::bail!(
+                        "--controller {a} needs --controller-key-file FILE: the key the controller was started with (`bdft-controller keygen FILE`, then `bdft-controller serve --key-file FILE` there)"
+                    )
+                };
+                (
+                    controller_link::ControllerSource::Connect(a),
+                    LinkKey::load(path)?,
+                )
+            }
+            None => (spawn()?, started_key()?),
+        };
+        return Ok(vec![controller_link::LinkConfig {
+            site: sites::DEFAULT.to_string(),
+            source,
+            key,
+            silence,
+        }]);
+    }
+    let mut seen = std::collections::BTreeSet::new();
+    let mut links = Vec::new();
+    for site in &config.sites {
+        if !seen.insert(site.name.as_str()) {
+            anyhow::bail!("--site {}: given twice; each site once", site.name);
+        }
+        let (source, key) = match &site.remote {
+            Some((addr, key_file)) => (
+                controller_link::ControllerSource::Connect(*addr),
+                LinkKey::load(key_file)
+                    .with_context(|| format!("--site {}: its key file", site.name))?,
+            ),
+            None => (spawn()?, started_key()?),
+        };
+        links.push(controller_link::LinkConfig {
+            site: site.name.clone(),
+            source,
+            key,
+            silence,
+        });
+    }
+    Ok(links)
 }
 
 async fn shutdown_signal() {

@@ -64,6 +64,18 @@ pub struct ServeConfig {
     /// starting one.
     #[arg(long, env = "BDFT_CONTROLLER")]
     pub controller: Option<SocketAddr>,
+    /// A site this server serves, with its own machine and controller (repeatable; in
+    /// BDFT_SITES separated by ';'): `NAME` for one whose controller this server starts
+    /// (as without --site), `NAME=ADDRESS,KEY_FILE` for one running there with that link
+    /// key. Names: 1 to 40 of a-z, 0-9 and '-'. Without --site the server has one site,
+    /// "main", whose controller --controller names or this server starts.
+    #[arg(
+        long = "site",
+        env = "BDFT_SITES",
+        value_delimiter = ';',
+        conflicts_with = "controller"
+    )]
+    pub sites: Vec<SiteArg>,
     /// The link key file shared with the controller (made by `bdft-controller keygen FILE`,
     /// readable only by its owner): needed with --controller. A controller this server
     /// starts gets this key, or a new one made at every start when no file is given.
@@ -188,6 +200,69 @@ impl LoginConfig {
             per_user_address: self.login_attempts as usize,
             per_address: self.login_address_attempts as usize,
             ..LoginLimits::default()
+        }
+    }
+}
+
+/// One `--site`: a name, and where its controller is (none: this server starts it).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SiteArg {
+    pub name: String,
+    /// The address and link key file of a controller running there.
+    pub remote: Option<(SocketAddr, PathBuf)>,
+}
+
+impl std::str::FromStr for SiteArg {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (name, remote) = match s.split_once('=') {
+            None => (s, None),
+            Some((name, rest)) => {
+                let (addr, key) = rest.split_once(',').ok_or_else(|| {
+                    format!("{s:?}: NAME, or NAME=ADDRESS,KEY_FILE (a controller running there, with its link key file)")
+                })?;
+                let addr: SocketAddr = addr.trim().parse().map_err(|e| {
+                    format!("{s:?}: the address {addr:?}: {e} (e.g. 192.168.1.20:7000)")
+                })?;
+                if key.trim().is_empty() {
+                    return Err(format!("{s:?}: the key file is missing after the comma"));
+                }
+                (name, Some((addr, PathBuf::from(key.trim()))))
+            }
+        };
+        let name = name.trim();
+        crate::engine::machine::sites::check_name(name)?;
+        Ok(Self {
+            name: name.to_string(),
+            remote,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::SiteArg;
+
+    #[test]
+    fn a_site_is_a_name_or_a_name_with_a_controller_address_and_key() {
+        let local: SiteArg = "delft".parse().unwrap();
+        assert_eq!(local.name, "delft");
+        assert_eq!(local.remote, None);
+        let remote: SiteArg = "tampere=[::1]:7000, /etc/bdft/tampere.key".parse().unwrap();
+        assert_eq!(remote.name, "tampere");
+        let (addr, key) = remote.remote.unwrap();
+        assert_eq!(addr, "[::1]:7000".parse().unwrap());
+        assert_eq!(key, std::path::PathBuf::from("/etc/bdft/tampere.key"));
+        for (bad, says) in [
+            ("Delft", "a-z, 0-9 and '-'"),
+            ("lab=127.0.0.1:7000", "NAME=ADDRESS,KEY_FILE"),
+            ("lab=somewhere,key", "the address \"somewhere\""),
+            ("lab=127.0.0.1:7000,", "the key file is missing"),
+            ("=127.0.0.1:7000,k", "site name \"\""),
+        ] {
+            let e = bad.parse::<SiteArg>().unwrap_err();
+            assert!(e.contains(says), "{bad}: {e}");
         }
     }
 }

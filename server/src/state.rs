@@ -1,4 +1,4 @@
-//! The one shared state of the HTTP server: the database, the controller link and the few
+//! The one shared state of the HTTP server: the database, the sites' controller links and the few
 //! things kept in memory.
 
 use std::sync::Arc;
@@ -10,7 +10,7 @@ use crate::engine::dry_runs::calibration::run::CalibrationJob;
 use crate::engine::dry_runs::pilot::PilotJob;
 use crate::engine::dry_runs::power::PlanJob;
 use crate::engine::machine::bench::BenchJob;
-use crate::engine::machine::controller_link::ControllerLink;
+use crate::engine::machine::sites::Sites;
 use crate::engine::operations::schedule::Backups;
 use crate::engine::procedure::station_sockets::StationSockets;
 use crate::engine::procedure::stations::Pairing;
@@ -19,7 +19,8 @@ use crate::engine::study::stability::StabilityCache;
 #[derive(Clone, Debug)]
 pub struct AppState {
     pub pool: AnyPool,
-    pub controller: ControllerLink,
+    /// Every site's controller link.
+    pub sites: Sites,
     pub login: Arc<LoginLimiter>,
     pub pairing: Arc<Pairing>,
     /// Each station's one live socket.
@@ -43,10 +44,10 @@ pub struct AppState {
 }
 
 impl AppState {
-    pub fn new(pool: AnyPool, controller: ControllerLink) -> Self {
+    pub fn new(pool: AnyPool, sites: Sites) -> Self {
         Self {
             pool,
-            controller,
+            sites,
             login: Arc::default(),
             pairing: Arc::default(),
             sockets: Arc::default(),

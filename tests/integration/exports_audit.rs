@@ -150,13 +150,7 @@ fn a_killed_pilot_process_leaves_no_trial_running() {
     let server = Server::start("exports-killed-pilot");
     let api = server.experimenter();
     let mut pilot = Command::new(binary("bdft-server"))
-        .args([
-            "pilot",
-            "--subjects",
-            "2",
-            "--db",
-            &server.store(),
-        ])
+        .args(["pilot", "--subjects", "2", "--db", &server.store()])
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()

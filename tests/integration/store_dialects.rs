@@ -684,7 +684,7 @@ fn the_servers_store_runs_on_postgres() {
             "a postgres:// URL names PostgreSQL"
         );
         let pool = store::db::open_location(&at, None).await.unwrap();
-        assert!(!store::latch::latched(&pool).await.unwrap());
+        assert!(!store::latch::latched(&pool, "main").await.unwrap());
         let params = bdft_server::engine::study::schedule::default_params();
         let mut change = store::Change::begin(&pool, "system:dialect-test")
             .await
@@ -692,7 +692,13 @@ fn the_servers_store_runs_on_postgres() {
         let id = store::studies::insert(change.db(), "on postgres", &params, 7)
             .await
             .unwrap();
-        store::latch::set(change.db(), true).await.unwrap();
+        store::latch::set_site(change.db(), "lab-a", true)
+            .await
+            .unwrap();
+        // Set twice: the site's row is written over, not added again.
+        store::latch::set_site(change.db(), "lab-a", true)
+            .await
+            .unwrap();
         change
             .commit(
                 "study.create",
@@ -701,7 +707,29 @@ fn the_servers_store_runs_on_postgres() {
             )
             .await
             .unwrap();
-        assert!(store::latch::latched(&pool).await.unwrap());
+        assert!(store::latch::latched(&pool, "lab-a").await.unwrap());
+        assert!(!store::latch::latched(&pool, "main").await.unwrap());
+        // The latch of every site latches each; its reset clears each site's own too.
+        let mut change = store::Change::begin(&pool, "system:dialect-test")
+            .await
+            .unwrap();
+        store::latch::set_all(change.db(), true).await.unwrap();
+        change
+            .commit("estop", None, store::audit::NoDetail {})
+            .await
+            .unwrap();
+        assert!(store::latch::latched(&pool, "main").await.unwrap());
+        let mut change = store::Change::begin(&pool, "system:dialect-test")
+            .await
+            .unwrap();
+        store::latch::set_all(change.db(), false).await.unwrap();
+        change
+            .commit("estop.reset", None, store::audit::NoDetail {})
+            .await
+            .unwrap();
+        for site in ["main", "lab-a"] {
+            assert!(!store::latch::latched(&pool, site).await.unwrap(), "{site}");
+        }
         let study = store::studies::get(&pool, id).await.unwrap();
         assert_eq!((study.name.as_str(), study.seed), ("on postgres", 7));
         assert_eq!(study.params, params);
@@ -710,19 +738,26 @@ fn the_servers_store_runs_on_postgres() {
                 .fetch_all(&pool)
                 .await
                 .unwrap();
+        let entry = |action: &str, target: Option<String>| {
+            (
+                action.to_string(),
+                target,
+                "system:dialect-test".to_string(),
+            )
+        };
         assert_eq!(
             audited,
-            [(
-                "study.create".to_string(),
-                Some(format!("study:{id}")),
-                "system:dialect-test".to_string()
-            )]
+            [
+                entry("study.create", Some(format!("study:{id}"))),
+                entry("estop", None),
+                entry("estop.reset", None)
+            ]
         );
         let chained: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM audit_chain")
             .fetch_one(&pool)
             .await
             .unwrap();
-        assert_eq!(chained, 1, "the entry joined the hash chain");
+        assert_eq!(chained, 3, "the entries joined the hash chain");
         pool.close().await;
         let again = store::db::open_location(&at, None).await.unwrap();
         assert_eq!(store::studies::all(&again).await.unwrap().len(), 1);

@@ -65,7 +65,7 @@ async fn start_bench(
 ) -> ApiResult<BenchStarted> {
     let run_id = s
         .bench
-        .start(&s.pool, &s.controller, &who.username, &req)
+        .start(&s.pool, s.sites.first(), &who.username, &req)
         .await?;
     Ok(AppJson(BenchStarted { run_id }))
 }

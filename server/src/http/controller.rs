@@ -1,13 +1,16 @@
-//! The real-time controller: health, its link and latch, the E-stop and its reset.
+//! The real-time controllers, one per site: health, their links and latches, the E-stop
+//! (of one site or all) and its reset.
 
-use axum::extract::State;
-use serde::Serialize;
-use utoipa::ToSchema;
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{Query, State};
+use serde::{Deserialize, Serialize};
+use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppJson, Done};
-use super::extract::Experimenter;
+use super::extract::{Experimenter, query};
+use crate::engine::machine::controller_link::ControllerLink;
 use crate::engine::procedure::trials;
 use crate::state::AppState;
 
@@ -25,15 +28,16 @@ pub fn experimenter() -> OpenApiRouter<AppState> {
 #[derive(Debug, Serialize, ToSchema)]
 pub struct Health {
     pub ok: bool,
+    /// Whether every site's controller is connected.
     pub controller_connected: bool,
 }
 
-/// Liveness, and whether the controller is connected.
+/// Liveness, and whether every site's controller is connected.
 #[utoipa::path(get, path = "/api/health", tag = "controller", responses((status = 200, body = Health)))]
 async fn health(State(s): State<AppState>) -> AppJson<Health> {
     AppJson(Health {
         ok: true,
-        controller_connected: s.controller.is_connected(),
+        controller_connected: s.sites.all_connected(),
     })
 }
 
@@ -45,55 +49,124 @@ pub struct EStopConfirmed {
     pub confirmed_ms: f64,
 }
 
-/// Emergency stop: every valve to zero, every trial stopped; latched until reset. Answers
-/// only once the controller confirms; 503 "NOT confirmed" otherwise.
-#[utoipa::path(post, path = "/api/estop", tag = "controller", responses((status = 200, body = EStopConfirmed)))]
-async fn estop(State(s): State<AppState>, who: Experimenter) -> ApiResult<EStopConfirmed> {
-    let took = trials::estop(&s.pool, &s.controller, &who.username).await?;
+/// Which site an E-stop or its reset is for.
+#[derive(Debug, Deserialize, IntoParams)]
+#[serde(deny_unknown_fields)]
+pub struct SiteQuery {
+    /// One site (GET /api/controller lists them); every site when absent.
+    site: Option<String>,
+}
+
+/// Emergency stop: every valve to zero, every trial stopped, at every site or at `site`
+/// alone; latched until reset. Answers only once each controller confirms; 503 "NOT
+/// confirmed", naming the sites, otherwise.
+#[utoipa::path(post, path = "/api/estop", tag = "controller", params(SiteQuery),
+    responses((status = 200, body = EStopConfirmed)))]
+async fn estop(
+    State(s): State<AppState>,
+    who: Experimenter,
+    q: Result<Query<SiteQuery>, QueryRejection>,
+) -> ApiResult<EStopConfirmed> {
+    let q = query(q)?;
+    let took = trials::estop(&s.pool, &s.sites, &who.username, q.site.as_deref()).await?;
     Ok(AppJson(EStopConfirmed {
         ok: true,
         confirmed_ms: took.as_secs_f64() * 1e3,
     }))
 }
 
-/// Clear the E-stop latch.
-#[utoipa::path(post, path = "/api/estop/reset", tag = "controller", responses((status = 200, body = Done)))]
-async fn estop_reset(State(s): State<AppState>, who: Experimenter) -> ApiResult<Done> {
-    trials::reset_estop(&s.pool, &s.controller, &who.username).await?;
+/// Clear the E-stop latch of every site, or of `site` alone (refused while every site's is
+/// latched).
+#[utoipa::path(post, path = "/api/estop/reset", tag = "controller", params(SiteQuery),
+    responses((status = 200, body = Done)))]
+async fn estop_reset(
+    State(s): State<AppState>,
+    who: Experimenter,
+    q: Result<Query<SiteQuery>, QueryRejection>,
+) -> ApiResult<Done> {
+    let q = query(q)?;
+    trials::reset_estop(&s.pool, &s.sites, &who.username, q.site.as_deref()).await?;
     Ok(Done::ok())
 }
 
+/// The controllers: every site's together (the dashboard's light and latch), and each.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct ControllerStatus {
+    /// Every site's controller is connected.
     pub connected: bool,
-    /// Process id of the controller this server started, if any.
+    /// Process id of the first site's controller, if this server started it.
+    pub pid: Option<u32>,
+    /// The first site's rig: "sim" or "udp".
+    pub rig: Option<String>,
+    /// Some site's E-stop is latched, as starts see it.
+    pub estop_latched: bool,
+    /// Every site's E-stop has its own connection up.
+    pub estop_path: bool,
+    /// Why a site's link last went down, if it did (the first such site's, named).
+    pub down_because: Option<String>,
+    /// Each site, in the order `serve --site` gave them.
+    pub sites: Vec<SiteStatus>,
+}
+
+/// One site's controller.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct SiteStatus {
+    pub site: String,
+    pub connected: bool,
+    /// Process id of its controller, if this server started it.
     pub pid: Option<u32>,
     /// "sim" or "udp".
     pub rig: Option<String>,
-    /// The E-stop latch as starts see it: the controller's or the server's stored one.
+    /// Its E-stop latch as starts see it: the controller's, the site's stored one, or that
+    /// of every site.
     pub estop_latched: bool,
-    /// Whether the E-stop's own connection is up (the control connection carries every
+    /// Whether its E-stop's own connection is up (the control connection carries every
     /// E-stop too).
     pub estop_path: bool,
-    /// Why the link last went down, if it did (shown while it is down).
+    /// Why its link last went down, if it did (shown while it is down).
     pub down_because: Option<String>,
 }
 
-/// The controller's link, rig and E-stop latch.
+async fn site_status(s: &AppState, link: &ControllerLink) -> crate::error::Result<SiteStatus> {
+    // Latched if either end holds it: starts are refused on the server's own latch too, so
+    // the dashboard must not offer Start while the controller is away and the latch is set.
+    let stored = crate::store::latch::latched(&s.pool, link.site()).await?;
+    Ok(SiteStatus {
+        site: link.site().to_string(),
+        connected: link.is_connected(),
+        pid: link.pid(),
+        rig: link.rig(),
+        estop_latched: link.estop_latched() || stored,
+        estop_path: link.estop_path_up(),
+        down_because: link.down_because(),
+    })
+}
+
+/// Every site's controller: its link, rig and E-stop latch.
 #[utoipa::path(get, path = "/api/controller", tag = "controller", responses((status = 200, body = ControllerStatus)))]
 async fn controller_status(
     State(s): State<AppState>,
     _who: Experimenter,
 ) -> ApiResult<ControllerStatus> {
-    // Latched if either end holds it: starts are refused on the server's own latch too, so
-    // the dashboard must not offer Start while the controller is away and the latch is set.
-    let stored = crate::store::latch::latched(&s.pool).await?;
+    let mut sites = Vec::new();
+    for link in s.sites.all() {
+        sites.push(site_status(&s, link).await?);
+    }
+    let first = &sites[0];
     Ok(AppJson(ControllerStatus {
-        connected: s.controller.is_connected(),
-        pid: s.controller.pid(),
-        rig: s.controller.rig(),
-        estop_latched: s.controller.estop_latched() || stored,
-        estop_path: s.controller.estop_path_up(),
-        down_because: s.controller.down_because(),
+        connected: sites.iter().all(|x| x.connected),
+        pid: first.pid,
+        rig: first.rig.clone(),
+        estop_latched: sites.iter().any(|x| x.estop_latched),
+        estop_path: sites.iter().all(|x| x.estop_path),
+        down_because: sites.iter().find_map(|x| {
+            x.down_because
+                .as_ref()
+                .map(|why| match s.sites.all().len() {
+                    1 => why.clone(),
+                    _ => format!("site {:?}: {why}", x.site),
+                })
+        }),
+        sites,
     }))
 }

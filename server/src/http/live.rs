@@ -29,7 +29,7 @@ use utoipa_axum::routes;
 
 use super::error::AppError;
 use super::extract::Experimenter;
-use crate::engine::machine::controller_link::ControllerEvent;
+use crate::engine::machine::controller_link::{ControllerEvent, ControllerLink};
 use crate::engine::procedure::station_sockets::{
     Admit, FLOOD_SECONDS, INPUT_RATE, InputLimit, OPENINGS_PER_SECOND, Opened, READ_RATE,
     ReadBudget,
@@ -149,7 +149,8 @@ async fn station_socket(s: AppState, station_id: i64, socket: WebSocket) {
     let (sink, mut stream) = socket.split();
     let (live, live_rx) = mpsc::channel(LIVE_QUEUE);
     let changed = Arc::new(Notify::new());
-    let (latch, latch_rx) = watch::channel(latched(&s).await);
+    let link = station_link(&s, station_id).await;
+    let (latch, latch_rx) = watch::channel(latched(&s, link.as_ref()).await);
     let (close, close_rx) = oneshot::channel();
     let mut out = Outbox {
         live,
@@ -162,6 +163,7 @@ async fn station_socket(s: AppState, station_id: i64, socket: WebSocket) {
     let mut writer = tokio::spawn(station_writer(sink, live_rx, changed, latch_rx, close_rx));
     let closing = station_reader(
         &s,
+        link.as_ref(),
         station_id,
         &mut stream,
         &mut out,
@@ -215,24 +217,36 @@ async fn next_within(
     stream.next().await
 }
 
-/// The E-stop latch as the station shows it: set when the server's latch or the
-/// controller's is (a controller latch is known at once; the server's is written after the
-/// controller confirms, or without it when it is not connected). A database that cannot
-/// say counts as latched.
-async fn latched(s: &AppState) -> bool {
-    s.controller.estop_latched() || store::latch::latched(&s.pool).await.unwrap_or(true)
+/// The controller link of the station's site; none when its site is not served here (or
+/// the station cannot be read): the station then shows Stopped and feeds nothing.
+async fn station_link(s: &AppState, station_id: i64) -> Option<ControllerLink> {
+    let station = store::stations::get(&s.pool, station_id).await.ok()?;
+    s.sites.stored(station.site.as_deref()).cloned()
+}
+
+/// The E-stop latch as the station shows it: set when its site's latch on the server or on
+/// the controller is (a controller latch is known at once; the server's is written after
+/// the controller confirms, or without it when it is not connected). A database that
+/// cannot say, or a site not served here, counts as latched.
+async fn latched(s: &AppState, link: Option<&ControllerLink>) -> bool {
+    let Some(link) = link else { return true };
+    link.estop_latched()
+        || store::latch::latched(&s.pool, link.site())
+            .await
+            .unwrap_or(true)
 }
 
 /// Reads the station until it closes or must be closed; returns why the server closes it.
 async fn station_reader(
     s: &AppState,
+    link: Option<&ControllerLink>,
     station_id: i64,
     stream: &mut SplitStream<WebSocket>,
     out: &mut Outbox,
     opened: &mut Opened,
     writer: &mut tokio::task::JoinHandle<()>,
 ) -> Option<Closing> {
-    let mut events = s.controller.subscribe();
+    let mut events = s.sites.subscribe();
     // The trial this station may feed: its subject's running test at a seat it serves.
     let current = || async { running_trial(&s.pool, station_id).await.ok().flatten() };
     let mut running = current().await;
@@ -307,7 +321,9 @@ async fn station_reader(
                             && position_mm.abs() <= MAX_POSITION_MM
                             && !opened.is_replaced() =>
                     {
-                        s.controller.send_input(trial_id as u64, seq, position_mm);
+                        if let Some(link) = link {
+                            link.send_input(trial_id as u64, seq, position_mm);
+                        }
                     }
                     Ok(StationMessage::Display { trial_id, hidden, longest_gap_ms, hidden_ms, .. })
                         if Some(trial_id) == running
@@ -327,14 +343,16 @@ async fn station_reader(
                     let _ = out.live.try_send(text(&StationEvent::Live { sample }));
                 }
                 Ok(ControllerEvent::Live(_)) => {}
-                Ok(ControllerEvent::EStop { latched: true }) => {
+                Ok(ControllerEvent::EStop { latched: true, site })
+                    if link.is_some_and(|l| l.site() == &*site) =>
+                {
                     // At once: the page shows "Stopped" before anything is read again.
                     out.latch.send_if_modified(|l| !std::mem::replace(l, true));
                     running = current().await;
                     out.changed.notify_one();
                 }
                 Ok(ControllerEvent::TrialChanged { .. } | ControllerEvent::Link { .. } | ControllerEvent::EStop { .. }) | Err(RecvError::Lagged(_)) => {
-                    let now = latched(s).await;
+                    let now = latched(s, link).await;
                     out.latch.send_if_modified(|l| std::mem::replace(l, now) != now);
                     running = current().await;
                     out.changed.notify_one();
@@ -345,7 +363,7 @@ async fn station_reader(
             _ = guard.tick() => display.check(s, Instant::now()).await,
             // A trial started by the experimenter, a latch set while the controller was away.
             _ = look.tick() => {
-                let now = latched(s).await;
+                let now = latched(s, link).await;
                 out.latch.send_if_modified(|l| std::mem::replace(l, now) != now);
                 if running.is_none() {
                     let now = current().await;
@@ -408,7 +426,7 @@ impl Display {
         );
         if let Err(e) = validity::invalidate(
             &s.pool,
-            &s.controller,
+            &s.sites,
             "system:display-watch",
             w.trial_id,
             &reason,
@@ -479,7 +497,7 @@ async fn live_ws(
 /// when nothing happens to send.
 async fn dashboard_socket(s: AppState, socket: WebSocket) {
     let (mut sink, mut stream) = socket.split();
-    let mut events = s.controller.subscribe();
+    let mut events = s.sites.subscribe();
     let mut ping = tokio::time::interval_at(tokio::time::Instant::now() + PING_EVERY, PING_EVERY);
     loop {
         let event = tokio::select! {
@@ -491,8 +509,9 @@ async fn dashboard_socket(s: AppState, socket: WebSocket) {
             ev = events.recv() => text(&match ev {
                 Ok(ControllerEvent::Live(sample)) => MonitorEvent::Live { sample },
                 Ok(ControllerEvent::TrialChanged { trial_id }) => MonitorEvent::Trial { trial_id },
-                Ok(ControllerEvent::Link { connected }) => MonitorEvent::Controller { connected },
-                Ok(ControllerEvent::EStop { latched }) => MonitorEvent::EStop { latched },
+                // The dashboard's one light and latch: every site connected, any site latched.
+                Ok(ControllerEvent::Link { .. }) => MonitorEvent::Controller { connected: s.sites.all_connected() },
+                Ok(ControllerEvent::EStop { .. }) => MonitorEvent::EStop { latched: s.sites.any_latched() },
                 Err(RecvError::Lagged(_)) => continue,
                 Err(RecvError::Closed) => return,
             }),

@@ -32,6 +32,10 @@ pub struct PairBody {
     name: String,
     /// The seats the station serves: on, off or both.
     role: StationRole,
+    /// The site it is at (`serve --site`; GET /api/controller lists them): the server's
+    /// first site when absent.
+    #[serde(default)]
+    site: Option<String>,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
@@ -39,6 +43,7 @@ pub struct Paired {
     pub id: i64,
     pub name: String,
     pub role: StationRole,
+    pub site: String,
 }
 
 /// Pair the station showing the code with the study.
@@ -50,20 +55,31 @@ async fn pair_station(
     Path(study_id): Path<i64>,
     AppJson(b): AppJson<PairBody>,
 ) -> ApiResult<Paired> {
+    let site = match &b.site {
+        Some(name) => s.sites.named(name)?,
+        None => s.sites.first(),
+    }
+    .site()
+    .to_string();
+    let new = stations::NewStation {
+        name: &b.name,
+        role: b.role,
+        site: &site,
+    };
     let id = stations::pair(
         &s.pool,
         &s.pairing,
         &who.username,
         study_id,
         &b.pairing_code,
-        &b.name,
-        b.role,
+        new,
     )
     .await?;
     Ok(AppJson(Paired {
         id,
         name: b.name,
         role: b.role,
+        site,
     }))
 }
 
@@ -94,8 +110,8 @@ async fn assign_station(
     Path(id): Path<i64>,
     AppJson(b): AppJson<AssignBody>,
 ) -> ApiResult<Done> {
-    stations::assign(&s.pool, &who.username, id, b.subject_id).await?;
-    lsl::station_assigned(&s.pool, &s.controller, id).await;
+    stations::assign(&s.pool, &s.sites, &who.username, id, b.subject_id).await?;
+    lsl::station_assigned(&s.pool, &s.sites, id).await;
     Ok(Done::ok())
 }
 

@@ -138,7 +138,7 @@ async fn withdraw(
     Path(id): Path<i64>,
     AppJson(b): AppJson<ReasonBody>,
 ) -> ApiResult<Done> {
-    subjects::withdraw(&s.pool, &s.controller, &who.username, id, &b.reason).await?;
+    subjects::withdraw(&s.pool, &s.sites, &who.username, id, &b.reason).await?;
     Ok(Done::ok())
 }
 
@@ -171,7 +171,7 @@ async fn withdraw_own(
     body: axum::body::Bytes,
 ) -> ApiResult<OwnProgress> {
     let b: OwnWithdrawal = optional_json(&body, "withdrawal")?;
-    subjects::withdraw_own(&s.pool, &s.controller, &me, b.reason.as_deref()).await?;
+    subjects::withdraw_own(&s.pool, &s.sites, &me, b.reason.as_deref()).await?;
     let me = store::subjects::get(&s.pool, me.id).await?;
     Ok(AppJson(subjects::own_progress(&s.pool, me).await?))
 }

@@ -32,7 +32,7 @@ async fn start_trial(
     Path(id): Path<i64>,
 ) -> ApiResult<Trial> {
     Ok(AppJson(
-        trials::start(&s.pool, &s.controller, &who.username, id).await?,
+        trials::start(&s.pool, &s.sites, &who.username, id).await?,
     ))
 }
 
@@ -45,7 +45,7 @@ async fn abort_trial(
     Path(id): Path<i64>,
     AppJson(b): AppJson<ReasonBody>,
 ) -> ApiResult<Done> {
-    trials::abort(&s.pool, &s.controller, &who.username, id, &b.reason).await?;
+    trials::abort(&s.pool, &s.sites, &who.username, id, &b.reason).await?;
     Ok(Done::ok())
 }
 

@@ -18,9 +18,12 @@ pub struct Station {
     #[sqlx(try_from = "String")]
     pub role: StationRole,
     pub subject_id: Option<i64>,
+    /// The site it is at (`serve --site`); none for a station paired before sites existed,
+    /// which is at the server's first site.
+    pub site: Option<String>,
 }
 
-const COLUMNS: &str = "id, study_id, name, role, subject_id";
+const COLUMNS: &str = "id, study_id, name, role, subject_id, site";
 
 pub async fn get<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Station> {
     sqlx::query_as(&format!("SELECT {COLUMNS} FROM stations WHERE id = $1"))
@@ -65,14 +68,16 @@ pub async fn insert(
     study_id: i64,
     name: &str,
     role: StationRole,
+    site: &str,
     token: &str,
     pairing_code: &str,
 ) -> Result<i64> {
     let now = now_ms();
-    Ok(sqlx::query_scalar::<_, i64>("INSERT INTO stations (study_id, name, role, token_hash, pairing_code, paired_at, created_at) VALUES ($1, $2, $3, $4, $5, $6, $7) RETURNING id")
+    Ok(sqlx::query_scalar::<_, i64>("INSERT INTO stations (study_id, name, role, site, token_hash, pairing_code, paired_at, created_at) VALUES ($1, $2, $3, $4, $5, $6, $7, $8) RETURNING id")
         .bind(study_id)
         .bind(name)
         .bind(role.as_str())
+        .bind(site)
         .bind(token_hash(token))
         .bind(pairing_code)
         .bind(now)

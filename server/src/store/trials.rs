@@ -71,6 +71,9 @@ pub struct Trial {
     pub cab_vdv_m_s175: Option<f64>,
     /// The length of the record those are over (s).
     pub exposure_s: Option<f64>,
+    /// The site whose machine ran it (`serve --site`), recorded as it started; none for a
+    /// test not started yet or started before sites existed.
+    pub site: Option<String>,
 }
 
 impl Trial {
@@ -237,12 +240,14 @@ pub async fn personalize_scheduled(
     .rows_affected())
 }
 
-/// Marks a scheduled trial running; fails if it is not scheduled (two starts racing).
-pub async fn mark_running(db: &mut AnyConnection, trial_id: i64) -> Result<()> {
+/// Marks a scheduled trial running at `site` (none: a dry run's own controller); fails if
+/// it is not scheduled (two starts racing).
+pub async fn mark_running(db: &mut AnyConnection, trial_id: i64, site: Option<&str>) -> Result<()> {
     let done = sqlx::query(
-        "UPDATE trials SET status = 'running', started_at = $1 WHERE id = $2 AND status = 'scheduled'",
+        "UPDATE trials SET status = 'running', started_at = $1, site = $2 WHERE id = $3 AND status = 'scheduled'",
     )
     .bind(now_ms())
+    .bind(site)
     .bind(trial_id)
     .execute(db)
     .await?;
@@ -257,7 +262,7 @@ pub async fn mark_running(db: &mut AnyConnection, trial_id: i64) -> Result<()> {
 /// Puts a trial that could not be started back in the queue; `false` when it was no longer
 /// running (something filed it meanwhile).
 pub async fn unmark_running(db: &mut AnyConnection, trial_id: i64) -> Result<bool> {
-    let done = sqlx::query("UPDATE trials SET status = 'scheduled', started_at = NULL WHERE id = $1 AND status = 'running'")
+    let done = sqlx::query("UPDATE trials SET status = 'scheduled', started_at = NULL, site = NULL WHERE id = $1 AND status = 'running'")
         .bind(trial_id)
         .execute(db)
         .await?;
@@ -311,6 +316,18 @@ pub async fn running_ids<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<i64>> {
     let ids: Vec<(i64,)> = sqlx::query_as(
         "SELECT id FROM trials WHERE status = 'running' AND id NOT IN (SELECT trial_id FROM pilot_trials) ORDER BY id",
     )
+    .fetch_all(db)
+    .await?;
+    Ok(ids.into_iter().map(|r| r.0).collect())
+}
+
+/// The trials running on `site`'s machine (and any running with no site: started before
+/// sites existed, so on whichever machine there was).
+pub async fn running_ids_at<'c>(db: impl AnyExecutor<'c>, site: &str) -> Result<Vec<i64>> {
+    let ids: Vec<(i64,)> = sqlx::query_as(
+        "SELECT id FROM trials WHERE status = 'running' AND (site = $1 OR site IS NULL) AND id NOT IN (SELECT trial_id FROM pilot_trials) ORDER BY id",
+    )
+    .bind(site)
     .fetch_all(db)
     .await?;
     Ok(ids.into_iter().map(|r| r.0).collect())

@@ -225,7 +225,8 @@ pub async fn run_with_progress(
                         Operator::Synthetic(subject.drawn),
                     )
                     .await?;
-                    store::trials::mark_running(change.db(), trial.id).await?;
+                    // A dry run's own simulated controller is no site's machine.
+                    store::trials::mark_running(change.db(), trial.id, None).await?;
                     if let Some(run_id) = run_id {
                         store::pilot_runs::claim(change.db(), run_id, trial.id).await?;
                     }

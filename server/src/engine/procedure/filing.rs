@@ -5,7 +5,7 @@
 //! controller link hands over and cannot be written now (the disk full) is written again
 //! every second until it is ([`LinkFiling`]).
 
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use bdft_protocol::controller_to_server::TrialResult;
@@ -15,11 +15,12 @@ use bdft_protocol::records::{TestPhase, TrialStatus};
 use bdft_protocol::trial::{FaultKind, Metrics, Outcome};
 use serde::Serialize;
 use sqlx::AnyPool;
+use tokio::sync::broadcast;
 
 use super::identification::{self, Measured};
 use super::lsl;
 use super::queue::requeue_failed;
-use crate::engine::machine::controller_link::{BoxFuture, ControllerEvent, ControllerLink, Filing};
+use crate::engine::machine::controller_link::{BoxFuture, ControllerEvent, Filing};
 use crate::engine::study::exposure::{action_values_reached, last_24h};
 use crate::error::{AppError, Result};
 use crate::store::records::Record;
@@ -179,7 +180,7 @@ pub struct LinkFiling {
     pool: AnyPool,
     unfiled: Mutex<Vec<Unfiled>>,
     /// Told about a trial filed late, so that its station and the dashboards show it.
-    link: OnceLock<ControllerLink>,
+    events: broadcast::Sender<ControllerEvent>,
 }
 
 /// What the link handed over and could not be written yet.
@@ -197,12 +198,13 @@ enum Unfiled {
 const LINK_ACTOR: &str = "system:controller";
 
 impl LinkFiling {
-    /// A filing on `pool`; what it could not write is written again every second.
-    pub fn start(pool: AnyPool) -> Arc<Self> {
+    /// A filing on `pool` that tells `events` what it filed late; what it could not write is
+    /// written again every second.
+    pub fn start(pool: AnyPool, events: broadcast::Sender<ControllerEvent>) -> Arc<Self> {
         let filing = Arc::new(Self {
             pool,
             unfiled: Mutex::new(Vec::new()),
-            link: OnceLock::new(),
+            events,
         });
         let weak = Arc::downgrade(&filing);
         tokio::spawn(async move {
@@ -215,11 +217,6 @@ impl LinkFiling {
             }
         });
         filing
-    }
-
-    /// The link to tell when a trial is filed late.
-    pub fn attach(&self, link: ControllerLink) {
-        let _ = self.link.set(link);
     }
 
     fn unfiled(&self) -> std::sync::MutexGuard<'_, Vec<Unfiled>> {
@@ -241,10 +238,8 @@ impl LinkFiling {
             match filed {
                 Ok(ids) => {
                     tracing::warn!(trials = ?ids, "filed late: the database takes writes again");
-                    if let Some(link) = self.link.get() {
-                        for trial_id in ids {
-                            link.emit(ControllerEvent::TrialChanged { trial_id });
-                        }
+                    for trial_id in ids {
+                        let _ = self.events.send(ControllerEvent::TrialChanged { trial_id });
                     }
                 }
                 Err(_) => self.unfiled().push(item),
@@ -273,7 +268,11 @@ impl Filing for LinkFiling {
         })
     }
 
-    fn interrupted<'a>(&'a self, reason: &'a str) -> BoxFuture<'a, Result<Vec<i64>>> {
+    fn interrupted<'a>(
+        &'a self,
+        site: &'a str,
+        reason: &'a str,
+    ) -> BoxFuture<'a, Result<Vec<i64>>> {
         Box::pin(async move {
             // A trial whose result waits to be written is not lost.
             let held: Vec<i64> = self
@@ -284,7 +283,7 @@ impl Filing for LinkFiling {
                     Unfiled::Lost { .. } => None,
                 })
                 .collect();
-            let trials: Vec<i64> = store::trials::running_ids(&self.pool)
+            let trials: Vec<i64> = store::trials::running_ids_at(&self.pool, site)
                 .await?
                 .into_iter()
                 .filter(|id| !held.contains(id))

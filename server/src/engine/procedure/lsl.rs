@@ -24,6 +24,7 @@ use serde::Serialize;
 use sqlx::AnyPool;
 
 use crate::engine::machine::controller_link::ControllerLink;
+use crate::engine::machine::sites::Sites;
 use crate::error::Result;
 use crate::store;
 use crate::store::trials::Trial;
@@ -171,9 +172,19 @@ async fn publish(
     Ok(())
 }
 
-/// A subject was assigned to the station (or unassigned: then nothing changes).
-pub async fn station_assigned(pool: &AnyPool, link: &ControllerLink, station_id: i64) {
-    logged(publish(pool, link, station_id, None).await);
+/// A subject was assigned to the station (or unassigned: then nothing changes); its
+/// streams come from its site's controller.
+pub async fn station_assigned(pool: &AnyPool, sites: &Sites, station_id: i64) {
+    if !enabled() {
+        return;
+    }
+    let station = match store::stations::get(pool, station_id).await {
+        Ok(s) => s,
+        Err(e) => return logged(Err(e)),
+    };
+    if let Some(link) = sites.stored(station.site.as_deref()) {
+        logged(publish(pool, link, station_id, None).await);
+    }
 }
 
 /// The streams never hold up the protocol: what they could not say is logged.

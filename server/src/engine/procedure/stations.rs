@@ -17,6 +17,7 @@ use bdft_protocol::study::{ConsentForm, StudyParams, StudyTexts};
 
 use super::queue;
 use super::station_sockets::StationSockets;
+use crate::engine::machine::sites::Sites;
 use crate::error::{AppError, Result};
 use crate::store::stations::Station;
 use crate::store::studies::Study;
@@ -178,11 +179,21 @@ fn new_code() -> String {
         .collect()
 }
 
-/// What `station.pair` records: the station's name and role.
+/// What `station.pair` records: the station's name, role and site.
 #[derive(Debug, Serialize)]
 struct Paired<'a> {
     name: &'a str,
     role: StationRole,
+    site: &'a str,
+}
+
+/// A station to pair: its name, the seats it serves, and the site it is at (one the
+/// server serves).
+#[derive(Debug, Clone, Copy)]
+pub struct NewStation<'a> {
+    pub name: &'a str,
+    pub role: StationRole,
+    pub site: &'a str,
 }
 
 /// Pairs the station showing `pairing_code` with a study; returns its id.
@@ -192,8 +203,7 @@ pub async fn pair(
     actor: &str,
     study_id: i64,
     pairing_code: &str,
-    name: &str,
-    role: StationRole,
+    NewStation { name, role, site }: NewStation<'_>,
 ) -> Result<i64> {
     store::studies::get(pool, study_id).await?;
     crate::engine::check_name(name)?;
@@ -204,12 +214,13 @@ pub async fn pair(
         ))
     })?;
     let mut change = Change::begin(pool, actor).await?;
-    let id = store::stations::insert(change.db(), study_id, name, role, &token, &code).await?;
+    let id =
+        store::stations::insert(change.db(), study_id, name, role, site, &token, &code).await?;
     change
         .commit(
             "station.pair",
             Some(format!("station:{id}")),
-            Paired { name, role },
+            Paired { name, role, site },
         )
         .await?;
     pairing.forget(&code);
@@ -223,9 +234,11 @@ struct Assigned {
     subject_id: Option<i64>,
 }
 
-/// Assigns a subject of the station's study to it (or none).
+/// Assigns a subject of the station's study to it (or none). A subject's stations are at
+/// one site: its tests run on that site's machine.
 pub async fn assign(
     pool: &AnyPool,
+    sites: &Sites,
     actor: &str,
     station_id: i64,
     subject_id: Option<i64>,
@@ -252,6 +265,18 @@ pub async fn assign(
             return Err(AppError::Conflict(format!(
                 "{} is already assigned to station {:?}, which serves the same seat; unassign it there first",
                 subject.code, other.name
+            )));
+        }
+        let here = sites.name_of(station.site.as_deref());
+        if let Some(other) = others
+            .iter()
+            .find(|o| sites.name_of(o.site.as_deref()) != here)
+        {
+            return Err(AppError::Conflict(format!(
+                "{} is already assigned to station {:?} at site {:?}, and this station is at site {here:?}: a subject's tests run on one site's machine; unassign it there first",
+                subject.code,
+                other.name,
+                sites.name_of(other.site.as_deref())
             )));
         }
     }

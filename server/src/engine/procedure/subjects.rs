@@ -9,7 +9,8 @@ use serde::Serialize;
 use sqlx::AnyPool;
 
 use super::lsl::{self, Marker};
-use crate::engine::machine::controller_link::ControllerLink;
+use super::trials::site_of_trial;
+use crate::engine::machine::sites::Sites;
 use crate::engine::study::exposure::{self, SubjectExposure};
 use crate::error::{AppError, Result};
 use crate::store::subjects::{Note, Subject};
@@ -139,7 +140,7 @@ struct Withdrawn<'a> {
 /// files it aborted); returns the stopped trial, if one was running.
 pub async fn withdraw(
     pool: &AnyPool,
-    link: &ControllerLink,
+    sites: &Sites,
     actor: &str,
     subject_id: i64,
     reason: &str,
@@ -149,16 +150,19 @@ pub async fn withdraw(
     store::subjects::withdraw(change.db(), subject_id, reason).await?;
     let running = store::trials::next(change.db(), subject_id)
         .await?
-        .filter(|t| t.status == TrialStatus::Running)
-        .map(|t| t.id);
-    // Stopped before the commit is acknowledged: a withdrawn person is never driven on.
-    let stopped = running.map(|id| {
-        link.send(&ServerToController::AbortTrial {
-            trial_id: id as u64,
-            reason: format!("the subject withdrew: {reason}"),
+        .filter(|t| t.status == TrialStatus::Running);
+    // Stopped before the commit is acknowledged, on its site's machine: a withdrawn person
+    // is never driven on.
+    let stopped = running.as_ref().map(|t| {
+        site_of_trial(sites, t).is_ok_and(|link| {
+            link.send(&ServerToController::AbortTrial {
+                trial_id: t.id as u64,
+                reason: format!("the subject withdrew: {reason}"),
+            })
+            .is_ok()
         })
-        .is_ok()
     });
+    let running = running.map(|t| t.id);
     change
         .commit(
             "subject.withdraw",
@@ -180,7 +184,7 @@ const NO_REASON: &str = "withdrawn by the subject on their own page (no reason g
 /// The subject withdraws on their own page; the reason is optional.
 pub async fn withdraw_own(
     pool: &AnyPool,
-    link: &ControllerLink,
+    sites: &Sites,
     subject: &Subject,
     reason: Option<&str>,
 ) -> Result<Option<i64>> {
@@ -189,7 +193,7 @@ pub async fn withdraw_own(
         _ => NO_REASON,
     };
     let actor = format!("subject:{}", subject.code);
-    withdraw(pool, link, &actor, subject.id, reason).await
+    withdraw(pool, sites, &actor, subject.id, reason).await
 }
 
 /// A subject in the experimenter's list, with how far they are.

@@ -12,6 +12,7 @@ use sqlx::AnyPool;
 use super::lsl::{self, Marker};
 use super::orchestrator::{Operator, start_now};
 use crate::engine::machine::controller_link::{ControllerEvent, ControllerLink};
+use crate::engine::machine::sites::Sites;
 use crate::error::{AppError, Result};
 use crate::store::audit::{NoDetail, Reason};
 use crate::store::trials::Trial;
@@ -34,13 +35,38 @@ struct Started {
     seat: Seat,
 }
 
-/// Checks that `trial` may start now and starts it on the controller.
-pub async fn start(
+/// The site a subject's tests run at: its stations' (a subject's stations are at one
+/// site), or the server's first site for a subject at no station.
+async fn site_of_subject<'s>(
     pool: &AnyPool,
-    link: &ControllerLink,
-    actor: &str,
-    trial_id: i64,
-) -> Result<Trial> {
+    sites: &'s Sites,
+    subject: &store::subjects::Subject,
+) -> Result<&'s ControllerLink> {
+    let stations = store::stations::of_subject(pool, subject.id).await?;
+    let stored = stations.first().and_then(|s| s.site.as_deref());
+    sites.stored(stored).ok_or_else(|| {
+        AppError::Conflict(format!(
+            "{}'s station is at site {:?}, which this server does not serve (its sites: {})",
+            subject.code,
+            sites.name_of(stored),
+            sites.names().join(", ")
+        ))
+    })
+}
+
+/// The link of the site a running trial runs at (recorded when it started).
+pub fn site_of_trial<'s>(sites: &'s Sites, trial: &Trial) -> Result<&'s ControllerLink> {
+    sites.stored(trial.site.as_deref()).ok_or_else(|| {
+        AppError::Unavailable(format!(
+            "trial {} runs at site {:?}, which this server does not serve now",
+            trial.id,
+            sites.name_of(trial.site.as_deref())
+        ))
+    })
+}
+
+/// Checks that `trial` may start now and starts it on the controller of its subject's site.
+pub async fn start(pool: &AnyPool, sites: &Sites, actor: &str, trial_id: i64) -> Result<Trial> {
     let trial = store::trials::get(pool, trial_id).await?;
     let subject = store::subjects::get(pool, trial.subject_id).await?;
     if subject.withdrawn_at.is_some() {
@@ -72,15 +98,18 @@ pub async fn start(
             )));
         }
     }
-    if store::latch::latched(pool).await? {
-        return Err(AppError::Conflict(
-            "the E-stop is latched: reset it (Reset e-stop, POST /api/estop/reset) before starting a test".into(),
-        ));
+    let link = site_of_subject(pool, sites, &subject).await?;
+    if store::latch::latched(pool, link.site()).await? {
+        return Err(AppError::Conflict(format!(
+            "the E-stop of site {:?} is latched: reset it (Reset e-stop, POST /api/estop/reset) before starting a test",
+            link.site()
+        )));
     }
     if !link.is_connected() {
-        return Err(AppError::Unavailable(
-            "the controller is not connected".into(),
-        ));
+        return Err(AppError::Unavailable(format!(
+            "the controller of site {:?} is not connected",
+            link.site()
+        )));
     }
     let study = store::studies::get(pool, subject.study_id).await?;
     // A study run on the real machine must never go to a simulating controller, nor the
@@ -100,7 +129,7 @@ pub async fn start(
     };
     let mut change = Change::begin(pool, actor).await?;
     let msg = start_now(change.db(), &study, &trial, &subject, operator).await?;
-    store::trials::mark_running(change.db(), trial.id).await?;
+    store::trials::mark_running(change.db(), trial.id, Some(link.site())).await?;
     change
         .commit(
             "trial.start",
@@ -139,10 +168,10 @@ pub async fn start(
     store::trials::get(pool, trial.id).await
 }
 
-/// Stops a running trial early; the controller files it aborted with `reason`.
+/// Stops a running trial early; its site's controller files it aborted with `reason`.
 pub async fn abort(
     pool: &AnyPool,
-    link: &ControllerLink,
+    sites: &Sites,
     actor: &str,
     trial_id: i64,
     reason: &str,
@@ -155,11 +184,12 @@ pub async fn abort(
             trial.status
         )));
     }
-    link.send(&ServerToController::AbortTrial {
-        trial_id: trial_id as u64,
-        reason: reason.to_string(),
-    })
-    .map_err(AppError::Unavailable)?;
+    site_of_trial(sites, &trial)?
+        .send(&ServerToController::AbortTrial {
+            trial_id: trial_id as u64,
+            reason: reason.to_string(),
+        })
+        .map_err(AppError::Unavailable)?;
     Change::begin(pool, actor)
         .await?
         .commit(
@@ -274,58 +304,133 @@ pub async fn add_note(pool: &AnyPool, author: &str, trial_id: i64, text: &str) -
     Ok(note)
 }
 
-/// What `estop` records: whether the controller confirmed the stop, and how fast.
+/// What `estop` records: the sites stopped, and for each whether its controller confirmed
+/// the stop and how fast.
 #[derive(Debug, Serialize)]
-struct EStopped {
+struct EStopped<'a> {
+    sites: Vec<SiteStopped<'a>>,
+}
+
+#[derive(Debug, Serialize)]
+struct SiteStopped<'a> {
+    site: &'a str,
     delivered: bool,
     confirmed_ms: Option<f64>,
 }
 
-/// The E-stop: sent first (the stop itself waits for nothing that could fail), then the
-/// server's latch is set — it is re-sent to every controller connection until an
-/// experimenter resets it — and audited; an error when it could not be sent.
-/// Returns how long the controller took to confirm.
+/// The E-stop of one site (`site`) or of every site (none): sent first, to every site's
+/// controller at once (the stop itself waits for nothing that could fail), then the
+/// server's latch is set — it is re-sent to every controller connection of those sites
+/// until an experimenter resets it — and audited; an error naming each site whose
+/// controller did not confirm. Returns the slowest confirmation.
 pub async fn estop(
     pool: &AnyPool,
-    link: &ControllerLink,
+    sites: &Sites,
     actor: &str,
+    site: Option<&str>,
 ) -> Result<std::time::Duration> {
-    let sent = link.estop(ESTOP_CONFIRMATION).await;
+    let links: Vec<&ControllerLink> = match site {
+        Some(name) => vec![sites.named(name)?],
+        None => sites.all().iter().collect(),
+    };
+    let sent =
+        futures_util::future::join_all(links.iter().map(|l| l.estop(ESTOP_CONFIRMATION))).await;
     lsl::estop();
     let mut change = Change::begin(pool, actor).await?;
-    store::latch::set(change.db(), true).await?;
+    match site {
+        Some(name) => store::latch::set_site(change.db(), name, true).await?,
+        None => store::latch::set_all(change.db(), true).await?,
+    }
+    let stopped = links
+        .iter()
+        .zip(&sent)
+        .map(|(l, r)| SiteStopped {
+            site: l.site(),
+            delivered: r.is_ok(),
+            confirmed_ms: r.as_ref().ok().map(|d| d.as_secs_f64() * 1e3),
+        })
+        .collect();
     change
         .commit(
             "estop",
-            Some("controller".into()),
-            EStopped {
-                delivered: sent.is_ok(),
-                confirmed_ms: sent.as_ref().ok().map(|d| d.as_secs_f64() * 1e3),
-            },
+            Some(estop_target(site)),
+            EStopped { sites: stopped },
         )
         .await?;
-    sent.map_err(|why| {
-        AppError::Unavailable(format!(
-            "the E-stop was NOT confirmed by the controller ({why}); stop the machine by hand"
-        ))
-    })
+    let failed: Vec<String> = links
+        .iter()
+        .zip(&sent)
+        .filter_map(|(l, r)| {
+            r.as_ref()
+                .err()
+                .map(|why| format!("site {:?}: {why}", l.site()))
+        })
+        .collect();
+    if !failed.is_empty() {
+        return Err(AppError::Unavailable(format!(
+            "the E-stop was NOT confirmed by the controller ({}); stop the machine by hand",
+            failed.join("; ")
+        )));
+    }
+    Ok(sent
+        .into_iter()
+        .filter_map(|r| r.ok())
+        .max()
+        .unwrap_or_default())
+}
+
+/// What the audit log names as an E-stop's target: one site, or every site's controller.
+fn estop_target(site: Option<&str>) -> String {
+    match site {
+        Some(name) => format!("site:{name}"),
+        None => "controller".into(),
+    }
 }
 
 /// How long the API waits for the controller to confirm an E-stop before saying it was not
 /// delivered.
 const ESTOP_CONFIRMATION: std::time::Duration = std::time::Duration::from_millis(500);
 
-/// Clears the E-stop latch: the server's first (so a controller that connects meanwhile is
-/// told the same), then the controller's.
-pub async fn reset_estop(pool: &AnyPool, link: &ControllerLink, actor: &str) -> Result<()> {
+/// Clears the E-stop latch of one site, or of every site (and each site's own): the
+/// server's first (so a controller that connects meanwhile is told the same), then the
+/// controllers'. A site stays stopped while the E-stop of every site is latched: that one
+/// is reset for every site at once.
+pub async fn reset_estop(
+    pool: &AnyPool,
+    sites: &Sites,
+    actor: &str,
+    site: Option<&str>,
+) -> Result<()> {
+    let links: Vec<&ControllerLink> = match site {
+        Some(name) => vec![sites.named(name)?],
+        None => sites.all().iter().collect(),
+    };
     let mut change = Change::begin(pool, actor).await?;
-    store::latch::set(change.db(), false).await?;
+    match site {
+        Some(name) => {
+            if store::latch::all_latched(change.db()).await? {
+                return Err(AppError::Conflict(format!(
+                    "the E-stop of every site is latched: reset it for every site (POST /api/estop/reset without a site), not for site {name:?} alone"
+                )));
+            }
+            store::latch::set_site(change.db(), name, false).await?;
+        }
+        None => store::latch::set_all(change.db(), false).await?,
+    }
     change
-        .commit("estop.reset", Some("controller".into()), NoDetail {})
+        .commit("estop.reset", Some(estop_target(site)), NoDetail {})
         .await?;
-    link.send(&ServerToController::ResetEStop {})
-        .map_err(AppError::Unavailable)?;
-    // The controller's status confirms the cleared latch.
-    let _ = link.send(&ServerToController::Status {});
-    Ok(())
+    let mut unreached = Vec::new();
+    for link in links {
+        match link.send(&ServerToController::ResetEStop {}) {
+            // The controller's status confirms the cleared latch.
+            Ok(()) => drop(link.send(&ServerToController::Status {})),
+            Err(why) => unreached.push(format!("site {:?}: {why}", link.site())),
+        }
+    }
+    if unreached.is_empty() {
+        Ok(())
+    } else {
+        Err(AppError::Unavailable(unreached.join("; ")))
+    }
 }

@@ -11,8 +11,10 @@ use bdft_protocol::server_to_controller::ServerToController;
 use bdft_protocol::study::StudyParams;
 use sqlx::AnyPool;
 
-use crate::engine::machine::controller_link::{ControllerEvent, ControllerLink};
-use crate::error::Result;
+use super::trials::site_of_trial;
+use crate::engine::machine::controller_link::ControllerEvent;
+use crate::engine::machine::sites::Sites;
+use crate::error::{AppError, Result};
 use crate::store::audit::Reason;
 use crate::store::{self, Change};
 
@@ -122,11 +124,12 @@ pub async fn limits_of(pool: &AnyPool, trial_id: i64) -> Result<Option<DisplayLi
     Ok(Some(DisplayLimits::of(&study.params)))
 }
 
-/// Files the running trial invalid with `reason` and stops it on the controller at once.
-/// Its result (or a lost link) then files it invalid. `false` when it was no longer running.
+/// Files the running trial invalid with `reason` and stops it on its site's controller at
+/// once. Its result (or a lost link) then files it invalid. `false` when it was no longer
+/// running.
 pub async fn invalidate(
     pool: &AnyPool,
-    link: &ControllerLink,
+    sites: &Sites,
     actor: &str,
     trial_id: i64,
     reason: &str,
@@ -144,13 +147,24 @@ pub async fn invalidate(
         .await?;
     // Marked first, so that whatever the controller answers the trial is filed invalid; a
     // controller that cannot be told has lost its link, which files the trial too.
-    if let Err(why) = link.send(&ServerToController::AbortTrial {
-        trial_id: trial_id as u64,
-        reason: format!("invalid: {reason}"),
-    }) {
-        tracing::warn!(trial = trial_id, "stopping an invalid trial: {why}");
+    let link = store::trials::get(pool, trial_id)
+        .await
+        .and_then(|t| site_of_trial(sites, &t));
+    let sent = link.and_then(|link| {
+        link.send(&ServerToController::AbortTrial {
+            trial_id: trial_id as u64,
+            reason: format!("invalid: {reason}"),
+        })
+        .map_err(AppError::Unavailable)
+    });
+    if let Err(why) = sent {
+        tracing::warn!(
+            trial = trial_id,
+            "stopping an invalid trial: {}",
+            why.describe()
+        );
     }
-    link.emit(ControllerEvent::TrialChanged { trial_id });
+    sites.emit(ControllerEvent::TrialChanged { trial_id });
     Ok(true)
 }
 

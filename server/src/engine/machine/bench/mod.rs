@@ -298,7 +298,7 @@ const BENCH_TRIAL_IDS: u64 = 1 << 50;
 
 /// A bench run on the real rig needs the E-stop reset and a controller with a real rig.
 async fn check_real_rig(pool: &AnyPool, link: &ControllerLink) -> Result<()> {
-    if store::latch::latched(pool).await? || link.estop_latched() {
+    if store::latch::latched(pool, link.site()).await? || link.estop_latched() {
         return Err(AppError::Conflict(
             "the E-stop is latched: reset it before a bench run on the real rig".into(),
         ));
@@ -354,7 +354,7 @@ async fn run_all(
             .map_err(anyhow::Error::msg)?,
             Rig::Real(link) => {
                 // After an E-stop nothing more starts (the controller would refuse it too).
-                if store::latch::latched(pool).await? || link.estop_latched() {
+                if store::latch::latched(pool, link.site()).await? || link.estop_latched() {
                     anyhow::bail!("stopped: the E-stop is latched");
                 }
                 start.trial_id += run_id as u64 * MAX_COMPENSATORS as u64;

@@ -59,12 +59,14 @@ pub enum ControllerEvent {
     TrialChanged {
         trial_id: i64,
     },
-    /// The link went up or down.
+    /// A site's link went up or down.
     Link {
+        site: Arc<str>,
         connected: bool,
     },
-    /// The e-stop latch was set or cleared.
+    /// A site's e-stop latch was set or cleared.
     EStop {
+        site: Arc<str>,
         latched: bool,
     },
 }
@@ -82,8 +84,13 @@ pub trait Filing: Send + Sync + std::fmt::Debug {
         result: &'a TrialResult,
         record: &'a Record,
     ) -> BoxFuture<'a, crate::error::Result<bool>>;
-    /// Marks every trial the lost controller was running incomplete with `reason`; their ids.
-    fn interrupted<'a>(&'a self, reason: &'a str) -> BoxFuture<'a, crate::error::Result<Vec<i64>>>;
+    /// Marks every trial the lost controller of `site` was running incomplete with `reason`;
+    /// their ids.
+    fn interrupted<'a>(
+        &'a self,
+        site: &'a str,
+        reason: &'a str,
+    ) -> BoxFuture<'a, crate::error::Result<Vec<i64>>>;
 }
 
 #[derive(Clone, Debug)]
@@ -93,6 +100,8 @@ pub struct ControllerLink {
 
 #[derive(Debug)]
 struct Inner {
+    /// The site whose machine this controller drives.
+    site: Arc<str>,
     tx: Mutex<Option<mpsc::Sender<Vec<u8>>>>,
     events: broadcast::Sender<ControllerEvent>,
     connected: watch::Sender<bool>,
@@ -124,20 +133,41 @@ struct Inner {
 /// Samples per trial kept while its record arrives, channel by channel.
 type Partial = HashMap<TrialId, Vec<Vec<f32>>>;
 
+/// What every site's link tells the rest of the server, on one channel (the dashboard
+/// hears them all; a station picks its trials' and its site's).
+pub fn event_channel() -> broadcast::Sender<ControllerEvent> {
+    broadcast::channel(16_384).0
+}
+
+/// How a site's controller is reached and authenticated, and how long it may be silent.
+#[derive(Debug)]
+pub struct LinkConfig {
+    pub site: String,
+    pub source: ControllerSource,
+    /// The link key both ends prove (handed to a controller this server starts).
+    pub key: LinkKey,
+    pub silence: Duration,
+}
+
 impl ControllerLink {
-    /// Starts the supervisor; the link comes up in the background. `key` is the link key
-    /// both ends prove (handed to a controller this server starts).
+    /// Starts the supervisor of `config.site`'s controller; the link comes up in the
+    /// background and tells `events` what happens on it.
     pub fn start(
         pool: AnyPool,
-        source: ControllerSource,
-        key: LinkKey,
-        silence: Duration,
+        config: LinkConfig,
+        events: broadcast::Sender<ControllerEvent>,
         filing: Arc<dyn Filing>,
     ) -> Self {
-        let (events, _) = broadcast::channel(16_384);
+        let LinkConfig {
+            site,
+            source,
+            key,
+            silence,
+        } = config;
         let (connected, _) = watch::channel(false);
         let link = Self {
             inner: Arc::new(Inner {
+                site: site.into(),
                 tx: Mutex::new(None),
                 events,
                 connected,
@@ -159,6 +189,16 @@ impl ControllerLink {
         link
     }
 
+    /// The site whose machine this controller drives.
+    pub fn site(&self) -> &str {
+        &self.inner.site
+    }
+
+    /// The site's name, to tell listeners which site an event is about.
+    pub fn site_name(&self) -> Arc<str> {
+        self.inner.site.clone()
+    }
+
     pub fn estop_latched(&self) -> bool {
         self.inner.estop.load(std::sync::atomic::Ordering::SeqCst)
     }
@@ -170,7 +210,10 @@ impl ControllerLink {
             .swap(latched, std::sync::atomic::Ordering::SeqCst)
             != latched
         {
-            self.emit(ControllerEvent::EStop { latched });
+            self.emit(ControllerEvent::EStop {
+                site: self.site_name(),
+                latched,
+            });
         }
     }
 
@@ -426,9 +469,12 @@ async fn supervise(
             .clear();
         if link.is_connected() {
             link.inner.connected.send_replace(false);
-            link.emit(ControllerEvent::Link { connected: false });
+            link.emit(ControllerEvent::Link {
+                site: link.site_name(),
+                connected: false,
+            });
         }
-        tracing::error!("controller link down: {why}");
+        tracing::error!(site = link.site(), "controller link down: {why}");
         *link
             .inner
             .down_because
@@ -449,7 +495,7 @@ async fn supervise(
         match link
             .inner
             .filing
-            .interrupted(&format!("controller lost: {why}"))
+            .interrupted(link.site(), &format!("controller lost: {why}"))
             .await
         {
             Ok(ids) => {

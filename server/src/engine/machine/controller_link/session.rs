@@ -37,7 +37,9 @@ pub(super) async fn control(
     *link.inner.rig.lock().unwrap_or_else(|p| p.into_inner()) = Some(controller.rig);
     // The controller starts latched; the server's latch decides. If the database cannot
     // say, it stays latched.
-    let latched = crate::store::latch::latched(pool).await.unwrap_or(true);
+    let latched = crate::store::latch::latched(pool, link.site())
+        .await
+        .unwrap_or(true);
     let latch = if latched {
         ServerToController::EStop {}
     } else {
@@ -53,7 +55,10 @@ pub(super) async fn control(
     let (urgent_tx, mut urgent) = mpsc::channel::<Vec<u8>>(8);
     *link.inner.urgent.lock().unwrap_or_else(|p| p.into_inner()) = Some(urgent_tx);
     link.inner.connected.send_replace(true);
-    link.emit(ControllerEvent::Link { connected: true });
+    link.emit(ControllerEvent::Link {
+        site: link.site_name(),
+        connected: true,
+    });
     let writer = async {
         let mut beat = tokio::time::interval(Duration::from_millis(200));
         let mut seq = 0;
