@@ -29,6 +29,7 @@ mod lsl;
 mod protocol_package;
 mod server_api;
 mod server_layers;
+mod sites;
 mod soak;
 mod station_safety;
 mod statistics;

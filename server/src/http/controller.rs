@@ -45,8 +45,11 @@ async fn health(State(s): State<AppState>) -> AppJson<Health> {
 #[derive(Debug, Serialize, ToSchema)]
 pub struct EStopConfirmed {
     pub ok: bool,
-    /// From the server's handling of the request to the controller's confirmation (ms).
+    /// From the server's handling of the request to the slowest controller's confirmation
+    /// (ms).
     pub confirmed_ms: f64,
+    /// The sites stopped.
+    pub sites: Vec<String>,
 }
 
 /// Which site an E-stop or its reset is for.
@@ -58,7 +61,7 @@ pub struct SiteQuery {
 }
 
 /// Emergency stop: every valve to zero, every trial stopped, at every site or at `site`
-/// alone; latched until reset. Answers only once each controller confirms; 503 "NOT
+/// alone (every site when it names none served here); latched until reset. Answers only once each controller confirms; 503 "NOT
 /// confirmed", naming the sites, otherwise.
 #[utoipa::path(post, path = "/api/estop", tag = "controller", params(SiteQuery),
     responses((status = 200, body = EStopConfirmed)))]
@@ -68,10 +71,11 @@ async fn estop(
     q: Result<Query<SiteQuery>, QueryRejection>,
 ) -> ApiResult<EStopConfirmed> {
     let q = query(q)?;
-    let took = trials::estop(&s.pool, &s.sites, &who.username, q.site.as_deref()).await?;
+    let stopped = trials::estop(&s.pool, &s.sites, &who.username, q.site.as_deref()).await?;
     Ok(AppJson(EStopConfirmed {
         ok: true,
-        confirmed_ms: took.as_secs_f64() * 1e3,
+        confirmed_ms: stopped.slowest.as_secs_f64() * 1e3,
+        sites: stopped.sites,
     }))
 }
 

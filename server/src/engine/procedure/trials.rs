@@ -304,10 +304,12 @@ pub async fn add_note(pool: &AnyPool, author: &str, trial_id: i64, text: &str) -
     Ok(note)
 }
 
-/// What `estop` records: the sites stopped, and for each whether its controller confirmed
-/// the stop and how fast.
+/// What `estop` records: whether every controller confirmed the stop and the slowest
+/// confirmation, and the same for each site stopped.
 #[derive(Debug, Serialize)]
 struct EStopped<'a> {
+    delivered: bool,
+    confirmed_ms: Option<f64>,
     sites: Vec<SiteStopped<'a>>,
 }
 
@@ -318,21 +320,31 @@ struct SiteStopped<'a> {
     confirmed_ms: Option<f64>,
 }
 
-/// The E-stop of one site (`site`) or of every site (none): sent first, to every site's
-/// controller at once (the stop itself waits for nothing that could fail), then the
-/// server's latch is set — it is re-sent to every controller connection of those sites
-/// until an experimenter resets it — and audited; an error naming each site whose
-/// controller did not confirm. Returns the slowest confirmation.
+/// A confirmed E-stop: the sites stopped and the slowest confirmation.
+#[derive(Debug)]
+pub struct Stopped {
+    pub sites: Vec<String>,
+    pub slowest: std::time::Duration,
+}
+
+/// The E-stop of one site (`site`) or of every site (none, or a site this server does not
+/// serve: a stop is never refused for a wrong name). Sent first, to each controller at
+/// once (the stop itself waits for nothing that could fail), then the server's latch is
+/// set — it is re-sent to every controller connection of those sites until an
+/// experimenter resets it — and audited; an error naming each site whose controller did
+/// not confirm.
 pub async fn estop(
     pool: &AnyPool,
     sites: &Sites,
     actor: &str,
     site: Option<&str>,
-) -> Result<std::time::Duration> {
-    let links: Vec<&ControllerLink> = match site {
-        Some(name) => vec![sites.named(name)?],
+) -> Result<Stopped> {
+    let one = site.and_then(|name| sites.named(name).ok());
+    let links: Vec<&ControllerLink> = match one {
+        Some(link) => vec![link],
         None => sites.all().iter().collect(),
     };
+    let site = one.map(ControllerLink::site);
     let sent =
         futures_util::future::join_all(links.iter().map(|l| l.estop(ESTOP_CONFIRMATION))).await;
     lsl::estop();
@@ -341,21 +353,26 @@ pub async fn estop(
         Some(name) => store::latch::set_site(change.db(), name, true).await?,
         None => store::latch::set_all(change.db(), true).await?,
     }
-    let stopped = links
+    let ms = |r: &std::result::Result<std::time::Duration, String>| {
+        r.as_ref().ok().map(|d| d.as_secs_f64() * 1e3)
+    };
+    let sites_stopped: Vec<SiteStopped> = links
         .iter()
         .zip(&sent)
         .map(|(l, r)| SiteStopped {
             site: l.site(),
             delivered: r.is_ok(),
-            confirmed_ms: r.as_ref().ok().map(|d| d.as_secs_f64() * 1e3),
+            confirmed_ms: ms(r),
         })
         .collect();
+    let delivered = sent.iter().all(|r| r.is_ok());
+    let stopped = EStopped {
+        delivered,
+        confirmed_ms: delivered.then(|| sent.iter().filter_map(ms).fold(0.0, f64::max)),
+        sites: sites_stopped,
+    };
     change
-        .commit(
-            "estop",
-            Some(estop_target(site)),
-            EStopped { sites: stopped },
-        )
+        .commit("estop", Some(estop_target(site)), stopped)
         .await?;
     let failed: Vec<String> = links
         .iter()
@@ -372,11 +389,14 @@ pub async fn estop(
             failed.join("; ")
         )));
     }
-    Ok(sent
-        .into_iter()
-        .filter_map(|r| r.ok())
-        .max()
-        .unwrap_or_default())
+    Ok(Stopped {
+        sites: links.iter().map(|l| l.site().to_string()).collect(),
+        slowest: sent
+            .into_iter()
+            .filter_map(|r| r.ok())
+            .max()
+            .unwrap_or_default(),
+    })
 }
 
 /// What the audit log names as an E-stop's target: one site, or every site's controller.

@@ -1,0 +1,275 @@
+//! One server, two labs (`serve --site lab-a --site lab-b`, each with a controller of its
+//! own): stations are paired to a site, a subject's stations are at one site, a trial runs
+//! on its subject's site's machine and records it; a lost controller files only its own
+//! site's trials; an E-stop stops one site or every site (and a name no site has stops
+//! every site), latched per site, and a site's reset is refused while every site's latch
+//! holds.
+
+use std::time::Duration;
+
+use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, dry_run, eventually, short_study};
+use serde_json::{Value, json};
+
+/// Each site's entry of GET /api/controller, by name.
+fn site(api: &Api, name: &str) -> Value {
+    let (_, c) = api.get("/api/controller");
+    c["sites"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["site"] == name)
+        .unwrap_or_else(|| panic!("no site {name} in {c}"))
+        .clone()
+}
+
+/// Waits until both sites' controllers are connected and unlatched.
+fn sites_ready(api: &Api) {
+    eventually(Duration::from_secs(60), || {
+        let (_, c) = api.get("/api/controller");
+        let sites = c["sites"].as_array()?;
+        sites
+            .iter()
+            .all(|s| s["connected"] == true && s["estop_latched"] == false)
+            .then_some(())
+    });
+}
+
+/// Pairs a new station at `site` (none: the request names no site).
+fn pair_at(api: &Api, study: i64, name: &str, role: &str, site: Option<&str>) -> (u16, Value) {
+    let reg = Api::anonymous(&api.base).ok("/api/station/register", json!({}));
+    let mut body = json!({ "pairing_code": reg["pairing_code"], "name": name, "role": role });
+    if let Some(site) = site {
+        body["site"] = json!(site);
+    }
+    let (code, mut answer) = api.post(&format!("/api/studies/{study}/stations"), body);
+    answer["token"] = reg["token"].clone();
+    (code, answer)
+}
+
+/// A synthetic subject of `study` at a new station on the machine at `site`, consented:
+/// (subject id, its first test's id).
+fn subject_at(api: &Api, study: i64, site: &str) -> (i64, i64) {
+    let enrolled = api.ok(
+        &format!("/api/studies/{study}/subjects"),
+        json!({ "synthetic": true }),
+    );
+    let subject = enrolled["subject"]["id"].as_i64().unwrap();
+    let (code, station) = pair_at(api, study, &format!("at-{site}"), "on", Some(site));
+    assert_eq!(code, 200, "{station}");
+    assert_eq!(station["site"], site);
+    api.ok(
+        &format!("/api/stations/{}/assign", station["id"]),
+        json!({ "subject_id": subject }),
+    );
+    Api::with_bearer(&api.base, station["token"].as_str().unwrap())
+        .ok("/api/station/consent", json!({ "decision": "agreed" }));
+    let (_, s) = api.get(&format!("/api/subjects/{subject}"));
+    (subject, s["trials"][0]["trial"]["id"].as_i64().unwrap())
+}
+
+/// The row of `trial` of `subject`.
+fn trial(api: &Api, subject: i64, trial: i64) -> Value {
+    let (_, s) = api.get(&format!("/api/subjects/{subject}"));
+    s["trials"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["trial"].clone())
+        .find(|t| t["id"] == trial)
+        .unwrap()
+}
+
+/// Waits until `trial` of `subject` has ended; its row.
+fn ended(api: &Api, subject: i64, id: i64) -> Value {
+    eventually(Duration::from_secs(30), || {
+        let t = trial(api, subject, id);
+        (t["status"] != "running").then_some(t)
+    })
+}
+
+fn start(api: &Api, trial: i64) -> (u16, Value) {
+    api.post(&format!("/api/trials/{trial}/start"), json!({}))
+}
+
+#[test]
+fn two_sites_run_their_own_trials_lose_and_stop_them_apart() {
+    let server = Server::start_with(
+        "sites",
+        &[
+            "--admin-password",
+            ADMIN_PASSWORD,
+            "--site",
+            "lab-a",
+            "--site",
+            "lab-b",
+        ],
+    );
+    let api = server.experimenter();
+    sites_ready(&api);
+    let (_, status) = api.get("/api/controller");
+    let names: Vec<&str> = status["sites"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["site"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["lab-a", "lab-b"]);
+    let pid = |name: &str| site(&api, name)["pid"].as_u64().unwrap();
+    assert_ne!(pid("lab-a"), pid("lab-b"), "a controller process of each");
+
+    // Long tests: they still run when the faults come.
+    let study = dry_run(&api, short_study(&api, 60.0, 60.0));
+    let (code, e) = pair_at(&api, study, "nowhere", "both", Some("lab-c"));
+    assert_eq!(code, 422, "{e}");
+    assert!(e["error"].as_str().unwrap().contains("lab-a, lab-b"), "{e}");
+    let (a, a_first) = subject_at(&api, study, "lab-a");
+    let (b, b_first) = subject_at(&api, study, "lab-b");
+    // A station paired without a site is at the first one.
+    let (_, plain) = pair_at(&api, study, "plain", "off", None);
+    assert_eq!(plain["site"], "lab-a");
+    // A subject's stations are at one site: a's desk station cannot be at lab-b.
+    let (_, desk_b) = pair_at(&api, study, "desk-b", "off", Some("lab-b"));
+    let (code, e) = api.post(
+        &format!("/api/stations/{}/assign", desk_b["id"]),
+        json!({ "subject_id": a }),
+    );
+    assert_eq!(code, 409, "{e}");
+    assert!(
+        e["error"].as_str().unwrap().contains("at site \"lab-a\""),
+        "{e}"
+    );
+
+    // Each test runs on its subject's site and records it.
+    let (code, t) = start(&api, a_first);
+    assert_eq!((code, &t["site"]), (200, &json!("lab-a")), "{t}");
+    let (code, t) = start(&api, b_first);
+    assert_eq!((code, &t["site"]), (200, &json!("lab-b")), "{t}");
+
+    // lab-a's controller dies: its test is filed incomplete, lab-b's runs on.
+    let killed = pid("lab-a");
+    let status = std::process::Command::new("kill")
+        .args(["-KILL", &killed.to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let a_row = ended(&api, a, a_first);
+    assert_eq!(a_row["status"], "incomplete", "{a_row}");
+    assert!(
+        a_row["status_reason"]
+            .as_str()
+            .unwrap()
+            .contains("controller lost"),
+        "{a_row}"
+    );
+    assert_eq!(trial(&api, b, b_first)["status"], "running");
+    eventually(Duration::from_secs(30), || {
+        let s = site(&api, "lab-a");
+        (s["connected"] == true && s["pid"].as_u64() != Some(killed)).then_some(())
+    });
+    assert_eq!(trial(&api, b, b_first)["status"], "running");
+
+    // lab-b's E-stop stops lab-b's test alone and latches lab-b alone.
+    let stopped = api.ok("/api/estop?site=lab-b", json!({}));
+    assert_eq!(stopped["sites"], json!(["lab-b"]), "{stopped}");
+    let b_row = ended(&api, b, b_first);
+    assert_eq!(b_row["status"], "aborted", "{b_row}");
+    assert!(
+        b_row["status_reason"]
+            .as_str()
+            .unwrap()
+            .starts_with("e-stop"),
+        "{b_row}"
+    );
+    assert_eq!(site(&api, "lab-b")["estop_latched"], true);
+    assert_eq!(site(&api, "lab-a")["estop_latched"], false);
+    let b_again = next_test(&api, b);
+    let (code, e) = start(&api, b_again);
+    assert_eq!(code, 409, "{e}");
+    assert!(
+        e["error"]
+            .as_str()
+            .unwrap()
+            .contains("E-stop of site \"lab-b\" is latched"),
+        "{e}"
+    );
+    // lab-a runs on meanwhile.
+    let a_again = next_test(&api, a);
+    let (code, t) = eventually(Duration::from_secs(30), || {
+        let (code, t) = start(&api, a_again);
+        (code != 503).then_some((code, t))
+    });
+    assert_eq!((code, &t["site"]), (200, &json!("lab-a")), "{t}");
+    api.ok("/api/estop/reset?site=lab-b", json!({}));
+    assert_eq!(site(&api, "lab-b")["estop_latched"], false);
+    assert_eq!(trial(&api, a, a_again)["status"], "running");
+
+    // A name no site has stops every site: a stop is never refused for a typo.
+    let stopped = api.ok("/api/estop?site=lab-z", json!({}));
+    assert_eq!(stopped["sites"], json!(["lab-a", "lab-b"]), "{stopped}");
+    assert_eq!(ended(&api, a, a_again)["status"], "aborted");
+    // Every site's latch holds until it is reset for every site.
+    let (code, e) = api.post("/api/estop/reset?site=lab-a", json!({}));
+    assert_eq!(code, 409, "{e}");
+    assert!(e["error"].as_str().unwrap().contains("every site"), "{e}");
+    let (code, e) = api.post("/api/estop/reset?site=lab-z", json!({}));
+    assert_eq!(code, 422, "{e}");
+    api.ok("/api/estop/reset", json!({}));
+    sites_ready(&api);
+
+    // The audit log names what was stopped.
+    let (_, log) = api.get("/api/audit?limit=200");
+    let targets: Vec<&Value> = log
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["action"] == "estop")
+        .map(|e| &e["target"])
+        .collect();
+    assert_eq!(targets, [&json!("controller"), &json!("site:lab-b")]);
+}
+
+/// The subject's next test (first by block and queue order: a failed test is re-queued).
+fn next_test(api: &Api, subject: i64) -> i64 {
+    let (_, s) = api.get(&format!("/api/subjects/{subject}"));
+    s["trials"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| &t["trial"])
+        .filter(|t| t["status"] == "scheduled")
+        .min_by_key(|t| (t["block"].as_i64(), t["queue_order"].as_i64()))
+        .and_then(|t| t["id"].as_i64())
+        .unwrap_or_else(|| panic!("no test of subject {subject} to start: {s}"))
+}
+
+#[test]
+fn site_arguments_that_cannot_work_are_refused_at_start() {
+    let dir = bdft_tests::TempDir::new("sites-refused");
+    let db = dir.path().join("bdft-lab.db");
+    for (args, says) in [
+        (vec!["--site", "lab-a", "--site", "lab-a"], "given twice"),
+        (vec!["--site", "Lab A"], "a-z, 0-9 and '-'"),
+        (
+            vec!["--site", "lab-a=127.0.0.1:7000"],
+            "NAME=ADDRESS,KEY_FILE",
+        ),
+        (
+            vec!["--site", "lab-a=127.0.0.1:7000,/nonexistent/key"],
+            "--site lab-a: its key file",
+        ),
+        (
+            vec!["--site", "lab-a", "--controller", "127.0.0.1:7000"],
+            "--controller",
+        ),
+    ] {
+        let out = std::process::Command::new(bdft_tests::binary("bdft-server"))
+            .args(["serve", "--listen", "127.0.0.1:0", "--db"])
+            .arg(&db)
+            .args(&args)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} started");
+        assert!(err.contains(says), "{args:?}: {err}");
+    }
+}
