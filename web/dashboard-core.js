@@ -18,6 +18,8 @@ export const S = {
   stations: [],
   /** {connected, pid, rig} from GET /api/controller and `controller` live messages. */
   controller: { connected: null, pid: null, rig: null },
+  /** Each site's controller from GET /api/controller: [{site, connected, estop_latched, …}]. */
+  sites: [],
   loggedIn: false,
 };
 

@@ -60,9 +60,12 @@ async function pair() {
     setStatus($('pair-status'), 'err', `Type ${missing.join(' and ')}.`);
     return;
   }
+  // A server with several sites asks where the station is; with one, the server's site.
+  const body = { pairing_code: code, name, role };
+  if (!$('pair-site-label').hidden && $('pair-site').value) body.site = $('pair-site').value;
   $('pair-submit').disabled = true;
-  const r = await act(`Pair station “${name}”`, $('pair-status'), () => post(`/api/studies/${id}/stations`, { pairing_code: code, name, role }), (d) =>
-    `paired as station #${d.id} (${SEAT_NAME[d.role] || d.role}); assign a subject to it below`,
+  const r = await act(`Pair station “${name}”`, $('pair-status'), () => post(`/api/studies/${id}/stations`, body), (d) =>
+    `paired as station #${d.id} (${SEAT_NAME[d.role] || d.role}${S.sites.length > 1 ? `, site ${d.site}` : ''}); assign a subject to it below`,
   );
   $('pair-submit').disabled = false;
   if (r.ok) {
@@ -72,6 +75,18 @@ async function pair() {
     lastJson = '';
     await refresh();
   }
+}
+
+/** The pairing form's site choice: shown only when the server serves several sites. */
+export function showSites() {
+  const sel = $('pair-site');
+  const names = S.sites.map((x) => x.site);
+  if ([...sel.options].map((o) => o.value).join() !== names.join()) {
+    const kept = sel.value;
+    sel.replaceChildren(...names.map((n) => el('option', { value: n }, n)));
+    if (names.includes(kept)) sel.value = kept;
+  }
+  $('pair-site-label').hidden = names.length < 2;
 }
 
 async function assign(stationId, sel) {

@@ -164,12 +164,17 @@ function showController() {
   const c = S.controller;
   const pill = $('controller-state');
   pill.classList.remove('ok', 'bad', 'unknown');
+  // With several sites the light is each site's: the ones down are named.
+  const several = S.sites.length > 1;
+  const down = S.sites.filter((x) => !x.connected).map((x) => x.site);
   if (c.connected === true) {
     pill.classList.add('ok');
-    pill.textContent = `Controller: connected${c.rig ? ` (rig ${c.rig})` : ''}`;
+    pill.textContent = several
+      ? `Controllers: ${S.sites.length} sites connected`
+      : `Controller: connected${c.rig ? ` (rig ${c.rig})` : ''}`;
   } else if (c.connected === false) {
     pill.classList.add('bad');
-    pill.textContent = 'Controller: NOT CONNECTED';
+    pill.textContent = several && down.length ? `Controller: NOT CONNECTED at ${down.join(', ')}` : 'Controller: NOT CONNECTED';
   } else {
     pill.classList.add('unknown');
     pill.textContent = 'Controller: unknown';
@@ -182,6 +187,8 @@ async function refreshController() {
   if (r.ok) {
     const was = S.controller.connected;
     S.controller = { connected: !!r.data.connected, pid: r.data.pid, rig: r.data.rig };
+    S.sites = Array.isArray(r.data.sites) ? r.data.sites : [];
+    stations.showSites();
     showController();
     showLatch(!!r.data.estop_latched);
     if (was !== S.controller.connected) emit('controller', S.controller);

@@ -7,6 +7,7 @@
 
 use std::time::Duration;
 
+use bdft_tests::exports::parse_csv;
 use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, dry_run, eventually, short_study};
 use serde_json::{Value, json};
 
@@ -164,7 +165,9 @@ fn two_sites_run_their_own_trials_lose_and_stop_them_apart() {
     assert_eq!(trial(&api, b, b_first)["status"], "running");
     eventually(Duration::from_secs(30), || {
         let s = site(&api, "lab-a");
-        (s["connected"] == true && s["pid"].as_u64() != Some(killed)).then_some(())
+        // Connected, and its latch (a controller starts latched) cleared by the server's.
+        (s["connected"] == true && s["pid"].as_u64() != Some(killed) && s["estop_latched"] == false)
+            .then_some(())
     });
     assert_eq!(trial(&api, b, b_first)["status"], "running");
 
@@ -215,6 +218,23 @@ fn two_sites_run_their_own_trials_lose_and_stop_them_apart() {
     assert_eq!(code, 422, "{e}");
     api.ok("/api/estop/reset", json!({}));
     sites_ready(&api);
+
+    // The trials export says where each test ran (none for a test never started).
+    let (code, csv) = api.get_text(&format!("/api/studies/{study}/export/trials"));
+    assert_eq!(code, 200, "{csv}");
+    let rows = parse_csv(&csv);
+    let col = |name: &str| rows[0].iter().position(|c| c == name).unwrap();
+    let site_of = |id: i64| {
+        rows[1..]
+            .iter()
+            .find(|r| r[col("trial_id")] == id.to_string())
+            .map(|r| r[col("site")].clone())
+            .unwrap()
+    };
+    assert_eq!(
+        [a_first, b_first, a_again, b_again].map(site_of),
+        ["lab-a", "lab-b", "lab-a", ""]
+    );
 
     // The audit log names what was stopped.
     let (_, log) = api.get("/api/audit?limit=200");

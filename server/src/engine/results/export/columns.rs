@@ -382,6 +382,12 @@ pub fn trials(survey: &SurveyParams) -> Vec<Column> {
             num(4),
             "the LQR design's cab-feedback weight β as run (empty: not an LQR design)",
         ),
+        col(
+            "site",
+            "",
+            TEXT,
+            "the site whose machine ran the test (serve --site; empty: not started, a dry run's own controller, or started before sites)",
+        ),
     ]);
     c
 }

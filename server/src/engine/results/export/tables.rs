@@ -183,6 +183,7 @@ pub fn trial_cells(r: &TrialExportRow) -> Vec<Cell<'_>> {
     cells.extend(validity_cells(r));
     cells.push(opt_text(&r.config_version));
     cells.extend(design_cells(r));
+    cells.push(opt_text(&r.site));
     cells
 }
 
