@@ -63,10 +63,11 @@ async fn start_bench(
     who: Experimenter,
     AppJson(req): AppJson<BenchRequest>,
 ) -> ApiResult<BenchStarted> {
-    let run_id = s
-        .bench
-        .start(&s.pool, s.sites.first(), &who.username, &req)
-        .await?;
+    let link = match &req.site {
+        Some(name) => s.sites.named(name)?,
+        None => s.sites.first(),
+    };
+    let run_id = s.bench.start(&s.pool, link, &who.username, &req).await?;
     Ok(AppJson(BenchStarted { run_id }))
 }
 

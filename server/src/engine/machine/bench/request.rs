@@ -49,6 +49,10 @@ pub struct BenchRequest {
     pub duration_s: Option<f64>,
     /// Seed of the accelerometer noise (and of the steps) [default 1, as `simulate`].
     pub seed: Option<u64>,
+    /// The site whose machine a run on the real rig uses (`serve --site`) [default: the
+    /// server's first].
+    #[serde(default)]
+    pub site: Option<String>,
 }
 
 /// Parses an uploaded reference; a 422 names the line and the problem.
