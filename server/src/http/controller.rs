@@ -96,18 +96,11 @@ async fn estop_reset(
 /// The controllers: every site's together (the dashboard's light and latch), and each.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct ControllerStatus {
-    /// Every site's controller is connected.
-    pub connected: bool,
-    /// Process id of the first site's controller, if this server started it.
-    pub pid: Option<u32>,
-    /// The first site's rig: "sim" or "udp".
-    pub rig: Option<String>,
-    /// Some site's E-stop is latched, as starts see it.
-    pub estop_latched: bool,
-    /// Every site's E-stop has its own connection up.
-    pub estop_path: bool,
-    /// Why a site's link last went down, if it did (the first such site's, named).
-    pub down_because: Option<String>,
+    /// Every site together: connected when every site is, latched when any site is, the
+    /// first site's pid and rig, the first reason a site went down (named when there are
+    /// several).
+    #[serde(flatten)]
+    pub all: LinkState,
     /// Each site, in the order `serve --site` gave them.
     pub sites: Vec<SiteStatus>,
 }
@@ -116,18 +109,25 @@ pub struct ControllerStatus {
 #[derive(Debug, Serialize, ToSchema)]
 pub struct SiteStatus {
     pub site: String,
+    #[serde(flatten)]
+    pub link: LinkState,
+}
+
+/// A controller link as the dashboard shows it.
+#[derive(Debug, Clone, Serialize, ToSchema)]
+pub struct LinkState {
     pub connected: bool,
-    /// Process id of its controller, if this server started it.
+    /// Process id of the controller, if this server started it.
     pub pid: Option<u32>,
     /// "sim" or "udp".
     pub rig: Option<String>,
-    /// Its E-stop latch as starts see it: the controller's, the site's stored one, or that
+    /// The E-stop latch as starts see it: the controller's, the site's stored one, or that
     /// of every site.
     pub estop_latched: bool,
-    /// Whether its E-stop's own connection is up (the control connection carries every
+    /// Whether the E-stop's own connection is up (the control connection carries every
     /// E-stop too).
     pub estop_path: bool,
-    /// Why its link last went down, if it did (shown while it is down).
+    /// Why the link last went down, if it did (shown while it is down).
     pub down_because: Option<String>,
 }
 
@@ -137,12 +137,14 @@ async fn site_status(s: &AppState, link: &ControllerLink) -> crate::error::Resul
     let stored = crate::store::latch::latched(&s.pool, link.site()).await?;
     Ok(SiteStatus {
         site: link.site().to_string(),
-        connected: link.is_connected(),
-        pid: link.pid(),
-        rig: link.rig(),
-        estop_latched: link.estop_latched() || stored,
-        estop_path: link.estop_path_up(),
-        down_because: link.down_because(),
+        link: LinkState {
+            connected: link.is_connected(),
+            pid: link.pid(),
+            rig: link.rig(),
+            estop_latched: link.estop_latched() || stored,
+            estop_path: link.estop_path_up(),
+            down_because: link.down_because(),
+        },
     })
 }
 
@@ -156,21 +158,21 @@ async fn controller_status(
     for link in s.sites.all() {
         sites.push(site_status(&s, link).await?);
     }
-    let first = &sites[0];
-    Ok(AppJson(ControllerStatus {
-        connected: sites.iter().all(|x| x.connected),
+    let first = &sites[0].link;
+    let several = sites.len() > 1;
+    let all = LinkState {
+        connected: sites.iter().all(|x| x.link.connected),
         pid: first.pid,
         rig: first.rig.clone(),
-        estop_latched: sites.iter().any(|x| x.estop_latched),
-        estop_path: sites.iter().all(|x| x.estop_path),
+        estop_latched: sites.iter().any(|x| x.link.estop_latched),
+        estop_path: sites.iter().all(|x| x.link.estop_path),
         down_because: sites.iter().find_map(|x| {
-            x.down_because
-                .as_ref()
-                .map(|why| match s.sites.all().len() {
-                    1 => why.clone(),
-                    _ => format!("site {:?}: {why}", x.site),
-                })
+            let why = x.link.down_because.as_ref()?;
+            Some(match several {
+                true => format!("site {:?}: {why}", x.site),
+                false => why.clone(),
+            })
         }),
-        sites,
-    }))
+    };
+    Ok(AppJson(ControllerStatus { all, sites }))
 }
