@@ -103,9 +103,6 @@ pg_skips=(
   "upgrade::"
   # It tampers with a copy of the SQLite file, triggers dropped, as a file's holder would.
   "audit_chain::audit_verify_names_every_kind_of_tampering"
-  # It reads every table from sqlite_master, the file's bytes after the erasure, and the
-  # erasure's report on older backups (all SQLite's); the other erasure tests run here.
-  "erasure::an_erased_subject_leaves_only_the_erasure_in_every_table"
   # Its disk-full fault caps the SQLite file's page count (PostgreSQL has no such cap: its
   # full-disk SQLSTATE is answered as SQLite's is, which no test here makes happen).
   "soak::"

@@ -1,7 +1,8 @@
 //! Erasure on request through the real server and controller: two synthetic subjects run the
 //! whole protocol at stations (tests, surveys with comments, a note, a redo, a test accepted
-//! as incomplete); an admin erases one. Then every table of the SQLite file — listed from
-//! `sqlite_master`, so a table added later is searched too — holds only the allowed traces
+//! as incomplete); an admin erases one. Then every table of the store — listed from
+//! `sqlite_master`, or PostgreSQL's `information_schema` when the tests' servers run there,
+//! so a table added later is searched too — holds only the allowed traces
 //! of the erased subject (its row reduced to id, study, code, enrolment index, starting seat
 //! and synthetic flag; the erasure's audit row; the older audit rows with their details
 //! redacted), neither the file nor its write-ahead log holds a byte of what they wrote, the
@@ -11,16 +12,17 @@
 //! still holding the data (those copied before the erasure, by their manifests).
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::Path;
 use std::time::Duration;
 
+use bdft_tests::postgres::servers_on_postgres;
 use bdft_tests::server::{
     ADMIN_PASSWORD, Api, Server, assigned_station, dry_run, eventually, pair_station,
-    person_at_a_station, run_trial, short_study, with_db,
+    person_at_a_station, run_trial, short_study, with_db, with_store,
 };
 use bdft_tests::webdriver::{Session, artifacts_dir};
 use bdft_tests::{TempDir, binary};
 use serde_json::{Value, json};
+use sqlx::AnyPool;
 
 use crate::accounts::{BrowserLab, browser_lab, dashboard, shown};
 use crate::exports_audit::{column, parse_csv};
@@ -127,9 +129,17 @@ impl Table {
     }
 }
 
-/// Every table of the database, by name, as `sqlite_master` lists them.
-fn every_table(db: &Path) -> BTreeMap<String, Table> {
-    with_db(db, async |pool| {
+/// Every table of the server's store, by name, as its catalogue lists them (`sqlite_master`,
+/// or PostgreSQL's `information_schema`), each cell as SQLite's `quote()` writes it.
+fn every_table(server: &Server) -> BTreeMap<String, Table> {
+    match server.postgres {
+        Some(_) => with_store(server, postgres_tables),
+        None => with_db(&server.db, sqlite_tables),
+    }
+}
+
+async fn sqlite_tables(pool: &AnyPool) -> BTreeMap<String, Table> {
+    {
         let names: Vec<String> =
             sqlx::query_scalar("SELECT name FROM sqlite_master WHERE type = 'table' ORDER BY name")
                 .fetch_all(pool)
@@ -172,7 +182,67 @@ fn every_table(db: &Path) -> BTreeMap<String, Table> {
             );
         }
         out
-    })
+    }
+}
+
+/// PostgreSQL's tables, each cell written as SQLite's `quote()` would (numbers bare, text
+/// and JSON quoted, bytes as X'…', NULL), so that one search reads both stores.
+async fn postgres_tables(pool: &AnyPool) -> BTreeMap<String, Table> {
+    let names: Vec<String> = sqlx::query_scalar(
+        "SELECT table_name::text FROM information_schema.tables WHERE table_schema = 'public' AND table_type = 'BASE TABLE' ORDER BY 1",
+    )
+    .fetch_all(pool)
+    .await
+    .unwrap();
+    let mut out = BTreeMap::new();
+    for t in names {
+        let typed: Vec<(String, String)> = sqlx::query_as(
+            "SELECT column_name::text, data_type::text FROM information_schema.columns WHERE table_schema = 'public' AND table_name = $1 ORDER BY ordinal_position",
+        )
+        .bind(&t)
+        .fetch_all(pool)
+        .await
+        .unwrap();
+        let refers: Vec<(String, String)> = sqlx::query_as(
+            "SELECT kcu.column_name::text, ccu.table_name::text FROM information_schema.table_constraints tc \
+             JOIN information_schema.key_column_usage kcu ON kcu.constraint_name = tc.constraint_name AND kcu.table_schema = tc.table_schema \
+             JOIN information_schema.constraint_column_usage ccu ON ccu.constraint_name = tc.constraint_name AND ccu.table_schema = tc.table_schema \
+             WHERE tc.constraint_type = 'FOREIGN KEY' AND tc.table_schema = 'public' AND tc.table_name = $1",
+        )
+        .bind(&t)
+        .fetch_all(pool)
+        .await
+        .unwrap();
+        let select = typed
+            .iter()
+            .map(|(c, ty)| match ty.as_str() {
+                "bigint" | "integer" | "smallint" | "double precision" | "real" | "numeric" => {
+                    format!("COALESCE(\"{c}\"::text, 'NULL')")
+                }
+                "bytea" => {
+                    format!("COALESCE('X''' || upper(encode(\"{c}\", 'hex')) || '''', 'NULL')")
+                }
+                _ => format!("COALESCE(quote_literal(\"{c}\"::text), 'NULL')"),
+            })
+            .collect::<Vec<_>>()
+            .join(" || chr(31) || ");
+        let rows: Vec<String> = sqlx::query_scalar(&format!("SELECT {select} FROM \"{t}\""))
+            .fetch_all(pool)
+            .await
+            .unwrap();
+        out.insert(
+            t,
+            Table {
+                columns: typed.into_iter().map(|(c, _)| c).collect(),
+                refers: refers.into_iter().collect(),
+                rows: rows
+                    .into_iter()
+                    .map(|r| r.split('\u{1f}').map(str::to_string).collect())
+                    .collect(),
+            },
+        );
+    }
+    out
 }
 
 /// The JSON of a quoted text cell.
@@ -215,16 +285,15 @@ fn largest_n(rows: &[Vec<String>]) -> i64 {
 
 #[test]
 fn an_erased_subject_leaves_only_the_erasure_in_every_table_and_no_count() {
+    // On PostgreSQL (BDFT_TEST_STORE=postgres) there are no backups (they are SQLite files)
+    // and no file to read: the tables are searched as on SQLite, the rest is SQLite's.
+    let on_sqlite = !servers_on_postgres();
     let backups = TempDir::new("erasure-backups");
-    let server = Server::start_with(
-        "erasure",
-        &[
-            "--admin-password",
-            ADMIN_PASSWORD,
-            "--backup-dir",
-            backups.path().to_str().unwrap(),
-        ],
-    );
+    let mut args = vec!["--admin-password", ADMIN_PASSWORD];
+    if on_sqlite {
+        args.extend(["--backup-dir", backups.path().to_str().unwrap()]);
+    }
+    let server = Server::start_with("erasure", &args);
     let api = server.experimenter();
     let study = dry_run(&api, short_study(&api, 1.0, 0.5));
     let (erased, code, page_token, erased_station) = at_a_station(&api, study);
@@ -280,25 +349,28 @@ fn an_erased_subject_leaves_only_the_erasure_in_every_table_and_no_count() {
 
     // Backups: the schedule's first, made at start, and one made now that holds everything
     // the subject did; and a file whose manifest cannot be read (what it holds is unknown).
-    let scheduled = eventually(Duration::from_secs(60), || {
-        let (_, v) = api.get("/api/backups");
-        let listed = v["backups"].as_array()?;
-        (listed.len() == 1 && v["running"] == false).then(|| listed[0]["file"].clone())
-    });
-    let before_erasure = api.ok("/api/backups", json!({}))["file"].clone();
     let holds_mark = |file: &Value| {
         std::fs::read(backups.path().join(file.as_str().unwrap()))
             .unwrap()
             .windows(MARK.len())
             .any(|w| w == MARK.as_bytes())
     };
-    assert!(holds_mark(&before_erasure), "the backup holds the data");
-    std::fs::write(backups.path().join("copied-by-hand.db"), "a copy").unwrap();
-    std::fs::write(backups.path().join("copied-by-hand.db.manifest.json"), "{}").unwrap();
+    let made_before = on_sqlite.then(|| {
+        let scheduled = eventually(Duration::from_secs(60), || {
+            let (_, v) = api.get("/api/backups");
+            let listed = v["backups"].as_array()?;
+            (listed.len() == 1 && v["running"] == false).then(|| listed[0]["file"].clone())
+        });
+        let before_erasure = api.ok("/api/backups", json!({}))["file"].clone();
+        assert!(holds_mark(&before_erasure), "the backup holds the data");
+        std::fs::write(backups.path().join("copied-by-hand.db"), "a copy").unwrap();
+        std::fs::write(backups.path().join("copied-by-hand.db.manifest.json"), "{}").unwrap();
+        (scheduled, before_erasure)
+    });
 
     // The audit rows about the subject, read before the erasure: by their target, or by
     // their details naming the subject (a station's assignment).
-    let before = every_table(&server.db);
+    let before = every_table(&server);
     let audit_before: BTreeMap<String, (String, Value)> = before["audit_log"]
         .rows
         .iter()
@@ -311,9 +383,16 @@ fn an_erased_subject_leaves_only_the_erasure_in_every_table_and_no_count() {
         })
         .collect();
 
+    // The searches below can find the text: the tables' and the files'.
     assert!(
-        files_hold_mark(&server),
-        "the search below can find the text"
+        before
+            .values()
+            .any(|t| t.rows.iter().any(|r| r.iter().any(|c| c.contains(MARK)))),
+        "the tables hold the subject's text before the erasure"
+    );
+    assert!(
+        !on_sqlite || files_hold_mark(&server),
+        "the files hold the subject's text before the erasure"
     );
 
     let reason = "the subject asked for erasure (request 7)";
@@ -343,19 +422,22 @@ fn an_erased_subject_leaves_only_the_erasure_in_every_table_and_no_count() {
         .iter()
         .map(|b| (b["backup"].as_str().unwrap(), b["problem"].is_null()))
         .collect();
-    assert_eq!(
-        held,
-        [
-            (scheduled.as_str().unwrap(), true),
-            (before_erasure.as_str().unwrap(), true),
-            ("copied-by-hand.db", false)
-        ],
-        "{report}"
-    );
+    match &made_before {
+        Some((scheduled, before_erasure)) => assert_eq!(
+            held,
+            [
+                (scheduled.as_str().unwrap(), true),
+                (before_erasure.as_str().unwrap(), true),
+                ("copied-by-hand.db", false)
+            ],
+            "{report}"
+        ),
+        None => assert_eq!(held, [], "no backups on PostgreSQL: {report}"),
+    }
     assert!(report["backups_unchecked"].is_null(), "{report}");
     // A backup made after the erasure holds none of it, and is not listed.
-    let after_erasure = api.ok("/api/backups", json!({}))["file"].clone();
-    assert!(!holds_mark(&after_erasure));
+    let after_erasure = on_sqlite.then(|| api.ok("/api/backups", json!({}))["file"].clone());
+    assert!(!after_erasure.as_ref().is_some_and(holds_mark));
     let listed = api.get("/api/erasures").1;
     assert_eq!(listed["erasures"].as_array().unwrap().len(), 1, "{listed}");
     assert_eq!(listed["erasures"][0]["code"], code.as_str());
@@ -396,7 +478,7 @@ fn an_erased_subject_leaves_only_the_erasure_in_every_table_and_no_count() {
     );
 
     // Every table: only the allowed traces.
-    let tables = every_table(&server.db);
+    let tables = every_table(&server);
     assert!(tables.contains_key("audit_log") && tables.contains_key("trial_records"));
     let sid = erased.to_string();
     let trial_ids: BTreeSet<String> = erased_trials.iter().map(i64::to_string).collect();
@@ -485,7 +567,7 @@ fn an_erased_subject_leaves_only_the_erasure_in_every_table_and_no_count() {
     assert!(redacted >= 38, "{redacted}");
     // Not in the file's free pages either, nor in the write-ahead log.
     assert!(
-        !files_hold_mark(&server),
+        !on_sqlite || !files_hold_mark(&server),
         "the files still hold the erased subject's text"
     );
 
@@ -530,6 +612,9 @@ fn an_erased_subject_leaves_only_the_erasure_in_every_table_and_no_count() {
     // Restoring the backup made before the erasure brings the data back, and the restore
     // says whom to erase again. (Onto a database restored from the backup made after it: a
     // copy of the live one would be held by this running server's heartbeat.)
+    let (Some((_, before_erasure)), Some(after_erasure)) = (made_before, after_erasure) else {
+        return;
+    };
     let restored = TempDir::new("erasure-restored");
     let db = restored.path().join("bdft-lab.db");
     let restore = |backup: &Value| {
