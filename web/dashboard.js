@@ -2,7 +2,7 @@
 // subjects and schedules, stations, live monitor, results, audit log), each in its module.
 
 import { api } from './common.js';
-import { S, act, emit, get, on, onUnauthorized, post, setStatus, when } from './dashboard-core.js';
+import { S, act, el, emit, get, on, onUnauthorized, post, setStatus, when } from './dashboard-core.js';
 import * as study from './dashboard-study.js';
 import * as subjects from './dashboard-subjects.js';
 import * as stations from './dashboard-stations.js';
@@ -131,6 +131,43 @@ async function estopReset() {
   refreshEstopHistory();
 }
 
+/** One site's e-stop or its reset (`?site=`), from the site list's buttons. */
+async function siteAction(action, site) {
+  const q = `?site=${encodeURIComponent(site)}`;
+  if (action === 'stop') {
+    const r = await act(`E-STOP ${site}`, $('estop-status'), () => post(`/api/estop${q}`), () =>
+      `sent — the controller of ${site} latched every valve to zero`,
+    );
+    if (!r.ok) $('estop-status').textContent += ' — USE THE HARDWARE STOP';
+  } else {
+    await act(`E-stop reset ${site}`, $('estop-status'), () => post(`/api/estop/reset${q}`), () => `latch of ${site} cleared`);
+  }
+  refreshController();
+  refreshEstopHistory();
+}
+
+/** Each site's link and latch with its own stop and reset, when the server serves several. */
+function showSites() {
+  const list = $('estop-sites');
+  list.hidden = S.sites.length < 2;
+  const rows = list.hidden ? [] : S.sites;
+  const shown = JSON.stringify(rows.map((x) => [x.site, x.connected, x.estop_latched]));
+  // Rebuilt only when something changed, so a button is not replaced under the pointer.
+  if (list.dataset.shown === shown) return;
+  list.dataset.shown = shown;
+  list.replaceChildren(
+    ...rows.map((x) =>
+      el(
+        'li',
+        { class: x.estop_latched ? 'alarm' : '', dataset: { site: x.site } },
+        `${x.site}: ${x.connected ? 'connected' : 'NOT CONNECTED'}${x.estop_latched ? ', LATCHED' : ''}`,
+        el('button', { type: 'button', class: 'estop-site', onclick: () => siteAction('stop', x.site) }, `Stop ${x.site}`),
+        el('button', { type: 'button', onclick: () => siteAction('reset', x.site) }, `Reset ${x.site}`),
+      ),
+    ),
+  );
+}
+
 /** The last e-stop and reset, from the audit log (the API reports no latch state). */
 async function refreshEstopHistory() {
   const r = await get('/api/audit?limit=500');
@@ -156,7 +193,10 @@ async function refreshEstopHistory() {
 function showLatch(latched) {
   const box = $('estop-latch');
   if (!box) return;
-  box.textContent = latched ? 'E-STOP LATCHED: valves held at zero until reset.' : 'E-stop not latched.';
+  // With several sites, which ones (as GET /api/controller last said).
+  const at = S.sites.length > 1 ? S.sites.filter((x) => x.estop_latched).map((x) => x.site) : [];
+  const where = at.length ? ` at ${at.join(', ')}` : '';
+  box.textContent = latched ? `E-STOP LATCHED${where}: valves held at zero until reset.` : 'E-stop not latched.';
   box.classList.toggle('alarm', latched);
 }
 
@@ -189,6 +229,7 @@ async function refreshController() {
     S.controller = { connected: !!r.data.connected, pid: r.data.pid, rig: r.data.rig };
     S.sites = Array.isArray(r.data.sites) ? r.data.sites : [];
     stations.showSites();
+    showSites();
     showController();
     showLatch(!!r.data.estop_latched);
     if (was !== S.controller.connected) emit('controller', S.controller);

@@ -9,6 +9,7 @@ use std::time::Duration;
 
 use bdft_tests::exports::parse_csv;
 use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, dry_run, eventually, short_study};
+use bdft_tests::webdriver::{Driver, artifacts_dir};
 use serde_json::{Value, json};
 
 /// Each site's entry of GET /api/controller, by name.
@@ -203,7 +204,10 @@ fn two_sites_run_their_own_trials_lose_and_stop_them_apart() {
     });
     assert_eq!((code, &t["site"]), (200, &json!("lab-a")), "{t}");
     api.ok("/api/estop/reset?site=lab-b", json!({}));
-    assert_eq!(site(&api, "lab-b")["estop_latched"], false);
+    // The controller's latch clears when its status answers the reset.
+    eventually(Duration::from_secs(10), || {
+        (site(&api, "lab-b")["estop_latched"] == false).then_some(())
+    });
     assert_eq!(trial(&api, a, a_again)["status"], "running");
 
     // A name no site has stops every site: a stop is never refused for a typo.
@@ -292,4 +296,69 @@ fn site_arguments_that_cannot_work_are_refused_at_start() {
         assert!(!out.status.success(), "{args:?} started");
         assert!(err.contains(says), "{args:?}: {err}");
     }
+}
+
+/// The dashboard of a server with two sites: each site's link and latch with its own stop
+/// and reset beside the button that stops them all, and the pairing form asking for the site.
+#[test]
+fn in_chromium_the_dashboard_stops_and_resets_one_site() {
+    let server = Server::start_with(
+        "sites-dashboard",
+        &[
+            "--admin-password",
+            ADMIN_PASSWORD,
+            "--site",
+            "lab-a",
+            "--site",
+            "lab-b",
+        ],
+    );
+    let api = server.experimenter();
+    sites_ready(&api);
+    let downloads = bdft_tests::TempDir::new("sites-dashboard-downloads");
+    let driver = Driver::start();
+    let dash = driver.session(downloads.path());
+    dash.log_in_to_dashboard(&server.base);
+    let row = |site: &str| format!("#estop-sites li[data-site=\"{site}\"]");
+    dash.wait_until(
+        "const l = document.getElementById('estop-sites'); return !l.hidden && l.children.length === 2;",
+        json!([]),
+    );
+    let sites: Value = dash.exec(
+        "return [...document.getElementById('pair-site').options].map((o) => o.value);",
+        json!([]),
+    );
+    assert_eq!(sites, json!(["lab-a", "lab-b"]));
+    assert!(
+        dash.exec(
+            "return !document.getElementById('pair-site-label').hidden;",
+            json!([])
+        ) == true
+    );
+
+    dash.click(&format!("{} .estop-site", row("lab-b")));
+    eventually(Duration::from_secs(10), || {
+        (site(&api, "lab-b")["estop_latched"] == true).then_some(())
+    });
+    assert_eq!(site(&api, "lab-a")["estop_latched"], false);
+    dash.wait_until(
+        "return document.querySelector(arguments[0]).classList.contains('alarm');",
+        json!([row("lab-b")]),
+    );
+    assert!(dash.text(&row("lab-b")).contains("LATCHED"));
+    dash.wait_until(
+        "return document.getElementById('estop-latch').textContent.includes('LATCHED at lab-b:');",
+        json!([]),
+    );
+    assert!(!dash.text(&row("lab-a")).contains("LATCHED"));
+    dash.screenshot(&artifacts_dir().join("sites-dashboard-lab-b-stopped.png"));
+
+    dash.click(&format!("{} button:not(.estop-site)", row("lab-b")));
+    eventually(Duration::from_secs(10), || {
+        (site(&api, "lab-b")["estop_latched"] == false).then_some(())
+    });
+    dash.wait_until(
+        "return !document.querySelector(arguments[0]).classList.contains('alarm');",
+        json!([row("lab-b")]),
+    );
 }
