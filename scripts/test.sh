@@ -93,15 +93,16 @@ pg_skips=(
   "controller_cli::" "controller_estop::" "controller_identification::"
   "controller_input_udp::" "controller_link_loss::" "controller_messages::"
   "controller_rig_udp::" "controller_starts::" "controller_trials::" "structure::"
-  # It runs both stores itself.
-  "store_dialects::"
+  # They run on PostgreSQL (or both stores) already in the first pass.
+  "store_dialects::" "backups::on_postgresql" "audit_chain::on_postgresql"
   # A backup is a SQLite file (refused on PostgreSQL, which backups::on_postgresql_… tests).
   "backups::backups_taken_while_a_pilot_runs"
   "backups::a_restore_refuses_a_running_server"
   "backups::scheduled_backups_keep_the_newest"
   # Its fixtures are earlier releases' SQLite files.
   "upgrade::"
-  # It tampers with a copy of the SQLite file, triggers dropped, as a file's holder would.
+  # It tampers with copies of the SQLite file (audit_chain::on_postgresql_… does the same
+  # with copies of a PostgreSQL database).
   "audit_chain::audit_verify_names_every_kind_of_tampering"
   # Its disk-full fault caps the SQLite file's page count (PostgreSQL has no such cap: its
   # full-disk SQLSTATE is answered as SQLite's is, which no test here makes happen).

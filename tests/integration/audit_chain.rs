@@ -1,6 +1,6 @@
-//! The tamper-evident audit log: a copy of a running server's database is tampered with
-//! through a raw SQLite connection, its triggers dropped first, as someone holding the file
-//! would; `bdft-server audit verify` must catch each edit, deletion, reordering, insertion,
+//! The tamper-evident audit log: a copy of a running server's database — a SQLite file, or
+//! a PostgreSQL database — is tampered with through a raw connection, its triggers dropped
+//! first, as someone holding the store would; `bdft-server audit verify` must catch each edit, deletion, reordering, insertion,
 //! truncation and whole rewrite, naming the entry. The rewrite recomputes every hash with
 //! this test's own implementation of the documented chain format (store/audit_chain.rs),
 //! which so also checks the format against an independent reading.
@@ -8,57 +8,120 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use bdft_tests::server::{Server, short_study};
+use bdft_tests::postgres::PgDatabase;
+use bdft_tests::server::{Server, Stop, short_study, with_url};
 use bdft_tests::{TempDir, binary};
 use sha2::{Digest, Sha256};
 
-fn block_on<T>(f: impl std::future::Future<Output = T>) -> T {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap()
-        .block_on(f)
+/// A store to tamper with and verify: a SQLite file (its audit key beside it), or a
+/// PostgreSQL database (the key in the server's keys directory), kept while this lives.
+enum Store {
+    File(PathBuf),
+    Postgres {
+        url: String,
+        keys: PathBuf,
+        _copy: Option<PgDatabase>,
+    },
 }
 
-async fn connect(db: &Path) -> sqlx::SqlitePool {
-    let opts = sqlx::sqlite::SqliteConnectOptions::new()
-        .filename(db)
-        .busy_timeout(std::time::Duration::from_secs(10));
-    sqlx::SqlitePool::connect_with(opts).await.unwrap()
-}
+impl Store {
+    fn url(&self) -> String {
+        match self {
+            Store::File(db) => format!("sqlite://{}", db.display()),
+            Store::Postgres { url, .. } => url.clone(),
+        }
+    }
 
-/// Runs `sql` on `db` with the audit triggers dropped.
-fn tamper(db: &Path, sql: &str) {
-    block_on(async {
-        let pool = connect(db).await;
-        for t in [
-            "audit_log_no_update",
-            "audit_log_no_delete",
-            "audit_chain_no_update",
-            "audit_chain_no_delete",
-        ] {
-            sqlx::query(&format!("DROP TRIGGER IF EXISTS {t}"))
-                .execute(&pool)
+    /// Runs `sql` with the audit triggers dropped, as someone holding the store would.
+    fn tamper(&self, sql: &str) {
+        let on = |table: &str| match self {
+            Store::File(_) => String::new(),
+            Store::Postgres { .. } => format!(" ON {table}"),
+        };
+        let drops: String = [
+            ("audit_log_no_update", "audit_log"),
+            ("audit_log_no_delete", "audit_log"),
+            ("audit_chain_no_update", "audit_chain"),
+            ("audit_chain_no_delete", "audit_chain"),
+        ]
+        .iter()
+        .map(|(t, table)| format!("DROP TRIGGER IF EXISTS {t}{};", on(table)))
+        .collect();
+        with_url(&self.url(), async |pool| {
+            sqlx::raw_sql(&drops).execute(pool).await.unwrap();
+            sqlx::raw_sql(sql).execute(pool).await.unwrap();
+        });
+    }
+
+    fn scalar(&self, sql: &str) -> i64 {
+        with_url(&self.url(), async |pool| {
+            sqlx::query_scalar(sql).fetch_one(pool).await.unwrap()
+        })
+    }
+
+    /// `bdft-server audit verify` on this store: its outcome and everything it printed.
+    fn verify(&self) -> (Output, String) {
+        let mut cmd = Command::new(binary("bdft-server"));
+        cmd.args(["audit", "verify", "--db"]);
+        match self {
+            Store::File(db) => cmd.arg(db),
+            Store::Postgres { url, keys, .. } => cmd.arg(url).arg("--keys-dir").arg(keys),
+        };
+        let out = cmd.output().unwrap();
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        (out, text)
+    }
+
+    /// Every chain row recomputed from the log as it now is, by the documented format.
+    fn rewrite_chain(&self) {
+        with_url(&self.url(), async |pool| {
+            type Row = (
+                i64,
+                i64,
+                String,
+                Option<i64>,
+                String,
+                Option<String>,
+                Option<String>,
+            );
+            let rows: Vec<Row> = sqlx::query_as(
+                "SELECT id, at, actor, actor_id, action, target, detail_json FROM audit_log ORDER BY id",
+            )
+            .fetch_all(pool)
+            .await
+            .unwrap();
+            let mut prev = "0".repeat(64);
+            for (id, at, actor, actor_id, action, target, detail) in rows {
+                let detail_hash = sha_hex(detail.unwrap_or_default().as_bytes());
+                let content = serde_json::to_string(&serde_json::json!([
+                    id,
+                    at,
+                    actor,
+                    actor_id,
+                    action,
+                    target,
+                    detail_hash
+                ]))
+                .unwrap();
+                let hash = sha_hex(format!("{prev}\n{content}").as_bytes());
+                sqlx::query(
+                    "UPDATE audit_chain SET prev_hash = $1, detail_hash = $2, hash = $3 WHERE entry_id = $4",
+                )
+                .bind(&prev)
+                .bind(&detail_hash)
+                .bind(&hash)
+                .bind(id)
+                .execute(pool)
                 .await
                 .unwrap();
-        }
-        sqlx::raw_sql(sql).execute(&pool).await.unwrap();
-        pool.close().await;
-    });
-}
-
-fn verify(db: &Path) -> (Output, String) {
-    let out = Command::new(binary("bdft-server"))
-        .args(["audit", "verify", "--db"])
-        .arg(db)
-        .output()
-        .unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    (out, text)
+                prev = hash;
+            }
+        });
+    }
 }
 
 fn sha_hex(bytes: &[u8]) -> String {
@@ -68,57 +131,8 @@ fn sha_hex(bytes: &[u8]) -> String {
         .collect()
 }
 
-/// Every chain row recomputed from the log as it now is, by the documented format.
-fn rewrite_chain(db: &Path) {
-    block_on(async {
-        let pool = connect(db).await;
-        type Row = (
-            i64,
-            i64,
-            String,
-            Option<i64>,
-            String,
-            Option<String>,
-            Option<String>,
-        );
-        let rows: Vec<Row> = sqlx::query_as(
-            "SELECT id, at, actor, actor_id, action, target, detail_json FROM audit_log ORDER BY id",
-        )
-        .fetch_all(&pool)
-        .await
-        .unwrap();
-        let mut prev = "0".repeat(64);
-        for (id, at, actor, actor_id, action, target, detail) in rows {
-            let detail_hash = sha_hex(detail.unwrap_or_default().as_bytes());
-            let content = serde_json::to_string(&serde_json::json!([
-                id,
-                at,
-                actor,
-                actor_id,
-                action,
-                target,
-                detail_hash
-            ]))
-            .unwrap();
-            let hash = sha_hex(format!("{prev}\n{content}").as_bytes());
-            sqlx::query(
-                "UPDATE audit_chain SET prev_hash = ?, detail_hash = ?, hash = ? WHERE entry_id = ?",
-            )
-            .bind(&prev)
-            .bind(&detail_hash)
-            .bind(&hash)
-            .bind(id)
-            .execute(&pool)
-            .await
-            .unwrap();
-            prev = hash;
-        }
-        pool.close().await;
-    });
-}
-
-/// A fresh copy of `source` (with the key beside it) named `name`.
-fn copy(dir: &Path, source: &Path, name: &str) -> PathBuf {
+/// A fresh copy of the SQLite file `source` (with the key beside it) named `name`.
+fn copy_file(dir: &Path, source: &Path, name: &str) -> Store {
     let db = dir.join(format!("{name}.db"));
     std::fs::copy(source, &db).unwrap();
     std::fs::copy(
@@ -126,21 +140,12 @@ fn copy(dir: &Path, source: &Path, name: &str) -> PathBuf {
         db.with_extension("audit-key"),
     )
     .unwrap();
-    db
+    Store::File(db)
 }
 
-fn scalar(db: &Path, sql: &str) -> i64 {
-    block_on(async {
-        let pool = connect(db).await;
-        let v: i64 = sqlx::query_scalar(sql).fetch_one(&pool).await.unwrap();
-        pool.close().await;
-        v
-    })
-}
-
-#[test]
-fn audit_verify_names_every_kind_of_tampering() {
-    let server = Server::start("audit-chain");
+/// Some studies made through the API, and the log verified by the server itself: the
+/// entry its start's checkpoint signed.
+fn logged_and_checkpointed(server: &Server) -> i64 {
     let api = server.experimenter();
     for _ in 0..4 {
         short_study(&api, 3.0, 1.0);
@@ -148,33 +153,25 @@ fn audit_verify_names_every_kind_of_tampering() {
     let (code, verdict) = api.get("/api/audit/verify");
     assert_eq!(code, 200, "{verdict}");
     assert_eq!(verdict["intact"], true, "{verdict}");
-    let checkpoint = verdict["last_checkpoint"]
+    verdict["last_checkpoint"]
         .as_i64()
-        .expect("the start signed a checkpoint");
+        .expect("the start signed a checkpoint")
+}
 
-    // A consistent copy of the running server's database, and its key.
-    let dir = TempDir::new("audit-chain-copies");
-    let original = dir.path().join("original.db");
-    block_on(async {
-        let pool = connect(&server.db).await;
-        sqlx::query(&format!("VACUUM INTO '{}'", original.display()))
-            .execute(&pool)
-            .await
-            .unwrap();
-        pool.close().await;
-    });
-    std::fs::copy(
-        server.db.with_extension("audit-key"),
-        original.with_extension("audit-key"),
-    )
-    .unwrap();
-    let entries = scalar(&original, "SELECT COUNT(*) FROM audit_log");
+/// `original` verifies; each kind of tampering, on a copy of its own (`copy`), is caught
+/// with the entry named; a whole rewrite of the chain is caught by the signed checkpoint;
+/// this test's own chain of the untouched log equals the server's.
+fn every_kind_of_tampering_is_named(
+    original: &Store,
+    copy: &dyn Fn(&str) -> Store,
+    checkpoint: i64,
+) {
+    let entries = original.scalar("SELECT COUNT(*) FROM audit_log");
     assert!(
         entries > checkpoint + 3,
         "{entries} entries, checkpoint at {checkpoint}"
     );
-
-    let (out, text) = verify(&original);
+    let (out, text) = original.verify();
     assert!(out.status.success(), "{text}");
     assert!(
         text.contains(&format!("intact: {entries} entries, head "))
@@ -234,9 +231,9 @@ fn audit_verify_names_every_kind_of_tampering() {
         ),
     ];
     for (name, sql, expected) in cases {
-        let db = copy(dir.path(), &original, name);
-        tamper(&db, &sql);
-        let (out, text) = verify(&db);
+        let db = copy(name);
+        db.tamper(&sql);
+        let (out, text) = db.verify();
         assert!(!out.status.success(), "{name}: {text}");
         assert!(
             text.contains(&expected),
@@ -246,13 +243,10 @@ fn audit_verify_names_every_kind_of_tampering() {
 
     // A whole rewrite: an early entry edited and every hash after it recomputed. The chain
     // holds again; the signed checkpoint does not.
-    let db = copy(dir.path(), &original, "rewritten");
-    tamper(
-        &db,
-        "UPDATE audit_log SET actor = 'someone else' WHERE id = 1",
-    );
-    rewrite_chain(&db);
-    let (out, text) = verify(&db);
+    let db = copy("rewritten");
+    db.tamper("UPDATE audit_log SET actor = 'someone else' WHERE id = 1");
+    db.rewrite_chain();
+    let (out, text) = db.verify();
     assert!(!out.status.success(), "{text}");
     assert!(
         text.contains(&format!(
@@ -261,19 +255,44 @@ fn audit_verify_names_every_kind_of_tampering() {
         "{text}"
     );
     // The independent implementation agrees with the server's on the untouched copy.
-    let db = copy(dir.path(), &original, "recomputed");
-    tamper(&db, "SELECT 1");
-    rewrite_chain(&db);
-    let (out, text) = verify(&db);
+    let db = copy("recomputed");
+    db.tamper("SELECT 1");
+    db.rewrite_chain();
+    let (out, text) = db.verify();
     assert!(
         out.status.success(),
         "the test's own chain equals the server's: {text}"
+    );
+}
+
+#[test]
+fn audit_verify_names_every_kind_of_tampering() {
+    let server = Server::start("audit-chain");
+    let checkpoint = logged_and_checkpointed(&server);
+    // A consistent copy of the running server's database, and its key.
+    let dir = TempDir::new("audit-chain-copies");
+    let original = dir.path().join("original.db");
+    with_url(&format!("sqlite://{}", server.db.display()), async |pool| {
+        sqlx::query(&format!("VACUUM INTO '{}'", original.display()))
+            .execute(pool)
+            .await
+            .unwrap();
+    });
+    std::fs::copy(
+        server.db.with_extension("audit-key"),
+        original.with_extension("audit-key"),
+    )
+    .unwrap();
+    every_kind_of_tampering_is_named(
+        &Store::File(original.clone()),
+        &|name| copy_file(dir.path(), &original, name),
+        checkpoint,
     );
 
     // A file that is not ours: a clear error, nothing written.
     let text_file = dir.path().join("notes.txt");
     std::fs::write(&text_file, "not a database").unwrap();
-    let (out, text) = verify(&text_file);
+    let (out, text) = Store::File(text_file.clone()).verify();
     assert!(!out.status.success());
     assert!(text.contains("not a database"), "{text}");
     assert_eq!(
@@ -281,21 +300,50 @@ fn audit_verify_names_every_kind_of_tampering() {
         "not a database"
     );
     let empty = dir.path().join("empty.db");
-    block_on(async {
-        let opts = sqlx::sqlite::SqliteConnectOptions::new()
-            .filename(&empty)
-            .create_if_missing(true);
-        let pool = sqlx::SqlitePool::connect_with(opts).await.unwrap();
-        sqlx::query("CREATE TABLE t (x)")
-            .execute(&pool)
-            .await
-            .unwrap();
-        pool.close().await;
-    });
-    let (out, text) = verify(&empty);
+    with_url(
+        &format!("sqlite://{}?mode=rwc", empty.display()),
+        async |pool| {
+            sqlx::query("CREATE TABLE t (x)")
+                .execute(pool)
+                .await
+                .unwrap();
+        },
+    );
+    let (out, text) = Store::File(empty).verify();
     assert!(!out.status.success());
     assert!(
         text.contains("not a bdft-lab database: it has no audit log"),
         "{text}"
+    );
+}
+
+/// The same on a server's PostgreSQL store (`--db postgres://… --keys-dir`): each copy is a
+/// database made from the stopped server's as its template.
+#[test]
+fn on_postgresql_audit_verify_names_every_kind_of_tampering() {
+    let mut server = Server::start_on_postgres("audit-chain-postgres", &[]);
+    let checkpoint = logged_and_checkpointed(&server);
+    // Stopped: a template database takes no connections while it is copied.
+    server
+        .stop(Stop::Term, std::time::Duration::from_secs(30))
+        .unwrap();
+    let pg = server.postgres.as_ref().unwrap();
+    let keys = server.dir.path().to_path_buf();
+    let original = Store::Postgres {
+        url: pg.url(),
+        keys: keys.clone(),
+        _copy: None,
+    };
+    every_kind_of_tampering_is_named(
+        &original,
+        &|name| {
+            let copy = pg.blocking_copy(&format!("tampered_{name}"));
+            Store::Postgres {
+                url: copy.url(),
+                keys: keys.clone(),
+                _copy: Some(copy),
+            }
+        },
+        checkpoint,
     );
 }

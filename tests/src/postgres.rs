@@ -25,6 +25,16 @@ pub struct PgDatabase {
 
 impl PgDatabase {
     pub async fn new(tag: &str) -> Self {
+        Self::created(tag, None).await
+    }
+
+    /// A copy of `self` (which nothing may be connected to), as `CREATE DATABASE … TEMPLATE`
+    /// makes it.
+    pub fn blocking_copy(&self, tag: &str) -> Self {
+        runtime().block_on(Self::created(tag, Some(&self.name)))
+    }
+
+    async fn created(tag: &str, template: Option<&str>) -> Self {
         let url = std::env::var("BDFT_TEST_POSTGRES").expect(
             "BDFT_TEST_POSTGRES is not set: run the tests with scripts/test.sh, which starts a \
              PostgreSQL server for them (or set it to a postgres:// URL of a server whose user \
@@ -40,7 +50,8 @@ impl PgDatabase {
         )
         .replace(|c: char| !c.is_ascii_alphanumeric() && c != '_', "_");
         let mut admin = server.connect().await.expect("connecting to PostgreSQL");
-        sqlx::raw_sql(&format!("CREATE DATABASE {name}"))
+        let from = template.map_or(String::new(), |t| format!(" TEMPLATE {t}"));
+        sqlx::raw_sql(&format!("CREATE DATABASE {name}{from}"))
             .execute(&mut admin)
             .await
             .unwrap();

@@ -482,7 +482,7 @@ pub fn with_store<T>(server: &Server, f: impl AsyncFnOnce(&sqlx::AnyPool) -> T) 
 
 /// Runs `f` on a pool of the database at `url` through sqlx's `Any` driver, as the server
 /// reads its store (flags are integers there).
-fn with_url<T>(url: &str, f: impl AsyncFnOnce(&sqlx::AnyPool) -> T) -> T {
+pub fn with_url<T>(url: &str, f: impl AsyncFnOnce(&sqlx::AnyPool) -> T) -> T {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
