@@ -20,7 +20,7 @@ enum Store {
     Postgres {
         url: String,
         keys: PathBuf,
-        _copy: Option<PgDatabase>,
+        _copy: Option<Box<PgDatabase>>,
     },
 }
 
@@ -341,7 +341,7 @@ fn on_postgresql_audit_verify_names_every_kind_of_tampering() {
             Store::Postgres {
                 url: copy.url(),
                 keys: keys.clone(),
-                _copy: Some(copy),
+                _copy: Some(Box::new(copy)),
             }
         },
         checkpoint,
