@@ -93,19 +93,23 @@ fn start(api: &Api, trial: i64) -> (u16, Value) {
     api.post(&format!("/api/trials/{trial}/start"), json!({}))
 }
 
+/// A server with the admin account and two sites, lab-a and lab-b, each with a simulated
+/// controller it starts.
+fn two_sites(tag: &str) -> Server {
+    let args = [
+        "--admin-password",
+        ADMIN_PASSWORD,
+        "--site",
+        "lab-a",
+        "--site",
+        "lab-b",
+    ];
+    Server::start_with(tag, &args)
+}
+
 #[test]
 fn two_sites_run_their_own_trials_lose_and_stop_them_apart() {
-    let server = Server::start_with(
-        "sites",
-        &[
-            "--admin-password",
-            ADMIN_PASSWORD,
-            "--site",
-            "lab-a",
-            "--site",
-            "lab-b",
-        ],
-    );
+    let server = two_sites("sites");
     let api = server.experimenter();
     sites_ready(&api);
     let (_, status) = api.get("/api/controller");
@@ -302,17 +306,7 @@ fn site_arguments_that_cannot_work_are_refused_at_start() {
 /// and reset beside the button that stops them all, and the pairing form asking for the site.
 #[test]
 fn in_chromium_the_dashboard_stops_and_resets_one_site() {
-    let server = Server::start_with(
-        "sites-dashboard",
-        &[
-            "--admin-password",
-            ADMIN_PASSWORD,
-            "--site",
-            "lab-a",
-            "--site",
-            "lab-b",
-        ],
-    );
+    let server = two_sites("sites-dashboard");
     let api = server.experimenter();
     sites_ready(&api);
     let downloads = bdft_tests::TempDir::new("sites-dashboard-downloads");
