@@ -180,6 +180,8 @@ fn an_uploaded_reference_runs_and_bad_uploads_name_the_line() {
     );
     assert_eq!(v["run"]["status"], "done", "{}", v["run"]);
     assert_eq!(v["run"]["duration_s"], 2.0);
+    // Simulated here: no site's machine ran it.
+    assert!(v["run"]["site"].is_null(), "{}", v["run"]);
     let target = v["traces"][0]["target_mm"].as_array().unwrap();
     // Within one tick (10 mm/s × 1 ms) of the upload's peak and of its half-way point.
     assert!(
@@ -281,6 +283,8 @@ fn a_bench_run_on_the_real_rig_runs_in_real_time_stops_at_the_estop_and_a_silent
     // time, its result back to the bench (no study trial is made of it).
     let v = run(&api, 1.0);
     assert_eq!(v["run"]["rig"], "real");
+    // On the machine of the server's one site, and recorded so.
+    assert_eq!(v["run"]["site"], "main", "{}", v["run"]);
     assert_eq!(v["run"]["status"], "done", "{}", v["run"]);
     assert_eq!(
         v["results"][0]["outcome"], "complete",

@@ -26,6 +26,8 @@ pub struct BenchRun {
     pub created_by: String,
     pub created_at: i64,
     pub finished_at: Option<i64>,
+    /// The site whose machine ran it (a run on the real rig; none when simulated here).
+    pub site: Option<String>,
 }
 
 /// What a new run is.
@@ -37,6 +39,7 @@ pub struct NewRun<'a> {
     pub duration_s: f64,
     pub seed: u64,
     pub created_by: &'a str,
+    pub site: Option<&'a str>,
 }
 
 /// One compensator's result of a run.
@@ -80,8 +83,8 @@ pub struct NewResult<'a> {
 
 pub async fn insert_run(db: &mut AnyConnection, run: &NewRun<'_>) -> Result<i64> {
     let (id,): (i64,) = sqlx::query_as(
-        "INSERT INTO bench_runs (study_id, rig, signal_json, duration_s, seed, created_by, created_at) \
-         VALUES ($1, $2, $3, $4, $5, $6, $7) RETURNING id",
+        "INSERT INTO bench_runs (study_id, rig, signal_json, duration_s, seed, created_by, created_at, site) \
+         VALUES ($1, $2, $3, $4, $5, $6, $7, $8) RETURNING id",
     )
     .bind(run.study_id)
     .bind(run.rig)
@@ -90,6 +93,7 @@ pub async fn insert_run(db: &mut AnyConnection, run: &NewRun<'_>) -> Result<i64>
     .bind(run.seed as i64)
     .bind(run.created_by)
     .bind(now_ms())
+    .bind(run.site)
     .fetch_one(db)
     .await?;
     Ok(id)

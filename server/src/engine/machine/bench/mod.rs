@@ -59,6 +59,8 @@ struct Started<'a> {
     duration_s: f64,
     seed: u64,
     study_id: Option<i64>,
+    /// The site whose machine runs it (on the real rig).
+    site: Option<&'a str>,
 }
 
 /// What `bench.finish` and `bench.fail` record: why the run failed (null: it did not).
@@ -201,6 +203,7 @@ impl BenchJob {
                 duration_s,
                 seed,
                 created_by: actor,
+                site: rig.site(),
             },
         )
         .await?;
@@ -214,6 +217,7 @@ impl BenchJob {
                     duration_s,
                     seed,
                     study_id: req.study_id,
+                    site: rig.site(),
                 },
             )
             .await?;
@@ -288,6 +292,14 @@ impl Rig {
         match self {
             Self::Sim => "sim",
             Self::Real(_) => "real",
+        }
+    }
+
+    /// The site whose machine a run on the real rig uses.
+    fn site(&self) -> Option<&str> {
+        match self {
+            Self::Sim => None,
+            Self::Real(link) => Some(link.site()),
         }
     }
 }
