@@ -230,10 +230,6 @@ impl ControllerLink {
         *self.inner.pid.lock().unwrap_or_else(|p| p.into_inner())
     }
 
-    pub fn subscribe(&self) -> broadcast::Receiver<ControllerEvent> {
-        self.inner.events.subscribe()
-    }
-
     pub fn is_connected(&self) -> bool {
         *self.inner.connected.borrow()
     }
