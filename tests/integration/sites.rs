@@ -217,6 +217,9 @@ fn two_sites_run_their_own_trials_lose_and_stop_them_apart() {
     // A name no site has stops every site: a stop is never refused for a typo.
     let stopped = api.ok("/api/estop?site=lab-z", json!({}));
     assert_eq!(stopped["sites"], json!(["lab-a", "lab-b"]), "{stopped}");
+    // Nor for a query that does not parse.
+    let stopped = api.ok("/api/estop?sight=lab-a", json!({}));
+    assert_eq!(stopped["sites"], json!(["lab-a", "lab-b"]), "{stopped}");
     assert_eq!(ended(&api, a, a_again)["status"], "aborted");
     // Every site's latch holds until it is reset for every site.
     let (code, e) = api.post("/api/estop/reset?site=lab-a", json!({}));
@@ -253,7 +256,14 @@ fn two_sites_run_their_own_trials_lose_and_stop_them_apart() {
         .filter(|e| e["action"] == "estop")
         .map(|e| &e["target"])
         .collect();
-    assert_eq!(targets, [&json!("controller"), &json!("site:lab-b")]);
+    assert_eq!(
+        targets,
+        [
+            &json!("controller"),
+            &json!("controller"),
+            &json!("site:lab-b")
+        ]
+    );
 }
 
 /// The subject's next test (first by block and queue order: a failed test is re-queued).

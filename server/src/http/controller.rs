@@ -61,7 +61,8 @@ pub struct SiteQuery {
 }
 
 /// Emergency stop: every valve to zero, every trial stopped, at every site or at `site`
-/// alone (every site when it names none served here); latched until reset. Answers only once each controller confirms; 503 "NOT
+/// alone (every site when it names none served here, or the query does not parse); latched
+/// until reset. Answers only once each controller confirms; 503 "NOT
 /// confirmed", naming the sites, otherwise.
 #[utoipa::path(post, path = "/api/estop", tag = "controller", params(SiteQuery),
     responses((status = 200, body = EStopConfirmed)))]
@@ -70,8 +71,10 @@ async fn estop(
     who: Experimenter,
     q: Result<Query<SiteQuery>, QueryRejection>,
 ) -> ApiResult<EStopConfirmed> {
-    let q = query(q)?;
-    let stopped = trials::estop(&s.pool, &s.sites, &who.username, q.site.as_deref()).await?;
+    // A query that does not parse stops every site: an E-stop is never refused for its
+    // parameters.
+    let site = q.ok().and_then(|Query(q)| q.site);
+    let stopped = trials::estop(&s.pool, &s.sites, &who.username, site.as_deref()).await?;
     Ok(AppJson(EStopConfirmed {
         ok: true,
         confirmed_ms: stopped.slowest.as_secs_f64() * 1e3,
