@@ -18,10 +18,13 @@
 //!   (RMS over about a second) and grips harder: the arm's frequency rises by
 //!   grip_stiffening per m/s² (`grip`, which the runner hands to a seated body), and its
 //!   remnant grows by vibration_remnant per m/s² (whole-body vibration makes manual control
-//!   noisier), and the arm's neuromuscular corner falls by 1/(1 + vibration_slowing per
-//!   m/s²): vibration lowers the operator's gain and adds phase lag in the tracking band
-//!   (Lewis & Griffin's vibration-induced lag; McRuer's crossover regression when the task
-//!   turns disturbing), the effect that makes riding cost accuracy at every step.
+//!   noisier), the arm's neuromuscular corner falls by 1/(1 + vibration_slowing per m/s²)
+//!   (Lewis & Griffin's vibration-induced phase lag), and the whole correction's gain falls
+//!   by 1/(1 + vibration_regression per m/s²) (McRuer's crossover regression when the task
+//!   turns disturbing): the effects that make riding cost accuracy at every step. The two
+//!   differ where it matters for feedthrough: a slower arm also filters the operator's own
+//!   4–6 Hz output, which excites the cab modes; a lower gain leaves that filtering as it
+//!   was, so the riding cost grows with the felt vibration a controller lets through.
 //!
 //! What the operator can correct follows from the delay and the lag: slow feedthrough is
 //! seen on the display and corrected, feedthrough near the cab modes (4–6 Hz) is far above
@@ -89,6 +92,9 @@ pub struct SyntheticOperator {
     /// The factor by which felt vibration has slowed the arm (1 = calm), re-evaluated with
     /// the grip.
     slowed: f64,
+    /// The fraction of the correction that felt vibration withholds (crossover regression;
+    /// 0 = calm), re-evaluated with the grip.
+    withheld: f64,
     grip_countdown: u32,
     /// White-noise standard deviation before the lag that gives remnant_std_mm after it.
     pub(crate) remnant_in_std: f64,
@@ -136,6 +142,7 @@ impl SyntheticOperator {
             relaxed: false,
             shaken: 1.0,
             slowed: 1.0,
+            withheld: 0.0,
             grip_countdown: GRIP_EVERY,
             remnant_in_std: params.remnant_std_mm / variance_gain(&arm).sqrt(),
             rng: Rng::derive(seed, Rng::OPERATOR),
@@ -162,7 +169,10 @@ impl SyntheticOperator {
         let gain = self.params.error_gain
             / (1.0 + self.params.shake_aversion_per_mm * self.shake_ms.sqrt());
         self.integral += self.params.error_integral_gain * e * self.dt;
-        let command = (t_seen + gain * e + self.integral) / self.k_bf;
+        // Of the correction t_seen − y_seen + gain·e, vibration withholds a fraction;
+        // calm (withheld = 0), the command is exactly the pursuit t_seen + gain·e.
+        let command =
+            (t_seen + gain * e - self.withheld * (1.0 + gain) * e + self.integral) / self.k_bf;
         let noise = self.remnant();
         self.arm.step(command + noise)
     }
@@ -198,6 +208,8 @@ impl SyntheticOperator {
                 self.grip = 1.0 + self.params.grip_stiffening_per_m_s2 * felt;
             }
             self.shaken = 1.0 + self.params.vibration_remnant_per_m_s2 * felt;
+            let regression = self.params.vibration_regression_per_m_s2 * felt;
+            self.withheld = regression / (1.0 + regression);
             let slowed = 1.0 + self.params.vibration_slowing_per_m_s2 * felt;
             if slowed != self.slowed {
                 self.slowed = slowed;
@@ -316,6 +328,35 @@ mod tests {
         let hp = r2 / ((1.0 - r2).powi(2) + 2.0 * r2).sqrt();
         let want = 10.0 + 10.0 / (1.0 + 0.5 * 2.0 * hp / 2f64.sqrt());
         assert!((shaken - want).abs() < 0.05, "{shaken} vs {want}");
+    }
+
+    #[test]
+    fn felt_vibration_withholds_part_of_the_whole_correction() {
+        // The cylinder rests at 0 and the target at 10 mm. Calm, the operator commands the
+        // pursuit plus the error gain's part: 10 + 1.0·10 = 20 mm. Feeling 3 m/s² RMS with a
+        // regression of 0.5 per m/s², the correction's gain falls by 1/(1 + 0.5·3): 8 mm.
+        let p = OperatorParams {
+            error_gain: 1.0,
+            vibration_regression_per_m_s2: 0.5,
+            neuromuscular_zeta: 1.0,
+            ..quiet()
+        };
+        let settle = |rms_m_s2: f64| {
+            let mut op = SyntheticOperator::new(p, 1e-3, 1.0, 1).unwrap();
+            let mut sum = 0.0;
+            for k in 0..20_000 {
+                let w = 2.0 * std::f64::consts::PI * 4.0 * k as f64 * 1e-3;
+                let hand = op.step(10.0, 0.0, rms_m_s2 * 1e3 * 2f64.sqrt() * w.sin());
+                if k >= 10_000 {
+                    sum += hand;
+                }
+            }
+            sum / 10_000.0
+        };
+        let calm = settle(0.0);
+        assert!((calm - 20.0).abs() < 1e-6, "{calm}");
+        let shaken = settle(3.0);
+        assert!((shaken - 8.0).abs() < 0.1, "{shaken}");
     }
 
     #[test]

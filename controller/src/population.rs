@@ -64,6 +64,11 @@ pub fn draw(pop: &PopulationParams, seed: u64) -> SubjectDraw {
         &pop.vibration_slowing_per_m_s2,
         bounds::VIBRATION_SLOWING_PER_M_S2,
     );
+    let vibration_regression_per_m_s2 = at(
+        &mut rng,
+        &pop.vibration_regression_per_m_s2,
+        bounds::VIBRATION_REGRESSION_PER_M_S2,
+    );
     let drawn_body = pop.body == BodySource::Drawn;
     let body_or_zero = |v: f64| if drawn_body { v } else { 0.0 };
     SubjectDraw {
@@ -85,6 +90,7 @@ pub fn draw(pop: &PopulationParams, seed: u64) -> SubjectDraw {
         grip_stiffening_per_m_s2: body_or_zero(grip_stiffening_per_m_s2),
         vibration_remnant_per_m_s2,
         vibration_slowing_per_m_s2,
+        vibration_regression_per_m_s2,
         survey_bias_points,
         survey_noise_points: pop.survey_noise_sd,
     }
@@ -131,6 +137,7 @@ pub fn operator(d: &SubjectDraw, position: u32, hours_on_task: f64) -> OperatorP
         grip_stiffening_per_m_s2: d.grip_stiffening_per_m_s2,
         vibration_remnant_per_m_s2: d.vibration_remnant_per_m_s2,
         vibration_slowing_per_m_s2: d.vibration_slowing_per_m_s2,
+        vibration_regression_per_m_s2: d.vibration_regression_per_m_s2,
     }
 }
 
@@ -326,6 +333,11 @@ mod tests {
                 pop.vibration_slowing_per_m_s2,
                 d.vibration_slowing_per_m_s2,
             ),
+            (
+                "vibration_regression",
+                pop.vibration_regression_per_m_s2,
+                d.vibration_regression_per_m_s2,
+            ),
         ]
     }
 
@@ -429,6 +441,7 @@ mod tests {
             &mut pop.grip_stiffening_per_m_s2,
             &mut pop.vibration_remnant_per_m_s2,
             &mut pop.vibration_slowing_per_m_s2,
+            &mut pop.vibration_regression_per_m_s2,
         ] {
             s.cv = 0.0;
         }

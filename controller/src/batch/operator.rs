@@ -14,6 +14,7 @@ pub(crate) struct OperatorLanes {
     grip_stiffening: Lanes,
     vibration_remnant: Lanes,
     vibration_slowing: Lanes,
+    vibration_regression: Lanes,
     neuromuscular_w: Lanes,
     neuromuscular_zeta: Lanes,
     remnant_in_std: Lanes,
@@ -37,6 +38,7 @@ pub(crate) struct OperatorLanes {
     pub(crate) grip: Lanes,
     shaken: Lanes,
     slowed: Lanes,
+    withheld: Lanes,
     grip_countdown: u32,
 }
 
@@ -54,6 +56,7 @@ impl OperatorLanes {
             grip_stiffening: lanes(|o| o.params.grip_stiffening_per_m_s2),
             vibration_remnant: lanes(|o| o.params.vibration_remnant_per_m_s2),
             vibration_slowing: lanes(|o| o.params.vibration_slowing_per_m_s2),
+            vibration_regression: lanes(|o| o.params.vibration_regression_per_m_s2),
             neuromuscular_w: lanes(|o| o.params.neuromuscular_w),
             neuromuscular_zeta: lanes(|o| o.params.neuromuscular_zeta),
             remnant_in_std: lanes(|o| o.remnant_in_std),
@@ -72,6 +75,7 @@ impl OperatorLanes {
             grip: [1.0; LANES],
             shaken: [1.0; LANES],
             slowed: [1.0; LANES],
+            withheld: ZERO,
             grip_countdown: GRIP_EVERY,
         }
     }
@@ -116,6 +120,8 @@ impl OperatorLanes {
                 let felt = self.felt_ms[l].sqrt() * 1e-3;
                 self.grip[l] = 1.0 + self.grip_stiffening[l] * felt;
                 self.shaken[l] = 1.0 + self.vibration_remnant[l] * felt;
+                let regression = self.vibration_regression[l] * felt;
+                self.withheld[l] = regression / (1.0 + regression);
                 let slowed = 1.0 + self.vibration_slowing[l] * felt;
                 if slowed != self.slowed[l] {
                     self.slowed[l] = slowed;
@@ -137,7 +143,9 @@ impl OperatorLanes {
             let gain =
                 self.error_gain[l] / (1.0 + self.shake_aversion[l] * self.shake_ms[l].sqrt());
             self.integral[l] += self.integral_gain[l] * e * self.dt;
-            let command = (t_seen[l] + gain * e + self.integral[l]) / self.k_bf[l];
+            let command = (t_seen[l] + gain * e - self.withheld[l] * (1.0 + gain) * e
+                + self.integral[l])
+                / self.k_bf[l];
             input[l] = command + self.shaken[l] * self.remnant_in_std[l] * deviates[l];
         }
         (self.arm.step(&input), regripped)

@@ -26,6 +26,7 @@ fn operator(l: usize) -> OperatorParams {
         grip_stiffening_per_m_s2: 0.05 + 0.6 * x,
         vibration_remnant_per_m_s2: 1.0 - x,
         vibration_slowing_per_m_s2: 2.0 * x,
+        vibration_regression_per_m_s2: 4.0 * (1.0 - x),
     }
 }
 

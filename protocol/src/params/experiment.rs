@@ -34,6 +34,12 @@ pub struct OperatorParams {
     /// gain and adds phase lag in the tracking band (crossover regression under a
     /// disturbing, oscillatory task).
     pub vibration_slowing_per_m_s2: f64,
+    /// Crossover regression per m/s² RMS of cab acceleration felt: of the operator's
+    /// correction (pursuit of the target and of the seen error, t − y_seen plus the error
+    /// gain's part) the fraction x·felt/(1 + x·felt) is withheld, so its gain falls by
+    /// 1/(1 + x·felt). McRuer: in a disturbing task people lower their crossover; unlike
+    /// the slowing it leaves the arm's filtering of its own 4–6 Hz output as it was.
+    pub vibration_regression_per_m_s2: f64,
 }
 
 impl Default for OperatorParams {
@@ -49,6 +55,7 @@ impl Default for OperatorParams {
             grip_stiffening_per_m_s2: 0.15,
             vibration_remnant_per_m_s2: 0.5,
             vibration_slowing_per_m_s2: 0.0,
+            vibration_regression_per_m_s2: 0.0,
         }
     }
 }
@@ -86,6 +93,12 @@ impl OperatorParams {
             self.vibration_slowing_per_m_s2,
             0.0,
             10.0,
+        )?;
+        check(
+            "operator.vibration_regression_per_m_s2",
+            self.vibration_regression_per_m_s2,
+            0.0,
+            20.0,
         )?;
         check("operator.error_gain", self.error_gain, 0.0, 2.0)?;
         check(

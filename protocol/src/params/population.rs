@@ -26,6 +26,11 @@ impl Spread {
         Self { median, cv }
     }
 
+    /// Nobody has any of it.
+    const fn none() -> Self {
+        Self::new(0.0, 0.0)
+    }
+
     /// Standard deviation of the logarithm: a log-normal's cv is √(exp(σ²) − 1).
     pub fn log_sd(&self) -> f64 {
         (1.0 + self.cv * self.cv).ln().sqrt()
@@ -95,6 +100,11 @@ pub struct PopulationParams {
     /// Slowing of the operator's neuromuscular corner (fraction of 1/(1 + x)) per m/s² RMS of
     /// felt cab acceleration.
     pub vibration_slowing_per_m_s2: Spread,
+    /// Crossover regression: the fraction of the operator's correction withheld is
+    /// x·felt/(1 + x·felt) per m/s² RMS of felt cab acceleration. A population stored
+    /// before it existed has none (a study keeps the behaviour it was locked with).
+    #[serde(default = "Spread::none")]
+    pub vibration_regression_per_m_s2: Spread,
     /// Survey: the subject's own offset on the rating scale (points, normal with this
     /// standard deviation around 0) and the noise of each answer (points).
     pub survey_bias_sd: f64,
@@ -130,14 +140,19 @@ impl Default for PopulationParams {
             grip_stiffening_per_m_s2: Spread::new(0.1, 0.5),
             vibration_remnant_per_m_s2: Spread::new(0.5, 0.5),
             vibration_slowing_per_m_s2: Spread::new(SLOWING_MEDIAN, 0.5),
+            vibration_regression_per_m_s2: Spread::new(REGRESSION_MEDIAN, 0.2),
             survey_bias_sd: 0.7,
             survey_noise_sd: 0.5,
         }
     }
 }
 
-/// The default population's median slowing under vibration (per m/s²).
-const SLOWING_MEDIAN: f64 = 4.0;
+/// The default population's median slowing and crossover regression under vibration (per
+/// m/s²): set together so the riding effect has the thesis's size with every controller
+/// (docs/synthetic-subjects.md; a slowing alone cannot make the fast LQR the one riding
+/// costs most, since the slower arm also filters the 4–6 Hz output that excites the cab).
+const SLOWING_MEDIAN: f64 = 2.0;
+const REGRESSION_MEDIAN: f64 = 4.0;
 
 /// Bounds of each drawn parameter: a draw is clamped into them (and they are what a
 /// population's median must lie in).
@@ -160,12 +175,13 @@ pub mod bounds {
     pub const GRIP_STIFFENING_PER_M_S2: (f64, f64) = (0.0, 2.0);
     pub const VIBRATION_REMNANT_PER_M_S2: (f64, f64) = (0.0, 10.0);
     pub const VIBRATION_SLOWING_PER_M_S2: (f64, f64) = (0.0, 10.0);
+    pub const VIBRATION_REGRESSION_PER_M_S2: (f64, f64) = (0.0, 20.0);
 }
 
 impl PopulationParams {
     pub fn validate(&self) -> Result<(), ParamError> {
         use bounds::*;
-        let spreads: [(&'static str, &Spread, (f64, f64)); 18] = [
+        let spreads: [(&'static str, &Spread, (f64, f64)); 19] = [
             (
                 "population.reaction_delay_s",
                 &self.reaction_delay_s,
@@ -232,6 +248,11 @@ impl PopulationParams {
                 &self.vibration_slowing_per_m_s2,
                 VIBRATION_SLOWING_PER_M_S2,
             ),
+            (
+                "population.vibration_regression_per_m_s2",
+                &self.vibration_regression_per_m_s2,
+                VIBRATION_REGRESSION_PER_M_S2,
+            ),
         ];
         for (name, s, (lo, hi)) in spreads {
             s.validate(name, lo, hi)?;
@@ -268,6 +289,9 @@ pub struct SubjectDraw {
     /// 0 for a subject drawn before the operator slowed under vibration.
     #[serde(default)]
     pub vibration_slowing_per_m_s2: f64,
+    /// 0 for a subject drawn before the operator's crossover regression under vibration.
+    #[serde(default)]
+    pub vibration_regression_per_m_s2: f64,
     pub survey_bias_points: f64,
     pub survey_noise_points: f64,
 }

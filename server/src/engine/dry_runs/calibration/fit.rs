@@ -67,18 +67,19 @@ const MEDIANS: [Knob; 4] = [
 
 /// Every spread of the people's operators, scaled together: what a target with spreads over
 /// subjects moves.
-fn operator_spreads(p: &mut PopulationParams) -> [&mut Spread; 5] {
+fn operator_spreads(p: &mut PopulationParams) -> [&mut Spread; 6] {
     [
         &mut p.reaction_delay_s,
         &mut p.error_gain,
         &mut p.remnant_std_mm,
         &mut p.neuromuscular_w,
         &mut p.vibration_slowing_per_m_s2,
+        &mut p.vibration_regression_per_m_s2,
     ]
 }
 
 const SPREAD: Knob = Knob {
-    name: "operator_spread (cv of the operator's delay, gain, remnant, corner, slowing)",
+    name: "operator_spread (cv of the operator's delay, gain, remnant, corner, slowing, regression)",
     get: |p| p.reaction_delay_s.cv,
     set: |p, v| {
         let scale = v / p.reaction_delay_s.cv.max(1e-9);

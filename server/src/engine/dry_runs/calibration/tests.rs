@@ -122,7 +122,6 @@ fn off_the_machine_the_lqr_tracks_best() {
 }
 
 #[test]
-#[ignore = "not reproduced yet (docs/synthetic-subjects.md): the LQR is second best on the machine"]
 fn on_the_machine_the_lqr_tracks_worst_or_near_worst() {
     // "Worst or near worst on it", with the largest riding effect of all.
     for f in both() {
