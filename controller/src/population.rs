@@ -213,12 +213,14 @@ pub fn perceive(target: &[f32], y: &[f32], cab_accel: &[f32], seat: Seat, dt: f6
 /// factor `SCALE_FACTOR` better. Calibrated on the default population tracking the
 /// published protocol: the medians over the five compensators of an 8-subject pilot (felt
 /// vibration on the machine, the cylinder's seen shake at the desk), rounded
-/// (docs/synthetic-subjects.md).
+/// (docs/synthetic-subjects.md; `bdft-server findings --subjects 8 --surveys 8 --seed 11`
+/// prints them). Re-set with the population: levels left from an earlier one put every
+/// rating of a quantity that has since shrunk against the scale's top.
 pub const MIDDLING: Perception = Perception {
-    rms_error_mm: 15.5,
-    felt_rms_m_s2: 0.5,
-    response_lag_s: 0.5,
-    seen_shake_mm: 1.0,
+    rms_error_mm: 11.4,
+    felt_rms_m_s2: 0.19,
+    response_lag_s: 0.62,
+    seen_shake_mm: 0.6,
 };
 /// How many times better (smaller) a quantity must be to raise a rating by one standard
 /// unit: (scale − 1)/4 points.

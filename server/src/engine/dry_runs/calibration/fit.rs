@@ -237,7 +237,13 @@ impl Problem<'_> {
         for d in 0..a.nrows() {
             a[(d, d)] *= 1.0 + lambda;
         }
-        let Some(step) = a.lu().solve(&(&jw * (c.target - m))) else {
+        // A moment the simulation could not give (every test of a cell stopped) leaves no
+        // step to take.
+        let Some(step) = a
+            .lu()
+            .solve(&(&jw * (c.target - m)))
+            .filter(|s| s.iter().all(|v| v.is_finite()))
+        else {
             return Ok(None);
         };
         let step = step.map(|s| s.clamp(-0.7, 0.7));
@@ -347,14 +353,25 @@ impl Problem<'_> {
             }
             let target = half / var.sqrt();
             let side = (*end - fit).signum();
+            // On the linear ridge, kept within every knob's bounds (a nearly singular ridge
+            // can point far out, or nowhere).
             let mut start = theta.to_vec();
             for (j, &o) in others.iter().enumerate() {
-                start[o] += ridge[j] * (*end - fit);
+                let moved = start[o] + ridge[j] * (*end - fit);
+                let (olo, ohi) = self.knobs[o].bounds;
+                if moved.is_finite() {
+                    start[o] = moved.clamp(olo.max(1e-6).ln(), ohi.ln());
+                }
             }
+            *end = end.clamp(lo, hi);
             let gap = |q: f64| (q - q_min).max(0.0).sqrt() - target;
             let (mut v0, mut g0) = (fit, -target);
             let (q, mut reached) = self.profile(&start, k, *end, &others, c)?;
             let (mut v1, mut g1) = (*end, gap(q));
+            if !g1.is_finite() {
+                // The simulation gives no criterion there: the bootstrap's end stands.
+                continue;
+            }
             for _ in 0..PROFILE_SECANTS {
                 if g1.abs() <= 0.01 * target || (g1 - g0).abs() < 1e-12 {
                     break;
@@ -368,6 +385,9 @@ impl Problem<'_> {
                     break;
                 }
                 let (q, next) = self.profile(&reached, k, v2, &others, c)?;
+                if !gap(q).is_finite() {
+                    break;
+                }
                 (v0, g0) = (v1, g1);
                 (v1, g1, reached) = (v2, gap(q), next);
             }
@@ -486,8 +506,12 @@ pub fn check_enough(target: &Target) -> Result<()> {
 /// Forward-difference step of the Jacobian (log units: 16 %).
 const JACOBIAN_STEP: f64 = 0.15;
 
-/// The delay's knob (`MEDIANS[0]`): its interval is carried onto its profile.
-const DELAY: usize = 0;
+/// The knobs (`MEDIANS`) whose intervals are carried onto their profiles: the delay (a
+/// slower person or a less correcting one: the delay–gain ridge is curved) and the body's
+/// feedthrough gain (more feedthrough or more slowing under the vibration it lets through:
+/// both raise the riding cost, most with the LQR). Each profile costs about as many
+/// evaluations as the fit, so the others keep the linearized bootstrap's interval.
+const PROFILED: [&str; 2] = ["reaction_delay_s", "body_k_h"];
 
 /// Damped Gauss–Newton steps of a profile point's refit.
 const PROFILE_STEPS: usize = 2;
@@ -666,15 +690,20 @@ pub fn fit(
                     (at(0.025).exp(), at(0.975).exp())
                 })
                 .collect();
-            // The delay's ends carried onto its profile (`Problem::profile_ends`).
-            let profiled = match identified.iter().position(|&k| k == DELAY) {
-                Some(i) if ci[i].0 > 0.0 && ci[i].1.is_finite() => {
-                    let optimum = Optimum {
-                        theta: &theta,
-                        identified: &identified,
-                        criterion: current,
-                        jac: &jac,
-                    };
+            // The ends of the medians on a curved ridge carried onto their profiles
+            // (`Problem::profile_ends`).
+            let optimum = Optimum {
+                theta: &theta,
+                identified: &identified,
+                criterion: current,
+                jac: &jac,
+            };
+            let mut profiled = "";
+            for (i, &k) in identified.iter().enumerate() {
+                if PROFILED.contains(&problem.knobs[k].name)
+                    && ci[i].0 > 0.0
+                    && ci[i].1.is_finite()
+                {
                     let ends = problem.profile_ends(
                         &optimum,
                         i,
@@ -683,10 +712,9 @@ pub fn fit(
                         criterion,
                     )?;
                     ci[i] = (ends[0].exp(), ends[1].exp());
-                    "; the delay's ends then carried onto its profile (the other identified parameters refitted at each delay, each end where the criterion rises above the fit's as far as the linear model's does at the bootstrap's end: the bootstrap's interval where the model is linear, bending with the delay–gain ridge where it is not)"
+                    profiled = "; the delay's and the feedthrough gain's ends then carried onto their profiles (the other identified parameters refitted at each value, each end where the criterion rises above the fit's as far as the linear model's does at the bootstrap's end: the bootstrap's interval where the model is linear, bending with the delay–gain and the feedthrough–slowing ridges where it is not)";
                 }
-                _ => "",
-            };
+            }
             let data = if target.subjects.is_some() {
                 "the study's subjects resampled".to_string()
             } else {

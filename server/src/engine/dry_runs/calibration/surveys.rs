@@ -27,9 +27,13 @@ pub struct SurveyCell {
     /// points): with eight subjects a mean separates cells a median of 7-point answers
     /// rounds together.
     pub mean_ratings: [f64; 4],
-    /// Median perceived response lag (s) and felt cab acceleration (m/s²).
+    /// Medians of what was perceived (`population::Perception`): RMS tracking error (mm),
+    /// response lag (s), felt cab acceleration (m/s²) and seen shake (mm) — what
+    /// `population::MIDDLING` is set from.
+    pub median_error_mm: f64,
     pub median_lag_s: f64,
     pub median_felt_m_s2: f64,
+    pub median_seen_shake_mm: f64,
 }
 
 /// One answered test: its cell, ratings and what was perceived.
@@ -96,8 +100,10 @@ pub fn surveys(
                 station: cell.seat.as_str().to_string(),
                 n,
                 mean_ratings: [mean(0), mean(1), mean(2), mean(3)],
+                median_error_mm: median(mine.iter().map(|a| a.2.rms_error_mm).collect()),
                 median_lag_s: median(mine.iter().map(|a| a.2.response_lag_s).collect()),
                 median_felt_m_s2: median(mine.iter().map(|a| a.2.felt_rms_m_s2).collect()),
+                median_seen_shake_mm: median(mine.iter().map(|a| a.2.seen_shake_mm).collect()),
             }
         })
         .collect())
@@ -109,14 +115,19 @@ pub fn table(params: &StudyParams, subjects: u32, seed: u64) -> Result<String> {
     let cells = super::sim::all_cells(params);
     let answers = surveys(params, &super::sim::enrolled(seed, subjects), &cells)?;
     let mut out = format!(
-        "\nSurveys of the first {subjects} subjects (mean rating; {}-point scale, higher is better)\n\n| controller | station | accuracy | speed | smoothness | controllability | median lag (s) | median felt (m/s²) |\n|---|---|---:|---:|---:|---:|---:|---:|\n",
+        "\nSurveys of the first {subjects} subjects (mean rating; {}-point scale, higher is better)\n\n| controller | station | accuracy | speed | smoothness | controllability | median error (mm) | median lag (s) | median felt (m/s²) | median seen shake (mm) |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
         params.survey.scale_points
     );
     for c in &answers {
         let [a, sp, sm, co] = c.mean_ratings;
         out += &format!(
-            "| {} | {} | {a:.2} | {sp:.2} | {sm:.2} | {co:.2} | {:.2} | {:.2} |\n",
-            c.controller, c.station, c.median_lag_s, c.median_felt_m_s2
+            "| {} | {} | {a:.2} | {sp:.2} | {sm:.2} | {co:.2} | {:.1} | {:.2} | {:.2} | {:.2} |\n",
+            c.controller,
+            c.station,
+            c.median_error_mm,
+            c.median_lag_s,
+            c.median_felt_m_s2,
+            c.median_seen_shake_mm
         );
     }
     Ok(out)
