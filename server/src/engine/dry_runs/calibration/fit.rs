@@ -700,9 +700,7 @@ pub fn fit(
             };
             let mut profiled = "";
             for (i, &k) in identified.iter().enumerate() {
-                if PROFILED.contains(&problem.knobs[k].name)
-                    && ci[i].0 > 0.0
-                    && ci[i].1.is_finite()
+                if PROFILED.contains(&problem.knobs[k].name) && ci[i].0 > 0.0 && ci[i].1.is_finite()
                 {
                     let ends = problem.profile_ends(
                         &optimum,
