@@ -690,6 +690,10 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
         })
         .collect();
     let sites = Sites::new(links, events);
+    tokio::spawn(crate::engine::procedure::lsl::republish_on_reconnect(
+        pool.clone(),
+        sites.clone(),
+    ));
     tokio::spawn(backups.clone().run_schedule(pool.clone()));
     // A restore refuses to replace the database while this beats.
     let presence = presence::announce(&pool, &addr.to_string()).await?;

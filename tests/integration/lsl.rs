@@ -10,14 +10,15 @@
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
+use std::time::Duration;
 
 use bdft_controller::lsl::streams::SIGNAL_CHANNELS;
 use bdft_protocol::trial::RECORD_CHANNELS;
 use bdft_tests::exports::parse_csv;
 use bdft_tests::server::{
-    Server, dry_run, run_trial, short_study, synthetic_at_a_station, trial_rows,
+    Server, dry_run, eventually, run_trial, short_study, synthetic_at_a_station, trial_rows,
 };
-use bdft_tests::{unshare_network, venv_tool};
+use bdft_tests::{send_signal, unshare_network, venv_tool};
 use serde_json::{Value, json};
 
 /// Set in the copy of this test that runs inside the namespace.
@@ -267,6 +268,59 @@ fn pylsl_receives_every_sample_and_marker_of_a_test_with_its_labels_and_clock() 
         markers.len(),
         report["offsets_s"]
     );
+}
+
+#[test]
+fn a_controller_that_restarts_publishes_the_stations_signal_stream_again() {
+    if std::env::var_os(IN_NAMESPACE).is_none() {
+        in_network_namespace(
+            "lsl::a_controller_that_restarts_publishes_the_stations_signal_stream_again",
+        );
+        return;
+    }
+    assert_isolated();
+    let server = Server::start_with(
+        "lsl-restart",
+        &[
+            "--admin-password",
+            bdft_tests::server::ADMIN_PASSWORD,
+            "--lsl",
+        ],
+    );
+    let api = server.experimenter();
+    let study = dry_run(&api, short_study(&api, 3.0, 1.0));
+    // The assignment publishes the station's streams on this controller; it dies, and its
+    // successor (started by the server's supervisor) knows nothing of them until told again.
+    let (_, station, _) = synthetic_at_a_station(&api, study);
+    let pid = api.get("/api/controller").1["pid"].as_u64().unwrap();
+    send_signal(pid as u32, "KILL").unwrap();
+    eventually(Duration::from_secs(20), || {
+        let (_, c) = api.get("/api/controller");
+        (c["connected"] == true && c["pid"].as_u64().is_some_and(|p| p != pid)).then_some(())
+    });
+    // A reader finds both of the station's streams, before any test.
+    let mut client = Command::new(python())
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/lsl_client.py"))
+        .arg(station.to_string())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let ready = BufReader::new(client.stdout.take().unwrap())
+        .lines()
+        .next()
+        .and_then(Result::ok);
+    // The E-stop's marker ends the client's reading either way.
+    api.ok("/api/estop", json!({}));
+    let mut err = String::new();
+    client
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    let _ = client.wait();
+    assert_eq!(ready.as_deref(), Some("ready"), "{err}");
 }
 
 /// The ports LSL uses (the discovery port 16571 and the range from 16572) that a socket of

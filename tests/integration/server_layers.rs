@@ -4,6 +4,7 @@
 
 use std::time::Duration;
 
+use bdft_tests::send_signal;
 use bdft_tests::server::{
     Api, Server, assigned_station, dry_run, eventually, pair_station, run_pilot, run_trial,
     short_study,
@@ -61,15 +62,6 @@ fn consent_at(server: &Server, api: &Api, token: &str, subject: i64) -> (i64, u6
     let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
     let practice = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
     (practice, pid)
-}
-
-/// Sends a signal (`-STOP`, `-KILL`, …) to a process.
-fn signal(pid: u64, sig: &str) {
-    let status = std::process::Command::new("kill")
-        .args([sig, &pid.to_string()])
-        .status()
-        .unwrap();
-    assert!(status.success(), "kill {sig} {pid}");
 }
 
 fn audit_actions(api: &Api) -> Vec<String> {
@@ -454,7 +446,7 @@ fn a_hung_controller_is_noticed_within_its_silence_limit() {
         .unwrap()
         .as_millis() as i64;
     // SIGSTOP: the process and its socket stay open; only its silence tells.
-    signal(pid, "-STOP");
+    send_signal(pid as u32, "STOP").unwrap();
     let row = eventually(Duration::from_secs(10), || {
         let (_, d) = api.get(&format!("/api/subjects/{subject}"));
         let t = d["trials"][0]["trial"].clone();
@@ -492,7 +484,7 @@ fn the_estop_latch_holds_across_a_controller_restart_until_reset() {
     let (subject, practice, pid) = consented_synthetic_subject(&server, &api, study);
     api.ok("/api/estop", json!({}));
     // The controller dies; its successor starts latched and the server keeps it so.
-    signal(pid, "-KILL");
+    send_signal(pid as u32, "KILL").unwrap();
     eventually(Duration::from_secs(20), || {
         let (_, c) = api.get("/api/controller");
         (c["connected"] == true && c["pid"].as_u64() != Some(pid) && c["estop_latched"] == true)

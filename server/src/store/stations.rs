@@ -52,6 +52,15 @@ pub async fn of_study<'c>(db: impl AnyExecutor<'c>, study_id: i64) -> Result<Vec
     .await?)
 }
 
+/// Every station with a subject assigned.
+pub async fn assigned<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<Station>> {
+    Ok(sqlx::query_as(&format!(
+        "SELECT {COLUMNS} FROM stations WHERE subject_id IS NOT NULL ORDER BY id"
+    ))
+    .fetch_all(db)
+    .await?)
+}
+
 /// The stations a subject is assigned to.
 pub async fn of_subject<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result<Vec<Station>> {
     Ok(sqlx::query_as(&format!(

@@ -2,8 +2,9 @@
 //! marker stream, published here in the server — which knows the protocol's events — and
 //! its 1 kHz signal stream, published by the controller (whose loop has the samples) when
 //! told who is at the station (`ServerToController::LslStation`). Both are (re)published
-//! when a subject is assigned to a station and checked before each of its tests, so a
-//! reader can connect before the first sample.
+//! when a subject is assigned to a station, whenever its site's controller link comes up
+//! (a new controller holds none) and checked before each of its tests, so a reader can
+//! connect before the first sample.
 //!
 //! The streams belong to the process, as LSL's configuration does (read once, before the
 //! first stream): they are on when [`enable`] was called at start, and every function here
@@ -22,8 +23,9 @@ use labstream_net::Outlet;
 use labstream_wire::{Sample, Value};
 use serde::Serialize;
 use sqlx::AnyPool;
+use tokio::sync::broadcast::error::RecvError;
 
-use crate::engine::machine::controller_link::ControllerLink;
+use crate::engine::machine::controller_link::{ControllerEvent, ControllerLink};
 use crate::engine::machine::sites::Sites;
 use crate::error::Result;
 use crate::store;
@@ -184,6 +186,48 @@ pub async fn station_assigned(pool: &AnyPool, sites: &Sites, station_id: i64) {
     };
     if let Some(link) = sites.stored(station.site.as_deref()) {
         logged(publish(pool, link, station_id, None).await);
+    }
+}
+
+/// Tells a site's controller again of its stations' streams whenever its link comes up. A
+/// controller that started, restarted or reconnected after a subject was assigned (a link
+/// dropped for a moment on a loaded machine) holds none of their signal streams, and a
+/// reader that connected at the assignment would wait for them until the next test. Runs
+/// for the server's life (`serve --lsl`).
+pub async fn republish_on_reconnect(pool: AnyPool, sites: Sites) {
+    if !enabled() {
+        return;
+    }
+    let mut events = sites.subscribe();
+    loop {
+        let up: Vec<&ControllerLink> = match events.recv().await {
+            Ok(ControllerEvent::Link {
+                site,
+                connected: true,
+            }) => sites.all().iter().filter(|l| l.site() == &*site).collect(),
+            // Missed events may have held a link coming up: every connected site, again
+            // (publishing is idempotent).
+            Err(RecvError::Lagged(_)) => sites.all().iter().filter(|l| l.is_connected()).collect(),
+            Ok(_) => continue,
+            Err(RecvError::Closed) => return,
+        };
+        let stations = match store::stations::assigned(&pool).await {
+            Ok(s) => s,
+            Err(e) => {
+                logged(Err(e));
+                continue;
+            }
+        };
+        for link in up {
+            for station in &stations {
+                if sites
+                    .stored(station.site.as_deref())
+                    .is_some_and(|l| l.site() == link.site())
+                {
+                    logged(publish(&pool, link, station.id, None).await);
+                }
+            }
+        }
     }
 }
 
