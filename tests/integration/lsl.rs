@@ -9,7 +9,7 @@
 
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
 use bdft_controller::lsl::streams::SIGNAL_CHANNELS;
@@ -26,6 +26,52 @@ const IN_NAMESPACE: &str = "BDFT_TEST_IN_NETNS";
 
 fn python() -> PathBuf {
     venv_tool("pylsl", "python", "pylsl==1.18.6")
+}
+
+/// Whether this is the copy of test `name` inside its namespace (checked isolated); else
+/// runs that copy, failing with its output when it fails.
+fn isolated(name: &str) -> bool {
+    if std::env::var_os(IN_NAMESPACE).is_none() {
+        in_network_namespace(name);
+        return false;
+    }
+    assert_isolated();
+    true
+}
+
+/// A server with its controller publishing the stations' LSL streams.
+fn lsl_server(name: &str) -> Server {
+    Server::start_with(
+        name,
+        &[
+            "--admin-password",
+            bdft_tests::server::ADMIN_PASSWORD,
+            "--lsl",
+        ],
+    )
+}
+
+/// The independent reader of station `station`'s streams (tests/scripts/lsl_client.py).
+fn client(station: i64) -> Child {
+    Command::new(python())
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/lsl_client.py"))
+        .arg(station.to_string())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// What the client wrote to its standard error, up to its exit.
+fn errors(client: &mut Child) -> String {
+    let mut err = String::new();
+    client
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    err
 }
 
 /// Runs the test named `name` of this binary again inside a new network namespace with only
@@ -67,21 +113,11 @@ fn assert_isolated() {
 
 #[test]
 fn pylsl_receives_every_sample_and_marker_of_a_test_with_its_labels_and_clock() {
-    if std::env::var_os(IN_NAMESPACE).is_none() {
-        in_network_namespace(
-            "lsl::pylsl_receives_every_sample_and_marker_of_a_test_with_its_labels_and_clock",
-        );
+    if !isolated("lsl::pylsl_receives_every_sample_and_marker_of_a_test_with_its_labels_and_clock")
+    {
         return;
     }
-    assert_isolated();
-    let server = Server::start_with(
-        "lsl",
-        &[
-            "--admin-password",
-            bdft_tests::server::ADMIN_PASSWORD,
-            "--lsl",
-        ],
-    );
+    let server = lsl_server("lsl");
     let api = server.experimenter();
     // Synthetic subjects go into a study's dry-run copy.
     let study = dry_run(&api, short_study(&api, 3.0, 1.0));
@@ -94,24 +130,14 @@ fn pylsl_receives_every_sample_and_marker_of_a_test_with_its_labels_and_clock() 
         "the streams answer discovery (and the probe of the other test sees them)"
     );
 
-    let mut client = Command::new(python())
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/lsl_client.py"))
-        .arg(station.to_string())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut client = client(station);
     let mut lines = BufReader::new(client.stdout.take().unwrap()).lines();
     let ready = lines.next().and_then(Result::ok);
     if ready.as_deref() != Some("ready") {
-        let mut err = String::new();
-        client
-            .stderr
-            .take()
-            .unwrap()
-            .read_to_string(&mut err)
-            .unwrap();
-        panic!("the client did not open the streams ({ready:?}): {err}");
+        panic!(
+            "the client did not open the streams ({ready:?}): {}",
+            errors(&mut client)
+        );
     }
 
     // The practice (1 s at the desk) and the first test (3 s on the machine), its survey, a
@@ -272,21 +298,10 @@ fn pylsl_receives_every_sample_and_marker_of_a_test_with_its_labels_and_clock() 
 
 #[test]
 fn a_controller_that_restarts_publishes_the_stations_signal_stream_again() {
-    if std::env::var_os(IN_NAMESPACE).is_none() {
-        in_network_namespace(
-            "lsl::a_controller_that_restarts_publishes_the_stations_signal_stream_again",
-        );
+    if !isolated("lsl::a_controller_that_restarts_publishes_the_stations_signal_stream_again") {
         return;
     }
-    assert_isolated();
-    let server = Server::start_with(
-        "lsl-restart",
-        &[
-            "--admin-password",
-            bdft_tests::server::ADMIN_PASSWORD,
-            "--lsl",
-        ],
-    );
+    let server = lsl_server("lsl-restart");
     let api = server.experimenter();
     let study = dry_run(&api, short_study(&api, 3.0, 1.0));
     // The assignment publishes the station's streams on this controller; it dies, and its
@@ -299,26 +314,14 @@ fn a_controller_that_restarts_publishes_the_stations_signal_stream_again() {
         (c["connected"] == true && c["pid"].as_u64().is_some_and(|p| p != pid)).then_some(())
     });
     // A reader finds both of the station's streams, before any test.
-    let mut client = Command::new(python())
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/lsl_client.py"))
-        .arg(station.to_string())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut client = client(station);
     let ready = BufReader::new(client.stdout.take().unwrap())
         .lines()
         .next()
         .and_then(Result::ok);
     // The E-stop's marker ends the client's reading either way.
     api.ok("/api/estop", json!({}));
-    let mut err = String::new();
-    client
-        .stderr
-        .take()
-        .unwrap()
-        .read_to_string(&mut err)
-        .unwrap();
+    let err = errors(&mut client);
     let _ = client.wait();
     assert_eq!(ready.as_deref(), Some("ready"), "{err}");
 }
@@ -342,11 +345,9 @@ fn lsl_ports_bound() -> Vec<u16> {
 
 #[test]
 fn without_lsl_no_lsl_socket_is_opened() {
-    if std::env::var_os(IN_NAMESPACE).is_none() {
-        in_network_namespace("lsl::without_lsl_no_lsl_socket_is_opened");
+    if !isolated("lsl::without_lsl_no_lsl_socket_is_opened") {
         return;
     }
-    assert_isolated();
     let server = Server::start("no-lsl");
     let api = server.experimenter();
     let study = dry_run(&api, short_study(&api, 3.0, 1.0));
