@@ -295,6 +295,28 @@ mod tests {
         assert!((std - 2.0).abs() < 0.15, "{std}");
     }
 
+    /// sin(2π·f·t).
+    fn sine(f_hz: f64, t: f64) -> f64 {
+        (2.0 * std::f64::consts::PI * f_hz * t).sin()
+    }
+
+    /// The operator's mean hand position over the second 10 s of 20 s at 1 kHz, the target
+    /// held at 10 mm and `at(t)` giving the seen cylinder (mm) and the felt cab acceleration
+    /// (mm/s²) at time t.
+    fn settled_hand(p: OperatorParams, at: impl Fn(f64) -> (f64, f64)) -> f64 {
+        let dt = 1e-3;
+        let mut op = SyntheticOperator::new(p, dt, 1.0, 1).unwrap();
+        let mut sum = 0.0;
+        for k in 0..20_000 {
+            let (y, felt) = at(k as f64 * dt);
+            let hand = op.step(10.0, y, felt);
+            if k >= 10_000 {
+                sum += hand;
+            }
+        }
+        sum / 10_000.0
+    }
+
     #[test]
     fn a_shaking_cylinder_lowers_the_error_correction() {
         // The seen error is the same constant offset in both runs; in one the cylinder also
@@ -305,19 +327,7 @@ mod tests {
             neuromuscular_zeta: 1.0,
             ..quiet()
         };
-        let dt = 1e-3;
-        let settle = |amp: f64| {
-            let mut op = SyntheticOperator::new(p, dt, 1.0, 1).unwrap();
-            let mut sum = 0.0;
-            for k in 0..20_000 {
-                let y = amp * (2.0 * std::f64::consts::PI * 5.0 * k as f64 * dt).sin();
-                let hand = op.step(10.0, y, 0.0);
-                if k >= 10_000 {
-                    sum += hand;
-                }
-            }
-            sum / 10_000.0
-        };
+        let settle = |amp: f64| settled_hand(p, |t| (amp * sine(5.0, t), 0.0));
         // Without shake: 10 + 1.0·10 = 20 mm. With a 2 mm sine (RMS √2, times the 3 Hz
         // Butterworth high-pass's gain at 5 Hz, r²/√((1 − r²)² + 2r²) with r = 5/3):
         // gain 1/(1 + 0.5·RMS seen).
@@ -341,18 +351,8 @@ mod tests {
             neuromuscular_zeta: 1.0,
             ..quiet()
         };
-        let settle = |rms_m_s2: f64| {
-            let mut op = SyntheticOperator::new(p, 1e-3, 1.0, 1).unwrap();
-            let mut sum = 0.0;
-            for k in 0..20_000 {
-                let w = 2.0 * std::f64::consts::PI * 4.0 * k as f64 * 1e-3;
-                let hand = op.step(10.0, 0.0, rms_m_s2 * 1e3 * 2f64.sqrt() * w.sin());
-                if k >= 10_000 {
-                    sum += hand;
-                }
-            }
-            sum / 10_000.0
-        };
+        let settle =
+            |rms_m_s2: f64| settled_hand(p, |t| (0.0, rms_m_s2 * 1e3 * 2f64.sqrt() * sine(4.0, t)));
         let calm = settle(0.0);
         assert!((calm - 20.0).abs() < 1e-6, "{calm}");
         let shaken = settle(3.0);

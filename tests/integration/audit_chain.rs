@@ -79,16 +79,7 @@ impl Store {
     /// Every chain row recomputed from the log as it now is, by the documented format.
     fn rewrite_chain(&self) {
         with_url(&self.url(), async |pool| {
-            type Row = (
-                i64,
-                i64,
-                String,
-                Option<i64>,
-                String,
-                Option<String>,
-                Option<String>,
-            );
-            let rows: Vec<Row> = sqlx::query_as(
+            let rows: Vec<bdft_server::store::audit_chain::AuditRow> = sqlx::query_as(
                 "SELECT id, at, actor, actor_id, action, target, detail_json FROM audit_log ORDER BY id",
             )
             .fetch_all(pool)
