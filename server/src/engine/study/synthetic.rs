@@ -74,7 +74,7 @@ struct SyntheticAnswer {
 struct Perceived {
     rms_error_mm: f64,
     felt_rms_m_s2: f64,
-    response_lag_s: f64,
+    response_time_s: f64,
     seen_shake_mm: f64,
 }
 
@@ -102,9 +102,12 @@ pub async fn answer_survey(
             .map_or(&[][..], Vec::as_slice)
     };
     let perceived = population::perceive(
-        channel("target_mm"),
-        channel("cyl_pos_mm"),
-        channel("cab_accel_mm_s2"),
+        &population::Seen {
+            target: channel("target_mm"),
+            hand: channel("hand_mm"),
+            y: channel("cyl_pos_mm"),
+            cab_accel: channel("cab_accel_mm_s2"),
+        },
         trial.seat,
         record.dt,
     );
@@ -138,7 +141,7 @@ pub async fn answer_survey(
                 perceived: Perceived {
                     rms_error_mm: perceived.rms_error_mm,
                     felt_rms_m_s2: perceived.felt_rms_m_s2,
-                    response_lag_s: perceived.response_lag_s,
+                    response_time_s: perceived.response_time_s,
                     seen_shake_mm: perceived.seen_shake_mm,
                 },
             },

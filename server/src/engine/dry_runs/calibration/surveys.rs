@@ -31,7 +31,7 @@ pub struct SurveyCell {
     /// response lag (s), felt cab acceleration (m/s²) and seen shake (mm) — what
     /// `population::MIDDLING` is set from.
     pub median_error_mm: f64,
-    pub median_lag_s: f64,
+    pub median_response_s: f64,
     pub median_felt_m_s2: f64,
     pub median_seen_shake_mm: f64,
 }
@@ -66,9 +66,12 @@ pub fn surveys(
                 .map_or(&[][..], Vec::as_slice)
         };
         let perceived = population::perceive(
-            channel("target_mm"),
-            channel("cyl_pos_mm"),
-            channel("cab_accel_mm_s2"),
+            &population::Seen {
+                target: channel("target_mm"),
+                hand: channel("hand_mm"),
+                y: channel("cyl_pos_mm"),
+                cab_accel: channel("cab_accel_mm_s2"),
+            },
             cell.seat,
             DT,
         );
@@ -101,7 +104,7 @@ pub fn surveys(
                 n,
                 mean_ratings: [mean(0), mean(1), mean(2), mean(3)],
                 median_error_mm: median(mine.iter().map(|a| a.2.rms_error_mm).collect()),
-                median_lag_s: median(mine.iter().map(|a| a.2.response_lag_s).collect()),
+                median_response_s: median(mine.iter().map(|a| a.2.response_time_s).collect()),
                 median_felt_m_s2: median(mine.iter().map(|a| a.2.felt_rms_m_s2).collect()),
                 median_seen_shake_mm: median(mine.iter().map(|a| a.2.seen_shake_mm).collect()),
             }
@@ -115,7 +118,7 @@ pub fn table(params: &StudyParams, subjects: u32, seed: u64) -> Result<String> {
     let cells = super::sim::all_cells(params);
     let answers = surveys(params, &super::sim::enrolled(seed, subjects), &cells)?;
     let mut out = format!(
-        "\nSurveys of the first {subjects} subjects (mean rating; {}-point scale, higher is better)\n\n| controller | station | accuracy | speed | smoothness | controllability | median error (mm) | median lag (s) | median felt (m/s²) | median seen shake (mm) |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "\nSurveys of the first {subjects} subjects (mean rating; {}-point scale, higher is better)\n\n| controller | station | accuracy | speed | smoothness | controllability | median error (mm) | median response (s) | median felt (m/s²) | median seen shake (mm) |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
         params.survey.scale_points
     );
     for c in &answers {
@@ -125,7 +128,7 @@ pub fn table(params: &StudyParams, subjects: u32, seed: u64) -> Result<String> {
             c.controller,
             c.station,
             c.median_error_mm,
-            c.median_lag_s,
+            c.median_response_s,
             c.median_felt_m_s2,
             c.median_seen_shake_mm
         );
