@@ -102,13 +102,15 @@ function show(fit) {
     el('thead', {}, el('tr', {}, ...['Parameter (median)', 'before', 'fitted', '95 % interval'].map((h) => el('th', {}, h)))),
     el('tbody', {}, ...fit.parameters.map((p) =>
       el('tr', {}, el('th', {}, p.name), el('td', {}, num(p.before)), el('td', {}, num(p.fitted)), el('td', {}, `${num(p.low)} – ${num(p.high)}`)))));
+  // A prediction's "target" column holds what the study's subjects gave (observed, not fitted).
   const cellRows = (cells) => cells.map((c) =>
-    el('tr', {}, el('th', {}, `${c.controller} ${c.station}`), el('td', {}, c.metric), el('td', {}, num(c.target)),
+    el('tr', {}, el('th', {}, `${c.controller} ${c.station}`), el('td', {}, c.metric),
+      el('td', {}, c.observed === null || c.observed === undefined ? num(c.target) : `${num(c.observed)} (n ${c.observed_n})`),
       el('td', {}, num(c.prediction)), el('td', {}, `± ${num(c.monte_carlo_error)}`)));
   const cells = el('table', { class: 'grid numeric' },
     el('thead', {}, el('tr', {}, ...['Cell', 'metric', 'target', 'prediction', 'Monte-Carlo error'].map((h) => el('th', {}, h)))),
     el('tbody', {}, ...cellRows(fit.cells)),
-    el('tbody', {}, el('tr', {}, el('th', { colspan: 5 }, 'Predicted, not in the target')), ...cellRows(fit.predictions)));
+    el('tbody', {}, el('tr', {}, el('th', { colspan: 5 }, 'Predicted, not in the target (the ratings beside what the subjects gave, never fitted)')), ...cellRows(fit.predictions)));
   const notes = [
     el('p', { class: 'muted small' }, `Objective ${num(fit.objective_before)} → ${num(fit.objective)} in ${fit.iterations} iterations, ${fit.simulated_subjects} simulated subjects; intervals: ${fit.intervals}.`),
   ];

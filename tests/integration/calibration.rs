@@ -6,7 +6,8 @@ use std::process::Command;
 use std::time::Duration;
 
 use bdft_tests::binary;
-use bdft_tests::server::{Server, eventually, short_study};
+use bdft_tests::exports::parse_csv;
+use bdft_tests::server::{Server, eventually, pilot_copy, short_study};
 use serde_json::{Value, json};
 
 /// A 10-cell table of tracking error (sd and n) a paper might print.
@@ -101,7 +102,21 @@ fn a_calibration_is_refused_naming_the_row_or_stored_as_the_next_population_vers
     assert_eq!(report["population_version"], 1, "{s}");
     let fit = &report["fit"];
     assert_eq!(fit["cells"].as_array().unwrap().len(), 10, "{fit}");
-    assert_eq!(fit["predictions"].as_array().unwrap().len(), 10, "{fit}");
+    // Cab acceleration in every cell, and the four ratings: nothing observed of a table.
+    let predictions = fit["predictions"].as_array().unwrap();
+    assert_eq!(predictions.len(), 10 + 40, "{fit}");
+    let ratings: Vec<&Value> = predictions
+        .iter()
+        .filter(|p| p["metric"].as_str().unwrap().starts_with("rating_"))
+        .collect();
+    assert_eq!(ratings.len(), 40, "{fit}");
+    for r in ratings {
+        let mean = r["prediction"].as_f64().unwrap();
+        assert!(
+            (1.0..=7.0).contains(&mean) && r["observed"].is_null(),
+            "{r}"
+        );
+    }
     assert!(
         fit["objective"].as_f64().unwrap() < fit["objective_before"].as_f64().unwrap(),
         "{fit}"
@@ -121,6 +136,81 @@ fn a_calibration_is_refused_naming_the_row_or_stored_as_the_next_population_vers
         .unwrap_or_else(|| panic!("no audit row: {audit}"));
     assert_eq!(row["target"], format!("study:{study}"));
     assert_eq!(row["detail"]["version"], 1, "{row}");
+}
+
+/// A calibration to a study's own tests (here a pilot's synthetic subjects in its dry-run
+/// copy, who answer the surveys as people do) fits their tracking error and predicts their
+/// ratings, each beside the mean the subjects gave: what the exports hold.
+#[test]
+fn a_calibration_to_a_studys_own_tests_predicts_the_ratings_beside_the_subjects_own() {
+    let server = Server::start("calibration-own");
+    let api = server.experimenter();
+    let study = short_study(&api, 10.0, 1.0);
+    let copy = pilot_copy(&api, study, 3);
+    api.ok(
+        &format!("/api/studies/{copy}/calibrate"),
+        json!({ "simulated_subjects": 8, "seed": 3 }),
+    );
+    let s = finished(&api);
+    let fit = &s["report"]["fit"];
+    assert!(fit.is_object(), "{s}");
+    assert!(
+        fit["source"].as_str().unwrap().contains("completed tests"),
+        "{fit}"
+    );
+
+    // What the subjects rated, per cell and item, from the trials export: the latest
+    // attempt of each completed scored test.
+    let (code, text) = api.get_text(&format!("/api/studies/{copy}/export/trials"));
+    assert_eq!(code, 200, "{text}");
+    let rows = parse_csv(&text);
+    let col = |name: &str| rows[0].iter().position(|h| h == name).unwrap();
+    let given = |controller: &str, station: &str, item: &str| -> Vec<f64> {
+        let c = col(&format!("rating_{item}_1to7"));
+        rows[1..]
+            .iter()
+            .filter(|r| {
+                r[col("controller")] == controller
+                    && r[col("station")] == station
+                    && r[col("phase")] != "practice"
+                    && r[col("status")] == "complete"
+                    && r[col("latest")] == "1"
+                    && !r[c].is_empty()
+            })
+            .map(|r| r[c].parse().unwrap())
+            .collect()
+    };
+    let ratings: Vec<&Value> = fit["predictions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|p| p["metric"].as_str().unwrap().starts_with("rating_"))
+        .collect();
+    assert_eq!(ratings.len(), 40, "{fit}");
+    let mut observed = 0;
+    for r in ratings {
+        let item = r["metric"].as_str().unwrap().trim_start_matches("rating_");
+        let (controller, station) = (
+            r["controller"].as_str().unwrap(),
+            r["station"].as_str().unwrap(),
+        );
+        let theirs = given(controller, station, item);
+        let mean = r["prediction"].as_f64().unwrap();
+        assert!((1.0..=7.0).contains(&mean), "{r}");
+        if theirs.is_empty() {
+            assert!(r["observed"].is_null(), "{r}");
+            continue;
+        }
+        observed += 1;
+        let want = theirs.iter().sum::<f64>() / theirs.len() as f64;
+        assert!(
+            (r["observed"].as_f64().unwrap() - want).abs() < 1e-9
+                && r["observed_n"] == theirs.len(),
+            "{r} vs the export's {theirs:?}"
+        );
+    }
+    // The three subjects complete their tests: every cell and item was rated.
+    assert_eq!(observed, 40, "{fit}");
 }
 
 #[test]

@@ -109,6 +109,10 @@ pub struct CellFit {
     pub target: Option<f64>,
     pub target_sd: Option<f64>,
     pub target_n: Option<usize>,
+    /// For a prediction: what the study's people gave in the cell (their mean, and how many
+    /// of them), not fitted; None where they gave nothing or the target was a table.
+    pub observed: Option<f64>,
+    pub observed_n: Option<usize>,
     /// The fitted population's simulated mean and its Monte-Carlo standard error.
     pub prediction: f64,
     pub monte_carlo_error: f64,
@@ -764,6 +768,8 @@ pub fn fit(
             target: t.map(|t| t.mean),
             target_sd: t.and_then(|t| t.sd),
             target_n: t.and_then(|t| t.n),
+            observed: None,
+            observed_n: None,
             prediction: mean,
             monte_carlo_error: se,
         }

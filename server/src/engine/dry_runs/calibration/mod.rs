@@ -2,6 +2,7 @@
 
 pub mod findings;
 pub mod fit;
+pub mod ratings;
 pub mod run;
 pub mod sim;
 pub mod surveys;

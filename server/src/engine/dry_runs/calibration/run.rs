@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 use sqlx::AnyPool;
 
 use super::fit::{FitReport, check_enough, fit};
+use super::ratings::{PeopleRated, predicted};
 use super::sim::all_cells;
 use super::target::{Target, from_subjects, parse_table};
 use crate::engine::dry_runs::job::{Job, JobStatus, Progress};
@@ -46,25 +47,28 @@ pub struct CalibrationReport {
 }
 
 /// The study's own completed tests: each subject's latest completed attempt of each scored
-/// test, in the study's cells.
+/// test, in the study's cells; and the people's ratings of those tests per cell (predicted
+/// after the fit, never fitted).
 async fn study_target(
     pool: &AnyPool,
     study_id: i64,
     cells: &[super::sim::Cell],
     params: &bdft_protocol::study::StudyParams,
-) -> Result<Target> {
+) -> Result<(Target, Vec<PeopleRated>)> {
     let rows = store::exports::trial_rows(pool, study_id, Withdrawn::LeftOut).await?;
     let mut subjects: Vec<(String, Vec<Option<Metrics>>)> = Vec::new();
+    let mut answers: Vec<Vec<[Option<i64>; 4]>> = vec![Vec::new(); cells.len()];
     for r in rows {
         if r.phase != TestPhase::Test || !r.latest || r.status != TrialStatus::Complete {
             continue;
         }
-        let (Some(mse), Some(acc)) = (r.mse_tracking_mm2, r.ms_cab_accel) else {
-            continue;
-        };
         let Some(j) = cells.iter().position(|c| {
             c.seat == r.station && params.controllers[c.controller].kind() == r.controller
         }) else {
+            continue;
+        };
+        answers[j].push([r.accuracy, r.speed, r.smoothness, r.controllability]);
+        let (Some(mse), Some(acc)) = (r.mse_tracking_mm2, r.ms_cab_accel) else {
             continue;
         };
         let at = match subjects.iter().position(|(code, _)| *code == r.code) {
@@ -86,7 +90,22 @@ async fn study_target(
             "study {study_id} has no cell with completed tests of 2 or more subjects to calibrate to; run tests first or give a table"
         )));
     }
-    Ok(target)
+    let rated = cells
+        .iter()
+        .zip(answers)
+        .map(|(&cell, given)| PeopleRated {
+            cell,
+            items: std::array::from_fn(|i| {
+                let v: Vec<f64> = given
+                    .iter()
+                    .filter_map(|a| a[i])
+                    .map(|r| r as f64)
+                    .collect();
+                (!v.is_empty()).then(|| (v.iter().sum::<f64>() / v.len() as f64, v.len()))
+            }),
+        })
+        .collect();
+    Ok((target, rated))
 }
 
 /// A calibration ready to run: the study, its target and the request.
@@ -94,6 +113,8 @@ async fn study_target(
 pub struct Prepared {
     study: Study,
     target: Target,
+    /// What the study's people rated (none for a table).
+    people: Vec<PeopleRated>,
     source: String,
     req: CalibrateRequest,
 }
@@ -109,17 +130,26 @@ pub async fn prepare(pool: &AnyPool, study_id: i64, req: CalibrateRequest) -> Re
     }
     let study = store::studies::get(pool, study_id).await?;
     let cells = all_cells(&study.params);
-    let (target, source) = match &req.table {
-        Some(csv) => (parse_table(&study.params, csv)?, "table".to_string()),
-        None => (
-            study_target(pool, study_id, &cells, &study.params).await?,
-            format!("study {study_id}'s completed tests"),
+    let (target, people, source) = match &req.table {
+        Some(csv) => (
+            parse_table(&study.params, csv)?,
+            Vec::new(),
+            "table".to_string(),
         ),
+        None => {
+            let (target, people) = study_target(pool, study_id, &cells, &study.params).await?;
+            (
+                target,
+                people,
+                format!("study {study_id}'s completed tests"),
+            )
+        }
     };
     check_enough(&target)?;
     Ok(Prepared {
         study,
         target,
+        people,
         source,
         req,
     })
@@ -149,6 +179,7 @@ async fn run_prepared(
     let Prepared {
         study,
         target,
+        people,
         source,
         req,
     } = prepared;
@@ -159,7 +190,7 @@ async fn run_prepared(
         .expect("never closed");
     let params = study.params.clone();
     let fitted = tokio::task::spawn_blocking(move || {
-        fit(
+        let mut fitted = fit(
             &params,
             &target,
             &source,
@@ -167,7 +198,18 @@ async fn run_prepared(
             req.seed,
             &progress,
             &cancel,
-        )
+        )?;
+        // The ratings: predicted by the fitted population, beside the people's.
+        fitted.predictions.extend(predicted(
+            &params,
+            &fitted.population,
+            req.simulated_subjects,
+            req.seed,
+            &people,
+            &progress,
+            &cancel,
+        )?);
+        Ok::<_, AppError>(fitted)
     })
     .await
     .map_err(|e| AppError::Internal(anyhow::anyhow!("the calibration panicked: {e}")))??;

@@ -4,7 +4,7 @@
 //! The batch simulator keeps no records to perceive, so this costs a pilot's time per test:
 //! for pilots of a few subjects.
 
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use bdft_controller::population;
 use bdft_controller::rng::Rng;
@@ -14,6 +14,7 @@ use serde::Serialize;
 
 use super::findings::median;
 use super::sim::{Cell, DT, SubjectRef, on_every_core, trial};
+use crate::engine::dry_runs::job::Progress;
 use crate::engine::study::synthetic;
 use crate::error::{AppError, Result};
 
@@ -27,6 +28,8 @@ pub struct SurveyCell {
     /// points): with eight subjects a mean separates cells a median of 7-point answers
     /// rounds together.
     pub mean_ratings: [f64; 4],
+    /// Their standard deviations over subjects.
+    pub sd_ratings: [f64; 4],
     /// Medians of what was perceived (`population::Perception`): RMS tracking error (mm),
     /// response lag (s), felt cab acceleration (m/s²) and seen shake (mm) — what
     /// `population::MIDDLING` is set from.
@@ -39,13 +42,17 @@ pub struct SurveyCell {
 /// One answered test: its cell, ratings and what was perceived.
 type Answered = (usize, [u8; 4], population::Perception);
 
-/// Every `subjects`' answers in every one of `cells`, on every core.
+/// Every `subjects`' answers in every one of `cells`, on every core. `progress` counts the
+/// tests run; `cancel` stops them (409).
 pub fn surveys(
     params: &StudyParams,
     subjects: &[SubjectRef],
     cells: &[Cell],
+    progress: &Progress,
+    cancel: &AtomicBool,
 ) -> Result<Vec<SurveyCell>> {
     let items = subjects.len() * cells.len();
+    progress.total.fetch_add(items, Ordering::Relaxed);
     let one = |item: usize| -> Result<Option<Answered>> {
         let (subject, c) = (subjects[item / cells.len()], item % cells.len());
         let cell = cells[c];
@@ -84,8 +91,10 @@ pub fn surveys(
         );
         Ok(Some((c, ratings, perceived)))
     };
-    let answered = on_every_core(items, &AtomicBool::new(false), |item| {
-        one(item).map(|a| a.into_iter().collect())
+    let answered = on_every_core(items, cancel, |item| {
+        let answered = one(item)?;
+        progress.add(1);
+        Ok(answered.into_iter().collect())
     })?;
     Ok(cells
         .iter()
@@ -93,8 +102,11 @@ pub fn surveys(
         .map(|(c, cell)| {
             let mine: Vec<&Answered> = answered.iter().filter(|a| a.0 == c).collect();
             let n = mine.len();
-            let mean =
-                |i: usize| mine.iter().map(|a| f64::from(a.1[i])).sum::<f64>() / n.max(1) as f64;
+            let mean_sd = |i: usize| {
+                let v: Vec<f64> = mine.iter().map(|a| f64::from(a.1[i])).collect();
+                super::target::mean_sd(&v)
+            };
+            let items = [mean_sd(0), mean_sd(1), mean_sd(2), mean_sd(3)];
             SurveyCell {
                 controller: params.controllers[cell.controller]
                     .kind()
@@ -102,7 +114,8 @@ pub fn surveys(
                     .to_string(),
                 station: cell.seat.as_str().to_string(),
                 n,
-                mean_ratings: [mean(0), mean(1), mean(2), mean(3)],
+                mean_ratings: items.map(|m| m.0),
+                sd_ratings: items.map(|m| m.1),
                 median_error_mm: median(mine.iter().map(|a| a.2.rms_error_mm).collect()),
                 median_response_s: median(mine.iter().map(|a| a.2.response_time_s).collect()),
                 median_felt_m_s2: median(mine.iter().map(|a| a.2.felt_rms_m_s2).collect()),
@@ -116,7 +129,13 @@ pub fn surveys(
 /// would enrol them) as a Markdown table: `bdft-server findings`.
 pub fn table(params: &StudyParams, subjects: u32, seed: u64) -> Result<String> {
     let cells = super::sim::all_cells(params);
-    let answers = surveys(params, &super::sim::enrolled(seed, subjects), &cells)?;
+    let answers = surveys(
+        params,
+        &super::sim::enrolled(seed, subjects),
+        &cells,
+        &Progress::default(),
+        &AtomicBool::new(false),
+    )?;
     let mut out = format!(
         "\nSurveys of the first {subjects} subjects (mean rating; {}-point scale, higher is better)\n\n| controller | station | accuracy | speed | smoothness | controllability | median error (mm) | median response (s) | median felt (m/s²) | median seen shake (mm) |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
         params.survey.scale_points
