@@ -61,53 +61,67 @@ impl Default for OperatorParams {
 }
 
 impl OperatorParams {
+    /// The vibration effects and the error gain take the population's bounds
+    /// (`population::bounds`): one range for a parameter whether it is set by hand or
+    /// drawn. The delay, the arm, the integral gain and the remnant allow more than a
+    /// draw does: a drawn subject's learning and fatigue lengthen its delay and raise its
+    /// remnant (up to the population's bounds, inside these), and a hand-set operator may
+    /// be an outlier.
     pub fn validate(&self) -> Result<(), ParamError> {
-        check("operator.reaction_delay_s", self.reaction_delay_s, 0.0, 1.0)?;
-        check("operator.neuromuscular_w", self.neuromuscular_w, 0.5, 200.0)?;
-        check(
-            "operator.neuromuscular_zeta",
-            self.neuromuscular_zeta,
-            0.05,
-            3.0,
-        )?;
-        check(
-            "operator.shake_aversion_per_mm",
-            self.shake_aversion_per_mm,
-            0.0,
-            20.0,
-        )?;
-        check(
-            "operator.grip_stiffening_per_m_s2",
-            self.grip_stiffening_per_m_s2,
-            0.0,
-            2.0,
-        )?;
-        check(
-            "operator.vibration_remnant_per_m_s2",
-            self.vibration_remnant_per_m_s2,
-            0.0,
-            10.0,
-        )?;
-        check(
-            "operator.vibration_slowing_per_m_s2",
-            self.vibration_slowing_per_m_s2,
-            0.0,
-            10.0,
-        )?;
-        check(
-            "operator.vibration_regression_per_m_s2",
-            self.vibration_regression_per_m_s2,
-            0.0,
-            20.0,
-        )?;
-        check("operator.error_gain", self.error_gain, 0.0, 2.0)?;
-        check(
-            "operator.error_integral_gain",
-            self.error_integral_gain,
-            0.0,
-            10.0,
-        )?;
-        check("operator.remnant_std_mm", self.remnant_std_mm, 0.0, 50.0)
+        use super::population::bounds::*;
+        let checks = [
+            (
+                "operator.reaction_delay_s",
+                self.reaction_delay_s,
+                (0.0, 1.0),
+            ),
+            (
+                "operator.neuromuscular_w",
+                self.neuromuscular_w,
+                (0.5, 200.0),
+            ),
+            (
+                "operator.neuromuscular_zeta",
+                self.neuromuscular_zeta,
+                (0.05, 3.0),
+            ),
+            (
+                "operator.shake_aversion_per_mm",
+                self.shake_aversion_per_mm,
+                SHAKE_AVERSION_PER_MM,
+            ),
+            (
+                "operator.grip_stiffening_per_m_s2",
+                self.grip_stiffening_per_m_s2,
+                GRIP_STIFFENING_PER_M_S2,
+            ),
+            (
+                "operator.vibration_remnant_per_m_s2",
+                self.vibration_remnant_per_m_s2,
+                VIBRATION_REMNANT_PER_M_S2,
+            ),
+            (
+                "operator.vibration_slowing_per_m_s2",
+                self.vibration_slowing_per_m_s2,
+                VIBRATION_SLOWING_PER_M_S2,
+            ),
+            (
+                "operator.vibration_regression_per_m_s2",
+                self.vibration_regression_per_m_s2,
+                VIBRATION_REGRESSION_PER_M_S2,
+            ),
+            ("operator.error_gain", self.error_gain, ERROR_GAIN),
+            (
+                "operator.error_integral_gain",
+                self.error_integral_gain,
+                (0.0, 10.0),
+            ),
+            ("operator.remnant_std_mm", self.remnant_std_mm, (0.0, 50.0)),
+        ];
+        for (name, value, (low, high)) in checks {
+            check(name, value, low, high)?;
+        }
+        Ok(())
     }
 }
 
