@@ -16,9 +16,15 @@ error sd/sqrt(n) and the prediction's Monte-Carlo error: what
 `fits_a_published_style_table_within_its_stated_error_and_predicts_the_rest` asserts) and
 per fitted median whether its 95 % interval holds the truth. Exit 1 if a cell misses.
 
+coverage SEEDS TRIAL_S: how often the fitted medians' 95 % intervals hold the truth over
+pilots seeded 1..SEEDS (each: a table made as `make` makes it, with TRIAL_S-second tests,
+calibrated from the default medians with 48 simulated subjects), one line per seed and the
+count per parameter. A 95 % interval should miss about one seed in twenty.
+
 Usage (from the repo root, after `cargo build --release -p bdft-server`):
     python3 tools/bench/calibration_table.py make
     python3 tools/bench/calibration_table.py check report.json
+    python3 tools/bench/calibration_table.py coverage 20 20
 Only the standard library is needed.
 """
 
@@ -53,12 +59,44 @@ def run(*args):
     subprocess.run([BIN, *args], check=True, stdout=subprocess.DEVNULL)
 
 
+def defaults(tmp):
+    """The default study's parameters, as the server stores them."""
+    run("pilot", "--db", f"{tmp}/defaults.db", "--subjects", "1", "--seed", "1")
+    with sqlite3.connect(f"{tmp}/defaults.db") as db:
+        return json.loads(db.execute("SELECT params_json FROM studies ORDER BY id LIMIT 1").fetchone()[0])
+
+
+def pilot_cells(tmp, truth, seed):
+    """Each cell's mean-squared tracking errors in a pilot of SUBJECTS of `truth` (a params
+    file) seeded `seed`: the valid, latest rows of its trials export."""
+    run("pilot", "--db", f"{tmp}/truth.db", "--params", truth, "--subjects", str(SUBJECTS), "--seed", str(seed))
+    run("export", "--db", f"{tmp}/truth.db", "--kind", "trials", "--out", f"{tmp}/trials.csv")
+    os.remove(f"{tmp}/truth.db")
+    cells = {}
+    with open(f"{tmp}/trials.csv", newline="") as f:
+        for r in csv.DictReader(f):
+            if r["valid"] == "1" and r["latest"] == "1":
+                cells.setdefault((r["controller"], r["station"]), []).append(float(r["mse_tracking_mm2"]))
+    return cells
+
+
+def table_lines(cells):
+    """The table's rows, header first; exits unless every one of the 10 cells has 2 or more."""
+    lines = ["controller,station,metric,mean,sd,n"]
+    for station in ["on", "off"]:
+        for controller in CONTROLLERS:
+            v = cells.get((controller, station), [])
+            if len(v) < 2:
+                continue
+            lines.append(f"{controller},{station},mse_tracking_mm2,{statistics.fmean(v):.1f},{statistics.stdev(v):.1f},{len(v)}")
+    if len(lines) != 1 + 10:
+        sys.exit(f"expected 10 cells, got {len(lines) - 1}: {sorted(cells)}")
+    return lines
+
+
 def make():
     with tempfile.TemporaryDirectory() as tmp:
-        # The default study's parameters, as the server stores them.
-        run("pilot", "--db", f"{tmp}/defaults.db", "--subjects", "1", "--seed", "1")
-        with sqlite3.connect(f"{tmp}/defaults.db") as db:
-            params = json.loads(db.execute("SELECT params_json FROM studies ORDER BY id LIMIT 1").fetchone()[0])
+        params = defaults(tmp)
         for name, median in TRUTH.items():
             params["population"][name]["median"] = median
         os.makedirs(OUT, exist_ok=True)
@@ -66,29 +104,15 @@ def make():
         with open(truth, "w") as f:
             json.dump(params, f, indent=2, sort_keys=True)
             f.write("\n")
-        run("pilot", "--db", f"{tmp}/truth.db", "--params", truth, "--subjects", str(SUBJECTS), "--seed", str(SEED))
-        run("export", "--db", f"{tmp}/truth.db", "--kind", "trials", "--out", f"{tmp}/trials.csv")
-        cells = {}
-        with open(f"{tmp}/trials.csv", newline="") as f:
-            for r in csv.DictReader(f):
-                if r["valid"] == "1" and r["latest"] == "1":
-                    cells.setdefault((r["controller"], r["station"]), []).append(float(r["mse_tracking_mm2"]))
+        rows = table_lines(pilot_cells(tmp, truth, SEED))
     lines = [
         "# Calibration benchmark table (issue 21): mean-squared tracking error of a pilot of",
         f"# {SUBJECTS} synthetic subjects (seed {SEED}) of truth.json: the default study with the medians",
         "# " + ", ".join(f"{k} {v}" for k, v in TRUTH.items()) + ".",
         "# Made by tools/bench/calibration_table.py make (means and sample sds by Python's statistics",
         "# from the pilot's trials export, valid and latest rows).",
-        "controller,station,metric,mean,sd,n",
+        *rows,
     ]
-    for station in ["on", "off"]:
-        for controller in CONTROLLERS:
-            v = cells.get((controller, station), [])
-            if len(v) < 2:
-                continue
-            lines.append(f"{controller},{station},mse_tracking_mm2,{statistics.fmean(v):.1f},{statistics.stdev(v):.1f},{len(v)}")
-    if len(lines) != 6 + 10:
-        sys.exit(f"expected 10 cells, got {len(lines) - 6}: {sorted(cells)}")
     with open(os.path.join(OUT, "table.csv"), "w") as f:
         f.write("\n".join(lines) + "\n")
     print("\n".join(lines))
@@ -120,10 +144,49 @@ def check(path):
     sys.exit(1 if missed else 0)
 
 
+def coverage(seeds, trial_s):
+    held = {name: 0 for name in TRUTH}
+    fitted = {name: 0 for name in TRUTH}
+    with tempfile.TemporaryDirectory() as tmp:
+        start = defaults(tmp)
+        start["trial_s"] = trial_s
+        start["practice_s"] = min(trial_s, 120.0)
+        truth = json.loads(json.dumps(start))
+        for name, median in TRUTH.items():
+            truth["population"][name]["median"] = median
+        for name, params in [("start", start), ("truth", truth)]:
+            with open(f"{tmp}/{name}.json", "w") as f:
+                json.dump(params, f)
+        # The study calibrated: the default medians, TRIAL_S-second tests.
+        run("pilot", "--db", f"{tmp}/start.db", "--params", f"{tmp}/start.json", "--subjects", "1", "--seed", "1")
+        for seed in range(1, seeds + 1):
+            with open(f"{tmp}/table.csv", "w") as f:
+                f.write("\n".join(table_lines(pilot_cells(tmp, f"{tmp}/truth.json", seed))) + "\n")
+            subprocess.run(["cp", f"{tmp}/start.db", f"{tmp}/run.db"], check=True)
+            out = subprocess.run(
+                [BIN, "calibrate", "--db", f"{tmp}/run.db", "--study", "1", "--table", f"{tmp}/table.csv", "--subjects", "48", "--seed", "1"],
+                check=True, capture_output=True, text=True,
+            ).stdout
+            line = [f"seed {seed}:"]
+            for p in json.loads(out)["fit"]["parameters"]:
+                t = TRUTH.get(p["name"])
+                if t is None:
+                    continue
+                fitted[p["name"]] += 1
+                inside = p["low"] <= t <= p["high"]
+                held[p["name"]] += inside
+                line.append(f"{p['name']} {p['fitted']:.3g} [{p['low']:.3g}, {p['high']:.3g}]{'' if inside else ' MISSES'}")
+            print("  ".join(line), flush=True)
+    for name in TRUTH:
+        print(f"{name}: the interval holds the truth {TRUTH[name]} in {held[name]} of the {fitted[name]} fits that identified it")
+
+
 if __name__ == "__main__":
     if sys.argv[1:2] == ["make"]:
         make()
     elif sys.argv[1:2] == ["check"] and len(sys.argv) == 3:
         check(sys.argv[2])
+    elif sys.argv[1:2] == ["coverage"] and len(sys.argv) == 4:
+        coverage(int(sys.argv[2]), float(sys.argv[3]))
     else:
         sys.exit(__doc__)

@@ -518,8 +518,12 @@ mod calibrate {
     /// correcting one: the fit lands up the curved delay–gain ridge (0.396 s). The
     /// bootstrap, linearized at the fit, gave the delay [0.319, 0.482] s, missing 0.30;
     /// carried onto the delay's profile (`Problem::profile_ends`) the interval holds it.
+    /// Since the crossover regression this seed's interval misses the truth again
+    /// ([0.338, 0.435] s): over pilots seeded 1–20 the delay's interval held it in 18
+    /// (`tools/bench/calibration_table.py coverage 20 20`, docs/benchmarks.md), seed 11
+    /// one of the two that miss. One seed cannot test a 95 % interval; twenty cost minutes.
     #[test]
-    #[ignore = "not held since the crossover regression (docs/synthetic-subjects.md): the delay's interval [0.338, 0.435] s misses 0.30"]
+    #[ignore = "seed 11 is one of the 2 in 20 pilots whose delay interval misses 0.30 ([0.338, 0.435] s); coverage over 20 seeds: tools/bench/calibration_table.py coverage (docs/benchmarks.md)"]
     fn a_small_pilots_table_gives_intervals_that_hold_its_populations_medians() {
         let mut truth = study();
         truth.population.reaction_delay_s.median = 0.30;
