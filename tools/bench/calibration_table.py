@@ -187,6 +187,12 @@ if __name__ == "__main__":
     elif sys.argv[1:2] == ["check"] and len(sys.argv) == 3:
         check(sys.argv[2])
     elif sys.argv[1:2] == ["coverage"] and len(sys.argv) == 4:
-        coverage(int(sys.argv[2]), float(sys.argv[3]))
+        try:
+            seeds, trial_s = int(sys.argv[2]), float(sys.argv[3])
+        except ValueError:
+            sys.exit(f"coverage SEEDS TRIAL_S: a whole number of seeds and a test length in seconds, not {sys.argv[2:]}")
+        if seeds < 1 or not 1.0 <= trial_s <= 600.0:
+            sys.exit("coverage SEEDS TRIAL_S: SEEDS at least 1, TRIAL_S from 1 to 600 s")
+        coverage(seeds, trial_s)
     else:
         sys.exit(__doc__)

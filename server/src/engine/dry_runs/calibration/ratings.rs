@@ -23,9 +23,9 @@ pub const ITEMS: [&str; 4] = [
 ];
 
 /// Simulated subjects answering the surveys after a fit, at most. Each of their tests runs
-/// with its record to be perceived, a pilot's cost per test (about 13 ms each in release on
-/// 2 cores): 64 subjects keep a 10-cell study's prediction to a few seconds, and the mean
-/// rating's Monte-Carlo error near an eighth of a point.
+/// with its record to be perceived, a pilot's cost per test (480 tests of 140 s: 6.5 s in
+/// release on 2 cores, docs/benchmarks.md): 64 subjects keep a 10-cell study's prediction
+/// to seconds, and the mean rating's Monte-Carlo error near an eighth of a point.
 pub const MAX_SUBJECTS: usize = 64;
 
 /// What the study's people answered in one cell: per item the mean and how many answered.
