@@ -12,8 +12,8 @@ use crate::engine::accounts::login_limiter::LoginLimiter;
 use crate::engine::dry_runs::calibration::run::{CalibrateRequest, calibrate};
 use crate::engine::dry_runs::pilot;
 use crate::engine::dry_runs::power::{self, PlanRequest, PlanSource};
-use crate::engine::machine::controller_link;
 use crate::engine::machine::sites::{self, Sites};
+use crate::engine::machine::{controller_link, estop_latch};
 use crate::engine::operations::schedule::{Backups, Policy};
 use crate::engine::operations::{audit_signing, backup, presence, restore};
 use crate::engine::procedure::filing;
@@ -676,20 +676,23 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
             "LSL: each station's signal and marker streams are published"
         );
     }
+    // The E-stop latch before any controller connects: each is told it.
+    let latch = estop_latch::EStopLatch::open(&keys, &pool).await?;
     let events = controller_link::event_channel();
     let filing = filing::LinkFiling::start(pool.clone(), events.clone());
     let links = site_links
         .into_iter()
         .map(|site| {
             controller_link::ControllerLink::start(
-                pool.clone(),
                 site,
                 events.clone(),
                 filing.clone(),
+                latch.clone(),
             )
         })
         .collect();
-    let sites = Sites::new(links, events);
+    let sites = Sites::new(links, events, latch.clone());
+    tokio::spawn(estop_latch::record_pending(latch, pool.clone()));
     tokio::spawn(crate::engine::procedure::lsl::republish_on_reconnect(
         pool.clone(),
         sites.clone(),

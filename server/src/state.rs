@@ -5,6 +5,7 @@ use std::sync::Arc;
 
 use sqlx::AnyPool;
 
+use crate::engine::accounts::estop_sessions::EStopSessions;
 use crate::engine::accounts::login_limiter::LoginLimiter;
 use crate::engine::dry_runs::calibration::run::CalibrationJob;
 use crate::engine::dry_runs::pilot::PilotJob;
@@ -22,6 +23,8 @@ pub struct AppState {
     /// Every site's controller link.
     pub sites: Sites,
     pub login: Arc<LoginLimiter>,
+    /// Sessions the E-stop is authenticated from without the database.
+    pub estop_sessions: Arc<EStopSessions>,
     pub pairing: Arc<Pairing>,
     /// Each station's one live socket.
     pub sockets: Arc<StationSockets>,
@@ -49,6 +52,7 @@ impl AppState {
             pool,
             sites,
             login: Arc::default(),
+            estop_sessions: Arc::default(),
             pairing: Arc::default(),
             sockets: Arc::default(),
             pilot: Arc::default(),

@@ -6,6 +6,7 @@ mod backups;
 mod bids;
 mod browser;
 mod calibration;
+mod contention;
 mod controller_cli;
 mod controller_estop;
 mod controller_identification;

@@ -6,8 +6,8 @@ use std::time::Duration;
 
 use bdft_tests::send_signal;
 use bdft_tests::server::{
-    Api, Server, assigned_station, dry_run, eventually, pair_station, run_pilot, run_trial,
-    short_study,
+    Api, Server, assigned_station, consent_at, consented_synthetic_subject, dry_run, eventually,
+    pair_station, run_pilot, run_trial, short_study,
 };
 use serde_json::{Value, json};
 
@@ -33,35 +33,6 @@ fn at_once(
             .collect();
         handles.into_iter().map(|h| h.join().unwrap()).collect()
     })
-}
-
-/// A consented synthetic subject at a station serving both seats, with the controller
-/// connected and unlatched: (subject id, its practice trial's id, the controller's pid).
-fn consented_synthetic_subject(server: &Server, api: &Api, study: i64) -> (i64, i64, u64) {
-    let enrolled = api.ok(
-        &format!("/api/studies/{study}/subjects"),
-        json!({ "synthetic": true }),
-    );
-    let subject = enrolled["subject"]["id"].as_i64().unwrap();
-    let (_, token) = assigned_station(api, study, subject);
-    let (practice, pid) = consent_at(server, api, &token, subject);
-    (subject, practice, pid)
-}
-
-/// The subject consents at the station of `token`; waits for the controller to be
-/// connected and unlatched: (the subject's practice trial's id, the controller's pid).
-fn consent_at(server: &Server, api: &Api, token: &str, subject: i64) -> (i64, u64) {
-    Api::with_bearer(&server.base, token)
-        .ok("/api/station/consent", json!({ "decision": "agreed" }));
-    let pid = eventually(Duration::from_secs(20), || {
-        let (_, c) = api.get("/api/controller");
-        (c["connected"] == true && c["estop_latched"] == false)
-            .then(|| c["pid"].as_u64())
-            .flatten()
-    });
-    let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
-    let practice = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
-    (practice, pid)
 }
 
 fn audit_actions(api: &Api) -> Vec<String> {

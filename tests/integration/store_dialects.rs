@@ -684,7 +684,8 @@ fn the_servers_store_runs_on_postgres() {
             "a postgres:// URL names PostgreSQL"
         );
         let pool = store::db::open_location(&at, None).await.unwrap();
-        assert!(!store::latch::latched(&pool, "main").await.unwrap());
+        let none: (bool, Vec<String>) = (false, vec![]);
+        assert_eq!(store::latch::stored(&pool).await.unwrap(), none);
         let params = bdft_server::engine::study::schedule::default_params();
         let mut change = store::Change::begin(&pool, "system:dialect-test")
             .await
@@ -707,8 +708,10 @@ fn the_servers_store_runs_on_postgres() {
             )
             .await
             .unwrap();
-        assert!(store::latch::latched(&pool, "lab-a").await.unwrap());
-        assert!(!store::latch::latched(&pool, "main").await.unwrap());
+        assert_eq!(
+            store::latch::stored(&pool).await.unwrap(),
+            (false, vec!["lab-a".to_string()])
+        );
         // The latch of every site latches each; its reset clears each site's own too.
         let mut change = store::Change::begin(&pool, "system:dialect-test")
             .await
@@ -718,7 +721,7 @@ fn the_servers_store_runs_on_postgres() {
             .commit("estop", None, store::audit::NoDetail {})
             .await
             .unwrap();
-        assert!(store::latch::latched(&pool, "main").await.unwrap());
+        assert!(store::latch::stored(&pool).await.unwrap().0);
         let mut change = store::Change::begin(&pool, "system:dialect-test")
             .await
             .unwrap();
@@ -727,9 +730,7 @@ fn the_servers_store_runs_on_postgres() {
             .commit("estop.reset", None, store::audit::NoDetail {})
             .await
             .unwrap();
-        for site in ["main", "lab-a"] {
-            assert!(!store::latch::latched(&pool, site).await.unwrap(), "{site}");
-        }
+        assert_eq!(store::latch::stored(&pool).await.unwrap(), none);
         let study = store::studies::get(&pool, id).await.unwrap();
         assert_eq!((study.name.as_str(), study.seed), ("on postgres", 7));
         assert_eq!(study.params, params);

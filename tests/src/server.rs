@@ -649,3 +649,84 @@ pub fn run_trial(api: &Api, subject: i64, trial: i64) -> Value {
         (t["status"] != "running").then_some(t)
     })
 }
+
+/// The store's write lock held by another client, as a long change elsewhere holds it (an
+/// erasure, a backup, a pilot filing), until dropped: the lock the server's own changes take
+/// (`begin_write`), on a connection and thread of its own.
+#[derive(Debug)]
+pub struct HeldWrite {
+    release: Option<std::sync::mpsc::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl HeldWrite {
+    /// Takes `server`'s store's write lock; returns once it is held.
+    pub fn take(server: &Server) -> Self {
+        let url = match &server.postgres {
+            Some(pg) => pg.url(),
+            None => format!("sqlite://{}", server.db.display()),
+        };
+        let (held_tx, held) = std::sync::mpsc::channel();
+        let (release, released) = std::sync::mpsc::channel::<()>();
+        let thread = std::thread::spawn(move || {
+            with_url(&url, async |pool| {
+                let mut conn = pool.acquire().await.unwrap();
+                bdft_server::store::db::begin_write(&mut conn)
+                    .await
+                    .expect("taking the store's write lock");
+                held_tx.send(()).unwrap();
+                // Held until the test drops its handle (or ends).
+                let _ = tokio::task::spawn_blocking(move || released.recv())
+                    .await
+                    .unwrap();
+                sqlx::Executor::execute(&mut *conn, "ROLLBACK")
+                    .await
+                    .unwrap();
+            })
+        });
+        held.recv_timeout(Duration::from_secs(30))
+            .expect("the store's write lock within 30 s");
+        Self {
+            release: Some(release),
+            thread: Some(thread),
+        }
+    }
+}
+
+impl Drop for HeldWrite {
+    fn drop(&mut self) {
+        drop(self.release.take());
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// A consented synthetic subject at a station serving both seats, with the controller
+/// connected and unlatched: (subject id, its practice trial's id, the controller's pid).
+pub fn consented_synthetic_subject(server: &Server, api: &Api, study: i64) -> (i64, i64, u64) {
+    let enrolled = api.ok(
+        &format!("/api/studies/{study}/subjects"),
+        json!({ "synthetic": true }),
+    );
+    let subject = enrolled["subject"]["id"].as_i64().unwrap();
+    let (_, token) = assigned_station(api, study, subject);
+    let (practice, pid) = consent_at(server, api, &token, subject);
+    (subject, practice, pid)
+}
+
+/// The subject consents at the station of `token`; waits for the controller to be
+/// connected and unlatched: (the subject's practice trial's id, the controller's pid).
+pub fn consent_at(server: &Server, api: &Api, token: &str, subject: i64) -> (i64, u64) {
+    Api::with_bearer(&server.base, token)
+        .ok("/api/station/consent", json!({ "decision": "agreed" }));
+    let pid = eventually(Duration::from_secs(20), || {
+        let (_, c) = api.get("/api/controller");
+        (c["connected"] == true && c["estop_latched"] == false)
+            .then(|| c["pid"].as_u64())
+            .flatten()
+    });
+    let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
+    let practice = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
+    (practice, pid)
+}

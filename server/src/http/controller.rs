@@ -50,6 +50,10 @@ pub struct EStopConfirmed {
     pub confirmed_ms: f64,
     /// The sites stopped.
     pub sites: Vec<String>,
+    /// Why the latch could not be written to its file, if it could not: it holds in this
+    /// server's memory, but a restart of the server would not keep it (absent when kept).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub latch_not_kept: Option<String>,
 }
 
 /// Which site an E-stop or its reset is for.
@@ -63,7 +67,8 @@ pub struct SiteQuery {
 /// Emergency stop: every valve to zero, every trial stopped, at every site or at `site`
 /// alone (every site when it names none served here, or the query does not parse); latched
 /// until reset. Answers only once each controller confirms; 503 "NOT
-/// confirmed", naming the sites, otherwise.
+/// confirmed", naming the sites, otherwise. Never waits for the database: the latch is kept
+/// outside it and the audit row follows when the store allows.
 #[utoipa::path(post, path = "/api/estop", tag = "controller", params(SiteQuery),
     responses((status = 200, body = EStopConfirmed)))]
 async fn estop(
@@ -74,11 +79,12 @@ async fn estop(
     // A query that does not parse stops every site: an E-stop is never refused for its
     // parameters.
     let site = q.ok().and_then(|Query(q)| q.site);
-    let stopped = trials::estop(&s.pool, &s.sites, &who.username, site.as_deref()).await?;
+    let stopped = trials::estop(&s.sites, &who.username, site.as_deref()).await?;
     Ok(AppJson(EStopConfirmed {
         ok: true,
         confirmed_ms: stopped.slowest.as_secs_f64() * 1e3,
         sites: stopped.sites,
+        latch_not_kept: stopped.latch_not_kept,
     }))
 }
 
@@ -134,21 +140,20 @@ pub struct LinkState {
     pub down_because: Option<String>,
 }
 
-async fn site_status(s: &AppState, link: &ControllerLink) -> crate::error::Result<SiteStatus> {
-    // Latched if either end holds it: starts are refused on the server's own latch too, so
-    // the dashboard must not offer Start while the controller is away and the latch is set.
-    let stored = crate::store::latch::latched(&s.pool, link.site()).await?;
-    Ok(SiteStatus {
+fn site_status(link: &ControllerLink) -> SiteStatus {
+    SiteStatus {
         site: link.site().to_string(),
         link: LinkState {
             connected: link.is_connected(),
             pid: link.pid(),
             rig: link.rig(),
-            estop_latched: link.estop_latched() || stored,
+            // Latched if either end holds it: starts are refused on the server's own latch too, so
+            // the dashboard must not offer Start while the controller is away and the latch is set.
+            estop_latched: link.stopped(),
             estop_path: link.estop_path_up(),
             down_because: link.down_because(),
         },
-    })
+    }
 }
 
 /// Every site's controller: its link, rig and E-stop latch.
@@ -157,10 +162,7 @@ async fn controller_status(
     State(s): State<AppState>,
     _who: Experimenter,
 ) -> ApiResult<ControllerStatus> {
-    let mut sites = Vec::new();
-    for link in s.sites.all() {
-        sites.push(site_status(&s, link).await?);
-    }
+    let sites: Vec<SiteStatus> = s.sites.all().iter().map(site_status).collect();
     let first = &sites[0].link;
     let several = sites.len() > 1;
     let all = LinkState {

@@ -23,6 +23,9 @@ use crate::store::subjects::Subject;
 pub const SESSION_COOKIE: &str = "bdft_session";
 pub const CSRF_HEADER: &str = "x-csrf-token";
 
+/// The E-stop's route.
+pub const ESTOP_PATH: &str = "/api/estop";
+
 /// A logged-in experimenter (put in the request by [`require_experimenter`]).
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct Experimenter {
@@ -118,9 +121,21 @@ pub async fn require_experimenter(
     next: Next,
 ) -> Result<Response, AppError> {
     let token = cookie(req.headers(), SESSION_COOKIE).ok_or(AppError::Unauthorized)?;
-    let owner = store::accounts::session(&state.pool, &token)
-        .await?
-        .ok_or(AppError::Unauthorized)?;
+    // The E-stop trusts a session the store confirmed recently: a busy store must not delay
+    // it (`estop_sessions`); every other route asks the store.
+    let remembered = (*req.method() == Method::POST && req.uri().path() == ESTOP_PATH)
+        .then(|| state.estop_sessions.owner(&token))
+        .flatten();
+    let owner = match remembered {
+        Some(owner) => owner,
+        None => {
+            let owner = store::accounts::session(&state.pool, &token)
+                .await?
+                .ok_or(AppError::Unauthorized)?;
+            state.estop_sessions.confirmed(&token, &owner);
+            owner
+        }
+    };
     if !matches!(*req.method(), Method::GET | Method::HEAD | Method::OPTIONS) {
         let sent = req
             .headers()

@@ -150,7 +150,7 @@ async fn station_socket(s: AppState, station_id: i64, socket: WebSocket) {
     let (live, live_rx) = mpsc::channel(LIVE_QUEUE);
     let changed = Arc::new(Notify::new());
     let link = station_link(&s, station_id).await;
-    let (latch, latch_rx) = watch::channel(latched(&s, link.as_ref()).await);
+    let (latch, latch_rx) = watch::channel(latched(link.as_ref()));
     let (close, close_rx) = oneshot::channel();
     let mut out = Outbox {
         live,
@@ -225,15 +225,9 @@ async fn station_link(s: &AppState, station_id: i64) -> Option<ControllerLink> {
 }
 
 /// The E-stop latch as the station shows it: set when its site's latch on the server or on
-/// the controller is (a controller latch is known at once; the server's is written after
-/// the controller confirms, or without it when it is not connected). A database that
-/// cannot say, or a site not served here, counts as latched.
-async fn latched(s: &AppState, link: Option<&ControllerLink>) -> bool {
-    let Some(link) = link else { return true };
-    link.estop_latched()
-        || store::latch::latched(&s.pool, link.site())
-            .await
-            .unwrap_or(true)
+/// the controller is. A site not served here counts as latched.
+fn latched(link: Option<&ControllerLink>) -> bool {
+    link.is_none_or(ControllerLink::stopped)
 }
 
 /// Reads the station until it closes or must be closed; returns why the server closes it.
@@ -352,7 +346,7 @@ async fn station_reader(
                     out.changed.notify_one();
                 }
                 Ok(ControllerEvent::TrialChanged { .. } | ControllerEvent::Link { .. } | ControllerEvent::EStop { .. }) | Err(RecvError::Lagged(_)) => {
-                    let now = latched(s, link).await;
+                    let now = latched(link);
                     out.latch.send_if_modified(|l| std::mem::replace(l, now) != now);
                     running = current().await;
                     out.changed.notify_one();
@@ -363,7 +357,7 @@ async fn station_reader(
             _ = guard.tick() => display.check(s, Instant::now()).await,
             // A trial started by the experimenter, a latch set while the controller was away.
             _ = look.tick() => {
-                let now = latched(s, link).await;
+                let now = latched(link);
                 out.latch.send_if_modified(|l| std::mem::replace(l, now) != now);
                 if running.is_none() {
                     let now = current().await;

@@ -117,6 +117,9 @@ async fn logout(
     headers: HeaderMap,
 ) -> Result<Response, AppError> {
     let token = cookie(&headers, SESSION_COOKIE);
+    if let Some(t) = &token {
+        state.estop_sessions.ended(t);
+    }
     accounts::end_session(&state.pool, &who.username, token.as_deref()).await?;
     Ok((
         [(header::SET_COOKIE, session_cookie("", 0, state.https))],

@@ -1,30 +1,25 @@
-//! The E-stop latches the server keeps: what every new controller connection is told, and
-//! what keeps tests from starting until an experimenter resets them. The one row of
-//! `estop_latch` latches every site at once; `site_estop_latch` holds each site's own (a
-//! site without a row was never stopped on its own).
+//! The E-stop latches as the store records them, beside each press's and reset's audit row:
+//! the server's own latch (`engine::machine::estop_latch`, in memory and in a file outside
+//! the store) is what starts and controllers obey, and it starts as the union of its file
+//! and these rows. The one row of `estop_latch` latches every site at once;
+//! `site_estop_latch` holds each site's own (a site without a row was never stopped on its
+//! own).
 
-use sqlx::{AnyConnection, AnyExecutor};
+use sqlx::{AnyConnection, AnyPool};
 
 use super::db::{Flag, now_ms};
 use crate::error::Result;
 
-/// Whether `site` is latched: by its own latch or by the latch of every site.
-pub async fn latched<'c>(db: impl AnyExecutor<'c>, site: &str) -> Result<bool> {
-    let (latched,): (Flag,) = sqlx::query_as(
-        "SELECT CASE WHEN latched = 1 OR EXISTS (SELECT 1 FROM site_estop_latch WHERE site = $1 AND latched = 1) THEN 1 ELSE 0 END FROM estop_latch WHERE id = 1",
-    )
-    .bind(site)
-    .fetch_one(db)
-    .await?;
-    Ok(latched.0)
-}
-
-/// Whether every site is latched at once (the E-stop of all sites).
-pub async fn all_latched<'c>(db: impl AnyExecutor<'c>) -> Result<bool> {
-    let (latched,): (Flag,) = sqlx::query_as("SELECT latched FROM estop_latch WHERE id = 1")
+/// The stored latches: whether every site is latched, and the sites latched on their own.
+pub async fn stored(db: &AnyPool) -> Result<(bool, Vec<String>)> {
+    let (all,): (Flag,) = sqlx::query_as("SELECT latched FROM estop_latch WHERE id = 1")
         .fetch_one(db)
         .await?;
-    Ok(latched.0)
+    let sites: Vec<(String,)> =
+        sqlx::query_as("SELECT site FROM site_estop_latch WHERE latched = 1 ORDER BY site")
+            .fetch_all(db)
+            .await?;
+    Ok((all.0, sites.into_iter().map(|(s,)| s).collect()))
 }
 
 /// Sets or clears the latch of every site; clearing it clears each site's own too.

@@ -21,6 +21,7 @@ impl Soak {
         match f.kind {
             FaultKind::ServerRestart => self.restart_server(f, n),
             FaultKind::DiskFull => self.fill_disk(f, n),
+            FaultKind::StoreHeld => self.hold_store(f, n),
             FaultKind::ControllerKill | FaultKind::ControllerStop => self.break_controller(f, n),
             FaultKind::StationReload
             | FaultKind::StationOffline
@@ -164,6 +165,60 @@ impl Soak {
             ));
             let _ = crate::send_signal(pid, "CONT");
             let _ = crate::send_signal(pid, "KILL");
+        }
+    }
+
+    fn hold_store(&mut self, f: Fault, n: usize) {
+        let affected = self.running_with(WAIT_FOR_A_TEST, 1.5);
+        let Some((true, Some(pid))) = self.controller() else {
+            self.journal
+                .violation("the controller was not connected when the store was to be held");
+            return;
+        };
+        // 5–12 s from the seeded choice.
+        let frac = (f.choice >> 16) as f64 / (1u64 << 48) as f64;
+        let hold = Duration::from_millis(5000 + (7000.0 * frac) as u64);
+        self.fault(
+            f,
+            n,
+            &affected,
+            json!({ "hold_ms": hold.as_millis() as u64 }),
+            "the tests running go on and are filed once the store is free; the controller link stays up (the same controller throughout)",
+        );
+        let lock = crate::server::HeldWrite::take(&self.server);
+        let began = Instant::now();
+        let mut link_lost = None;
+        self.wait_until(hold + Duration::from_secs(1), |s| {
+            if link_lost.is_none()
+                && let Some((connected, p)) = s.controller()
+                && (!connected || p != Some(pid))
+            {
+                link_lost = Some(ms(began));
+            }
+            began.elapsed() >= hold
+        });
+        drop(lock);
+        let released = Instant::now();
+        let ids: Vec<i64> = affected.iter().map(|r| r.trial).collect();
+        let filed = self.wait_until(RECOVERY, |s| {
+            s.running()
+                .is_some_and(|r| !r.iter().any(|r| ids.contains(&r.trial)))
+        });
+        self.outcome(
+            f,
+            n,
+            json!({ "link_lost_after_ms": link_lost,
+                "tests_hit_filed_after_ms": filed.then_some(ms(released)) }),
+        );
+        if let Some(at) = link_lost {
+            self.journal.violation(format!(
+                "the controller link was lost {at} ms into a held store (the server's stall taken for the controller's)"
+            ));
+        }
+        if !filed {
+            self.journal.violation(format!(
+                "tests {ids:?} still running {RECOVERY:?} after the store was free again"
+            ));
         }
     }
 

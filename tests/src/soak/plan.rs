@@ -13,6 +13,9 @@ pub enum FaultKind {
     ServerRestart,
     /// The database cannot grow (its page cap is filled) for a while, then has room again.
     DiskFull,
+    /// Another client holds the store's write lock for 5–12 s (past the server's busy
+    /// timeout at the long end), as a long erasure or backup would.
+    StoreHeld,
     /// The controller process killed (SIGKILL).
     ControllerKill,
     /// The controller process frozen (SIGSTOP): hung.
@@ -28,9 +31,10 @@ pub enum FaultKind {
 }
 
 impl FaultKind {
-    pub const ALL: [Self; 8] = [
+    pub const ALL: [Self; 9] = [
         Self::ServerRestart,
         Self::DiskFull,
+        Self::StoreHeld,
         Self::ControllerKill,
         Self::ControllerStop,
         Self::StationReload,
@@ -44,6 +48,7 @@ impl FaultKind {
     pub fn typical_s(self) -> f64 {
         match self {
             Self::ServerRestart | Self::DiskFull => 8.0,
+            Self::StoreHeld => 10.0,
             Self::ControllerKill | Self::ControllerStop => 3.0,
             _ => 4.0,
         }
@@ -53,6 +58,7 @@ impl FaultKind {
         match self {
             Self::ServerRestart => "server-restart",
             Self::DiskFull => "disk-full",
+            Self::StoreHeld => "store-held",
             Self::ControllerKill => "controller-kill",
             Self::ControllerStop => "controller-stop",
             Self::StationReload => "station-reload",

@@ -579,6 +579,11 @@ fn check_faults(journal: &Journal, trials: &Rows, v: &mut Vec<String>, figures: 
                             "filed complete though its station sent no input for {overlap} ms of it"
                         )
                     }),
+                "store-held" => {
+                    (status != "complete" && reason.contains("controller lost")).then(|| {
+                        "filed as lost with its controller while the store was held".to_string()
+                    })
+                }
                 "station-hidden" => (status == "complete" && overlap > 1200).then(|| {
                     format!("filed complete though its page was hidden for {overlap} ms of it")
                 }),

@@ -3,6 +3,7 @@
 //! (`login_limiter`, with argon2id in bounded memory from `passwords`), the one-time set-up
 //! link and sessions. No HTTP here: `http::session` carries cookies.
 
+pub mod estop_sessions;
 pub mod login_limiter;
 pub mod passwords;
 

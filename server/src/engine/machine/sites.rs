@@ -8,6 +8,7 @@ use std::sync::Arc;
 use tokio::sync::broadcast;
 
 use super::controller_link::{ControllerEvent, ControllerLink};
+use super::estop_latch::EStopLatch;
 use crate::error::{AppError, Result};
 
 /// The name of the one site of a server started without `--site`.
@@ -39,16 +40,28 @@ pub fn check_name(name: &str) -> std::result::Result<(), String> {
 pub struct Sites {
     links: Arc<[ControllerLink]>,
     events: broadcast::Sender<ControllerEvent>,
+    /// The server's E-stop latch of every site.
+    latch: EStopLatch,
 }
 
 impl Sites {
-    /// `links` (at least one, names unique) all telling `events`.
-    pub fn new(links: Vec<ControllerLink>, events: broadcast::Sender<ControllerEvent>) -> Self {
+    /// `links` (at least one, names unique) all telling `events`, all obeying `latch`.
+    pub fn new(
+        links: Vec<ControllerLink>,
+        events: broadcast::Sender<ControllerEvent>,
+        latch: EStopLatch,
+    ) -> Self {
         assert!(!links.is_empty(), "a server has at least one site");
         Self {
             links: links.into(),
             events,
+            latch,
         }
+    }
+
+    /// The server's E-stop latch.
+    pub fn latch(&self) -> &EStopLatch {
+        &self.latch
     }
 
     /// The first site's link.
@@ -103,9 +116,9 @@ impl Sites {
         self.links.iter().all(ControllerLink::is_connected)
     }
 
-    /// Whether any site's controller says its E-stop is latched.
+    /// Whether any site is stopped: by the server's latch or its controller's.
     pub fn any_latched(&self) -> bool {
-        self.links.iter().any(ControllerLink::estop_latched)
+        self.links.iter().any(ControllerLink::stopped)
     }
 }
 

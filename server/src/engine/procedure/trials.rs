@@ -12,6 +12,7 @@ use sqlx::AnyPool;
 use super::lsl::{self, Marker};
 use super::orchestrator::{Operator, start_now};
 use crate::engine::machine::controller_link::{ControllerEvent, ControllerLink};
+use crate::engine::machine::estop_latch;
 use crate::engine::machine::sites::Sites;
 use crate::error::{AppError, Result};
 use crate::store::audit::{NoDetail, Reason};
@@ -99,7 +100,7 @@ pub async fn start(pool: &AnyPool, sites: &Sites, actor: &str, trial_id: i64) ->
         }
     }
     let link = site_of_subject(pool, sites, &subject).await?;
-    if store::latch::latched(pool, link.site()).await? {
+    if sites.latch().latched(link.site()) {
         return Err(AppError::Conflict(format!(
             "the E-stop of site {:?} is latched: reset it (Reset e-stop, POST /api/estop/reset) before starting a test",
             link.site()
@@ -325,33 +326,43 @@ struct SiteStopped<'a> {
 pub struct Stopped {
     pub sites: Vec<String>,
     pub slowest: std::time::Duration,
+    /// Why the latch is held in memory only (its file could not be written), if it is.
+    pub latch_not_kept: Option<String>,
 }
 
 /// The E-stop of one site (`site`) or of every site (none, or a site this server does not
 /// serve: a stop is never refused for a wrong name). Sent first, to each controller at
-/// once (the stop itself waits for nothing that could fail), then the server's latch is
-/// set — it is re-sent to every controller connection of those sites until an
-/// experimenter resets it — and audited; an error naming each site whose controller did
-/// not confirm.
-pub async fn estop(
-    pool: &AnyPool,
-    sites: &Sites,
-    actor: &str,
-    site: Option<&str>,
-) -> Result<Stopped> {
+/// once, while the server's latch is set (in memory at once, then in its file: never behind
+/// the store's lock); answered when the controllers confirm. The audit row follows when the
+/// store allows (`estop_latch::record_pending`); an error naming each site whose controller
+/// did not confirm.
+///
+/// Runs to its end on a task of its own: a client that goes away cannot cut a stop short.
+pub async fn estop(sites: &Sites, actor: &str, site: Option<&str>) -> Result<Stopped> {
+    let (sites, actor, site) = (sites.clone(), actor.to_string(), site.map(str::to_string));
+    tokio::spawn(async move { press(&sites, &actor, site.as_deref()).await })
+        .await
+        .map_err(|e| AppError::Internal(anyhow::anyhow!("the E-stop's task: {e}")))?
+}
+
+async fn press(sites: &Sites, actor: &str, site: Option<&str>) -> Result<Stopped> {
     let one = site.and_then(|name| sites.named(name).ok());
     let links: Vec<&ControllerLink> = match one {
         Some(link) => vec![link],
         None => sites.all().iter().collect(),
     };
     let site = one.map(ControllerLink::site);
-    let sent =
-        futures_util::future::join_all(links.iter().map(|l| l.estop(ESTOP_CONFIRMATION))).await;
+    let latch = sites.latch();
+    let ((number, kept), sent) = futures_util::future::join(
+        latch.press(actor, site),
+        futures_util::future::join_all(links.iter().map(|l| l.estop(ESTOP_CONFIRMATION))),
+    )
+    .await;
     lsl::estop();
-    let mut change = Change::begin(pool, actor).await?;
-    match site {
-        Some(name) => store::latch::set_site(change.db(), name, true).await?,
-        None => store::latch::set_all(change.db(), true).await?,
+    if let Err(e) = &kept {
+        tracing::error!(
+            "the E-stop latch file could not be written (the latch holds in memory): {e}"
+        );
     }
     let ms = |r: &std::result::Result<std::time::Duration, String>| {
         r.as_ref().ok().map(|d| d.as_secs_f64() * 1e3)
@@ -371,9 +382,7 @@ pub async fn estop(
         confirmed_ms: delivered.then(|| sent.iter().filter_map(ms).fold(0.0, f64::max)),
         sites: sites_stopped,
     };
-    change
-        .commit("estop", Some(estop_target(site)), stopped)
-        .await?;
+    latch.answered(number, serde_json::to_value(&stopped).unwrap_or_default());
     let failed: Vec<String> = links
         .iter()
         .zip(&sent)
@@ -396,24 +405,21 @@ pub async fn estop(
             .filter_map(|r| r.ok())
             .max()
             .unwrap_or_default(),
+        latch_not_kept: kept.err().map(|e| e.to_string()),
     })
-}
-
-/// What the audit log names as an E-stop's target: one site, or every site's controller.
-fn estop_target(site: Option<&str>) -> String {
-    match site {
-        Some(name) => format!("site:{name}"),
-        None => "controller".into(),
-    }
 }
 
 /// How long the API waits for the controller to confirm an E-stop before saying it was not
 /// delivered.
 const ESTOP_CONFIRMATION: std::time::Duration = std::time::Duration::from_millis(500);
 
-/// Clears the E-stop latch of one site, or of every site (and each site's own): the
-/// server's first (so a controller that connects meanwhile is told the same), then the
-/// controllers'. A site stays stopped while the E-stop of every site is latched: that one
+/// How long a reset waits for the presses before it to reach the audit log.
+const RESET_WAITS_FOR_PRESSES: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// Clears the E-stop latch of one site, or of every site (and each site's own): once every
+/// press before it is in the audit log, the store's rows and the reset's audit row first,
+/// then the server's latch (so a controller that connects meanwhile is told latched), then
+/// the controllers'. A site stays stopped while the E-stop of every site is latched: that one
 /// is reset for every site at once.
 pub async fn reset_estop(
     pool: &AnyPool,
@@ -425,21 +431,28 @@ pub async fn reset_estop(
         Some(name) => vec![sites.named(name)?],
         None => sites.all().iter().collect(),
     };
+    let latch = sites.latch();
+    if let Some(name) = site
+        && latch.all_latched()
+    {
+        return Err(AppError::Conflict(format!(
+            "the E-stop of every site is latched: reset it for every site (POST /api/estop/reset without a site), not for site {name:?} alone"
+        )));
+    }
+    latch.recorded(RESET_WAITS_FOR_PRESSES).await?;
     let mut change = Change::begin(pool, actor).await?;
     match site {
-        Some(name) => {
-            if store::latch::all_latched(change.db()).await? {
-                return Err(AppError::Conflict(format!(
-                    "the E-stop of every site is latched: reset it for every site (POST /api/estop/reset without a site), not for site {name:?} alone"
-                )));
-            }
-            store::latch::set_site(change.db(), name, false).await?;
-        }
+        Some(name) => store::latch::set_site(change.db(), name, false).await?,
         None => store::latch::set_all(change.db(), false).await?,
     }
     change
-        .commit("estop.reset", Some(estop_target(site)), NoDetail {})
+        .commit("estop.reset", Some(estop_latch::target(site)), NoDetail {})
         .await?;
+    latch.clear(site).await.map_err(|e| {
+        AppError::Internal(anyhow::anyhow!(
+            "the reset is recorded but the E-stop latch file could not be written ({e}): the latch holds after a restart"
+        ))
+    })?;
     let mut unreached = Vec::new();
     for link in links {
         match link.send(&ServerToController::ResetEStop {}) {

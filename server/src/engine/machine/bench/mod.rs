@@ -182,7 +182,7 @@ impl BenchJob {
         let rig = match params.rig {
             RigKind::Simulated => Rig::Sim,
             RigKind::Real => {
-                check_real_rig(pool, link).await?;
+                check_real_rig(link)?;
                 Rig::Real(link.clone())
             }
         };
@@ -309,8 +309,8 @@ impl Rig {
 const BENCH_TRIAL_IDS: u64 = 1 << 50;
 
 /// A bench run on the real rig needs the E-stop reset and a controller with a real rig.
-async fn check_real_rig(pool: &AnyPool, link: &ControllerLink) -> Result<()> {
-    if store::latch::latched(pool, link.site()).await? || link.estop_latched() {
+fn check_real_rig(link: &ControllerLink) -> Result<()> {
+    if link.stopped() {
         return Err(AppError::Conflict(
             "the E-stop is latched: reset it before a bench run on the real rig".into(),
         ));
@@ -366,7 +366,7 @@ async fn run_all(
             .map_err(anyhow::Error::msg)?,
             Rig::Real(link) => {
                 // After an E-stop nothing more starts (the controller would refuse it too).
-                if store::latch::latched(pool, link.site()).await? || link.estop_latched() {
+                if link.stopped() {
                     anyhow::bail!("stopped: the E-stop is latched");
                 }
                 start.trial_id += run_id as u64 * MAX_COMPENSATORS as u64;

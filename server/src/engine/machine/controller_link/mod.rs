@@ -10,6 +10,7 @@
 mod connection;
 mod estop_path;
 mod process;
+mod reader;
 mod session;
 
 use std::collections::HashMap;
@@ -23,9 +24,9 @@ use bdft_protocol::framing;
 use bdft_protocol::link_auth::LinkKey;
 use bdft_protocol::server_to_controller::{ServerToController, StartTrial};
 use bdft_protocol::trial::TrialId;
-use sqlx::AnyPool;
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
+use super::estop_latch::EStopLatch;
 use crate::store::records::Record;
 use connection::frame;
 
@@ -128,6 +129,8 @@ struct Inner {
     input_ready: tokio::sync::Notify,
     /// Where results and lost trials are filed.
     filing: Arc<dyn Filing>,
+    /// The server's E-stop latch, told to every new connection.
+    latch: EStopLatch,
 }
 
 /// Samples per trial kept while its record arrives, channel by channel.
@@ -153,10 +156,10 @@ impl ControllerLink {
     /// Starts the supervisor of `config.site`'s controller; the link comes up in the
     /// background and tells `events` what happens on it.
     pub fn start(
-        pool: AnyPool,
         config: LinkConfig,
         events: broadcast::Sender<ControllerEvent>,
         filing: Arc<dyn Filing>,
+        latch: EStopLatch,
     ) -> Self {
         let LinkConfig {
             site,
@@ -183,9 +186,10 @@ impl ControllerLink {
                 inputs: Mutex::new(HashMap::new()),
                 input_ready: tokio::sync::Notify::new(),
                 filing,
+                latch,
             }),
         };
-        tokio::spawn(supervise(link.clone(), pool, source, key, silence));
+        tokio::spawn(supervise(link.clone(), source, key, silence));
         link
     }
 
@@ -199,6 +203,13 @@ impl ControllerLink {
         self.inner.site.clone()
     }
 
+    /// Whether this site's machine must not move: the server's latch for it (of the site, or
+    /// of every site) or the controller's, as it last told us.
+    pub fn stopped(&self) -> bool {
+        self.inner.latch.latched(self.site()) || self.estop_latched()
+    }
+
+    /// Whether the controller's E-stop is latched, as it last told us.
     pub fn estop_latched(&self) -> bool {
         self.inner.estop.load(std::sync::atomic::Ordering::SeqCst)
     }
@@ -416,7 +427,6 @@ impl ControllerLink {
 
 async fn supervise(
     link: ControllerLink,
-    pool: AnyPool,
     source: ControllerSource,
     key: LinkKey,
     silence: Duration,
@@ -438,7 +448,7 @@ async fn supervise(
                 }
             },
         };
-        let run = session::control(&link, &pool, addr, &key, silence);
+        let run = session::control(&link, addr, &key, silence);
         let why = match &mut child {
             Some(c) => tokio::select! {
                 why = run => why,

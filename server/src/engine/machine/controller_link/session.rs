@@ -4,29 +4,31 @@
 use std::collections::HashMap;
 use std::time::Duration;
 
-use bdft_protocol::controller_to_server::ControllerToServer;
+use bdft_protocol::controller_to_server::{ControllerToServer, TrialResult};
 use bdft_protocol::link_auth::{LinkKey, LinkRole};
 use bdft_protocol::server_to_controller::ServerToController;
 use bdft_protocol::trial::RECORD_CHANNELS;
-use sqlx::AnyPool;
 use tokio::io::AsyncWriteExt;
 use tokio::sync::mpsc;
 
-use super::connection::{frame, open, read_frame};
-use super::{ControllerEvent, ControllerLink, HEARTBEAT, Partial, estop_path};
+use super::connection::{Reader, frame, open};
+use super::{ControllerEvent, ControllerLink, Partial, estop_path, reader};
 use crate::store::records::Record;
 
 /// Runs the control connection until it fails; returns why.
 pub(super) async fn control(
     link: &ControllerLink,
-    pool: &AnyPool,
     addr: std::net::SocketAddr,
     key: &LinkKey,
     silence: Duration,
 ) -> String {
-    let (mut rd, mut wr, controller) = match open(addr, key, LinkRole::Control).await {
+    let (rd, wr, controller) = match open(addr, key, LinkRole::Control).await {
         Ok(c) => c,
         Err(why) => return why,
+    };
+    let (mut wr, closer, mut heard) = match split_off_reader(rd, wr, silence) {
+        Ok(parts) => parts,
+        Err(e) => return format!("handing the link to its reader: {e}"),
     };
     tracing::info!(
         controller = controller.name,
@@ -35,12 +37,9 @@ pub(super) async fn control(
         "controller connected"
     );
     *link.inner.rig.lock().unwrap_or_else(|p| p.into_inner()) = Some(controller.rig);
-    // The controller starts latched; the server's latch decides. If the database cannot
-    // say, it stays latched.
-    let latched = crate::store::latch::latched(pool, link.site())
-        .await
-        .unwrap_or(true);
-    let latch = if latched {
+    // The controller starts latched; the server's latch (never the store, which may be busy)
+    // decides.
+    let latch = if link.inner.latch.latched(link.site()) {
         ServerToController::EStop {}
     } else {
         ServerToController::ResetEStop {}
@@ -87,40 +86,95 @@ pub(super) async fn control(
             }
         }
     };
+    let (results, filed) = filer(link);
     let reader = async {
         let mut partial: Partial = HashMap::new();
-        // The watchdog: a deadline `silence` after the last message arrived (not a timeout
-        // started after it was handled, which would add the handling to the silence).
-        let mut heard = tokio::time::Instant::now();
-        loop {
-            let msg = tokio::select! {
-                // Biased: a message that is there counts, however late this task runs.
-                biased;
-                msg = read_frame(&mut rd) => msg,
-                () = tokio::time::sleep_until(heard + silence) => {
-                    return format!(
-                        "the controller sent nothing for {} ms (it heartbeats every {} ms)",
-                        silence.as_millis(),
-                        HEARTBEAT.as_millis()
-                    );
-                }
-            };
-            heard = tokio::time::Instant::now();
+        while let Some(msg) = heard.recv().await {
             match msg {
-                Ok(msg) => handle(link, &mut partial, msg).await,
-                Err(e) => return e,
+                Ok(msg) => handle(link, &mut partial, &results, msg).await,
+                Err(why) => return why,
             }
         }
+        "the link's reader stopped".to_string()
     };
     drop(tx);
-    tokio::select! {
+    let why = tokio::select! {
         why = writer => why,
         why = reader => why,
         () = estop_path::keep(link, addr, key) => unreachable!("the e-stop path is kept until the link ends"),
-    }
+    };
+    // The reader's thread wakes and ends; the results already received are filed before the
+    // supervisor files what the lost link leaves running.
+    let _ = closer.shutdown(std::net::Shutdown::Both);
+    drop(results);
+    let _ = filed.await;
+    why
 }
 
-async fn handle(link: &ControllerLink, partial: &mut Partial, msg: ControllerToServer) {
+/// Moves the connection's reading to a thread of its own ([`reader`]): the async writer, a
+/// handle to shut the socket down when the session ends, and what the reader hears.
+fn split_off_reader(
+    rd: Reader,
+    wr: tokio::net::tcp::OwnedWriteHalf,
+    silence: Duration,
+) -> std::io::Result<(
+    tokio::net::TcpStream,
+    std::net::TcpStream,
+    mpsc::Receiver<reader::Heard>,
+)> {
+    let parts = rd.into_parts();
+    let buffered = parts.read_buf.to_vec();
+    let stream = parts
+        .io
+        .reunite(wr)
+        .map_err(std::io::Error::other)?
+        .into_std()?;
+    let (tx, heard) = mpsc::channel(reader::QUEUE);
+    reader::spawn(stream.try_clone()?, buffered, silence, tx)?;
+    let closer = stream.try_clone()?;
+    Ok((tokio::net::TcpStream::from_std(stream)?, closer, heard))
+}
+
+/// A result and its record, to be filed.
+type Finished = (Box<TrialResult>, Record);
+
+/// Files the link's trial results in the order they came, on a task of its own: a store that
+/// is busy delays the filing, never the reading of the link (the E-stop's confirmation, the
+/// live samples, the heartbeats behind it). Bounded: past [`FILING_QUEUE`] results waiting
+/// the link's handler waits too. The task ends once the sender is dropped and every result
+/// received is filed.
+fn filer(link: &ControllerLink) -> (mpsc::Sender<Finished>, tokio::task::JoinHandle<()>) {
+    let (tx, mut rx) = mpsc::channel::<Finished>(FILING_QUEUE);
+    let link = link.clone();
+    let task = tokio::spawn(async move {
+        while let Some((r, record)) = rx.recv().await {
+            match link.inner.filing.result(&r, &record).await {
+                Ok(true) => {
+                    tracing::info!(trial = r.trial_id, outcome = ?r.outcome, "trial result stored")
+                }
+                Ok(false) => tracing::warn!(
+                    trial = r.trial_id,
+                    "result for a trial that is no longer running; dropped"
+                ),
+                Err(e) => tracing::error!(trial = r.trial_id, "storing the result failed: {e}"),
+            }
+            link.emit(ControllerEvent::TrialChanged {
+                trial_id: r.trial_id as i64,
+            });
+        }
+    });
+    (tx, task)
+}
+
+/// Results waiting to be filed at most (a controller runs a few trials at once).
+const FILING_QUEUE: usize = 16;
+
+async fn handle(
+    link: &ControllerLink,
+    partial: &mut Partial,
+    results: &mpsc::Sender<Finished>,
+    msg: ControllerToServer,
+) {
     match msg {
         ControllerToServer::Live(s) => link.emit(ControllerEvent::Live(s)),
         ControllerToServer::TrialStarted { trial_id, .. } => link.resolve(trial_id, Ok(())),
@@ -147,19 +201,9 @@ async fn handle(link: &ControllerLink, partial: &mut Partial, msg: ControllerToS
                 let _ = done.send((*r, record));
                 return;
             }
-            match link.inner.filing.result(&r, &record).await {
-                Ok(true) => {
-                    tracing::info!(trial = r.trial_id, outcome = ?r.outcome, "trial result stored")
-                }
-                Ok(false) => tracing::warn!(
-                    trial = r.trial_id,
-                    "result for a trial that is no longer running; dropped"
-                ),
-                Err(e) => tracing::error!(trial = r.trial_id, "storing the result failed: {e}"),
+            if results.send((r, record)).await.is_err() {
+                tracing::error!("the link's filing has stopped; a result is lost");
             }
-            link.emit(ControllerEvent::TrialChanged {
-                trial_id: r.trial_id as i64,
-            });
         }
         ControllerToServer::Fault {
             trial_id,
