@@ -81,8 +81,26 @@ impl EStopLatch {
     pub async fn open(stem: &Path, pool: &AnyPool) -> anyhow::Result<Self> {
         let path = latch_path(stem);
         let mut state = match std::fs::read(&path) {
-            Ok(bytes) => serde_json::from_slice::<State>(&bytes)
-                .with_context(|| format!("reading the E-stop latch {}", path.display()))?,
+            Ok(bytes) => match serde_json::from_slice::<State>(&bytes) {
+                Ok(state) => state,
+                // Fail-safe: a latch that cannot be read latches every site (the file is
+                // kept aside for whoever looks into it).
+                Err(e) => {
+                    let mut aside = path.as_os_str().to_owned();
+                    aside.push(".unreadable");
+                    std::fs::rename(&path, &aside)
+                        .with_context(|| format!("moving {} aside", path.display()))?;
+                    tracing::error!(
+                        "the E-stop latch {} cannot be read ({e}): every site starts latched; the file is kept as {}",
+                        path.display(),
+                        PathBuf::from(&aside).display()
+                    );
+                    State {
+                        all: true,
+                        ..State::default()
+                    }
+                }
+            },
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => State::default(),
             Err(e) => {
                 return Err(e)
@@ -338,4 +356,54 @@ async fn record(pool: &AnyPool, press: &Press) -> Result<()> {
     change
         .commit("estop", Some(target(press.site.as_deref())), detail)
         .await
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A press is kept by the file across a restart (memory lost) until the store records
+    /// it; the store's rows join the file's at start; a file that cannot be read latches
+    /// every site.
+    #[tokio::test]
+    async fn the_file_keeps_a_press_until_recorded_and_an_unreadable_one_latches_all() {
+        let dir = std::env::temp_dir().join(format!("bdft-latch-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let stem = dir.join("lab.db");
+        let pool = store::db::open(&stem).await.unwrap();
+        let latch = EStopLatch::open(&stem, &pool).await.unwrap();
+        assert!(!latch.latched("main"));
+        let (number, kept) = latch.press("system:test", Some("lab-a")).await;
+        kept.unwrap();
+        assert!(latch.latched("lab-a") && !latch.latched("main"));
+        latch.answered(number, serde_json::json!({ "delivered": true }));
+        // (The answer reaches the file in the background; another latch on the same file is
+        // for this test only.)
+        while !std::fs::read_to_string(latch_path(&stem))
+            .unwrap_or_default()
+            .contains("delivered")
+        {
+            tokio::task::yield_now().await;
+        }
+        // A restart before the store recorded it: the file still has the latch and the press.
+        let again = EStopLatch::open(&stem, &pool).await.unwrap();
+        assert!(again.latched("lab-a") && !again.all_latched());
+        assert_eq!(again.pending(), 1);
+        record(&pool, &again.oldest().unwrap()).await.unwrap();
+        again.forget(number).await.unwrap();
+        assert_eq!(EStopLatch::open(&stem, &pool).await.unwrap().pending(), 0);
+        // The store's rows count too: the file cleared, the store still latched.
+        again.clear(Some("lab-a")).await.unwrap();
+        assert!(
+            EStopLatch::open(&stem, &pool)
+                .await
+                .unwrap()
+                .latched("lab-a")
+        );
+        std::fs::write(latch_path(&stem), b"{ not json").unwrap();
+        let unreadable = EStopLatch::open(&stem, &pool).await.unwrap();
+        assert!(unreadable.all_latched() && unreadable.latched("main"));
+        pool.close().await;
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }
