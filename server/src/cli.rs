@@ -228,9 +228,11 @@ fn progress_ticker(
 
 #[derive(Debug, Subcommand)]
 enum AuditCommand {
-    /// Checks that no audit entry was edited, deleted, reordered or cut off: prints
-    /// "intact: N entries, head H, last checkpoint K", or the first entry that fails and why
-    /// (exit status 1). Opens the file read-only; a server may be running on it.
+    /// Checks that no audit entry was edited, deleted, reordered, inserted, appended, falsely
+    /// redacted or cut off: prints "intact: N entries, head H, last checkpoint K", or the
+    /// first entry that fails and why (exit status 1). Needs the audit key (beside the
+    /// database, or in --keys-dir) to check keyed entries; without it, says what it could
+    /// not check and exits 1. Opens the store read-only; a server may be running on it.
     Verify {
         #[command(flatten)]
         db: DbConfig,
@@ -336,6 +338,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             identification,
             personalized,
         } => {
+            audit_signing::use_key_if_present(&db.db)?;
             let pool = db.db.open().await?;
             let identification = identification || personalized;
             let with_identification = |mut p: bdft_protocol::study::StudyParams| {
@@ -400,6 +403,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             alpha,
             seed,
         } => {
+            audit_signing::use_key_if_present(&db.db)?;
             let pool = db.db.open().await?;
             let study = newest_study(&pool, study).await?;
             let req = PlanRequest {
@@ -429,6 +433,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             subjects,
             seed,
         } => {
+            audit_signing::use_key_if_present(&db.db)?;
             let pool = db.db.open().await?;
             let study = newest_study(&pool, study).await?;
             let table = match table {
@@ -506,24 +511,34 @@ async fn execute(command: Command) -> anyhow::Result<()> {
                     public_key,
                 },
         } => {
+            let keys = match keys.stem(&db.db) {
+                Ok(stem) => audit_signing::verifying_keys(&stem)?,
+                Err(_) => None,
+            };
             let trusted = match public_key {
                 Some(given) => Some(audit_signing::given_key(&given)?),
-                None => match keys.stem(&db.db) {
-                    Ok(stem) => audit_signing::trusted_key(&stem)?,
-                    Err(_) => None,
-                },
+                None => keys.as_ref().map(|(public, _)| *public),
             };
-            let verdict = audit_signing::verify_store(&db.db, trusted.as_ref())
+            let chain_key = keys.as_ref().map(|(_, chain)| chain);
+            let verdict = audit_signing::verify_store(&db.db, trusted.as_ref(), chain_key)
                 .await
                 .map_err(|e| anyhow::anyhow!("{}: {}", db.db, e.describe()))?;
-            if trusted.is_none() {
+            if keys.is_none() {
                 println!(
-                    "(no key file beside the database or in --keys-dir and no --public-key: checkpoints are checked against the key each names)"
+                    "(no key file beside the database or in --keys-dir: keyed entries cannot be checked{})",
+                    if trusted.is_none() {
+                        ", and checkpoints are checked against the key each names"
+                    } else {
+                        ""
+                    }
                 );
             }
             println!("{verdict}");
-            if !verdict.intact {
+            if verdict.failure.is_some() {
                 anyhow::bail!("the audit log of {} is not intact", db.db);
+            }
+            if !verdict.intact {
+                anyhow::bail!("the audit log of {} could not be checked whole", db.db);
             }
         }
         Command::Backup { db, out } => {
@@ -531,6 +546,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             if !path.is_file() {
                 anyhow::bail!("--db {}: no such database", path.display());
             }
+            audit_signing::use_key_if_present(&db.db)?;
             let pool = db.db.open().await?;
             let made = backup::make(&pool, &out, backup::COMMAND_LINE)
                 .await
@@ -538,6 +554,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
             println!("{}", serde_json::to_string_pretty(&made)?);
         }
         Command::Restore { from, db } => {
+            audit_signing::use_key_if_present(&db.db)?;
             let restored = restore::restore(&from, db.db.file("a restore")?)
                 .await
                 .map_err(|e| anyhow::anyhow!(e.describe()))?;
@@ -568,6 +585,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
                     "--format, --subject, --trial: a BIDS dataset is every recorded test of the study, as TSV; give none of them with --kind bids"
                 );
             }
+            audit_signing::use_key_if_present(&db.db)?;
             let pool = db.db.open().await?;
             let study = newest_study(&pool, study).await?;
             let mut sink = bids::DirSink::create(&out)?;
@@ -589,6 +607,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
                 format,
                 cut: SampleCut::from_options(subject, trial)?,
             };
+            audit_signing::use_key_if_present(&db.db)?;
             let pool = db.db.open().await?;
             let study = if kind.per_study() {
                 newest_study(&pool, study).await?

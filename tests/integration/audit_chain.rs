@@ -1,17 +1,20 @@
 //! The tamper-evident audit log: a copy of a running server's database — a SQLite file, or
 //! a PostgreSQL database — is tampered with through a raw connection, its triggers dropped
-//! first, as someone holding the store would; `bdft-server audit verify` must catch each edit, deletion, reordering, insertion,
-//! truncation and whole rewrite, naming the entry. The rewrite recomputes every hash with
-//! this test's own implementation of the documented chain format (store/audit_chain.rs),
-//! which so also checks the format against an independent reading.
+//! first, as someone holding the store would; `bdft-server audit verify` must catch each
+//! edit, deletion, reordering, insertion, truncation and whole rewrite, and the forgeries of
+//! issue 37 — a redaction marker on a row its erasure did not redact, a row appended after the
+//! last checkpoint with a correctly computed unkeyed hash, a redacted row's details tried
+//! against their stored hash —, naming the entry. The rewrite recomputes every hash with
+//! this test's own implementation of the documented chain formats (store/audit_chain.rs, its
+//! HMAC written out here), which so also checks the formats against an independent reading.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use bdft_tests::audit_chain as chain;
 use bdft_tests::postgres::PgDatabase;
 use bdft_tests::server::{Server, Stop, short_study, with_url};
 use bdft_tests::{TempDir, binary};
-use sha2::{Digest, Sha256};
 
 /// A store to tamper with and verify: a SQLite file (its audit key beside it), or a
 /// PostgreSQL database (the key in the server's keys directory), kept while this lives.
@@ -43,6 +46,10 @@ impl Store {
             ("audit_log_no_delete", "audit_log"),
             ("audit_chain_no_update", "audit_chain"),
             ("audit_chain_no_delete", "audit_chain"),
+            ("audit_salts_no_update", "audit_salts"),
+            ("audit_salts_only_redacted", "audit_salts"),
+            ("audit_redactions_no_update", "audit_redactions"),
+            ("audit_redactions_no_delete", "audit_redactions"),
         ]
         .iter()
         .map(|(t, table)| format!("DROP TRIGGER IF EXISTS {t}{};", on(table)))
@@ -76,29 +83,51 @@ impl Store {
         (out, text)
     }
 
-    /// Every chain row recomputed from the log as it now is, by the documented format.
+    /// The audit key file: beside the SQLite file, or in the keys directory.
+    fn key_file(&self) -> PathBuf {
+        match self {
+            Store::File(db) => db.with_extension("audit-key"),
+            Store::Postgres { keys, .. } => keys.join("bdft-lab.audit-key"),
+        }
+    }
+
+    /// Every chain row recomputed from the log as it now is, by the documented formats
+    /// (`bdft_tests::audit_chain`), the keyed ones with the chain key of the key file.
     fn rewrite_chain(&self) {
+        let key = chain::chain_key(&std::fs::read_to_string(self.key_file()).unwrap());
         with_url(&self.url(), async |pool| {
-            let rows: Vec<bdft_server::store::audit_chain::AuditRow> = sqlx::query_as(
-                "SELECT id, at, actor, actor_id, action, target, detail_json FROM audit_log ORDER BY id",
+            type Fields = (
+                i64,
+                i64,
+                String,
+                Option<i64>,
+                String,
+                Option<String>,
+                Option<String>,
+                i64,
+                Option<String>,
+            );
+            let rows: Vec<Fields> = sqlx::query_as(
+                "SELECT a.id, a.at, a.actor, a.actor_id, a.action, a.target, a.detail_json, c.format, s.salt \
+                 FROM audit_log a JOIN audit_chain c ON c.entry_id = a.id \
+                 LEFT JOIN audit_salts s ON s.entry_id = a.id ORDER BY a.id",
             )
             .fetch_all(pool)
             .await
             .unwrap();
             let mut prev = "0".repeat(64);
-            for (id, at, actor, actor_id, action, target, detail) in rows {
-                let detail_hash = sha_hex(detail.unwrap_or_default().as_bytes());
-                let content = serde_json::to_string(&serde_json::json!([
+            for (id, at, actor, actor_id, action, target, detail, format, salt) in rows {
+                let row = chain::Row {
                     id,
                     at,
                     actor,
                     actor_id,
                     action,
                     target,
-                    detail_hash
-                ]))
-                .unwrap();
-                let hash = sha_hex(format!("{prev}\n{content}").as_bytes());
+                    detail,
+                };
+                let salt = chain::unhex(salt.as_deref().unwrap_or(""));
+                let (detail_hash, hash) = chain::hashes(&row, format, &prev, &salt, &key);
                 sqlx::query(
                     "UPDATE audit_chain SET prev_hash = $1, detail_hash = $2, hash = $3 WHERE entry_id = $4",
                 )
@@ -115,12 +144,7 @@ impl Store {
     }
 }
 
-fn sha_hex(bytes: &[u8]) -> String {
-    Sha256::digest(bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
-}
+use chain::sha_hex;
 
 /// A fresh copy of the SQLite file `source` (with the key beside it) named `name`.
 fn copy_file(dir: &Path, source: &Path, name: &str) -> Store {
@@ -336,5 +360,202 @@ fn on_postgresql_audit_verify_names_every_kind_of_tampering() {
             }
         },
         checkpoint,
+    );
+}
+
+/// A log with an erasure in it (issue 37): two people enrolled, a four-letter note on a test
+/// of each, the first erased. Returns (the erased one's note entry, the other's note entry,
+/// the erasure's entry, the erased note's details as they were written).
+fn logged_with_an_erasure(server: &Server) -> (i64, i64, i64, String) {
+    let api = server.experimenter();
+    let study = short_study(&api, 3.0, 1.0);
+    let mut notes = Vec::new();
+    for text in ["ABCD", "WXYZ"] {
+        let enrolled = api.ok(
+            &format!("/api/studies/{study}/subjects"),
+            serde_json::json!({}),
+        );
+        let subject = enrolled["subject"]["id"].as_i64().unwrap();
+        let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
+        let trial = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
+        let note = api.ok(
+            &format!("/api/trials/{trial}/note"),
+            serde_json::json!({ "text": text }),
+        );
+        notes.push((subject, trial, note, text));
+    }
+    let (erased, erased_trial, erased_note, text) = &notes[0];
+    let report = api.ok(
+        &format!("/api/subjects/{erased}/erase"),
+        serde_json::json!({ "reason": "asked for erasure" }),
+    );
+    assert!(
+        report["removed"]["audit_details_redacted"].as_u64() >= Some(1),
+        "{report}"
+    );
+    let (code, verdict) = api.get("/api/audit/verify");
+    assert_eq!(code, 200, "{verdict}");
+    assert_eq!(verdict["intact"], true, "{verdict}");
+    let (_, log) = api.get("/api/audit?limit=1000");
+    let log = log.as_array().unwrap();
+    let entry_of = |action: &str, target: String| -> i64 {
+        log.iter()
+            .find(|e| e["action"] == action && e["target"] == target.as_str())
+            .unwrap_or_else(|| panic!("{action} {target} in the log"))["id"]
+            .as_i64()
+            .unwrap()
+    };
+    let erasure = entry_of("subject.erase", format!("subject:{erased}"));
+    let note_id = erased_note["id"].as_i64().unwrap();
+    (
+        entry_of("trial.note", format!("trial:{erased_trial}")),
+        entry_of("trial.note", format!("trial:{}", notes[1].1)),
+        erasure,
+        format!(r#"{{"note":{note_id},"text":"{text}"}}"#),
+    )
+}
+
+/// The three forgeries of issue 37, each on a copy of its own, named by `audit verify`:
+/// a redaction marker put on a row its erasure did not redact, a row appended after the
+/// last checkpoint with a correctly computed unkeyed hash, and a redacted row's details
+/// recovered from their stored hash.
+fn the_forgeries_of_issue_37_are_named(
+    original: &Store,
+    copy: &dyn Fn(&str) -> Store,
+    (erased_note, other_note, erasure, erased_detail): (i64, i64, i64, String),
+) {
+    let (out, text) = original.verify();
+    assert!(out.status.success(), "{text}");
+    assert!(text.contains("redacted by erasures"), "{text}");
+
+    // (1) The other subject's note, older than the erasure, made to look redacted by it.
+    let db = copy("redaction");
+    db.tamper(&format!(
+        r#"UPDATE audit_log SET detail_json = '{{"erasure":{erasure},"redacted":"subject.erase"}}' WHERE id = {other_note}"#
+    ));
+    let (out, text) = db.verify();
+    assert!(!out.status.success(), "a forged redaction: {text}");
+    assert!(
+        text.contains(&format!(
+            "entry {other_note}: redacted, but not by an erasure"
+        )),
+        "a forged redaction: {text}"
+    );
+
+    // (2) A row appended after the last checkpoint, its hash computed as the chain of
+    // migration 0023 computes it (SHA-256, no key).
+    let db = copy("appended");
+    let last = db.scalar("SELECT MAX(id) FROM audit_log");
+    let prev: String = with_url(&db.url(), async |pool| {
+        sqlx::query_scalar("SELECT hash FROM audit_chain WHERE entry_id = $1")
+            .bind(last)
+            .fetch_one(pool)
+            .await
+            .unwrap()
+    });
+    let (id, at, detail) = (last + 1, 1_700_000_000_000i64, r#"{"reason":"forged"}"#);
+    let detail_hash = sha_hex(detail.as_bytes());
+    let content = serde_json::to_string(&serde_json::json!([
+        id,
+        at,
+        "system:startup",
+        null,
+        "trial.abort",
+        "trial:1",
+        detail_hash
+    ]))
+    .unwrap();
+    let hash = sha_hex(format!("{prev}\n{content}").as_bytes());
+    db.tamper(&format!(
+        "INSERT INTO audit_log (id, at, actor, action, target, detail_json) VALUES ({id}, {at}, 'system:startup', 'trial.abort', 'trial:1', '{detail}'); \
+         INSERT INTO audit_chain (entry_id, prev_hash, detail_hash, hash) VALUES ({id}, '{prev}', '{detail_hash}', '{hash}')"
+    ));
+    let (out, text) = db.verify();
+    assert!(!out.status.success(), "an appended row: {text}");
+    assert!(
+        text.contains(&format!(
+            "entry {id}: appended after the last checkpoint without the audit key"
+        )),
+        "an appended row: {text}"
+    );
+
+    // (3) The erased note's stored hash is not the SHA-256 of what it said, and nothing
+    // that would let its text be tried against that hash (its salt) is left.
+    let stored: String = with_url(&original.url(), async |pool| {
+        sqlx::query_scalar("SELECT detail_hash FROM audit_chain WHERE entry_id = $1")
+            .bind(erased_note)
+            .fetch_one(pool)
+            .await
+            .unwrap()
+    });
+    assert_ne!(
+        stored,
+        sha_hex(erased_detail.as_bytes()),
+        "the erased note's hash is the plain SHA-256 of {erased_detail}"
+    );
+    assert_eq!(
+        original.scalar(&format!(
+            "SELECT COUNT(*) FROM audit_salts WHERE entry_id = {erased_note}"
+        )),
+        0,
+        "the erased note's salt is gone"
+    );
+    assert!(
+        original.scalar(&format!(
+            "SELECT COUNT(*) FROM audit_salts WHERE entry_id = {other_note}"
+        )) == 1,
+        "the other note keeps its salt"
+    );
+}
+
+#[test]
+fn audit_verify_names_the_forgeries_of_issue_37() {
+    let server = Server::start("audit-forgeries");
+    let logged = logged_with_an_erasure(&server);
+    let dir = TempDir::new("audit-forgeries-copies");
+    let original = dir.path().join("original.db");
+    with_url(&format!("sqlite://{}", server.db.display()), async |pool| {
+        sqlx::query(&format!("VACUUM INTO '{}'", original.display()))
+            .execute(pool)
+            .await
+            .unwrap();
+    });
+    std::fs::copy(
+        server.db.with_extension("audit-key"),
+        original.with_extension("audit-key"),
+    )
+    .unwrap();
+    the_forgeries_of_issue_37_are_named(
+        &Store::File(original.clone()),
+        &|name| copy_file(dir.path(), &original, name),
+        logged,
+    );
+}
+
+#[test]
+fn on_postgresql_audit_verify_names_the_forgeries_of_issue_37() {
+    let mut server = Server::start_on_postgres("audit-forgeries-postgres", &[]);
+    let logged = logged_with_an_erasure(&server);
+    server
+        .stop(Stop::Term, std::time::Duration::from_secs(30))
+        .unwrap();
+    let pg = server.postgres.as_ref().unwrap();
+    let keys = server.dir.path().to_path_buf();
+    let original = Store::Postgres {
+        url: pg.url(),
+        keys: keys.clone(),
+        _copy: None,
+    };
+    the_forgeries_of_issue_37_are_named(
+        &original,
+        &|name| {
+            let copy = pg.blocking_copy(&format!("forged_{name}"));
+            Store::Postgres {
+                url: copy.url(),
+                keys: keys.clone(),
+                _copy: Some(Box::new(copy)),
+            }
+        },
+        logged,
     );
 }

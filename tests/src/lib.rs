@@ -146,6 +146,7 @@ pub fn machine_load_turn() -> std::sync::MutexGuard<'static, ()> {
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
+pub mod audit_chain;
 pub mod controller_link;
 pub mod exports;
 pub mod postgres;

@@ -3,6 +3,10 @@
 //! since the SQL triggers of migration 0021 let only a recorded erasure mark its subject
 //! erased and redact the subject's older audit rows. Also the erasures recorded so far.
 //!
+//! Each redacted audit entry's salt is deleted and its redaction recorded
+//! (`audit_chain::record_redaction`), so `audit verify` takes the marker there and nowhere
+//! else, and the entry's stored hash can no longer be tried against guessed details.
+//!
 //! Deleted rows leave no copy in the file: the database runs with `secure_delete` (`db`), and
 //! [`purge_old_copies`] empties the write-ahead log after the erasure.
 
@@ -99,6 +103,9 @@ pub async fn erase(db: &mut AnyConnection, subject_id: i64, erasure_id: i64) -> 
             .execute(&mut *db)
             .await?
             .rows_affected();
+            // The redaction recorded under the audit key, and the entry's salt deleted: its
+            // stored hash can no longer be tried against guessed details.
+            super::audit_chain::record_redaction(db, id, erasure_id).await?;
         }
     }
     // Children before the trials they name (foreign keys), in this order.
@@ -158,7 +165,7 @@ pub async fn purge_old_copies(pool: &AnyPool) -> Result<bool> {
         }
         super::db::Dialect::Postgres => {
             sqlx::query(
-                "VACUUM subjects, audit_log, stations, notes, identifications, surveys, trial_records, pilot_trials, trials",
+                "VACUUM subjects, audit_log, audit_salts, stations, notes, identifications, surveys, trial_records, pilot_trials, trials",
             )
             .execute(pool)
             .await?;

@@ -1,8 +1,12 @@
 //! The server's audit signing key (Ed25519): made at the first start and kept beside the
-//! database (`bdft-lab.audit-key`, readable by its owner only); it signs a checkpoint of the
-//! audit chain's head at every start and then every few minutes (`store::audit_chain`). Its
-//! public half is printed at start and in the ethics board's package, so whoever verifies a
-//! copy of the database can check that its checkpoints are this server's.
+//! database (`bdft-lab.audit-key`, readable by its owner only), or in `--keys-dir`; it signs
+//! a checkpoint of the audit chain's head at every start, then every 5 minutes while the
+//! head moves, and within a second of an entry written without the key
+//! (`store::audit_chain`). The chain's HMAC key is derived from it
+//! (`audit_chain::ChainKey`): a process that loads the key file keys every entry it writes,
+//! and `audit verify` needs it to check them. Its public half is printed at start and in the
+//! ethics board's package, so whoever verifies a copy of the database can check that its
+//! checkpoints are this server's.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -13,11 +17,14 @@ use ed25519_dalek::{SigningKey, VerifyingKey};
 use sqlx::{AnyPool, Connection};
 
 use crate::error::{AppError, Result};
-use crate::store::audit_chain::Verdict;
+use crate::store::audit_chain::{ChainKey, Verdict};
 use crate::store::{self, audit_chain};
 
 /// How often the running server signs the head (when it moved).
 pub const CHECKPOINT_EVERY: Duration = Duration::from_secs(300);
+
+/// How often it looks for entries written without the key, which only a checkpoint covers.
+pub const UNKEYED_CHECK_EVERY: Duration = Duration::from_secs(1);
 
 /// `bdft-lab.db` → `bdft-lab.audit-key`.
 pub fn key_path(db: &Path) -> PathBuf {
@@ -34,8 +41,39 @@ fn parse_key(text: &str, path: &Path) -> anyhow::Result<SigningKey> {
     Ok(SigningKey::from_bytes(&bytes))
 }
 
-/// The key beside `db`, made (mode 0600) when there is none.
+/// The key beside `db`, made (mode 0600) when there is none; its chain key becomes this
+/// process's, so every audit entry it writes from now on is keyed.
 pub fn load_or_create(db: &Path) -> anyhow::Result<SigningKey> {
+    let key = load_or_create_file(db)?;
+    audit_chain::use_key(ChainKey::from_signing_key(&key))
+        .map_err(|e| anyhow::anyhow!(e.describe()))?;
+    Ok(key)
+}
+
+/// The key file named after `stem`, if there is one: its chain key becomes this process's
+/// (a command that writes audit entries: `pilot`, `calibrate`, `backup`, `restore`, …). The
+/// stem is the SQLite file, or `bdft-lab` in `BDFT_KEYS_DIR` for a PostgreSQL store; without
+/// a key the command's entries are unkeyed, and count once the server signs them.
+pub fn use_key_if_present(db: &store::db::Location) -> anyhow::Result<()> {
+    let stem = match db {
+        store::db::Location::File(path) => path.clone(),
+        store::db::Location::Postgres(_) => match std::env::var_os("BDFT_KEYS_DIR") {
+            Some(dir) => PathBuf::from(dir).join("bdft-lab"),
+            None => return Ok(()),
+        },
+    };
+    let path = key_path(&stem);
+    if !path.exists() {
+        return Ok(());
+    }
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let key = parse_key(&text, &path)?;
+    audit_chain::use_key(ChainKey::from_signing_key(&key))
+        .map_err(|e| anyhow::anyhow!(e.describe()))
+}
+
+fn load_or_create_file(db: &Path) -> anyhow::Result<SigningKey> {
     let path = key_path(db);
     if path.exists() {
         let text = std::fs::read_to_string(&path)
@@ -58,16 +96,21 @@ pub fn load_or_create(db: &Path) -> anyhow::Result<SigningKey> {
     Ok(SigningKey::from_bytes(&bytes))
 }
 
-/// The public key to trust when verifying: the key file's named after `db` (beside the
-/// SQLite file, or in --keys-dir), else none (each checkpoint's own key, which proves less).
-pub fn trusted_key(db: &Path) -> anyhow::Result<Option<VerifyingKey>> {
+/// The keys to verify with, from the key file named after `db` (beside the SQLite file, or
+/// in --keys-dir): the public key to trust and the chain key; none without the file (then
+/// each checkpoint's own key is taken, which proves less, and keyed entries go unchecked).
+pub fn verifying_keys(db: &Path) -> anyhow::Result<Option<(VerifyingKey, ChainKey)>> {
     let path = key_path(db);
     if !path.exists() {
         return Ok(None);
     }
     let text =
         std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-    Ok(Some(parse_key(&text, &path)?.verifying_key()))
+    let key = parse_key(&text, &path)?;
+    Ok(Some((
+        key.verifying_key(),
+        ChainKey::from_signing_key(&key),
+    )))
 }
 
 /// The public key given as `--public-key` (64 hex digits, as the server prints it).
@@ -86,14 +129,32 @@ pub async fn checkpoint_now(pool: &AnyPool, key: &SigningKey) -> crate::error::R
 }
 
 /// Signs the head every [`CHECKPOINT_EVERY`] while the server runs (the start signed it
-/// once already).
+/// once already), and within [`UNKEYED_CHECK_EVERY`] of an entry written without the key
+/// (only a checkpoint vouches for such an entry).
 pub async fn run_checkpoints(pool: AnyPool, key: SigningKey) {
+    let mut last = tokio::time::Instant::now();
     loop {
-        tokio::time::sleep(CHECKPOINT_EVERY).await;
-        if let Err(e) = checkpoint_now(&pool, &key).await {
-            tracing::error!("signing the audit chain's head: {}", e.describe());
+        tokio::time::sleep(UNKEYED_CHECK_EVERY).await;
+        let due = if last.elapsed() >= CHECKPOINT_EVERY {
+            Ok(true)
+        } else {
+            unkeyed_waiting(&pool).await
+        };
+        let signed = match due {
+            Ok(true) => checkpoint_now(&pool, &key).await.map(|()| true),
+            other => other,
+        };
+        match signed {
+            Ok(true) => last = tokio::time::Instant::now(),
+            Ok(false) => {}
+            Err(e) => tracing::error!("signing the audit chain's head: {}", e.describe()),
         }
     }
+}
+
+async fn unkeyed_waiting(pool: &AnyPool) -> Result<bool> {
+    let mut conn = pool.acquire().await?;
+    audit_chain::unkeyed_after_checkpoint(&mut conn).await
 }
 
 /// Verifies the store at `location` as it is, read-only (a server may be running on it):
@@ -101,11 +162,12 @@ pub async fn run_checkpoints(pool: AnyPool, key: SigningKey) {
 pub async fn verify_store(
     location: &store::db::Location,
     trusted: Option<&VerifyingKey>,
+    chain_key: Option<&ChainKey>,
 ) -> Result<Verdict> {
     let mut conn = store::db::connect_read_only(location)
         .await
         .map_err(|e| AppError::BadRequest(format!("not a database: {e:#}")))?;
-    let tables = store::db::tables_named(&mut conn, &["audit_log", "audit_chain"])
+    let tables = store::db::tables_named(&mut conn, &["audit_log", "audit_chain", "audit_salts"])
         .await
         .map_err(|e| AppError::BadRequest(format!("not a bdft-lab database: {e}")))?;
     if !tables.iter().any(|t| t == "audit_log") {
@@ -118,7 +180,12 @@ pub async fn verify_store(
             "its audit log is not chained yet (an earlier release's database): start this release's server on it once".into(),
         ));
     }
+    if !tables.iter().any(|t| t == "audit_salts") {
+        return Err(AppError::BadRequest(
+            "its audit log predates keyed hashes (an earlier release's database): start this release's server on it once".into(),
+        ));
+    }
     // One read transaction: the log, the chain and the checkpoints of one moment.
     let mut tx = conn.begin().await?;
-    audit_chain::verify(&mut tx, trusted).await
+    audit_chain::verify_with(&mut tx, trusted, chain_key).await
 }
