@@ -7,7 +7,9 @@
 use std::time::{Duration, Instant};
 
 use bdft_tests::TempDir;
-use bdft_tests::server::{self, Api, Server, eventually, pair_station, short_study};
+use bdft_tests::server::{
+    self, ADMIN_PASSWORD, Api, Server, eventually, pair_station, short_study,
+};
 use bdft_tests::station::{self, Socket, read_timeout};
 use bdft_tests::webdriver::Driver;
 use serde_json::{Value, json};
@@ -230,7 +232,16 @@ fn dashboard_socket(server: &Server, api: &Api) -> Socket {
 
 #[test]
 fn closed_sockets_give_back_their_file_descriptors() {
-    let server = Server::start("station-fds");
+    // 40 stations registered within seconds from this one address.
+    let server = Server::start_with(
+        "station-fds",
+        &[
+            "--admin-password",
+            ADMIN_PASSWORD,
+            "--station-registrations-per-minute",
+            "100",
+        ],
+    );
     let api = server.experimenter();
     let study = short_study(&api, 60.0, 60.0);
     const N: usize = 40;
@@ -293,7 +304,20 @@ fn closed_sockets_give_back_their_file_descriptors() {
 
 #[test]
 fn pairing_codes_are_bounded_and_a_waiting_station_learns_of_its_pairing_at_once() {
-    let server = Server::start("station-pairing");
+    // Every registration here comes from this one address: its own limits (per minute, and
+    // codes shown at once) as high as the server's, so that the server's bound is what
+    // refuses (`bounded_clients` tests the per-address limits).
+    let server = Server::start_with(
+        "station-pairing",
+        &[
+            "--admin-password",
+            ADMIN_PASSWORD,
+            "--station-registrations-per-minute",
+            "1000",
+            "--pairing-codes-per-address",
+            "256",
+        ],
+    );
     let api = server.experimenter();
     let study = short_study(&api, 60.0, 60.0);
     let anyone = Api::anonymous(&server.base);

@@ -149,6 +149,7 @@ pub fn machine_load_turn() -> std::sync::MutexGuard<'static, ()> {
 pub mod controller_link;
 pub mod exports;
 pub mod postgres;
+pub mod raw;
 pub mod server;
 pub mod soak;
 pub mod station;
