@@ -10,14 +10,20 @@
 //! flood and then with it, on the real server and controller over loopback:
 //!
 //! - a new client's login (`POST /api/login`, a connection of its own each time, from
-//!   127.0.0.3), `LOGINS` times;
-//! - its API calls (`GET /api/me` with that session, a new connection each), `CALLS` times;
-//! - `PRESSES` E-stop presses (`POST /api/estop`) from the experimenter's session open since
-//!   before the flood (reset between): the controller's confirmation and the answer's time;
+//!   127.0.0.3), `LOGINS` (10) a round;
+//! - its API calls (`GET /api/me` with that session, a new connection each), `CALLS` (50) a
+//!   round;
+//! - `PRESSES` (5) E-stop presses a round (`POST /api/estop`) from the experimenter's
+//!   session open since before the flood (reset between): the controller's confirmation
+//!   and the answer's time;
+//!
+//! rounds until `SECONDS` (30) have passed in each phase (past the body deadline, so that the
+//! slow bodies are cut off and reopened meanwhile);
 //! - the server's resident memory, and the CPU the server and the flooder used.
 //!
 //! Prints one JSON object. Run: `cargo build --workspace --bins && cargo bench --profile dev
-//! -p bdft-tests --bench bounded_clients` (env SLOW, IDLE, LOGINS, CALLS, PRESSES, and
+//! -p bdft-tests --bench bounded_clients` (env SLOW, IDLE, LOGINS, CALLS, PRESSES, SECONDS,
+//! FLOOD_NICE — the flooder's `nice`, 19 for an attacker whose CPU is not the server's — and
 //! SERVER_ARGS — extra `serve` arguments, space-separated — change it). Needs about
 //! SLOW + IDLE + 1,000 file descriptors (the flooder's and the server's; raise `ulimit -n`
 //! past that, or scale the flood down). The flooder is this executable again, started with
@@ -46,9 +52,11 @@ fn main() {
     }
     let slow: usize = setting("SLOW", 600);
     let idle: usize = setting("IDLE", 2000);
-    let logins: usize = setting("LOGINS", 30);
-    let calls: usize = setting("CALLS", 200);
-    let presses: usize = setting("PRESSES", 20);
+    let logins: usize = setting("LOGINS", 10);
+    let calls: usize = setting("CALLS", 50);
+    let presses: usize = setting("PRESSES", 5);
+    let seconds: f64 = setting("SECONDS", 30.0);
+    let nice: u32 = setting("FLOOD_NICE", 0);
     let extra = std::env::var("SERVER_ARGS").unwrap_or_default();
     let mut args = vec!["--admin-password", ADMIN_PASSWORD];
     args.extend(extra.split_whitespace());
@@ -58,9 +66,9 @@ fn main() {
     eventually(Duration::from_secs(30), || {
         (experimenter.get("/api/controller").1["connected"] == true).then_some(())
     });
-    let quiet = measure(&server, &experimenter, logins, calls, presses);
+    let quiet = rounds(&server, &experimenter, (logins, calls, presses), seconds);
 
-    let mut flooder = start_flooder(server.proc.addr, slow, idle);
+    let mut flooder = start_flooder(server.proc.addr, slow, idle, nice);
     // Under way: every flooding connection has been opened at least once.
     let began = Instant::now();
     let mut line = String::new();
@@ -73,7 +81,7 @@ fn main() {
     ];
     let cpu_before = processes.map(|(_, pid)| cpu_seconds(pid));
     let phase = Instant::now();
-    let flooded = measure(&server, &experimenter, logins, calls, presses);
+    let flooded = rounds(&server, &experimenter, (logins, calls, presses), seconds);
     let wall = phase.elapsed().as_secs_f64();
     let cpu: serde_json::Map<String, Value> = processes
         .iter()
@@ -91,6 +99,7 @@ fn main() {
         json!({
             "slow": slow,
             "idle": idle,
+            "flood_nice": nice,
             "server_args": extra,
             "loadavg": load.trim(),
             "quiet": quiet,
@@ -103,17 +112,59 @@ fn main() {
     );
 }
 
-/// The new client's logins and calls, and the experimenter's E-stop presses.
+/// What a phase measured.
+#[derive(Default)]
+struct Measured {
+    login_ms: Vec<f64>,
+    api_ms: Vec<f64>,
+    confirmed: Vec<f64>,
+    answered: Vec<f64>,
+    failed: Vec<String>,
+}
+
+/// Rounds of [`measure`] (`counts`: logins, calls, presses a round) until `seconds` have
+/// passed: so that the flood's slow bodies meet their deadline meanwhile.
+fn rounds(
+    server: &Server,
+    experimenter: &Api,
+    counts: (usize, usize, usize),
+    seconds: f64,
+) -> Value {
+    let began = Instant::now();
+    let mut m = Measured::default();
+    let mut n = 0;
+    while n == 0 || began.elapsed().as_secs_f64() < seconds {
+        measure(server, experimenter, counts, &mut m);
+        n += 1;
+    }
+    m.failed.truncate(10);
+    json!({
+        "rounds": n,
+        "seconds": (began.elapsed().as_secs_f64() * 10.0).round() / 10.0,
+        "login_ms": summary(m.login_ms),
+        "api_ms": summary(m.api_ms),
+        "estop_confirmed_ms": summary(m.confirmed),
+        "estop_answered_ms": summary(m.answered),
+        "failed": m.failed,
+    })
+}
+
+/// The new client's logins and calls, and the experimenter's E-stop presses, into `m`.
 fn measure(
     server: &Server,
     experimenter: &Api,
-    logins: usize,
-    calls: usize,
-    presses: usize,
-) -> Value {
+    (logins, calls, presses): (usize, usize, usize),
+    m: &mut Measured,
+) {
     let newcomer = loopback(3);
     let to = server.proc.addr;
-    let (mut login_ms, mut failed) = (Vec::new(), Vec::new());
+    let Measured {
+        login_ms,
+        api_ms,
+        confirmed,
+        answered,
+        failed,
+    } = m;
     let mut cookie = None;
     let credentials = json!({ "username": "admin", "password": ADMIN_PASSWORD }).to_string();
     for _ in 0..logins {
@@ -134,8 +185,10 @@ fn measure(
             Err(e) => failed.push(format!("login: {e}")),
         }
     }
-    let cookie = cookie.expect("at least one login succeeded");
-    let mut api_ms = Vec::new();
+    let Some(cookie) = cookie else {
+        failed.push("no login succeeded in this round".into());
+        return;
+    };
     for _ in 0..calls {
         let t = Instant::now();
         let answer = raw::request(newcomer, to, "GET", "/api/me", &[("cookie", &cookie)], None);
@@ -146,7 +199,6 @@ fn measure(
             Err(e) => failed.push(format!("api: {e}")),
         }
     }
-    let (mut confirmed, mut answered) = (Vec::new(), Vec::new());
     for _ in 0..presses {
         let t = Instant::now();
         let (code, body) = experimenter.post("/api/estop", json!({}));
@@ -162,14 +214,6 @@ fn measure(
             (experimenter.get("/api/controller").1["estop_latched"] == false).then_some(())
         });
     }
-    failed.truncate(10);
-    json!({
-        "login_ms": summary(login_ms),
-        "api_ms": summary(api_ms),
-        "estop_confirmed_ms": summary(confirmed),
-        "estop_answered_ms": summary(answered),
-        "failed": failed,
-    })
 }
 
 fn ms(since: Instant) -> f64 {
@@ -203,8 +247,18 @@ fn resident_mb(pid: u32) -> f64 {
     (kb / 1024.0 * 10.0).round() / 10.0
 }
 
-fn start_flooder(to: SocketAddr, slow: usize, idle: usize) -> Child {
-    Command::new(std::env::current_exe().unwrap())
+/// The flooder, at `nice` (0: the bench's own priority; 19: it only gets what the server
+/// and the clients leave, as an attacker on another machine would).
+fn start_flooder(to: SocketAddr, slow: usize, idle: usize, nice: u32) -> Child {
+    let exe = std::env::current_exe().unwrap();
+    let mut command = if nice > 0 {
+        let mut c = Command::new("nice");
+        c.arg("-n").arg(nice.to_string()).arg(exe);
+        c
+    } else {
+        Command::new(exe)
+    };
+    command
         .env(FLOOD, format!("{to} {slow} {idle}"))
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())

@@ -25,10 +25,12 @@ pub enum FaultKind {
     StationHidden,
     /// A station's page sending input as fast as it can.
     StationFlood,
+    /// Another client address holding slow request bodies and idle connections.
+    SlowClients,
 }
 
 impl FaultKind {
-    pub const ALL: [Self; 8] = [
+    pub const ALL: [Self; 9] = [
         Self::ServerRestart,
         Self::DiskFull,
         Self::ControllerKill,
@@ -37,6 +39,7 @@ impl FaultKind {
         Self::StationOffline,
         Self::StationHidden,
         Self::StationFlood,
+        Self::SlowClients,
     ];
 
     /// About how long injecting the fault and its recovery take (s): the plan leaves this
@@ -44,6 +47,7 @@ impl FaultKind {
     pub fn typical_s(self) -> f64 {
         match self {
             Self::ServerRestart | Self::DiskFull => 8.0,
+            Self::SlowClients => 14.0,
             Self::ControllerKill | Self::ControllerStop => 3.0,
             _ => 4.0,
         }
@@ -59,6 +63,7 @@ impl FaultKind {
             Self::StationOffline => "station-offline",
             Self::StationHidden => "station-hidden",
             Self::StationFlood => "station-flood",
+            Self::SlowClients => "slow-clients",
         }
     }
 }
