@@ -722,6 +722,9 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     let mut state = crate::state::AppState::new(pool, sites);
     state.web_dir = config.web_dir;
     state.login = std::sync::Arc::new(LoginLimiter::new(config.login.limits()));
+    state.pairing = std::sync::Arc::new(crate::engine::procedure::stations::Pairing::new(
+        config.connections.pairing_limits(),
+    ));
     state.https = tls.is_some();
     state.audit_public = Some(audit_public);
     state.backups = backups;

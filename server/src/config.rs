@@ -8,6 +8,7 @@ use std::time::Duration;
 use bdft_controller::lsl::streams::Scope;
 
 use crate::engine::accounts::login_limiter::LoginLimits;
+use crate::engine::procedure::stations::{MAX_PENDING, PairingLimits};
 use crate::store::db::Location;
 
 /// Where the data live.
@@ -164,22 +165,55 @@ pub struct BackupConfig {
     pub backup_keep: u32,
 }
 
-/// What one client may hold of the server's connections.
+/// What one client may hold of the server: its connections, the time its request takes to
+/// arrive, and the pairing codes it makes the server keep.
 #[derive(Debug, Clone, clap::Args)]
 pub struct ConnectionConfig {
     /// A connection that has not sent a whole request head within this long (ms) is closed:
     /// slow or idle clients (also idle keep-alive connections) cannot hold it.
     #[arg(long, env = "BDFT_HEADER_TIMEOUT_MS", default_value_t = 10_000, value_parser = clap::value_parser!(u64).range(100..=600_000))]
     pub header_timeout_ms: u64,
+    /// A request body that has not arrived within this long (ms) after its head is answered
+    /// 408 and its connection closed, unless it keeps arriving at --min-body-rate.
+    #[arg(long, env = "BDFT_BODY_TIMEOUT_MS", default_value_t = 10_000, value_parser = clap::value_parser!(u64).range(100..=600_000))]
+    pub body_timeout_ms: u64,
+    /// Past --body-timeout-ms, a body still arriving is given more time only while it has
+    /// averaged at least this many bytes a second since its head (0: never more time).
+    #[arg(long, env = "BDFT_MIN_BODY_RATE", default_value_t = 16_384, value_parser = clap::value_parser!(u64).range(0..=1_000_000_000))]
+    pub min_body_rate: u64,
     /// Connections served at once (open WebSockets included); further clients wait to be
     /// accepted.
     #[arg(long, env = "BDFT_MAX_CONNECTIONS", default_value_t = 512, value_parser = clap::value_parser!(u64).range(8..=65_536))]
     pub max_connections: u64,
+    /// Connections one client address may hold at once (open WebSockets included): one more
+    /// is answered 429 with Retry-After and closed, so one address cannot take every slot of
+    /// --max-connections. Every client behind one proxy or NAT shares one address.
+    #[arg(long, env = "BDFT_MAX_CONNECTIONS_PER_ADDRESS", default_value_t = 128, value_parser = clap::value_parser!(u64).range(1..=65_536))]
+    pub max_connections_per_address: u64,
+    /// Stations one client address may register per minute (`POST /api/station/register`,
+    /// anonymous): more are answered 429 with Retry-After.
+    #[arg(long, env = "BDFT_STATION_REGISTRATIONS_PER_MINUTE", default_value_t = PairingLimits::default().per_minute as u32, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    pub station_registrations_per_minute: u32,
+    /// Pairing codes one client address may have shown at once (of the server's 256): its
+    /// next registration withdraws its oldest code, so one address cannot take them all.
+    #[arg(long, env = "BDFT_PAIRING_CODES_PER_ADDRESS", default_value_t = PairingLimits::default().codes_per_address as u32, value_parser = clap::value_parser!(u32).range(1..=MAX_PENDING as i64))]
+    pub pairing_codes_per_address: u32,
 }
 
 impl ConnectionConfig {
     pub fn header_timeout(&self) -> Duration {
         Duration::from_millis(self.header_timeout_ms)
+    }
+
+    pub fn body_timeout(&self) -> Duration {
+        Duration::from_millis(self.body_timeout_ms)
+    }
+
+    pub fn pairing_limits(&self) -> PairingLimits {
+        PairingLimits {
+            per_minute: self.station_registrations_per_minute as usize,
+            codes_per_address: self.pairing_codes_per_address as usize,
+        }
     }
 }
 

@@ -22,9 +22,13 @@ pub enum AppError {
     /// Not allowed in the current state (or another user changed it first).
     #[error("{0}")]
     Conflict(String),
-    /// Asked too often; the message says the limit.
-    #[error("{0}")]
-    TooManyRequests(String),
+    /// Asked too often; the message says the limit, `retry_after` when asking again can
+    /// succeed (sent as the `Retry-After` header).
+    #[error("{message}")]
+    TooManyRequests {
+        message: String,
+        retry_after: std::time::Duration,
+    },
     #[error("the request body is too large")]
     TooLarge,
     /// Something the request needs (the controller, the database) cannot serve it now.
@@ -35,6 +39,14 @@ pub enum AppError {
 }
 
 pub type Result<T, E = AppError> = std::result::Result<T, E>;
+
+/// A wait in whole seconds, as `Retry-After` and the messages that go with it say it:
+/// rounded up, and at least 1 (0 would invite asking again at once, before a limit has
+/// freed anything).
+pub fn whole_seconds(wait: std::time::Duration) -> u64 {
+    let secs = wait.as_secs() + u64::from(wait.subsec_nanos() > 0);
+    secs.max(1)
+}
 
 impl AppError {
     /// The words of the error with the inner cause of an internal one (which a user is only

@@ -4,6 +4,7 @@ mod accounts;
 mod audit_chain;
 mod backups;
 mod bids;
+mod bounded_clients;
 mod browser;
 mod calibration;
 mod contention;

@@ -7,7 +7,10 @@
 use std::time::{Duration, Instant};
 
 use bdft_tests::TempDir;
-use bdft_tests::server::{self, Api, Server, eventually, pair_station, short_study};
+use bdft_tests::raw;
+use bdft_tests::server::{
+    self, ADMIN_PASSWORD, Api, Server, eventually, pair_station, short_study,
+};
 use bdft_tests::station::{self, Socket, read_timeout};
 use bdft_tests::webdriver::Driver;
 use serde_json::{Value, json};
@@ -230,7 +233,16 @@ fn dashboard_socket(server: &Server, api: &Api) -> Socket {
 
 #[test]
 fn closed_sockets_give_back_their_file_descriptors() {
-    let server = Server::start("station-fds");
+    // 40 stations registered within seconds from this one address.
+    let server = Server::start_with(
+        "station-fds",
+        &[
+            "--admin-password",
+            ADMIN_PASSWORD,
+            "--station-registrations-per-minute",
+            "100",
+        ],
+    );
     let api = server.experimenter();
     let study = short_study(&api, 60.0, 60.0);
     const N: usize = 40;
@@ -327,16 +339,32 @@ fn pairing_codes_are_bounded_and_a_waiting_station_learns_of_its_pairing_at_once
         body["error"].as_str().unwrap().contains("register again"),
         "{body}"
     );
-    // The codes shown at once are bounded; the refusal says why and what to do.
-    // (Each from its own client, as each station is its own browser.)
-    let shown = (0..300)
-        .map(|_| Api::anonymous(&server.base).post("/api/station/register", json!({})))
-        .take_while(|(status, _)| *status == 200)
+    // The codes shown at once are bounded; the refusal says why and what to do. One address
+    // shows at most 16 (`bounded_clients`), so sixteen stations' addresses (127.0.0.10 to
+    // .25) register 16 each (the code above was paired: it is no longer shown).
+    let register = |n: u8| {
+        raw::request(
+            raw::loopback(n),
+            server.proc.addr,
+            "POST",
+            "/api/station/register",
+            &[],
+            Some("{}"),
+        )
+        .unwrap()
+    };
+    let shown = (10..26)
+        .flat_map(|n| (0..16).map(move |_| n))
+        .map(register)
+        .take_while(|a| a.status == 200)
         .count();
     assert_eq!(shown, 256);
-    let (status, body) = Api::anonymous(&server.base).post("/api/station/register", json!({}));
-    assert_eq!(status, 503, "{body}");
-    assert!(body["error"].as_str().unwrap().contains("expire"), "{body}");
+    let refused = register(26);
+    assert_eq!(refused.status, 503, "{refused:?}");
+    assert!(
+        refused.json()["error"].as_str().unwrap().contains("expire"),
+        "{refused:?}"
+    );
 }
 
 #[test]

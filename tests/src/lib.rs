@@ -150,6 +150,7 @@ pub mod audit_chain;
 pub mod controller_link;
 pub mod exports;
 pub mod postgres;
+pub mod raw;
 pub mod server;
 pub mod soak;
 pub mod station;

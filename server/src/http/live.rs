@@ -96,10 +96,11 @@ async fn station_ws(
 ) -> Result<Response, AppError> {
     // Refused before the upgrade: a station opening socket after socket (each replacing the
     // last) costs no query a try once it is over the limit.
-    let too_many = || {
-        AppError::TooManyRequests(format!(
+    let too_many = || AppError::TooManyRequests {
+        message: format!(
             "this station opened too many sockets: at most {OPENINGS_PER_SECOND} a second after the first few"
-        ))
+        ),
+        retry_after: Duration::from_secs(1),
     };
     if s.sockets.known_over_limit(&q.token, Instant::now()) {
         return Err(too_many());

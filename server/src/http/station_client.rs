@@ -2,7 +2,10 @@
 //! to it): registering for a pairing code and waiting to be paired, what to show now,
 //! consent, surveys and the display's timing figures.
 
-use axum::extract::State;
+use std::net::SocketAddr;
+use std::time::Instant;
+
+use axum::extract::{ConnectInfo, State};
 use bdft_protocol::browser_to_server::{ConsentRequest, SurveySubmission, TimingReport};
 use bdft_protocol::server_to_browser::StationView;
 use serde::{Deserialize, Serialize};
@@ -10,7 +13,7 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::error::{ApiResult, AppError, AppJson, Done};
+use super::error::{ApiResult, AppError, AppJson, Done, ErrorBody};
 use super::extract::StationAuth;
 use crate::engine::procedure::stations::{PAIRING_WAIT, PairingState};
 use crate::engine::procedure::{stations, subjects};
@@ -40,11 +43,20 @@ pub struct Registered {
     pub pairing_code: String,
 }
 
-/// Register this browser as a station: a token and a pairing code to show (503 while too
-/// many codes are shown).
-#[utoipa::path(post, path = "/api/station/register", tag = "station", responses((status = 200, body = Registered)))]
-async fn register(State(s): State<AppState>) -> ApiResult<Registered> {
-    let (token, pairing_code) = s.pairing.register()?;
+/// Register this browser as a station: a token and a pairing code to show. 429 with
+/// Retry-After past an address's registrations per minute; an address showing its most codes
+/// at once has its oldest withdrawn; 503 while the server shows all the codes it keeps.
+#[utoipa::path(post, path = "/api/station/register", tag = "station", responses(
+    (status = 200, body = Registered),
+    (status = 429, body = ErrorBody, description = "too many registrations from this address; Retry-After says when to ask again"),
+    (status = 503, body = ErrorBody, description = "the server shows all the pairing codes it keeps")))]
+async fn register(
+    State(s): State<AppState>,
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+) -> ApiResult<Registered> {
+    let (token, pairing_code) = s
+        .pairing
+        .register(peer.ip().to_canonical(), Instant::now())?;
     Ok(AppJson(Registered {
         token,
         pairing_code,

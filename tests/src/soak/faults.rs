@@ -27,6 +27,7 @@ impl Soak {
             | FaultKind::StationOffline
             | FaultKind::StationHidden
             | FaultKind::StationFlood => self.break_station(f, n),
+            FaultKind::SlowClients => self.slow_clients(f, n),
         }
     }
 
@@ -426,6 +427,125 @@ impl Soak {
                 f.kind.name()
             ));
         }
+    }
+}
+
+/// Connections of the slow-clients fault: slow request bodies and idle ones, from one
+/// address that is not the lab's (`SLOW_CLIENTS_FROM`).
+const SLOW_BODIES: usize = 150;
+const IDLE_CONNECTIONS: usize = 150;
+/// 127.0.0.2: another machine as the server's per-address limits see it.
+const SLOW_CLIENTS_FROM: u8 = 2;
+/// How long the slow clients keep at it: past the server's body deadline (10 s).
+const SLOW_CLIENTS_FOR: Duration = Duration::from_secs(13);
+
+impl Soak {
+    /// Another address opens slow request bodies (a login announcing 100,000 bytes, then a
+    /// byte every 500 ms) and idle connections while the lab works; the dashboard's API is
+    /// timed meanwhile. Every slow body must have been answered (408, or 429 past the
+    /// address's connections) or closed by the end; the tests running go on.
+    fn slow_clients(&mut self, f: Fault, n: usize) {
+        use std::io::Write;
+        let affected = self.running_with(WAIT_FOR_A_TEST, 1.5);
+        let now = wall_ms();
+        self.fault(
+            f,
+            n,
+            &affected,
+            json!({ "slow": SLOW_BODIES, "idle": IDLE_CONNECTIONS,
+                "window_ms": [now, now + SLOW_CLIENTS_FOR.as_millis() as i64] }),
+            "the lab is served meanwhile (API, stations, the tests running complete); each slow body is answered 408 within the body deadline, or 429 past the address's connections",
+        );
+        let from = crate::raw::loopback(SLOW_CLIENTS_FROM);
+        let to = self.server.proc.addr;
+        let head = crate::raw::head(
+            "POST",
+            "/api/login",
+            &[("content-type", "application/json")],
+            Some(100_000),
+        );
+        let mut slow: Vec<std::net::TcpStream> = Vec::new();
+        let mut failed_to_open = 0;
+        for _ in 0..SLOW_BODIES {
+            match crate::raw::connect_from(from, to).and_then(|mut s| {
+                s.write_all(head.as_bytes())?;
+                s.set_nonblocking(true)?;
+                Ok(s)
+            }) {
+                Ok(s) => slow.push(s),
+                Err(_) => failed_to_open += 1,
+            }
+        }
+        let idle: Vec<std::net::TcpStream> = (0..IDLE_CONNECTIONS)
+            .filter_map(|_| crate::raw::connect_from(from, to).ok())
+            .collect();
+        let began = Instant::now();
+        let (mut api_max_ms, mut api_failed, mut asked) = (0.0f64, 0usize, 0usize);
+        let mut answered: Vec<Option<u16>> = vec![None; slow.len()];
+        let mut last_byte = Instant::now();
+        self.wait_until(SLOW_CLIENTS_FOR + Duration::from_secs(1), |s| {
+            // A byte on every slow body still open, every 500 ms.
+            if last_byte.elapsed() >= Duration::from_millis(500) {
+                last_byte = Instant::now();
+                for (sock, a) in slow.iter_mut().zip(&answered) {
+                    if a.is_none() {
+                        let _ = sock.write(b" ");
+                    }
+                }
+            }
+            for (sock, a) in slow.iter_mut().zip(answered.iter_mut()) {
+                if a.is_none() {
+                    *a = status_or_close(sock);
+                }
+            }
+            let t = Instant::now();
+            asked += 1;
+            match s.api.try_call("GET", "/api/controller", None) {
+                Ok((200, _)) => api_max_ms = api_max_ms.max(ms(t)),
+                _ => api_failed += 1,
+            }
+            began.elapsed() >= SLOW_CLIENTS_FOR
+        });
+        let count = |code: u16| answered.iter().filter(|a| **a == Some(code)).count();
+        let closed = answered.iter().filter(|a| **a == Some(0)).count();
+        let still_open = answered.iter().filter(|a| a.is_none()).count();
+        drop((slow, idle));
+        self.outcome(
+            f,
+            n,
+            json!({ "answered_408": count(408), "answered_429": count(429), "closed_unanswered": closed,
+                "still_open": still_open, "failed_to_open": failed_to_open,
+                "api_asked": asked, "api_failed": api_failed, "api_max_ms": api_max_ms }),
+        );
+        if still_open > 0 {
+            self.journal.violation(format!(
+                "{still_open} slow request bodies were still open {SLOW_CLIENTS_FOR:?} after they began (the body deadline is 10 s)"
+            ));
+        }
+        if api_failed > 0 {
+            self.journal.violation(format!(
+                "{api_failed} of {asked} API calls failed while another address held slow bodies and idle connections"
+            ));
+        }
+    }
+}
+
+/// The status of the answer on a non-blocking `sock` if one came (0: closed without one),
+/// `None` while it is open and silent.
+fn status_or_close(sock: &mut std::net::TcpStream) -> Option<u16> {
+    use std::io::Read;
+    let mut buf = [0u8; 512];
+    match sock.read(&mut buf) {
+        Ok(0) => Some(0),
+        Ok(n) => Some(
+            std::str::from_utf8(&buf[..n])
+                .ok()
+                .and_then(|t| t.get(9..12))
+                .and_then(|c| c.parse().ok())
+                .unwrap_or(0),
+        ),
+        Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => None,
+        Err(_) => Some(0),
     }
 }
 

@@ -28,10 +28,12 @@ pub enum FaultKind {
     StationHidden,
     /// A station's page sending input as fast as it can.
     StationFlood,
+    /// Another client address holding slow request bodies and idle connections.
+    SlowClients,
 }
 
 impl FaultKind {
-    pub const ALL: [Self; 9] = [
+    pub const ALL: [Self; 10] = [
         Self::ServerRestart,
         Self::DiskFull,
         Self::StoreHeld,
@@ -41,6 +43,7 @@ impl FaultKind {
         Self::StationOffline,
         Self::StationHidden,
         Self::StationFlood,
+        Self::SlowClients,
     ];
 
     /// About how long injecting the fault and its recovery take (s): the plan leaves this
@@ -49,6 +52,7 @@ impl FaultKind {
         match self {
             Self::ServerRestart | Self::DiskFull => 8.0,
             Self::StoreHeld => 10.0,
+            Self::SlowClients => 14.0,
             Self::ControllerKill | Self::ControllerStop => 3.0,
             _ => 4.0,
         }
@@ -65,6 +69,7 @@ impl FaultKind {
             Self::StationOffline => "station-offline",
             Self::StationHidden => "station-hidden",
             Self::StationFlood => "station-flood",
+            Self::SlowClients => "slow-clients",
         }
     }
 }

@@ -587,6 +587,12 @@ fn check_faults(journal: &Journal, trials: &Rows, v: &mut Vec<String>, figures: 
                 "station-hidden" => (status == "complete" && overlap > 1200).then(|| {
                     format!("filed complete though its page was hidden for {overlap} ms of it")
                 }),
+                // Another address's slow clients must not cost a test of the lab's.
+                "slow-clients" => (status != "complete").then(|| {
+                    format!(
+                        "not filed complete while another address held slow bodies ({overlap} ms of it)"
+                    )
+                }),
                 _ => None,
             };
             if let Some(why) = bad {

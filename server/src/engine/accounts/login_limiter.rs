@@ -83,9 +83,14 @@ impl LoginLimiter {
         self.state.lock().unwrap_or_else(|p| p.into_inner())
     }
 
-    /// Counts an attempt of `username` from `addr` at `now`, or `None` when a limit is
-    /// reached (or the limiter is full).
-    pub fn reserve(&self, username: &str, addr: IpAddr, now: Instant) -> Option<Reservation> {
+    /// Counts an attempt of `username` from `addr` at `now`; when a limit is reached (or the
+    /// limiter is full), how long until an attempt can be counted again.
+    pub fn reserve(
+        &self,
+        username: &str,
+        addr: IpAddr,
+        now: Instant,
+    ) -> Result<Reservation, Duration> {
         let window = self.limits.window;
         let live = |t: &Instant| now.saturating_duration_since(*t) < window;
         let mut state = self.state();
@@ -105,7 +110,8 @@ impl LoginLimiter {
             .filter(|k| !state.attempts.contains_key(**k))
             .count();
         if state.attempts.len() + new_keys > MAX_KEYS {
-            return None;
+            // The next sweep, a window after the last, frees the expired keys.
+            return Err((state.last_sweep + window).saturating_duration_since(now));
         }
         for (key, limit) in [
             (&user_at, self.limits.per_user_address),
@@ -114,7 +120,9 @@ impl LoginLimiter {
             if let Some(times) = state.attempts.get_mut(key) {
                 times.retain(live);
                 if times.len() >= limit {
-                    return None;
+                    // Free again when the oldest attempt leaves the window.
+                    let oldest = times.front().copied().unwrap_or(now);
+                    return Err((oldest + window).saturating_duration_since(now));
                 }
             }
         }
@@ -125,7 +133,7 @@ impl LoginLimiter {
                 .or_default()
                 .push_back(now);
         }
-        Some(Reservation {
+        Ok(Reservation {
             user_at,
             address,
             at: now,
@@ -166,19 +174,27 @@ mod tests {
     fn attempts_are_counted_when_reserved_per_user_and_per_address() {
         let l = LoginLimiter::default();
         let t0 = Instant::now();
-        let held: Vec<_> = (0..5).filter_map(|_| l.reserve("ann", ip(1), t0)).collect();
+        let held: Vec<_> = (0..5)
+            .filter_map(|_| l.reserve("ann", ip(1), t0).ok())
+            .collect();
         assert_eq!(held.len(), 5);
-        assert!(l.reserve("ann", ip(1), t0).is_none(), "6th for ann@1");
-        assert!(l.reserve("ann", ip(2), t0).is_some(), "another address");
+        assert!(l.reserve("ann", ip(1), t0).is_err(), "6th for ann@1");
+        // Refused until the oldest attempt leaves the window.
+        assert_eq!(
+            l.reserve("ann", ip(1), t0 + Duration::from_secs(10))
+                .unwrap_err(),
+            Duration::from_secs(50)
+        );
+        assert!(l.reserve("ann", ip(2), t0).is_ok(), "another address");
         // The address limit holds across usernames: 5 (ann) + 15 more names, then none.
         let names: Vec<_> = (0..20)
-            .filter_map(|i| l.reserve(&format!("user{i}"), ip(1), t0))
+            .filter_map(|i| l.reserve(&format!("user{i}"), ip(1), t0).ok())
             .collect();
         assert_eq!(names.len(), 15);
         // A window later everything is free again.
         assert!(
             l.reserve("ann", ip(1), t0 + Duration::from_secs(60))
-                .is_some()
+                .is_ok()
         );
     }
 
@@ -192,7 +208,9 @@ mod tests {
         let ok = l.reserve("ann", ip(1), t0).unwrap();
         l.succeeded(ok);
         assert_eq!(
-            (0..10).filter_map(|_| l.reserve("ann", ip(1), t0)).count(),
+            (0..10)
+                .filter_map(|_| l.reserve("ann", ip(1), t0).ok())
+                .count(),
             5,
             "ann's failures were forgotten at her login"
         );
@@ -210,19 +228,20 @@ mod tests {
         let mut taken = 0;
         for i in 0..MAX_KEYS {
             let addr = IpAddr::from(std::net::Ipv6Addr::from(i as u128));
-            if l.reserve("x", addr, t0).is_some() {
+            if l.reserve("x", addr, t0).is_ok() {
                 taken += 1;
             }
         }
         assert_eq!(taken, MAX_KEYS / 2);
         assert_eq!(l.keys(), MAX_KEYS);
-        assert!(
-            l.reserve("y", ip(1), t0).is_none(),
-            "full: refused, not evicted"
+        assert_eq!(
+            l.reserve("y", ip(1), t0).unwrap_err(),
+            Duration::from_secs(60),
+            "full: refused until the next sweep, not evicted"
         );
         // After the window the expired keys are swept and room is back.
         let later = t0 + Duration::from_secs(61);
-        assert!(l.reserve("y", ip(1), later).is_some());
+        assert!(l.reserve("y", ip(1), later).is_ok());
         assert_eq!(l.keys(), 2);
     }
 }

@@ -328,8 +328,9 @@ pub async fn login(
     }
     let reservation = limiter
         .reserve(username, peer, Instant::now())
-        .ok_or_else(|| {
-            AppError::TooManyRequests("too many attempts; wait a minute and try again".into())
+        .map_err(|retry_after| AppError::TooManyRequests {
+            message: "too many attempts; wait a minute and try again".into(),
+            retry_after,
         })?;
     let row = store::accounts::credentials(pool, username).await?;
     // Verify against a dummy hash for unknown users too, so timing does not reveal names.

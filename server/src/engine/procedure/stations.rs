@@ -1,7 +1,8 @@
 //! Stations: pairing a browser by the code it shows, assigning a subject, and what a station
 //! shows now — the subject's view (blinded) and the experimenter's view of it.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
+use std::net::IpAddr;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
@@ -36,22 +37,60 @@ pub const MAX_PENDING: usize = 256;
 /// yet" (the page asks again): below the usual 30 to 60 s proxy timeouts.
 pub const PAIRING_WAIT: Duration = Duration::from_secs(25);
 
+/// What one client address may ask of the anonymous register endpoint.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PairingLimits {
+    /// Registrations per minute from one address; more are refused (429).
+    pub per_minute: usize,
+    /// Codes one address has shown at once; its next registration withdraws its oldest, so
+    /// one address never holds more than this of the [`MAX_PENDING`].
+    pub codes_per_address: usize,
+}
+
+impl Default for PairingLimits {
+    fn default() -> Self {
+        Self {
+            per_minute: 20,
+            codes_per_address: 16,
+        }
+    }
+}
+
+/// The window of [`PairingLimits::per_minute`].
+const REGISTRATION_WINDOW: Duration = Duration::from_secs(60);
+/// Addresses whose registrations of the last minute are remembered at most: past it (after
+/// a sweep) a new address is refused until the window frees room, rather than forgetting an
+/// address that is over its limit.
+const MAX_ADDRESSES: usize = 4096;
+
 /// A station that shows a code and waits for the experimenter.
 #[derive(Debug)]
 struct Pending {
     token: String,
     shown_at: Instant,
+    /// The address that registered it.
+    from: IpAddr,
 }
 
 /// Stations that showed a pairing code and wait for the experimenter: code → token.
 /// Kept in memory: a code is good for an hour or until the server restarts. Bounded by
-/// [`MAX_PENDING`]; waiters for a pairing are bounded by the same number.
+/// [`MAX_PENDING`], and per client address by [`PairingLimits`]; waiters for a pairing are
+/// bounded by the same number.
 #[derive(Debug, Default)]
 pub struct Pairing {
-    pending: Mutex<HashMap<String, Pending>>,
+    limits: PairingLimits,
+    codes: Mutex<Codes>,
     /// Woken at every pairing: the stations waiting look whether it was theirs.
     paired: tokio::sync::Notify,
     waiting: std::sync::atomic::AtomicUsize,
+}
+
+#[derive(Debug, Default)]
+struct Codes {
+    pending: HashMap<String, Pending>,
+    /// Each address's registrations of the last [`REGISTRATION_WINDOW`], oldest first.
+    registered: HashMap<IpAddr, VecDeque<Instant>>,
+    last_sweep: Option<Instant>,
 }
 
 /// Where a station that registered stands.
@@ -67,33 +106,99 @@ pub enum PairingState {
 }
 
 impl Pairing {
-    fn pending(&self) -> std::sync::MutexGuard<'_, HashMap<String, Pending>> {
-        self.pending.lock().unwrap_or_else(|p| p.into_inner())
+    pub fn new(limits: PairingLimits) -> Self {
+        Self {
+            limits,
+            ..Self::default()
+        }
     }
 
-    /// A new station's (bearer token, pairing code); refused while [`MAX_PENDING`] codes
-    /// are shown.
-    pub fn register(&self) -> Result<(String, String)> {
-        let token = store::tokens::random_token();
-        let mut pending = self.pending();
-        pending.retain(|_, p| p.shown_at.elapsed() < CODE_LIFETIME);
-        if pending.len() >= MAX_PENDING {
+    fn codes(&self) -> std::sync::MutexGuard<'_, Codes> {
+        self.codes.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// A new station's (bearer token, pairing code), registered from `from` at `now`;
+    /// refused (429, with when to ask again) past the address's registrations per minute,
+    /// and (503) while [`MAX_PENDING`] codes are shown. An address showing its limit of
+    /// codes has its oldest withdrawn (that page, waiting, is told to register again).
+    pub fn register(&self, from: IpAddr, now: Instant) -> Result<(String, String)> {
+        let limits = self.limits;
+        let mut codes = self.codes();
+        let codes = &mut *codes;
+        codes
+            .pending
+            .retain(|_, p| now.saturating_duration_since(p.shown_at) < CODE_LIFETIME);
+        let live = |t: &Instant| now.saturating_duration_since(*t) < REGISTRATION_WINDOW;
+        if codes
+            .last_sweep
+            .is_none_or(|t| now.saturating_duration_since(t) >= REGISTRATION_WINDOW)
+            || codes.registered.len() >= MAX_ADDRESSES
+        {
+            codes.registered.retain(|_, times| {
+                times.retain(live);
+                !times.is_empty()
+            });
+            codes.last_sweep = Some(now);
+        }
+        if !codes.registered.contains_key(&from) && codes.registered.len() >= MAX_ADDRESSES {
+            return Err(AppError::TooManyRequests {
+                message: format!(
+                    "stations were registered from {MAX_ADDRESSES} addresses within a minute, \
+                     the most the server remembers: try again in a minute"
+                ),
+                retry_after: REGISTRATION_WINDOW,
+            });
+        }
+        let times = codes.registered.entry(from).or_default();
+        times.retain(live);
+        if times.len() >= limits.per_minute {
+            let oldest = times.front().copied().unwrap_or(now);
+            let retry_after = (oldest + REGISTRATION_WINDOW).saturating_duration_since(now);
+            return Err(AppError::TooManyRequests {
+                message: format!(
+                    "{} stations were registered from this address within a minute, the most it may \
+                     (--station-registrations-per-minute): try again in {} s",
+                    limits.per_minute,
+                    crate::error::whole_seconds(retry_after),
+                ),
+                retry_after,
+            });
+        }
+        let mine: Vec<(&String, Instant)> = codes
+            .pending
+            .iter()
+            .filter(|(_, p)| p.from == from)
+            .map(|(code, p)| (code, p.shown_at))
+            .collect();
+        if mine.len() >= limits.codes_per_address {
+            let oldest = mine
+                .iter()
+                .min_by_key(|(_, at)| *at)
+                .map(|(code, _)| (*code).clone());
+            if let Some(code) = oldest {
+                codes.pending.remove(&code);
+            }
+        }
+        if codes.pending.len() >= MAX_PENDING {
             return Err(AppError::Unavailable(format!(
                 "{MAX_PENDING} stations already show a pairing code: pair them, or wait until \
                  their codes expire (an hour after they were shown)"
             )));
         }
+        times.push_back(now);
+        let token = store::tokens::random_token();
         let code = loop {
             let code = new_code();
-            if !pending.contains_key(&code) {
+            if !codes.pending.contains_key(&code) {
                 break code;
             }
         };
-        pending.insert(
+        codes.pending.insert(
             code.clone(),
             Pending {
                 token: token.clone(),
-                shown_at: Instant::now(),
+                shown_at: now,
+                from,
             },
         );
         Ok((token, code))
@@ -105,17 +210,20 @@ impl Pairing {
     /// is committed ([`Self::forget`]): a station waiting meanwhile sees it pending or
     /// paired, never unknown, and a failed pairing loses no code.
     fn token_of(&self, code: &str) -> Option<String> {
-        let mut pending = self.pending();
-        pending.retain(|_, p| p.shown_at.elapsed() < CODE_LIFETIME);
-        pending.get(code).map(|p| p.token.clone())
+        let mut codes = self.codes();
+        codes
+            .pending
+            .retain(|_, p| p.shown_at.elapsed() < CODE_LIFETIME);
+        codes.pending.get(code).map(|p| p.token.clone())
     }
 
     fn forget(&self, code: &str) {
-        self.pending().remove(code);
+        self.codes().pending.remove(code);
     }
 
     fn is_pending(&self, token: &str) -> bool {
-        self.pending()
+        self.codes()
+            .pending
             .values()
             .any(|p| p.token == token && p.shown_at.elapsed() < CODE_LIFETIME)
     }
@@ -508,4 +616,54 @@ pub fn subject_of(station: &Station) -> Result<i64> {
     station
         .subject_id
         .ok_or_else(|| AppError::Conflict("no subject is assigned to this station".into()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ip(last: u8) -> IpAddr {
+        IpAddr::from([10, 0, 0, last])
+    }
+
+    #[test]
+    fn one_address_registers_at_most_its_limit_a_minute_and_shows_at_most_its_codes() {
+        let pairing = Pairing::new(PairingLimits {
+            per_minute: 5,
+            codes_per_address: 3,
+        });
+        let t0 = Instant::now();
+        let codes: Vec<String> = (0..5)
+            .map(|i| {
+                pairing
+                    .register(ip(1), t0 + Duration::from_secs(i))
+                    .unwrap()
+                    .1
+            })
+            .collect();
+        // Refused until the first registration leaves the minute.
+        let later = t0 + Duration::from_secs(20);
+        match pairing.register(ip(1), later) {
+            Err(AppError::TooManyRequests {
+                message,
+                retry_after,
+            }) => {
+                assert_eq!(retry_after, Duration::from_secs(40));
+                assert!(message.contains("try again in 40 s"), "{message}");
+            }
+            other => panic!("{other:?}"),
+        }
+        // Its three newest codes are shown, the two oldest withdrawn.
+        let shown = |code: &str| pairing.token_of(code).is_some();
+        assert!(!shown(&codes[0]) && !shown(&codes[1]));
+        assert!(codes[2..].iter().all(|c| shown(c)));
+        // Another address is not limited by the first's registrations.
+        assert!(pairing.register(ip(2), later).is_ok());
+        // A minute after the first registration, the first address may again.
+        assert!(
+            pairing
+                .register(ip(1), t0 + Duration::from_secs(60))
+                .is_ok()
+        );
+    }
 }
