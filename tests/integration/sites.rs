@@ -313,7 +313,8 @@ fn site_arguments_that_cannot_work_are_refused_at_start() {
 }
 
 /// The dashboard of a server with two sites: each site's link and latch with its own stop
-/// and reset beside the button that stops them all, and the pairing form asking for the site.
+/// and reset beside the button that stops them all, the pairing form asking for the site,
+/// and the Accounts section ticking the sites an account may drive.
 #[test]
 fn in_chromium_the_dashboard_stops_and_resets_one_site() {
     let server = two_sites("sites-dashboard");
@@ -365,6 +366,51 @@ fn in_chromium_the_dashboard_stops_and_resets_one_site() {
         "return !document.querySelector(arguments[0]).classList.contains('alarm');",
         json!([row("lab-b")]),
     );
+
+    // The Accounts section ticks the sites an account may drive: at creation, and later.
+    dash.wait_until(
+        "return !document.getElementById('account-sites').hidden && document.querySelectorAll('#account-sites input').length === 2;",
+        json!([]),
+    );
+    dash.type_into("#account-username", "carol");
+    dash.type_into("#account-password", ADMIN_PASSWORD);
+    dash.click("#account-sites input[value='lab-b']");
+    dash.click("#account-create");
+    let carol = eventually(Duration::from_secs(10), || {
+        let (_, list) = api.get("/api/accounts");
+        list.as_array()?
+            .iter()
+            .find(|a| a["username"] == "carol")
+            .cloned()
+    });
+    assert_eq!(carol["sites"], json!(["lab-b"]), "{carol}");
+    let id = carol["id"].as_i64().unwrap();
+    let boxes = format!("#accounts td[data-sites-of='{id}']");
+    dash.wait_until(
+        "return document.querySelector(arguments[0] + \" input[value='lab-b']\")?.checked ? true : null;",
+        json!([boxes]),
+    );
+    dash.screenshot(&artifacts_dir().join("sites-dashboard-accounts.png"));
+    dash.click(&format!("{boxes} input[value='lab-a']"));
+    dash.click(&format!("{boxes} button[data-action='sites']"));
+    eventually(Duration::from_secs(10), || {
+        let (_, list) = api.get("/api/accounts");
+        let sites = list.as_array()?.iter().find(|a| a["id"] == id)?["sites"].clone();
+        (sites == json!(["lab-a", "lab-b"])).then_some(())
+    });
+    // None ticked: every site.
+    dash.wait_until(
+        "return document.querySelector(arguments[0] + \" input[value='lab-a']\")?.checked ? true : null;",
+        json!([boxes]),
+    );
+    dash.click(&format!("{boxes} input[value='lab-a']"));
+    dash.click(&format!("{boxes} input[value='lab-b']"));
+    dash.click(&format!("{boxes} button[data-action='sites']"));
+    eventually(Duration::from_secs(10), || {
+        let (_, list) = api.get("/api/accounts");
+        let sites = list.as_array()?.iter().find(|a| a["id"] == id)?["sites"].clone();
+        sites.is_null().then_some(())
+    });
 }
 
 /// The error of a refusal (its status must be `code`).
