@@ -116,6 +116,7 @@ function render() {
         several
           ? [
               ...siteBoxes(a.id, a.sites, `Sites of ${a.username}`),
+              a.sites ? '' : el('span', { class: 'muted small' }, ' (every site)'),
               el('button', { type: 'button', class: 'small', 'data-action': 'sites', 'data-account-id': a.id, title: 'None ticked: every site' }, 'Set sites'),
             ]
           : sitesText(a.sites),
