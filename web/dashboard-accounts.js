@@ -1,5 +1,6 @@
-// Accounts (admins only; the server refuses everyone else): create an account with a role,
-// change a role, disable or enable an account. Also what each role may see: the dashboard
+// Accounts (admins only; the server refuses everyone else): create an account with a role
+// and, on a server of several sites, the sites whose machines it may drive; change a role or
+// the sites, disable or enable an account. Also what each role may see: the dashboard
 // hides what the logged-in role may not do (the server enforces it either way).
 
 import { S, act, el, get, post, setStatus, syncRows, when } from './dashboard-core.js';
@@ -50,10 +51,51 @@ export async function refresh() {
   render();
 }
 
+/** The server's site names (GET /api/controller). */
+function siteNames() {
+  return S.sites.map((x) => x.site);
+}
+
+/** A tick box per site, named `name`, ticked for `chosen` (null: none ticked, every site). */
+function siteBoxes(name, chosen, label) {
+  return siteNames().map((site) =>
+    el(
+      'label',
+      { class: 'nowrap' },
+      el('input', { type: 'checkbox', 'data-site-of': name, value: site, checked: !!(chosen && chosen.includes(site)), 'aria-label': `${label}: ${site}` }),
+      ` ${site}`,
+    ),
+  );
+}
+
+/** The ticked sites of the boxes named `name` within `root`: null when none (every site). */
+function tickedSites(root, name) {
+  const ticked = [...root.querySelectorAll(`input[data-site-of="${name}"]:checked`)].map((b) => b.value);
+  return ticked.length ? ticked : null;
+}
+
+function sitesText(sites) {
+  return sites ? sites.join(', ') : 'every site';
+}
+
+/** The form's site choice, shown only when the server serves several sites; the table's
+ *  site column follows. */
+export function showSites() {
+  const box = $('account-sites');
+  const names = siteNames();
+  const have = [...box.querySelectorAll('input')].map((b) => b.value);
+  if (have.join() !== names.join()) {
+    box.replaceChildren(box.querySelector('legend'), ...siteBoxes('new', null, 'New account may drive'));
+    if (S.role === 'admin') render();
+  }
+  box.hidden = names.length < 2;
+}
+
 function render() {
+  const several = siteNames().length > 1;
   syncRows($('accounts').tBodies[0], accounts, {
     key: (a) => a.id,
-    sig: (a) => JSON.stringify([a, S.user]),
+    sig: (a) => JSON.stringify([a, S.user, siteNames()]),
     attrs: (a) => ({ 'data-account-id': a.id, class: a.disabled_at ? 'withdrawn' : '' }),
     cells: (a) => [
       el('td', { class: 'num' }, a.id),
@@ -68,6 +110,17 @@ function render() {
         ),
         el('button', { type: 'button', class: 'small', 'data-action': 'role', 'data-account-id': a.id }, 'Change role'),
       ),
+      el(
+        'td',
+        { 'data-sites-of': a.id },
+        several
+          ? [
+              ...siteBoxes(a.id, a.sites, `Sites of ${a.username}`),
+              a.sites ? '' : el('span', { class: 'muted small' }, ' (every site)'),
+              el('button', { type: 'button', class: 'small', 'data-action': 'sites', 'data-account-id': a.id, title: 'None ticked: every site' }, 'Set sites'),
+            ]
+          : sitesText(a.sites),
+      ),
       el('td', {}, a.disabled_at ? `disabled ${when(Date.parse(a.disabled_at))}` : 'active'),
       el('td', { class: 'nowrap' }, when(Date.parse(a.created_at))),
       el(
@@ -78,7 +131,7 @@ function render() {
           : el('button', { type: 'button', class: 'small danger-outline', 'data-action': 'disable', 'data-account-id': a.id }, 'Disable…'),
       ),
     ],
-    empty: () => el('tr', {}, el('td', { colspan: 6, class: 'muted' }, 'No account.')),
+    empty: () => el('tr', {}, el('td', { colspan: 7, class: 'muted' }, 'No account.')),
   });
 }
 
@@ -87,12 +140,15 @@ async function create(ev) {
   const username = $('account-username').value.trim();
   const password = $('account-password').value;
   const role = $('account-role').value;
-  const r = await act(`Create account ${username}`, $('account-status'), () => post('/api/accounts', { username, password, role }), (a) =>
-    `${a.username} created (${ROLE_TEXT[a.role]})`,
+  const body = { username, password, role };
+  if (!$('account-sites').hidden) body.sites = tickedSites($('account-sites'), 'new');
+  const r = await act(`Create account ${username}`, $('account-status'), () => post('/api/accounts', body), (a) =>
+    `${a.username} created (${ROLE_TEXT[a.role]}; ${sitesText(a.sites)})`,
   );
   if (r.ok) {
     $('account-username').value = '';
     $('account-password').value = '';
+    for (const b of $('account-sites').querySelectorAll('input')) b.checked = false;
     await refresh();
   }
 }
@@ -107,6 +163,9 @@ async function onClick(e) {
   if (btn.dataset.action === 'role') {
     const role = $('accounts').querySelector(`select[data-role-of="${id}"]`).value;
     await act(`Role of ${a.username}`, status, () => post(`/api/accounts/${id}/role`, { role }), (x) => `${x.username} is now ${ROLE_TEXT[x.role]}`);
+  } else if (btn.dataset.action === 'sites') {
+    const sites = tickedSites($('accounts').querySelector(`td[data-sites-of="${id}"]`), id);
+    await act(`Sites of ${a.username}`, status, () => post(`/api/accounts/${id}/sites`, { sites }), (x) => `${x.username} may drive: ${sitesText(x.sites)}`);
   } else if (btn.dataset.action === 'disable') {
     const yes = await confirmAction({
       title: `Disable the account ${a.username}?`,

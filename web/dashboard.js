@@ -229,6 +229,7 @@ async function refreshController() {
     S.controller = { connected: !!r.data.connected, pid: r.data.pid, rig: r.data.rig };
     S.sites = Array.isArray(r.data.sites) ? r.data.sites : [];
     stations.showSites();
+    accounts.showSites();
     showSites();
     showController();
     showLatch(!!r.data.estop_latched);

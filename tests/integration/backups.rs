@@ -17,11 +17,12 @@
 
 use std::collections::BTreeSet;
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::{Command, Output, Stdio};
 use std::time::Duration;
 
+use bdft_tests::controller_link::Proc;
 use bdft_tests::exports::parse_csv;
-use bdft_tests::server::{ADMIN_PASSWORD, Server, eventually, short_study, with_db};
+use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, eventually, short_study, with_db};
 use bdft_tests::webdriver::{Driver, artifacts_dir};
 use bdft_tests::{TempDir, binary};
 use serde_json::{Value, json};
@@ -659,4 +660,91 @@ fn on_postgresql_backups_and_restores_are_refused_naming_its_own_tools() {
     assert!(body.to_string().contains(tools), "{body}");
     // The study data is still there to read.
     assert_eq!(api.get("/api/studies").0, 200);
+}
+
+/// A backup directory or file given relative to the working directory, two levels up
+/// (`../../x`), is where the backups go: the path is not collapsed on its way to SQLite
+/// (it was: `sqlite://../../x` read as the host `..` and the path `/../x`, which a URL
+/// shortens to `/x`, so every check of a new backup looked for `../x` and failed).
+#[test]
+fn relative_backup_paths_two_levels_up_work() {
+    let root = TempDir::new("backups-relative");
+    let cwd = root.path().join("a").join("b");
+    std::fs::create_dir_all(&cwd).unwrap();
+    std::fs::create_dir_all(root.path().join("x")).unwrap();
+    let db = root.path().join("bdft-lab.db");
+
+    // The server's --backup-dir: "Back up now" answers the manifest, the file is there.
+    let proc = Proc::try_spawn_in(
+        Some(&cwd),
+        "bdft-server",
+        &[
+            "serve",
+            "--listen",
+            "127.0.0.1:0",
+            "--db",
+            path(&db),
+            "--admin-password",
+            ADMIN_PASSWORD,
+            "--backup-dir",
+            "../../x",
+        ],
+        "bdft-lab server on http://",
+        Stdio::inherit(),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let mut api = Api::anonymous(&format!("http://{}", proc.addr));
+    let (code, login) = api.post(
+        "/api/login",
+        json!({ "username": "admin", "password": ADMIN_PASSWORD }),
+    );
+    assert_eq!(code, 200, "{login}");
+    api.csrf = login["csrf"].as_str().map(str::to_string);
+    // The schedule's first backup, at start (it failed, and so would every later one).
+    let first = eventually(Duration::from_secs(60), || {
+        let (_, audit) = api.get("/api/audit?limit=100");
+        audit
+            .as_array()?
+            .iter()
+            .find(|r| {
+                r["actor"] == "system:backup-schedule"
+                    && r["action"]
+                        .as_str()
+                        .is_some_and(|a| a.starts_with("backup."))
+            })
+            .cloned()
+    });
+    assert_eq!(first["action"], "backup.create", "{first}");
+    let (code, manifest) = api.post("/api/backups", json!({}));
+    assert_eq!(code, 200, "{manifest}");
+    let file = manifest["file"].as_str().unwrap();
+    assert!(root.path().join("x").join(file).is_file(), "{manifest}");
+    let (_, listed) = api.get("/api/backups");
+    assert_eq!(listed["backups"].as_array().unwrap().len(), 2, "{listed}");
+    drop(proc);
+
+    // `bdft-server backup --out ../../x/by-hand.db`, and its restore from there.
+    let out = Command::new(binary("bdft-server"))
+        .current_dir(&cwd)
+        .args(["backup", "--db", path(&db), "--out", "../../x/by-hand.db"])
+        .output()
+        .unwrap();
+    ok(out, "backup --out ../../x/by-hand.db");
+    assert!(root.path().join("x").join("by-hand.db").is_file());
+    let out = Command::new(binary("bdft-server"))
+        .current_dir(&cwd)
+        .args([
+            "restore",
+            "--from",
+            "../../x/by-hand.db",
+            "--db",
+            "../../restored.db",
+        ])
+        .output()
+        .unwrap();
+    ok(
+        out,
+        "restore --from ../../x/by-hand.db --db ../../restored.db",
+    );
+    assert!(root.path().join("restored.db").is_file());
 }

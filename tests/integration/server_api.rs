@@ -757,3 +757,142 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
     );
     let _ = Proc::controller; // the pilot needs no controller process
 }
+
+/// Every parameter the OpenAPI document lists is where the server reads it: a path
+/// parameter is a `{name}` of its path (`site` and `k_bf` are query parameters), and an
+/// address or query that does not parse is answered with the documented JSON error, never
+/// axum's plain text.
+#[test]
+fn the_documented_parameters_are_where_they_are_read_and_bad_ones_get_the_json_error() {
+    let server = Server::start("api-params");
+    let api = server.experimenter();
+    let (code, doc) = api.get("/api/openapi.json");
+    assert_eq!(code, 200);
+    let param = |path: &str, method: &str, name: &str| -> Value {
+        doc["paths"][path][method]["parameters"]
+            .as_array()
+            .and_then(|ps| ps.iter().find(|p| p["name"] == name).cloned())
+            .unwrap_or_else(|| panic!("{method} {path} lists no parameter {name}"))
+    };
+    assert_eq!(param("/api/estop/reset", "post", "site")["in"], "query");
+    assert_eq!(param("/api/estop", "post", "site")["in"], "query");
+    assert_eq!(
+        param("/api/subjects/{id}/stability", "get", "k_bf")["in"],
+        "query"
+    );
+    let mut misplaced = Vec::new();
+    let mut with_id = Vec::new();
+    for (path, item) in doc["paths"].as_object().unwrap() {
+        for (method, op) in item.as_object().unwrap() {
+            for p in op["parameters"].as_array().into_iter().flatten() {
+                let name = p["name"].as_str().unwrap();
+                let in_path = path.contains(&format!("{{{name}}}"));
+                if (p["in"] == "path") != in_path {
+                    misplaced.push(format!("{method} {path}: {name} in {}", p["in"]));
+                }
+            }
+            if path.contains("{id}") {
+                with_id.push((method.to_uppercase(), path.clone()));
+            }
+        }
+    }
+    assert!(misplaced.is_empty(), "{misplaced:#?}");
+
+    // An id that is no number, on every route with one: the JSON error.
+    assert!(with_id.len() > 30, "{with_id:?}");
+    for (method, path) in &with_id {
+        let path = path
+            .replace("{id}", "abc")
+            .replace("{kind}", "trials")
+            .replace("{file}", "mse_tracking_mm2.svg");
+        // No body: the address is refused before one would be read, and a body left unread
+        // would cost the pooled connection.
+        let (code, answer) = api.call(method, &path, None);
+        assert!(
+            (400..500).contains(&code) && answer["error"].is_string(),
+            "{method} {path}: {code} {answer}"
+        );
+    }
+    let (code, e) = api.get("/api/studies/abc");
+    assert_eq!(code, 422, "{e}");
+    assert!(e["error"].as_str().unwrap().contains("abc"), "{e}");
+    // A query that does not parse: the JSON error naming the field.
+    let study = short_study(&api, 1.0, 0.5);
+    for path in [
+        "/api/audit?limit=abc".to_string(),
+        "/api/subjects/1/stability?k_bf=abc".to_string(),
+        format!("/api/studies/{study}/export/trials?format=abc"),
+        format!("/api/studies/{study}/workbench/frequency?subject=abc"),
+    ] {
+        let (code, e) = api.get(&path);
+        assert_eq!(code, 422, "{path}: {e}");
+        assert!(e["error"].is_string(), "{path}: {e}");
+    }
+    let (code, e) = api.post("/api/estop/reset?site=1&site=2", json!({}));
+    assert_eq!(code, 422, "{e}");
+    assert!(e["error"].is_string(), "{e}");
+}
+
+/// Names (a study's, a station's, a configuration version's, an account's) are counted in
+/// characters, as their messages say, and refuse what would make them read or export other
+/// than they are: control characters and bidirectional marks, overrides and isolates.
+#[test]
+fn names_count_characters_and_refuse_controls_and_bidirectional_overrides() {
+    let server = Server::start("api-names");
+    let api = server.experimenter();
+    let (_, params) = api.get("/api/defaults");
+    let study = |name: &str| api.post("/api/studies", json!({ "name": name, "params": params }));
+    // 200 characters of two bytes each: a name; 201: too long, by characters.
+    let (code, s) = study(&"é".repeat(200));
+    assert_eq!(code, 200, "{s}");
+    assert_eq!(s["name"].as_str().unwrap().chars().count(), 200);
+    let (code, e) = study(&"é".repeat(201));
+    assert_eq!(code, 422, "{e}");
+    assert!(
+        e["error"].as_str().unwrap().contains("200 characters"),
+        "{e}"
+    );
+    for (name, says) in [
+        ("nul\u{0}here", "U+0000"),
+        ("two\nlines", "U+000A"),
+        ("carriage\rreturn", "U+000D"),
+        ("tab\there", "U+0009"),
+        ("c1\u{85}next line", "U+0085"),
+        ("\u{202E}desrever", "U+202E"),
+        ("embedded\u{202A}x", "U+202A"),
+        ("isolate\u{2066}x\u{2069}", "U+2066"),
+        ("mark\u{200F}", "U+200F"),
+        ("mark\u{200E}", "U+200E"),
+    ] {
+        let (code, e) = study(name);
+        assert_eq!(code, 422, "{name:?}: {e}");
+        let e = e["error"].as_str().unwrap();
+        assert!(e.starts_with("name: ") && e.contains(says), "{name:?}: {e}");
+        assert!(
+            e.contains("control characters") && e.contains("bidirectional"),
+            "{e}"
+        );
+    }
+    let (code, _) = study("Ünïcode is fine — 試験 ✓");
+    assert_eq!(code, 200);
+    let id = s["id"].as_i64().unwrap();
+    // A station's name and a configuration version's are the same kind of name.
+    let reg = Api::anonymous(&api.base).ok("/api/station/register", json!({}));
+    let (code, e) = api.post(
+        &format!("/api/studies/{id}/stations"),
+        json!({ "pairing_code": reg["pairing_code"], "name": "desk\u{202E}1", "role": "on" }),
+    );
+    assert_eq!(code, 422, "{e}");
+    assert!(e["error"].as_str().unwrap().contains("U+202E"), "{e}");
+    let spec = params["controllers"][0].clone();
+    let (code, e) = api.post("/api/configs", json!({ "name": "tuned\r\n", "spec": spec }));
+    assert_eq!(code, 422, "{e}");
+    assert!(e["error"].as_str().unwrap().contains("U+000D"), "{e}");
+    // A username keeps its own stricter characters, with the same checks first.
+    let (code, e) = api.post(
+        "/api/accounts",
+        json!({ "username": "bob\u{0}", "password": "0123456789ab", "role": "analyst" }),
+    );
+    assert_eq!(code, 422, "{e}");
+    assert!(e["error"].as_str().unwrap().contains("U+0000"), "{e}");
+}

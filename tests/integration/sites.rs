@@ -313,7 +313,8 @@ fn site_arguments_that_cannot_work_are_refused_at_start() {
 }
 
 /// The dashboard of a server with two sites: each site's link and latch with its own stop
-/// and reset beside the button that stops them all, and the pairing form asking for the site.
+/// and reset beside the button that stops them all, the pairing form asking for the site,
+/// and the Accounts section ticking the sites an account may drive.
 #[test]
 fn in_chromium_the_dashboard_stops_and_resets_one_site() {
     let server = two_sites("sites-dashboard");
@@ -364,5 +365,237 @@ fn in_chromium_the_dashboard_stops_and_resets_one_site() {
     dash.wait_until(
         "return !document.querySelector(arguments[0]).classList.contains('alarm');",
         json!([row("lab-b")]),
+    );
+
+    // The Accounts section ticks the sites an account may drive: at creation, and later.
+    dash.wait_until(
+        "return !document.getElementById('account-sites').hidden && document.querySelectorAll('#account-sites input').length === 2;",
+        json!([]),
+    );
+    dash.type_into("#account-username", "carol");
+    dash.type_into("#account-password", ADMIN_PASSWORD);
+    dash.click("#account-sites input[value='lab-b']");
+    dash.click("#account-create");
+    let carol = eventually(Duration::from_secs(10), || {
+        let (_, list) = api.get("/api/accounts");
+        list.as_array()?
+            .iter()
+            .find(|a| a["username"] == "carol")
+            .cloned()
+    });
+    assert_eq!(carol["sites"], json!(["lab-b"]), "{carol}");
+    let id = carol["id"].as_i64().unwrap();
+    let boxes = format!("#accounts td[data-sites-of='{id}']");
+    dash.wait_until(
+        "return document.querySelector(arguments[0] + \" input[value='lab-b']\")?.checked ? true : null;",
+        json!([boxes]),
+    );
+    dash.screenshot(&artifacts_dir().join("sites-dashboard-accounts.png"));
+    dash.click(&format!("{boxes} input[value='lab-a']"));
+    dash.click(&format!("{boxes} button[data-action='sites']"));
+    eventually(Duration::from_secs(10), || {
+        let (_, list) = api.get("/api/accounts");
+        let sites = list.as_array()?.iter().find(|a| a["id"] == id)?["sites"].clone();
+        (sites == json!(["lab-a", "lab-b"])).then_some(())
+    });
+    // None ticked: every site.
+    dash.wait_until(
+        "return document.querySelector(arguments[0] + \" input[value='lab-a']\")?.checked ? true : null;",
+        json!([boxes]),
+    );
+    dash.click(&format!("{boxes} input[value='lab-a']"));
+    dash.click(&format!("{boxes} input[value='lab-b']"));
+    dash.click(&format!("{boxes} button[data-action='sites']"));
+    eventually(Duration::from_secs(10), || {
+        let (_, list) = api.get("/api/accounts");
+        let sites = list.as_array()?.iter().find(|a| a["id"] == id)?["sites"].clone();
+        sites.is_null().then_some(())
+    });
+}
+
+/// The error of a refusal (its status must be `code`).
+fn refusal(answer: (u16, Value), code: u16) -> String {
+    let (got, body) = answer;
+    assert_eq!(got, code, "{body}");
+    body["error"]
+        .as_str()
+        .unwrap_or_else(|| panic!("not the JSON error: {body}"))
+        .to_string()
+}
+
+/// Per-site roles: an account limited to lab-a starts, aborts and resets lab-a's machine
+/// only, and runs the bench on lab-a's real machine only; it still presses any site's
+/// E-stop. An admin sets the sites (checked against the server's), each change audited; an
+/// account with no sites drives every site's machine, as every account did before.
+#[test]
+fn an_account_limited_to_a_site_drives_only_its_machine_but_stops_any() {
+    let server = two_sites("sites-roles");
+    let admin = server.experimenter();
+    sites_ready(&admin);
+
+    // The sites are checked against the server's: a 422 naming them.
+    for sites in [json!(["lab-c"]), json!([]), json!(["lab-a", "Lab A"])] {
+        let e = refusal(
+            admin.post(
+                "/api/accounts",
+                json!({ "username": "eve", "password": ADMIN_PASSWORD, "role": "experimenter", "sites": sites }),
+            ),
+            422,
+        );
+        assert!(e.contains("lab-a, lab-b"), "{sites}: {e}");
+    }
+    let made = admin.ok(
+        "/api/accounts",
+        json!({ "username": "bob", "password": ADMIN_PASSWORD, "role": "experimenter", "sites": ["lab-a"] }),
+    );
+    assert_eq!(made["sites"], json!(["lab-a"]), "{made}");
+    let bob_id = made["id"].as_i64().unwrap();
+    let bob = server.login("bob", ADMIN_PASSWORD);
+    assert_eq!(bob.get("/api/me").1["sites"], json!(["lab-a"]));
+    // Accounts made without sites drive every site (none listed).
+    let (_, me) = admin.get("/api/me");
+    assert_eq!(me["sites"], Value::Null, "{me}");
+
+    let study = dry_run(&admin, short_study(&admin, 60.0, 60.0));
+    let (a, a_first) = subject_at(&admin, study, "lab-a");
+    let (b, b_first) = subject_at(&admin, study, "lab-b");
+
+    // Starting a test at lab-b is refused, naming bob's sites; at lab-a it runs.
+    let e = refusal(start(&bob, b_first), 403);
+    assert!(e.contains("\"lab-a\"") && e.contains("\"lab-b\""), "{e}");
+    assert_eq!(trial(&admin, b, b_first)["status"], "scheduled");
+    let (code, t) = start(&bob, a_first);
+    assert_eq!((code, &t["site"]), (200, &json!("lab-a")), "{t}");
+    let (code, t) = start(&admin, b_first);
+    assert_eq!((code, &t["site"]), (200, &json!("lab-b")), "{t}");
+
+    // Aborting lab-b's test is refused; lab-a's is aborted.
+    let abort = |api: &Api, id: i64| {
+        api.post(
+            &format!("/api/trials/{id}/abort"),
+            json!({ "reason": "checking per-site roles" }),
+        )
+    };
+    let e = refusal(abort(&bob, b_first), 403);
+    assert!(e.contains("\"lab-b\""), "{e}");
+    assert_eq!(trial(&admin, b, b_first)["status"], "running");
+    assert_eq!(abort(&bob, a_first).0, 200);
+    assert_eq!(ended(&admin, a, a_first)["status"], "aborted");
+
+    // Bob presses lab-b's E-stop: never refused. Resetting it is.
+    let stopped = bob.ok("/api/estop?site=lab-b", json!({}));
+    assert_eq!(stopped["sites"], json!(["lab-b"]), "{stopped}");
+    assert_eq!(ended(&admin, b, b_first)["status"], "aborted");
+    let e = refusal(bob.post("/api/estop/reset?site=lab-b", json!({})), 403);
+    assert!(e.contains("\"lab-b\""), "{e}");
+    // A reset of every site is one of lab-b too.
+    let e = refusal(bob.post("/api/estop/reset", json!({})), 403);
+    assert!(e.contains("every site"), "{e}");
+    assert_eq!(site(&admin, "lab-b")["estop_latched"], true);
+    // A site no server serves is still the 422 it was, not a refusal of bob.
+    assert_eq!(bob.post("/api/estop/reset?site=lab-z", json!({})).0, 422);
+    admin.ok("/api/estop/reset?site=lab-b", json!({}));
+    // The E-stop of every site, by bob; only an account of every site resets it.
+    let stopped = bob.ok("/api/estop", json!({}));
+    assert_eq!(stopped["sites"], json!(["lab-a", "lab-b"]), "{stopped}");
+    assert_eq!(bob.post("/api/estop/reset", json!({})).0, 403);
+    admin.ok("/api/estop/reset", json!({}));
+    sites_ready(&admin);
+    // Bob's own site's E-stop he stops and resets.
+    bob.ok("/api/estop?site=lab-a", json!({}));
+    bob.ok("/api/estop/reset?site=lab-a", json!({}));
+    sites_ready(&admin);
+
+    // The bench on lab-b's real machine is refused; lab-a's is only refused by its
+    // (simulating) controller; a simulated run uses no site's machine and runs.
+    let (_, mut params) = admin.get("/api/defaults");
+    params["rig"] = json!("real");
+    let real = admin.ok("/api/studies", json!({ "name": "real", "params": params }))["id"]
+        .as_i64()
+        .unwrap();
+    let bench = |site: &str, study: Option<i64>| {
+        bob.post(
+            "/api/bench",
+            json!({ "study_id": study, "site": site, "duration_s": 1.0,
+                    "compensators": [{ "design": "pid" }], "signal": { "kind": "trapezoid" } }),
+        )
+    };
+    let e = refusal(bench("lab-b", Some(real)), 403);
+    assert!(e.contains("\"lab-b\""), "{e}");
+    let e = refusal(bench("lab-a", Some(real)), 409);
+    assert!(e.contains("rig"), "{e}");
+    let (code, run) = bench("lab-b", None);
+    assert_eq!(code, 200, "{run}");
+
+    // The admin lifts the limit: bob drives lab-b's machine. Then limits him again.
+    let e = refusal(
+        admin.post(
+            &format!("/api/accounts/{bob_id}/sites"),
+            json!({ "sites": ["lab-q"] }),
+        ),
+        422,
+    );
+    assert!(e.contains("lab-a, lab-b"), "{e}");
+    let changed = admin.ok(
+        &format!("/api/accounts/{bob_id}/sites"),
+        json!({ "sites": null }),
+    );
+    assert_eq!(changed["sites"], Value::Null, "{changed}");
+    let b_again = next_test(&admin, b);
+    let (code, t) = start(&bob, b_again);
+    assert_eq!((code, &t["site"]), (200, &json!("lab-b")), "{t}");
+    let changed = admin.ok(
+        &format!("/api/accounts/{bob_id}/sites"),
+        json!({ "sites": ["lab-b", "lab-a"] }),
+    );
+    assert_eq!(changed["sites"], json!(["lab-a", "lab-b"]), "{changed}");
+    let (_, list) = admin.get("/api/accounts");
+    let listed = list
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|x| x["username"] == "bob")
+        .unwrap();
+    assert_eq!(listed["sites"], json!(["lab-a", "lab-b"]), "{list}");
+    // Only an admin sets them.
+    assert_eq!(
+        bob.post(
+            &format!("/api/accounts/{bob_id}/sites"),
+            json!({ "sites": null })
+        )
+        .0,
+        403
+    );
+
+    // Each setting is in the audit log, with what it was before.
+    let (_, log) = admin.get("/api/audit?limit=500");
+    let rows: Vec<&Value> = log
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|r| {
+            r["target"] == format!("experimenter:{bob_id}")
+                && ["experimenter.create", "experimenter.sites"]
+                    .contains(&r["action"].as_str().unwrap())
+        })
+        .collect();
+    let details: Vec<&Value> = rows.iter().map(|r| &r["detail"]).collect();
+    assert_eq!(details.len(), 3, "{details:?}");
+    let sites_of = |d: &Value| (d["from"].clone(), d["to"].clone());
+    assert!(
+        details.iter().any(|d| d["sites"] == json!(["lab-a"])),
+        "the creation records the sites: {details:?}"
+    );
+    assert!(
+        details
+            .iter()
+            .any(|d| sites_of(d) == (json!(["lab-a"]), Value::Null)),
+        "{details:?}"
+    );
+    assert!(
+        details
+            .iter()
+            .any(|d| sites_of(d) == (Value::Null, json!(["lab-a", "lab-b"]))),
+        "{details:?}"
     );
 }

@@ -46,8 +46,24 @@ impl Proc {
         prefix: &str,
         stderr: Stdio,
     ) -> Result<Self, String> {
+        Self::try_spawn_in(None, bin, args, prefix, stderr)
+    }
+
+    /// [`Proc::try_spawn`] in the working directory `dir` (the test's own when none): how
+    /// relative paths in `args` are tried.
+    pub fn try_spawn_in(
+        dir: Option<&std::path::Path>,
+        bin: &str,
+        args: &[&str],
+        prefix: &str,
+        stderr: Stdio,
+    ) -> Result<Self, String> {
         let key = LinkKey::generate().expect("random key");
-        let child = Command::new(binary(bin))
+        let mut command = Command::new(binary(bin));
+        if let Some(dir) = dir {
+            command.current_dir(dir);
+        }
+        let child = command
             .args(args)
             .env(KEY_ENV, key.to_hex())
             .env(

@@ -1,16 +1,18 @@
 //! Bench runs: start one (in the background, one at a time), its progress, the stored runs
 //! with their metrics, reductions and traces, and a run as CSV.
 
-use axum::extract::{DefaultBodyLimit, Path, State};
+use axum::extract::{DefaultBodyLimit, State};
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
+use bdft_protocol::study::RigKind;
 use serde::Serialize;
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppError, AppJson};
-use super::extract::Experimenter;
+use super::extract::{AppPath, Experimenter};
+use crate::engine::accounts::Drive;
 use crate::engine::machine::bench::{self, BenchRequest, BenchStatus, RunView};
 use crate::engine::results::export::ExportedAll;
 use crate::state::AppState;
@@ -56,6 +58,8 @@ pub struct BenchStarted {
 }
 
 /// Starts a bench run in the background (progress at GET /api/bench); 409 while one runs.
+/// A run on the real rig drives its site's machine: an account limited to sites runs it on
+/// theirs only. A simulated run (in the server) drives no site's.
 #[utoipa::path(post, path = "/api/bench", tag = "bench", request_body = BenchRequest,
     responses((status = 200, body = BenchStarted)))]
 async fn start_bench(
@@ -67,6 +71,12 @@ async fn start_bench(
         Some(name) => s.sites.named(name)?,
         None => s.sites.first(),
     };
+    if let Some(study) = req.study_id {
+        let study = store::studies::get(&s.pool, study).await?;
+        if study.params.rig == RigKind::Real {
+            who.may_drive(&s.pool, Drive::Bench, &[link.site()]).await?;
+        }
+    }
     let run_id = s.bench.start(&s.pool, link, &who.username, &req).await?;
     Ok(AppJson(BenchStarted { run_id }))
 }
@@ -89,7 +99,7 @@ async fn list_runs(State(s): State<AppState>, _who: Experimenter) -> ApiResult<V
 async fn get_run(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> ApiResult<RunView> {
     Ok(AppJson(bench::view(&s.pool, id).await?))
 }
@@ -100,7 +110,7 @@ async fn get_run(
 async fn export_run(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> Result<Response, AppError> {
     let view = bench::view(&s.pool, id).await?;
     Change::begin(&s.pool, who.username.as_str())

@@ -2,14 +2,14 @@
 //! means or to its own completed tests, in the background, with progress and cancel; the
 //! result is the study's next population version.
 
-use axum::extract::{Path, State};
+use axum::extract::State;
 use serde::Serialize;
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppJson};
-use super::extract::Experimenter;
+use super::extract::{AppPath, Experimenter};
 use crate::engine::dry_runs::calibration::run::{
     CalibrateRequest, CalibrationReport, CalibrationStatus,
 };
@@ -36,7 +36,7 @@ pub struct CalibrationStarted {
 async fn start_calibration(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
     AppJson(req): AppJson<CalibrateRequest>,
 ) -> ApiResult<CalibrationStarted> {
     s.calibration.start(&s.pool, &who.username, id, req).await?;

@@ -1,7 +1,7 @@
 //! Versioned controller configurations: list, create a version, get one; a study's pick of
 //! versions.
 
-use axum::extract::{Path, State};
+use axum::extract::State;
 use bdft_protocol::params::CompensatorSpec;
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
@@ -9,7 +9,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppJson};
-use super::extract::Experimenter;
+use super::extract::{AppPath, Experimenter};
 use crate::engine::study::configs;
 use crate::state::AppState;
 use crate::store;
@@ -58,7 +58,7 @@ async fn create_config(
 async fn get_config(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> ApiResult<ConfigVersion> {
     Ok(AppJson(store::configs::get(&s.pool, id).await?))
 }
@@ -77,7 +77,7 @@ pub struct PickBody {
 async fn study_configs(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> ApiResult<Vec<ConfigVersion>> {
     store::studies::get(&s.pool, id).await?;
     let mut out = Vec::new();
@@ -94,9 +94,9 @@ async fn study_configs(
 async fn pick_configs(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
     AppJson(b): AppJson<PickBody>,
 ) -> ApiResult<Vec<ConfigVersion>> {
     configs::pick(&s.pool, &who.username, id, &b.config_ids).await?;
-    study_configs(State(s), who, Path(id)).await
+    study_configs(State(s), who, AppPath(id)).await
 }

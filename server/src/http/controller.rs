@@ -9,7 +9,8 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppJson, Done};
-use super::extract::{Experimenter, query};
+use super::extract::{AppQuery, Experimenter};
+use crate::engine::accounts::Drive;
 use crate::engine::machine::controller_link::ControllerLink;
 use crate::engine::procedure::trials;
 use crate::state::AppState;
@@ -58,6 +59,7 @@ pub struct EStopConfirmed {
 
 /// Which site an E-stop or its reset is for.
 #[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
 #[serde(deny_unknown_fields)]
 pub struct SiteQuery {
     /// One site (GET /api/controller lists them); every site when absent.
@@ -89,15 +91,26 @@ async fn estop(
 }
 
 /// Clear the E-stop latch of every site, or of `site` alone (refused while every site's is
-/// latched).
+/// latched). An account limited to sites resets its sites' alone: the latch of every site
+/// only when its sites are all the server's (403 otherwise).
 #[utoipa::path(post, path = "/api/estop/reset", tag = "controller", params(SiteQuery),
     responses((status = 200, body = Done)))]
 async fn estop_reset(
     State(s): State<AppState>,
     who: Experimenter,
-    q: Result<Query<SiteQuery>, QueryRejection>,
+    AppQuery(q): AppQuery<SiteQuery>,
 ) -> ApiResult<Done> {
-    let q = query(q)?;
+    match q.site.as_deref() {
+        // A site this server does not serve is refused by the reset itself, naming the sites.
+        Some(name) if s.sites.named(name).is_ok() => {
+            who.may_drive(&s.pool, Drive::Reset, &[name]).await?;
+        }
+        Some(_) => {}
+        None => {
+            who.may_drive(&s.pool, Drive::ResetEverySite, &s.sites.names())
+                .await?;
+        }
+    }
     trials::reset_estop(&s.pool, &s.sites, &who.username, q.site.as_deref()).await?;
     Ok(Done::ok())
 }

@@ -1,7 +1,7 @@
 //! Erasure on request (admins only, `extract`): erase a subject's data, and the erasures so
 //! far with the backups that still hold each one's data.
 
-use axum::extract::{Path, State};
+use axum::extract::State;
 use serde::Serialize;
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
@@ -9,7 +9,7 @@ use utoipa_axum::routes;
 
 use super::bodies::ReasonBody;
 use super::error::{ApiResult, AppJson};
-use super::extract::Experimenter;
+use super::extract::{AppPath, Experimenter};
 use crate::engine::operations::erasure::{self, Erasure, ErasureReport};
 use crate::state::AppState;
 
@@ -30,7 +30,7 @@ pub fn routes() -> OpenApiRouter<AppState> {
 async fn erase(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
     AppJson(b): AppJson<ReasonBody>,
 ) -> ApiResult<ErasureReport> {
     Ok(AppJson(

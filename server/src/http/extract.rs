@@ -5,8 +5,8 @@
 //! default. Stations and subjects by unguessable bearer tokens scoped to one station or one
 //! subject.
 
-use axum::extract::rejection::QueryRejection;
-use axum::extract::{FromRequestParts, MatchedPath, Query, Request, State};
+use axum::extract::rejection::{PathRejection, QueryRejection};
+use axum::extract::{FromRequestParts, MatchedPath, Path, Query, Request, State};
 use axum::http::request::Parts;
 use axum::http::{HeaderMap, Method, header};
 use axum::middleware::Next;
@@ -14,6 +14,7 @@ use axum::response::Response;
 use serde::Serialize;
 
 use super::error::AppError;
+use crate::engine::accounts::{self, Drive};
 use crate::state::AppState;
 use crate::store;
 use crate::store::accounts::Role;
@@ -35,10 +36,55 @@ pub struct Experimenter {
     pub csrf: String,
 }
 
-/// A query string that does not parse is the user's mistake: 422 naming the field.
+impl Experimenter {
+    /// Refuses (403, naming the account's sites) when this account is limited to sites and
+    /// `action` drives the machine of one of `sites` not among them. Handlers that start,
+    /// abort or reset a machine or run the bench call it before acting; the E-stop never
+    /// does (any account stops any machine).
+    pub async fn may_drive(
+        &self,
+        pool: &sqlx::AnyPool,
+        action: Drive,
+        sites: &[&str],
+    ) -> Result<(), AppError> {
+        accounts::may_drive(pool, self.id, action, sites).await
+    }
+}
+
+/// A query string that does not parse is the user's mistake: 422 naming the field. (For a
+/// handler that decides itself what a bad query means; the others take [`AppQuery`].)
 pub fn query<T>(q: Result<Query<T>, QueryRejection>) -> Result<T, AppError> {
-    q.map(|Query(q)| q)
-        .map_err(|r| AppError::BadRequest(r.body_text()))
+    q.map(|Query(q)| q).map_err(AppError::from)
+}
+
+/// `Query` whose rejection is the documented JSON error: 422 naming the field that does not
+/// parse. Every handler takes its query through this (or [`query`]), never axum's own,
+/// whose rejection is plain text.
+#[derive(Debug, FromRequestParts)]
+#[from_request(via(Query), rejection(AppError))]
+pub struct AppQuery<T>(pub T);
+
+impl From<QueryRejection> for AppError {
+    fn from(r: QueryRejection) -> Self {
+        Self::BadRequest(format!("the query: {}", r.body_text()))
+    }
+}
+
+/// `Path` whose rejection is the documented JSON error: an address whose parameter does not
+/// parse (`/api/studies/abc`) is a 422 saying which; a route that does not match its
+/// handler's parameters is a bug, 500. Every handler takes its path parameters through
+/// this, never axum's own, whose rejection is plain text.
+#[derive(Debug, FromRequestParts)]
+#[from_request(via(Path), rejection(AppError))]
+pub struct AppPath<T>(pub T);
+
+impl From<PathRejection> for AppError {
+    fn from(r: PathRejection) -> Self {
+        match r.status() {
+            s if s.is_client_error() => Self::BadRequest(format!("the address: {}", r.body_text())),
+            _ => Self::Internal(anyhow::anyhow!("path parameters: {}", r.body_text())),
+        }
+    }
 }
 
 pub fn cookie(headers: &HeaderMap, name: &str) -> Option<String> {

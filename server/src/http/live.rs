@@ -12,8 +12,8 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
+use axum::extract::State;
 use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade};
-use axum::extract::{Query, State};
 use axum::http::HeaderMap;
 use axum::response::Response;
 use bdft_protocol::browser_to_server::StationMessage;
@@ -28,7 +28,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::error::AppError;
-use super::extract::Experimenter;
+use super::extract::{AppQuery, Experimenter};
 use crate::engine::machine::controller_link::{ControllerEvent, ControllerLink};
 use crate::engine::procedure::station_sockets::{
     Admit, FLOOD_SECONDS, INPUT_RATE, InputLimit, OPENINGS_PER_SECOND, Opened, READ_RATE,
@@ -91,7 +91,7 @@ const WATCH_EVERY: Duration = Duration::from_millis(50);
     responses((status = 101, description = "WebSocket: StationMessage in, StationEvent out")))]
 async fn station_ws(
     State(s): State<AppState>,
-    Query(q): Query<TokenQuery>,
+    AppQuery(q): AppQuery<TokenQuery>,
     ws: WebSocketUpgrade,
 ) -> Result<Response, AppError> {
     // Refused before the upgrade: a station opening socket after socket (each replacing the

@@ -159,7 +159,7 @@ fn describe(api: &mut utoipa::openapi::OpenApi, caller: Caller) {
         ("401", "not logged in, or no valid token"),
         (
             "403",
-            "forbidden: wrong CSRF token, the account's role may not do it, or another subject's data",
+            "forbidden: wrong CSRF token, the account's role may not do it, the account is limited to other sites than the machine's it would drive, or another subject's data",
         ),
         ("404", "not found"),
         (

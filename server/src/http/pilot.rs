@@ -2,14 +2,14 @@
 //! background, with progress, always in a dry run (a study's dry-run copy), never in a
 //! study with people.
 
-use axum::extract::{Path, State};
+use axum::extract::State;
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppJson};
-use super::extract::Experimenter;
+use super::extract::{AppPath, Experimenter};
 use crate::engine::dry_runs::job::JobStatus;
 use crate::engine::dry_runs::pilot::{PilotReport, PilotStatus};
 use crate::engine::study::dry_run::{self, DryRunInfo};
@@ -29,7 +29,7 @@ pub fn routes() -> OpenApiRouter<AppState> {
 async fn dry_run_info(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> ApiResult<DryRunInfo> {
     Ok(AppJson(dry_run::info(&s.pool, id).await?))
 }
@@ -41,7 +41,7 @@ async fn dry_run_info(
 async fn make_dry_run(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> ApiResult<DryRunInfo> {
     let copy = dry_run::for_pilot(&s.pool, &who.username, id).await?;
     Ok(AppJson(dry_run::info(&s.pool, copy).await?))
@@ -66,7 +66,7 @@ pub struct PilotStarted {
 async fn start_pilot(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
     AppJson(b): AppJson<PilotBody>,
 ) -> ApiResult<PilotStarted> {
     s.pilot

@@ -1,13 +1,13 @@
 //! The ethics board's protocol package of a study: a printable HTML page
 //! (`engine::operations::protocol_package`), served with the pages' strict headers.
 
-use axum::extract::{Path, State};
+use axum::extract::State;
 use axum::response::Response;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::error::AppError;
-use super::extract::Experimenter;
+use super::extract::{AppPath, Experimenter};
 use super::page;
 use crate::engine::operations::protocol_package;
 use crate::state::AppState;
@@ -26,7 +26,7 @@ pub fn routes() -> OpenApiRouter<AppState> {
 async fn protocol_html(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> Result<Response, AppError> {
     let study = store::studies::get(&s.pool, id).await?;
     let audit_key = s

@@ -2,7 +2,7 @@
 //! log.
 
 use axum::body::Body;
-use axum::extract::{Path, Query, State};
+use axum::extract::State;
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use serde::{Deserialize, Serialize};
@@ -11,7 +11,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppError, AppJson};
-use super::extract::Experimenter;
+use super::extract::{AppPath, AppQuery, Experimenter};
 use crate::engine::dry_runs::job::JobStatus;
 use crate::engine::dry_runs::power::{PlanReport, PlanRequest, PlanSource, PlanStatus, plan_study};
 use crate::engine::results::export::{
@@ -48,7 +48,7 @@ pub fn routes() -> OpenApiRouter<AppState> {
 async fn summary(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> ApiResult<Vec<Stats>> {
     store::studies::get(&s.pool, id).await?;
     Ok(AppJson(summary_stats(&s.pool, id).await?))
@@ -62,7 +62,7 @@ async fn summary(
 async fn inference(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> ApiResult<Vec<StatsRow>> {
     Ok(AppJson(study_table(&s.pool, id).await?))
 }
@@ -76,7 +76,7 @@ async fn inference(
 async fn plan(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
     AppJson(req): AppJson<PlanRequest>,
 ) -> ApiResult<PlanReport> {
     if req.source == PlanSource::Population {
@@ -103,7 +103,7 @@ pub struct PlanStarted {
 async fn start_plan_job(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
     AppJson(req): AppJson<PlanRequest>,
 ) -> ApiResult<PlanStarted> {
     s.plan.start(&s.pool, id, req).await?;
@@ -126,7 +126,7 @@ async fn plan_job_status(State(s): State<AppState>, _who: Experimenter) -> AppJs
 async fn plot(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path((id, file)): Path<(i64, String)>,
+    AppPath((id, file)): AppPath<(i64, String)>,
 ) -> Result<Response, AppError> {
     let (which, format) = parse_file(&file)?;
     let body = draw_plot(&s.pool, id, which, format).await?;
@@ -149,7 +149,7 @@ async fn plot(
 async fn learning(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> ApiResult<LearningCurve> {
     Ok(AppJson(learning_curve(&s.pool, id).await?))
 }
@@ -211,8 +211,8 @@ impl ExportQuery {
 async fn download(
     State(s): State<AppState>,
     who: Experimenter,
-    Path((id, kind)): Path<(i64, String)>,
-    Query(q): Query<ExportQuery>,
+    AppPath((id, kind)): AppPath<(i64, String)>,
+    AppQuery(q): AppQuery<ExportQuery>,
 ) -> Result<Response, AppError> {
     let req = q.request(&kind)?;
     if !req.kind.per_study() {
@@ -240,7 +240,7 @@ async fn download(
 async fn bids_zip(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> Result<Response, AppError> {
     let study = store::studies::get(&s.pool, id).await?;
     bids::check(&s.pool, id).await?;
@@ -365,7 +365,7 @@ struct AuditQuery {
 async fn audit_log(
     State(s): State<AppState>,
     _who: Experimenter,
-    Query(q): Query<AuditQuery>,
+    AppQuery(q): AppQuery<AuditQuery>,
 ) -> ApiResult<Vec<AuditEntry>> {
     let limit = q.limit.unwrap_or(200).clamp(1, 10_000);
     Ok(AppJson(store::audit::newest(&s.pool, limit).await?))

@@ -157,8 +157,19 @@ async fn setup_status(State(state): State<AppState>) -> ApiResult<SetupStatus> {
     }))
 }
 
-/// The logged-in experimenter, their role and the CSRF token.
-#[utoipa::path(get, path = "/api/me", tag = "session", responses((status = 200, body = Experimenter)))]
-async fn me(who: Experimenter) -> AppJson<Experimenter> {
-    AppJson(who)
+/// The logged-in experimenter as `GET /api/me` shows them.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct Me {
+    #[serde(flatten)]
+    pub who: Experimenter,
+    /// The sites whose machines the account may start, abort, reset and run the bench on;
+    /// absent: every site's.
+    pub sites: Option<Vec<String>>,
+}
+
+/// The logged-in experimenter, their role, the sites they are limited to and the CSRF token.
+#[utoipa::path(get, path = "/api/me", tag = "session", responses((status = 200, body = Me)))]
+async fn me(State(state): State<AppState>, who: Experimenter) -> ApiResult<Me> {
+    let sites = store::accounts::sites(&state.pool, who.id).await?;
+    Ok(AppJson(Me { who, sites }))
 }

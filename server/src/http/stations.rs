@@ -1,7 +1,7 @@
 //! Stations for the experimenter: pairing by the shown code, the list, assigning a subject,
 //! and what a station shows now (the live monitor's view).
 
-use axum::extract::{Path, State};
+use axum::extract::State;
 use bdft_protocol::records::StationRole;
 use bdft_protocol::server_to_browser::MonitorView;
 use serde::{Deserialize, Serialize};
@@ -10,7 +10,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppJson, Done};
-use super::extract::Experimenter;
+use super::extract::{AppPath, Experimenter};
 use crate::engine::procedure::{lsl, stations};
 use crate::state::AppState;
 use crate::store;
@@ -52,7 +52,7 @@ pub struct Paired {
 async fn pair_station(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(study_id): Path<i64>,
+    AppPath(study_id): AppPath<i64>,
     AppJson(b): AppJson<PairBody>,
 ) -> ApiResult<Paired> {
     let site = match &b.site {
@@ -89,7 +89,7 @@ async fn pair_station(
 async fn list_stations(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(study_id): Path<i64>,
+    AppPath(study_id): AppPath<i64>,
 ) -> ApiResult<Vec<Station>> {
     Ok(AppJson(store::stations::of_study(&s.pool, study_id).await?))
 }
@@ -107,7 +107,7 @@ pub struct AssignBody {
 async fn assign_station(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
     AppJson(b): AppJson<AssignBody>,
 ) -> ApiResult<Done> {
     stations::assign(&s.pool, &s.sites, &who.username, id, b.subject_id).await?;
@@ -121,7 +121,7 @@ async fn assign_station(
 async fn monitor_view(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> ApiResult<MonitorView> {
     Ok(AppJson(
         stations::monitor_view(&s.pool, &s.sockets, id).await?,

@@ -1,6 +1,6 @@
 //! Studies: the published protocol's defaults, creating, reading and editing a study.
 
-use axum::extract::{Path, State};
+use axum::extract::State;
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use bdft_protocol::study::StudyParams;
@@ -11,7 +11,7 @@ use utoipa_axum::routes;
 
 use super::bodies::ReasonBody;
 use super::error::{ApiResult, AppError, AppJson};
-use super::extract::Experimenter;
+use super::extract::{AppPath, Experimenter};
 use crate::engine::study::schedule::default_params;
 use crate::engine::study::stability::StabilityReport;
 use crate::engine::study::studies;
@@ -91,7 +91,7 @@ async fn create_study(
 async fn get_study(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> ApiResult<Study> {
     Ok(AppJson(store::studies::get(&s.pool, id).await?))
 }
@@ -105,7 +105,7 @@ async fn get_study(
 async fn update_study(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
     AppJson(b): AppJson<StudyBody>,
 ) -> Result<Response, AppError> {
     let params = b
@@ -148,7 +148,7 @@ async fn update_study(
 async fn stability(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> ApiResult<StabilityReport> {
     let study = store::studies::get(&s.pool, id).await?;
     Ok(AppJson(s.stability.report(&study.params).await?))
@@ -161,7 +161,7 @@ async fn stability(
 async fn acknowledge_instability(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
     AppJson(b): AppJson<ReasonBody>,
 ) -> ApiResult<StabilityReport> {
     Ok(AppJson(

@@ -1,8 +1,7 @@
 //! Subjects: enrolment, the experimenter's view of each, withdrawal, and the subject's own
 //! page data (bearer token of the subject).
 
-use axum::extract::rejection::QueryRejection;
-use axum::extract::{Path, Query, State};
+use axum::extract::State;
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
@@ -10,7 +9,7 @@ use utoipa_axum::routes;
 
 use super::bodies::ReasonBody;
 use super::error::{ApiResult, AppJson, Done, optional_json};
-use super::extract::{Experimenter, SubjectAuth, query};
+use super::extract::{AppPath, AppQuery, Experimenter, SubjectAuth};
 use crate::engine::procedure::enrolment::enrol;
 use crate::engine::procedure::subjects::{self, OwnProgress, SubjectDetail, SubjectProgress};
 use crate::engine::results::identification::{self, IdentificationView, SubjectStability};
@@ -40,7 +39,7 @@ pub fn subject() -> OpenApiRouter<AppState> {
 async fn list_subjects(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> ApiResult<Vec<SubjectProgress>> {
     Ok(AppJson(subjects::progress_of_study(&s.pool, id).await?))
 }
@@ -69,7 +68,7 @@ pub struct Enrolled {
 async fn enrol_subject(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
     body: axum::body::Bytes,
 ) -> ApiResult<Enrolled> {
     let b: EnrolBody = optional_json(&body, "enrolment")?;
@@ -89,7 +88,7 @@ async fn enrol_subject(
 async fn get_subject(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> ApiResult<SubjectDetail> {
     Ok(AppJson(subjects::detail(&s.pool, id).await?))
 }
@@ -101,12 +100,13 @@ async fn get_subject(
 async fn get_identification(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> ApiResult<IdentificationView> {
     Ok(AppJson(identification::view(&s.pool, id).await?))
 }
 
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
 struct StabilityQuery {
     /// The feedthrough gain to check at [default: the study's].
     k_bf: Option<f64>,
@@ -120,10 +120,9 @@ struct StabilityQuery {
 async fn get_subject_stability(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
-    q: Result<Query<StabilityQuery>, QueryRejection>,
+    AppPath(id): AppPath<i64>,
+    AppQuery(q): AppQuery<StabilityQuery>,
 ) -> ApiResult<SubjectStability> {
-    let q = query(q)?;
     Ok(AppJson(
         identification::subject_stability(&s.pool, &s.stability, id, q.k_bf).await?,
     ))
@@ -135,7 +134,7 @@ async fn get_subject_stability(
 async fn withdraw(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
     AppJson(b): AppJson<ReasonBody>,
 ) -> ApiResult<Done> {
     subjects::withdraw(&s.pool, &s.sites, &who.username, id, &b.reason).await?;

@@ -1,6 +1,6 @@
 //! Tests: start, abort, redo, accept as incomplete, and notes.
 
-use axum::extract::{Path, State};
+use axum::extract::State;
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
@@ -8,8 +8,9 @@ use utoipa_axum::routes;
 
 use super::bodies::ReasonBody;
 use super::error::{ApiResult, AppJson, Done, optional_json};
-use super::extract::Experimenter;
-use crate::engine::procedure::trials;
+use super::extract::{AppPath, Experimenter};
+use crate::engine::accounts::Drive;
+use crate::engine::procedure::{stations, trials};
 use crate::state::AppState;
 use crate::store::trials::Trial;
 
@@ -22,29 +23,34 @@ pub fn routes() -> OpenApiRouter<AppState> {
         .routes(routes!(add_note))
 }
 
-/// Start the subject's next test on the controller (consent, order, surveys and the rig are
-/// checked first).
+/// Start the subject's next test on the controller of its site (the account's sites,
+/// consent, order, surveys and the rig are checked first).
 #[utoipa::path(post, path = "/api/trials/{id}/start", tag = "trials", params(("id" = i64, Path)),
     responses((status = 200, body = Trial)))]
 async fn start_trial(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
 ) -> ApiResult<Trial> {
+    let site = stations::site_of_trial(&s.pool, &s.sites, id).await?;
+    who.may_drive(&s.pool, Drive::Start, &[&site]).await?;
     Ok(AppJson(
         trials::start(&s.pool, &s.sites, &who.username, id).await?,
     ))
 }
 
-/// Stop a running test early; it is filed aborted with the reason.
+/// Stop a running test early; it is filed aborted with the reason. An account limited to
+/// sites aborts its sites' tests only (any account may press any site's E-stop).
 #[utoipa::path(post, path = "/api/trials/{id}/abort", tag = "trials", params(("id" = i64, Path)),
     request_body = ReasonBody, responses((status = 200, body = Done)))]
 async fn abort_trial(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
     AppJson(b): AppJson<ReasonBody>,
 ) -> ApiResult<Done> {
+    let site = stations::site_of_trial(&s.pool, &s.sites, id).await?;
+    who.may_drive(&s.pool, Drive::Abort, &[&site]).await?;
     trials::abort(&s.pool, &s.sites, &who.username, id, &b.reason).await?;
     Ok(Done::ok())
 }
@@ -63,7 +69,7 @@ pub struct RedoBody {
 async fn redo_trial(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
     body: axum::body::Bytes,
 ) -> ApiResult<Trial> {
     let b: RedoBody = optional_json(&body, "redo")?;
@@ -79,7 +85,7 @@ async fn redo_trial(
 async fn accept_incomplete(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
     AppJson(b): AppJson<ReasonBody>,
 ) -> ApiResult<Trial> {
     Ok(AppJson(
@@ -105,7 +111,7 @@ pub struct NoteAdded {
 async fn add_note(
     State(s): State<AppState>,
     who: Experimenter,
-    Path(id): Path<i64>,
+    AppPath(id): AppPath<i64>,
     AppJson(b): AppJson<NoteBody>,
 ) -> ApiResult<NoteAdded> {
     Ok(AppJson(NoteAdded {

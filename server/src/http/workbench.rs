@@ -2,15 +2,14 @@
 //! tables, and robustness maps. Read-only (GET), so analysts may use them; the numbers behind
 //! every plot are the JSON answered here, the dashboard draws them.
 
-use axum::extract::rejection::QueryRejection;
-use axum::extract::{Path, Query, State};
+use axum::extract::State;
 use serde::Deserialize;
 use utoipa::IntoParams;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::error::{ApiResult, AppJson};
-use super::extract::{Experimenter, query};
+use super::extract::{AppPath, AppQuery, Experimenter};
 use crate::engine::machine::workbench_analysis::{
     FrequencyReport, RobustnessQuery, RobustnessReport, frequency_report, robustness_report,
 };
@@ -44,10 +43,9 @@ struct FrequencyQuery {
 async fn frequency(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
-    q: Result<Query<FrequencyQuery>, QueryRejection>,
+    AppPath(id): AppPath<i64>,
+    AppQuery(q): AppQuery<FrequencyQuery>,
 ) -> ApiResult<FrequencyReport> {
-    let q = query(q)?;
     let r = frequency_report(&s.pool, id, q.kbf, q.subject).await?;
     Ok(AppJson(FrequencyReport::clone(&r)))
 }
@@ -61,9 +59,8 @@ async fn frequency(
 async fn robustness(
     State(s): State<AppState>,
     _who: Experimenter,
-    Path(id): Path<i64>,
-    q: Result<Query<RobustnessQuery>, QueryRejection>,
+    AppPath(id): AppPath<i64>,
+    AppQuery(q): AppQuery<RobustnessQuery>,
 ) -> ApiResult<RobustnessReport> {
-    let q = query(q)?;
     Ok(AppJson(robustness_report(&s.pool, id, q).await?))
 }

@@ -1,5 +1,5 @@
-//! Experimenter accounts (argon2id hashes, a role, disabled rather than deleted), their
-//! sessions, and the one-time set-up tokens.
+//! Experimenter accounts (argon2id hashes, a role, the sites they are limited to, disabled
+//! rather than deleted), their sessions, and the one-time set-up tokens.
 
 use serde::{Deserialize, Serialize};
 use sqlx::{AnyConnection, AnyExecutor};
@@ -171,6 +171,9 @@ pub struct Account {
     pub id: i64,
     pub username: String,
     pub role: Role,
+    /// The sites whose machines it may start, abort and reset and run the bench on, by
+    /// name (sorted); absent: every site's. Any account presses any E-stop.
+    pub sites: Option<Vec<String>>,
     /// RFC 3339 UTC; absent while the account is active.
     pub disabled_at: Option<String>,
     /// RFC 3339 UTC.
@@ -180,11 +183,15 @@ pub struct Account {
 /// id, username, role, disabled_at, created_at
 type AccountRow = (i64, String, String, Option<i64>, i64);
 
-fn account_of((id, username, role, disabled_at, created_at): AccountRow) -> Result<Account> {
+fn account_of(
+    (id, username, role, disabled_at, created_at): AccountRow,
+    sites: Option<Vec<String>>,
+) -> Result<Account> {
     Ok(Account {
         role: stored_role(id, &role)?,
         id,
         username,
+        sites,
         disabled_at: disabled_at.map(rfc3339),
         created_at: rfc3339(created_at),
     })
@@ -192,23 +199,67 @@ fn account_of((id, username, role, disabled_at, created_at): AccountRow) -> Resu
 
 const ACCOUNT_COLUMNS: &str = "id, username, role, disabled_at, created_at";
 
-pub async fn accounts<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<Account>> {
+pub async fn accounts(db: &mut AnyConnection) -> Result<Vec<Account>> {
     let rows: Vec<AccountRow> = sqlx::query_as(&format!(
         "SELECT {ACCOUNT_COLUMNS} FROM experimenters ORDER BY id"
     ))
+    .fetch_all(&mut *db)
+    .await?;
+    let limits: Vec<(i64, String)> = sqlx::query_as(
+        "SELECT experimenter_id, site FROM experimenter_sites ORDER BY experimenter_id, site",
+    )
     .fetch_all(db)
     .await?;
-    rows.into_iter().map(account_of).collect()
+    rows.into_iter()
+        .map(|row| {
+            let sites: Vec<String> = limits
+                .iter()
+                .filter(|(id, _)| *id == row.0)
+                .map(|(_, site)| site.clone())
+                .collect();
+            account_of(row, (!sites.is_empty()).then_some(sites))
+        })
+        .collect()
 }
 
-pub async fn account<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Account> {
+pub async fn account(db: &mut AnyConnection, id: i64) -> Result<Account> {
     let row: Option<AccountRow> = sqlx::query_as(&format!(
         "SELECT {ACCOUNT_COLUMNS} FROM experimenters WHERE id = $1"
     ))
     .bind(id)
-    .fetch_optional(db)
+    .fetch_optional(&mut *db)
     .await?;
-    account_of(row.ok_or(AppError::NotFound("account"))?)
+    let row = row.ok_or(AppError::NotFound("account"))?;
+    account_of(row, sites(db, id).await?)
+}
+
+/// The sites account `id` is limited to, sorted by name; `None`: it is not limited (every
+/// site).
+pub async fn sites<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Option<Vec<String>>> {
+    let sites: Vec<String> = sqlx::query_scalar(
+        "SELECT site FROM experimenter_sites WHERE experimenter_id = $1 ORDER BY site",
+    )
+    .bind(id)
+    .fetch_all(db)
+    .await?;
+    Ok((!sites.is_empty()).then_some(sites))
+}
+
+/// Limits account `id` to `sites` (none, or an empty list: every site), replacing what it
+/// was limited to.
+pub async fn set_sites(db: &mut AnyConnection, id: i64, sites: Option<&[String]>) -> Result<()> {
+    sqlx::query("DELETE FROM experimenter_sites WHERE experimenter_id = $1")
+        .bind(id)
+        .execute(&mut *db)
+        .await?;
+    for site in sites.unwrap_or_default() {
+        sqlx::query("INSERT INTO experimenter_sites (experimenter_id, site) VALUES ($1, $2)")
+            .bind(id)
+            .bind(site)
+            .execute(&mut *db)
+            .await?;
+    }
+    Ok(())
 }
 
 /// Active admins other than `id` (the last-admin rule counts them inside its change).

@@ -140,9 +140,11 @@ pub async fn open_alone(path: &Path) -> anyhow::Result<AnyPool> {
     open_with(path, 1, None).await
 }
 
-/// The `sqlite://` URL of a file: the path's bytes outside the unreserved set and `/`
-/// percent-encoded (sqlx decodes them back), so a `?`, `#` or `%` in a path stays a path.
+/// The `sqlite://` URL of a file: the path made absolute first ([`resolved`]), then its
+/// bytes outside the unreserved set and `/` percent-encoded (sqlx decodes them back), so a
+/// `?`, `#` or `%` in a path stays a path.
 fn sqlite_url(path: &Path, mode: &str) -> String {
+    let path = resolved(path);
     let mut url = String::from("sqlite://");
     for b in path.as_os_str().as_encoded_bytes() {
         match b {
@@ -155,6 +157,24 @@ fn sqlite_url(path: &Path, mode: &str) -> String {
     url.push_str("?mode=");
     url.push_str(mode);
     url
+}
+
+/// `path` as an absolute path without `.` or `..` components, as the kernel resolves it:
+/// its directory canonicalized (symbolic links followed, so `link/..` means what it means to
+/// the kernel), its file name joined. A URL cannot carry a relative path: sqlx's `Any`
+/// driver parses `sqlite://../../x` as the host `..` and the path `/../x`, which URL
+/// parsing shortens to `/x` — the file `../x`, one level off — and it would shorten `a/..`
+/// lexically too. A directory that cannot be canonicalized (it does not exist) leaves the
+/// path made absolute against the working directory, for the open to fail naming it.
+fn resolved(path: &Path) -> std::path::PathBuf {
+    let absolute = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    match (absolute.parent(), absolute.file_name()) {
+        (Some(dir), Some(name)) => match dir.canonicalize() {
+            Ok(dir) => dir.join(name),
+            Err(_) => absolute,
+        },
+        _ => absolute,
+    }
 }
 
 /// How long a statement waits for another connection's write lock before "busy".

@@ -1,5 +1,6 @@
 //! Experimenter accounts: credentials rules, roles and their management by an admin (never
-//! deleted, only disabled; the last active admin stays), rate-limited login
+//! deleted, only disabled; the last active admin stays), the sites an account is limited to
+//! (`may_drive`: the machines it may start, abort, reset and run the bench on), rate-limited login
 //! (`login_limiter`, with argon2id in bounded memory from `passwords`), the one-time set-up
 //! link and sessions. No HTTP here: `http::session` carries cookies.
 
@@ -22,7 +23,8 @@ use crate::store::{self, Change};
 
 const MIN_PASSWORD: usize = 10;
 const MAX_PASSWORD_BYTES: usize = 200;
-/// Longest username (bytes): the rule for new accounts, and what a login may send.
+/// Longest username (characters, which are ASCII: bytes too): the rule for new accounts, and
+/// what a login may send.
 const MAX_USERNAME: usize = 40;
 /// How long a session lasts.
 pub const SESSION_HOURS: i64 = 12;
@@ -39,13 +41,17 @@ async fn dummy_hash() -> Result<String> {
 }
 
 fn check_new_credentials(username: &str, password: &str) -> Result<()> {
-    let ok_name = (3..=MAX_USERNAME).contains(&username.len())
-        && username
-            .chars()
-            .all(|c| c.is_ascii_alphanumeric() || "._-".contains(c));
+    // The rule of every name first (its length and what no name holds), then the username's
+    // own alphabet: it must never contain ':' or ' ', which mark the non-person actors of the
+    // audit log.
+    crate::engine::name_rule("username", username, 3, MAX_USERNAME)
+        .map_err(AppError::BadRequest)?;
+    let ok_name = username
+        .chars()
+        .all(|c| c.is_ascii_alphanumeric() || "._-".contains(c));
     if !ok_name {
         return Err(AppError::BadRequest(format!(
-            "username: 3 to {MAX_USERNAME} letters, digits, '.', '_' or '-'"
+            "username: 3 to {MAX_USERNAME} of the letters a–z and A–Z, digits, '.', '_' or '-'"
         )));
     }
     if password.chars().count() < MIN_PASSWORD || password.len() > MAX_PASSWORD_BYTES {
@@ -56,15 +62,51 @@ fn check_new_credentials(username: &str, password: &str) -> Result<()> {
     Ok(())
 }
 
-/// What `experimenter.create` records.
+/// What `experimenter.create` records (the sites only of an account limited to some).
 #[derive(Debug, Serialize)]
 struct Created<'a> {
     username: &'a str,
     role: Role,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sites: Option<&'a [String]>,
+}
+
+/// The sites an admin limits an account to, and the sites this server serves (`serve
+/// --site`), which they must be among.
+#[derive(Debug, Clone, Copy)]
+pub struct SiteLimit<'a> {
+    pub sites: &'a [String],
+    pub served: &'a [&'a str],
+}
+
+impl SiteLimit<'_> {
+    /// The sites to store: each one served, at least one, each once, sorted by name; or
+    /// a 422 naming the server's sites.
+    fn checked(&self) -> Result<Vec<String>> {
+        let served = self.served.join(", ");
+        if self.sites.is_empty() {
+            return Err(AppError::BadRequest(format!(
+                "sites: at least one of this server's sites ({served}), or null for every site"
+            )));
+        }
+        if let Some(other) = self
+            .sites
+            .iter()
+            .find(|s| !self.served.contains(&s.as_str()))
+        {
+            return Err(AppError::BadRequest(format!(
+                "sites: this server has no site {other:?}; its sites are {served} (null: every site)"
+            )));
+        }
+        let mut sites = self.sites.to_vec();
+        sites.sort();
+        sites.dedup();
+        Ok(sites)
+    }
 }
 
 /// Creates an account with `role` on behalf of `actor` (an admin, or `system:startup` for
-/// `--admin-password`); returns it.
+/// `--admin-password`), not limited to sites; returns it.
 pub async fn create_experimenter(
     pool: &AnyPool,
     actor: &str,
@@ -72,19 +114,133 @@ pub async fn create_experimenter(
     password: &str,
     role: Role,
 ) -> Result<Account> {
+    create_account(pool, actor, username, password, role, None).await
+}
+
+/// Creates an account with `role` on behalf of the admin `actor`, limited to the sites of
+/// `limit` when given (otherwise it drives every site's machine); returns it.
+pub async fn create_account(
+    pool: &AnyPool,
+    actor: &str,
+    username: &str,
+    password: &str,
+    role: Role,
+    limit: Option<SiteLimit<'_>>,
+) -> Result<Account> {
     check_new_credentials(username, password)?;
+    let sites = limit.map(|l| l.checked()).transpose()?;
     let hash = passwords::hash(password).await?;
     let mut change = Change::begin(pool, actor).await?;
     let id = store::accounts::insert_experimenter(change.db(), username, &hash, role).await?;
+    store::accounts::set_sites(change.db(), id, sites.as_deref()).await?;
     let account = store::accounts::account(change.db(), id).await?;
     change
         .commit(
             "experimenter.create",
             Some(format!("experimenter:{id}")),
-            Created { username, role },
+            Created {
+                username,
+                role,
+                sites: sites.as_deref(),
+            },
         )
         .await?;
     Ok(account)
+}
+
+/// What `experimenter.sites` records: the sites before and after (null: every site).
+#[derive(Debug, Serialize)]
+struct SitesChanged<'a> {
+    username: &'a str,
+    from: Option<&'a [String]>,
+    to: Option<&'a [String]>,
+}
+
+/// Limits an account to the sites of `limit`, or (none) lets it drive every site's machine
+/// again (`admin` is the admin making the change). It applies to the account's sessions at
+/// once: every check reads it when the action comes.
+pub async fn set_sites(
+    pool: &AnyPool,
+    admin: &str,
+    id: i64,
+    limit: Option<SiteLimit<'_>>,
+) -> Result<Account> {
+    let sites = limit.map(|l| l.checked()).transpose()?;
+    let mut change = Change::begin(pool, admin).await?;
+    let before = store::accounts::account(change.db(), id).await?;
+    store::accounts::set_sites(change.db(), id, sites.as_deref()).await?;
+    let after = store::accounts::account(change.db(), id).await?;
+    change
+        .commit(
+            "experimenter.sites",
+            Some(format!("experimenter:{id}")),
+            SitesChanged {
+                username: &before.username,
+                from: before.sites.as_deref(),
+                to: sites.as_deref(),
+            },
+        )
+        .await?;
+    Ok(after)
+}
+
+/// What drives a site's machine, as a refusal words it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Drive {
+    /// Starting a test on its subject's site's machine.
+    Start,
+    /// Aborting a test where it runs.
+    Abort,
+    /// Resetting one site's E-stop latch.
+    Reset,
+    /// Resetting the latch of every site at once (and each site's own).
+    ResetEverySite,
+    /// A bench run on a site's real machine.
+    Bench,
+}
+
+/// `site "a"` or `sites "a" and "b"`.
+fn sites_words(sites: &[&str]) -> String {
+    let quoted: Vec<String> = sites.iter().map(|s| format!("{s:?}")).collect();
+    match quoted.as_slice() {
+        [one] => format!("site {one}"),
+        [rest @ .., last] => format!("sites {} and {last}", rest.join(", ")),
+        [] => "no site".into(),
+    }
+}
+
+/// Refuses (403) `action` when account `id` is limited to sites and the action drives the
+/// machine of one not among them; `sites` are the sites it drives (every site's for
+/// [`Drive::ResetEverySite`]). An account not limited drives every site's machine. Read at
+/// each action, so an admin's change applies to sessions at once. The E-stop itself is
+/// never checked: any account stops any site's machine.
+pub async fn may_drive(pool: &AnyPool, id: i64, action: Drive, sites: &[&str]) -> Result<()> {
+    let Some(own) = store::accounts::sites(pool, id).await? else {
+        return Ok(());
+    };
+    let outside: Vec<&str> = sites
+        .iter()
+        .copied()
+        .filter(|s| !own.iter().any(|o| o == s))
+        .collect();
+    if outside.is_empty() {
+        return Ok(());
+    }
+    let other = sites_words(&outside);
+    let what = match action {
+        Drive::Start => format!("starting a test at {other}"),
+        Drive::Abort => format!("aborting a test at {other}"),
+        Drive::Reset => format!("resetting the E-stop of {other}"),
+        Drive::ResetEverySite => format!(
+            "resetting the E-stop of every site (which includes {other}; reset your site's alone: POST /api/estop/reset?site=NAME)"
+        ),
+        Drive::Bench => format!("running the bench on the machine of {other}"),
+    };
+    let own: Vec<&str> = own.iter().map(String::as_str).collect();
+    Err(AppError::Forbidden(format!(
+        "{what} is refused: your account is limited to {} (an admin sets an account's sites; any account may still press any E-stop)",
+        sites_words(&own)
+    )))
 }
 
 /// Refuses a change that would leave no active admin (nobody could manage accounts then).
@@ -371,12 +527,43 @@ pub async fn login(
 
 /// Every account, for the admin.
 pub async fn list(pool: &AnyPool) -> Result<Vec<Account>> {
-    store::accounts::accounts(pool).await
+    let mut db = pool.acquire().await?;
+    store::accounts::accounts(&mut db).await
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn site_limits_are_served_sites_sorted_once() {
+        let served = ["lab-b", "lab-a"];
+        let limit = |sites: &[&str]| {
+            let sites: Vec<String> = sites.iter().map(|s| s.to_string()).collect();
+            SiteLimit {
+                sites: &sites,
+                served: &served,
+            }
+            .checked()
+        };
+        assert_eq!(
+            limit(&["lab-b", "lab-a", "lab-b"]).unwrap(),
+            ["lab-a", "lab-b"]
+        );
+        for bad in [&[][..], &["lab-c"], &["lab-a", "LAB-B"]] {
+            let e = limit(bad).unwrap_err().to_string();
+            assert!(
+                e.starts_with("sites: ") && e.contains("lab-b, lab-a"),
+                "{bad:?}: {e}"
+            );
+        }
+    }
+
+    #[test]
+    fn sites_are_named_in_words() {
+        assert_eq!(sites_words(&["a"]), r#"site "a""#);
+        assert_eq!(sites_words(&["a", "b", "c"]), r#"sites "a", "b" and "c""#);
+    }
 
     #[test]
     fn a_login_records_how_the_session_began() {

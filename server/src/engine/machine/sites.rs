@@ -17,10 +17,10 @@ pub const DEFAULT: &str = "main";
 /// The longest site name (it is recorded with every trial and shown on the dashboard).
 const MAX_NAME: usize = 40;
 
-/// A site's name as `--site` and the API take it, or why it is not one.
+/// A site's name as `--site` and the API take it, or why it is not one: the rule of every
+/// name (`engine::name_rule`), in a stricter alphabet.
 pub fn check_name(name: &str) -> std::result::Result<(), String> {
-    let ok = !name.is_empty()
-        && name.len() <= MAX_NAME
+    let ok = crate::engine::name_rule("site name", name, 1, MAX_NAME).is_ok()
         && name.starts_with(|c: char| c.is_ascii_lowercase() || c.is_ascii_digit())
         && name
             .chars()
