@@ -51,15 +51,9 @@ impl Experimenter {
     }
 }
 
-/// A query string that does not parse is the user's mistake: 422 naming the field. (For a
-/// handler that decides itself what a bad query means; the others take [`AppQuery`].)
-pub fn query<T>(q: Result<Query<T>, QueryRejection>) -> Result<T, AppError> {
-    q.map(|Query(q)| q).map_err(AppError::from)
-}
-
 /// `Query` whose rejection is the documented JSON error: 422 naming the field that does not
-/// parse. Every handler takes its query through this (or [`query`]), never axum's own,
-/// whose rejection is plain text.
+/// parse. Every handler takes its query through this, never axum's own, whose rejection is
+/// plain text (but the E-stop's, which stops every site when its query does not parse).
 #[derive(Debug, FromRequestParts)]
 #[from_request(via(Query), rejection(AppError))]
 pub struct AppQuery<T>(pub T);
