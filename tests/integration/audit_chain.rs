@@ -530,6 +530,21 @@ fn audit_verify_names_the_forgeries_of_issue_37() {
         &|name| copy_file(dir.path(), &original, name),
         logged,
     );
+
+    // Without the key file the keyed entries cannot be checked: it says so and fails,
+    // rather than calling the log intact.
+    let Store::File(keyless) = copy_file(dir.path(), &original, "keyless") else {
+        unreachable!("a file")
+    };
+    std::fs::remove_file(keyless.with_extension("audit-key")).unwrap();
+    let (out, text) = Store::File(keyless).verify();
+    assert!(!out.status.success(), "{text}");
+    assert!(
+        text.contains("keyed entries cannot be checked")
+            && text.contains("NOT checked: ")
+            && text.contains("could not be checked whole"),
+        "{text}"
+    );
 }
 
 #[test]
