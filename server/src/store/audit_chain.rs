@@ -467,8 +467,10 @@ pub async fn checkpoint(db: &mut AnyConnection, key: &SigningKey, at: i64) -> Re
 /// then the head needs signing now, not in minutes.
 pub async fn unkeyed_after_checkpoint(db: &mut AnyConnection) -> Result<bool> {
     let found: Option<i64> = sqlx::query_scalar(
-        "SELECT entry_id FROM audit_chain WHERE format < 2 \
-         AND entry_id > COALESCE((SELECT MAX(entry_id) FROM audit_checkpoints), 0) LIMIT 1",
+        // The newest checkpoint by its key (it signed the highest entry: the head only
+        // grows), not MAX(entry_id), which would read every checkpoint once a second.
+        "SELECT entry_id FROM audit_chain WHERE format < 2 AND entry_id > \
+         COALESCE((SELECT entry_id FROM audit_checkpoints ORDER BY id DESC LIMIT 1), 0) LIMIT 1",
     )
     .fetch_optional(db)
     .await?;
