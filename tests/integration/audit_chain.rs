@@ -13,7 +13,7 @@ use std::process::{Command, Output};
 
 use bdft_tests::audit_chain as chain;
 use bdft_tests::postgres::PgDatabase;
-use bdft_tests::server::{Server, Stop, short_study, with_url};
+use bdft_tests::server::{Server, Stop, eventually, short_study, with_url};
 use bdft_tests::{TempDir, binary};
 
 /// A store to tamper with and verify: a SQLite file (its audit key beside it), or a
@@ -530,6 +530,21 @@ fn audit_verify_names_the_forgeries_of_issue_37() {
         &|name| copy_file(dir.path(), &original, name),
         logged,
     );
+
+    // Without the key file the keyed entries cannot be checked: it says so and fails,
+    // rather than calling the log intact.
+    let Store::File(keyless) = copy_file(dir.path(), &original, "keyless") else {
+        unreachable!("a file")
+    };
+    std::fs::remove_file(keyless.with_extension("audit-key")).unwrap();
+    let (out, text) = Store::File(keyless).verify();
+    assert!(!out.status.success(), "{text}");
+    assert!(
+        text.contains("keyed entries cannot be checked")
+            && text.contains("NOT checked: ")
+            && text.contains("could not be checked whole"),
+        "{text}"
+    );
 }
 
 #[test]
@@ -557,5 +572,47 @@ fn on_postgresql_audit_verify_names_the_forgeries_of_issue_37() {
             }
         },
         logged,
+    );
+}
+
+/// A command without the keys directory (`pilot --db postgres://…` without `--keys-dir` or
+/// `BDFT_KEYS_DIR`) writes unkeyed entries; the running server signs them (it looks every
+/// second), after which the log verifies, counting them.
+#[test]
+fn on_postgresql_entries_written_without_the_key_are_signed_by_the_server() {
+    let server = Server::start_on_postgres("audit-unkeyed", &[]);
+    let api = server.experimenter();
+    short_study(&api, 3.0, 1.0);
+    let url = server.store();
+    let mut pilot = Command::new(binary("bdft-server"))
+        .args(["pilot", "--subjects", "1", "--db", &url])
+        .env_remove("BDFT_KEYS_DIR")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let unkeyed = |url: &str| -> i64 {
+        with_url(url, async |pool| {
+            sqlx::query_scalar("SELECT COUNT(*) FROM audit_chain WHERE format = 1")
+                .fetch_one(pool)
+                .await
+                .unwrap()
+        })
+    };
+    eventually(std::time::Duration::from_secs(120), || {
+        (unkeyed(&url) > 0).then_some(())
+    });
+    pilot.kill().unwrap();
+    pilot.wait().unwrap();
+    let verdict = eventually(std::time::Duration::from_secs(20), || {
+        let (_, v) = api.get("/api/audit/verify");
+        (v["intact"] == true).then_some(v)
+    });
+    assert!(verdict["unkeyed"].as_i64() > Some(0), "{verdict}");
+    assert!(
+        verdict["report"].as_str().is_some_and(|r| r.contains(
+            "entries written without the audit key, each covered by a signed checkpoint"
+        )),
+        "{verdict}"
     );
 }
