@@ -79,18 +79,9 @@ fn main() {
         ("server", server.proc.child.id()),
         ("flooder", flooder.id()),
     ];
-    let cpu_before = processes.map(|(_, pid)| cpu_seconds(pid));
-    let phase = Instant::now();
+    let meter = bdft_tests::CpuMeter::start(&processes);
     let flooded = rounds(&server, &experimenter, (logins, calls, presses), seconds);
-    let wall = phase.elapsed().as_secs_f64();
-    let cpu: serde_json::Map<String, Value> = processes
-        .iter()
-        .zip(cpu_before)
-        .map(|((name, pid), before)| {
-            let share = (cpu_seconds(*pid) - before) / wall * 100.0;
-            (name.to_string(), json!((share * 10.0).round() / 10.0))
-        })
-        .collect();
+    let cpu = meter.shares();
     let server_rss_mb = resident_mb(server.proc.child.id());
     let flood = stop_flooder(&mut flooder, out);
     let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
@@ -220,21 +211,6 @@ fn ms(since: Instant) -> f64 {
     since.elapsed().as_secs_f64() * 1000.0
 }
 
-/// CPU seconds (user + system) process `pid` has used (0 if it is gone).
-fn cpu_seconds(pid: u32) -> f64 {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
-    let fields: Vec<&str> = stat
-        .rsplit_once(')')
-        .map_or(vec![], |(_, rest)| rest.split_whitespace().collect());
-    let ticks = |i: usize| {
-        fields
-            .get(i)
-            .and_then(|f| f.parse::<f64>().ok())
-            .unwrap_or(0.0)
-    };
-    // Clock ticks are 1/100 s on Linux (USER_HZ).
-    (ticks(11) + ticks(12)) / 100.0
-}
 
 /// Resident memory of process `pid`, MB (from /proc).
 fn resident_mb(pid: u32) -> f64 {

@@ -13,8 +13,10 @@
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use bdft_tests::server::{Api, HeldWrite, Server, eventually, pilot_copy, short_study};
-use bdft_tests::{binary, send_signal, setting, setting_list};
+use bdft_tests::server::{
+    Api, HeldWrite, Server, eventually, pilot_copy, replace_controller, short_study,
+};
+use bdft_tests::{binary, setting, setting_list};
 use serde_json::{Value, json};
 
 fn main() {
@@ -64,12 +66,7 @@ fn press(api: &Api, n: usize) -> Vec<f64> {
 
 fn latch_kept_across_a_controller_kill(api: &Api) -> bool {
     let pid = api.get("/api/controller").1["pid"].as_u64().unwrap();
-    send_signal(pid as u32, "KILL").unwrap();
-    eventually(Duration::from_secs(60), || {
-        let (_, c) = api.get("/api/controller");
-        (c["connected"] == true && c["pid"].as_u64() != Some(pid))
-            .then(|| c["estop_latched"] == true)
-    })
+    replace_controller(api, pid)["estop_latched"] == true
 }
 
 fn summary(mut v: Vec<f64>) -> Value {

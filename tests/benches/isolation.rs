@@ -91,8 +91,7 @@ fn scenario(
         ("controller", controller),
         ("flooder", flooder.id()),
     ];
-    let cpu_before = processes.map(|(_, pid)| cpu_seconds(pid));
-    let phase = Instant::now();
+    let meter = bdft_tests::CpuMeter::start(&processes);
     let polling = Arc::new(AtomicBool::new(true));
     let poller = {
         // The dashboard's own session and connection.
@@ -111,15 +110,7 @@ fn scenario(
     };
     start(api, trial);
     let fed = station::feed(&mut ws, trial, 60.0, seconds);
-    let wall = phase.elapsed().as_secs_f64();
-    let cpu: serde_json::Map<String, Value> = processes
-        .iter()
-        .zip(cpu_before)
-        .map(|((name, pid), before)| {
-            let share = (cpu_seconds(*pid) - before) / wall * 100.0;
-            (name.to_string(), json!((share * 10.0).round() / 10.0))
-        })
-        .collect();
+    let cpu = meter.shares();
     polling.store(false, Ordering::Relaxed);
     let (api_ms, api_failed) = poller.join().unwrap();
     let row = api.get(&format!("/api/subjects/{subject}")).1["trials"][0]["trial"].clone();
@@ -164,22 +155,6 @@ fn scenario(
     })
 }
 
-/// CPU seconds (user + system) process `pid` has used (0 if it is gone).
-fn cpu_seconds(pid: u32) -> f64 {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
-    // After the command name in parentheses: state is field 3, utime and stime 14 and 15.
-    let fields: Vec<&str> = stat
-        .rsplit_once(')')
-        .map_or(vec![], |(_, rest)| rest.split_whitespace().collect());
-    let ticks = |i: usize| {
-        fields
-            .get(i)
-            .and_then(|f| f.parse::<f64>().ok())
-            .unwrap_or(0.0)
-    };
-    // Clock ticks are 1/100 s on Linux (USER_HZ).
-    (ticks(11) + ticks(12)) / 100.0
-}
 
 fn start_flooder(base: &str, token: &str, trial: i64, sockets: usize) -> Child {
     Command::new(std::env::current_exe().unwrap())

@@ -176,6 +176,50 @@ fn logged_and_checkpointed(server: &Server) -> i64 {
 /// `original` verifies; each kind of tampering, on a copy of its own (`copy`), is caught
 /// with the entry named; a whole rewrite of the chain is caught by the signed checkpoint;
 /// this test's own chain of the untouched log equals the server's.
+/// A consistent copy of the running SQLite `server`'s database, with its key, in `dir`.
+fn consistent_copy(server: &Server, dir: &Path) -> PathBuf {
+    let original = dir.join("original.db");
+    with_url(&format!("sqlite://{}", server.db.display()), async |pool| {
+        sqlx::query(&format!("VACUUM INTO '{}'", original.display()))
+            .execute(pool)
+            .await
+            .unwrap();
+    });
+    std::fs::copy(
+        server.db.with_extension("audit-key"),
+        original.with_extension("audit-key"),
+    )
+    .unwrap();
+    original
+}
+
+/// Stops the PostgreSQL `server` (a template database takes no connections while it is
+/// copied) and runs `check` on its store and on copies of it made by name (`prefix_NAME`).
+fn with_postgres_copies(
+    server: &mut Server,
+    prefix: &str,
+    check: impl FnOnce(&Store, &dyn Fn(&str) -> Store),
+) {
+    server
+        .stop(Stop::Term, std::time::Duration::from_secs(30))
+        .unwrap();
+    let pg = server.postgres.as_ref().unwrap();
+    let keys = server.dir.path().to_path_buf();
+    let original = Store::Postgres {
+        url: pg.url(),
+        keys: keys.clone(),
+        _copy: None,
+    };
+    check(&original, &|name| {
+        let copy = pg.blocking_copy(&format!("{prefix}_{name}"));
+        Store::Postgres {
+            url: copy.url(),
+            keys: keys.clone(),
+            _copy: Some(Box::new(copy)),
+        }
+    });
+}
+
 fn every_kind_of_tampering_is_named(
     original: &Store,
     copy: &dyn Fn(&str) -> Store,
@@ -286,18 +330,7 @@ fn audit_verify_names_every_kind_of_tampering() {
     let checkpoint = logged_and_checkpointed(&server);
     // A consistent copy of the running server's database, and its key.
     let dir = TempDir::new("audit-chain-copies");
-    let original = dir.path().join("original.db");
-    with_url(&format!("sqlite://{}", server.db.display()), async |pool| {
-        sqlx::query(&format!("VACUUM INTO '{}'", original.display()))
-            .execute(pool)
-            .await
-            .unwrap();
-    });
-    std::fs::copy(
-        server.db.with_extension("audit-key"),
-        original.with_extension("audit-key"),
-    )
-    .unwrap();
+    let original = consistent_copy(&server, dir.path());
     every_kind_of_tampering_is_named(
         &Store::File(original.clone()),
         &|name| copy_file(dir.path(), &original, name),
@@ -338,29 +371,9 @@ fn audit_verify_names_every_kind_of_tampering() {
 fn on_postgresql_audit_verify_names_every_kind_of_tampering() {
     let mut server = Server::start_on_postgres("audit-chain-postgres", &[]);
     let checkpoint = logged_and_checkpointed(&server);
-    // Stopped: a template database takes no connections while it is copied.
-    server
-        .stop(Stop::Term, std::time::Duration::from_secs(30))
-        .unwrap();
-    let pg = server.postgres.as_ref().unwrap();
-    let keys = server.dir.path().to_path_buf();
-    let original = Store::Postgres {
-        url: pg.url(),
-        keys: keys.clone(),
-        _copy: None,
-    };
-    every_kind_of_tampering_is_named(
-        &original,
-        &|name| {
-            let copy = pg.blocking_copy(&format!("tampered_{name}"));
-            Store::Postgres {
-                url: copy.url(),
-                keys: keys.clone(),
-                _copy: Some(Box::new(copy)),
-            }
-        },
-        checkpoint,
-    );
+    with_postgres_copies(&mut server, "tampered", |original, copy| {
+        every_kind_of_tampering_is_named(original, copy, checkpoint);
+    });
 }
 
 /// A log with an erasure in it (issue 37): two people enrolled, a four-letter note on a test
@@ -513,18 +526,7 @@ fn audit_verify_names_the_forgeries_of_issue_37() {
     let server = Server::start("audit-forgeries");
     let logged = logged_with_an_erasure(&server);
     let dir = TempDir::new("audit-forgeries-copies");
-    let original = dir.path().join("original.db");
-    with_url(&format!("sqlite://{}", server.db.display()), async |pool| {
-        sqlx::query(&format!("VACUUM INTO '{}'", original.display()))
-            .execute(pool)
-            .await
-            .unwrap();
-    });
-    std::fs::copy(
-        server.db.with_extension("audit-key"),
-        original.with_extension("audit-key"),
-    )
-    .unwrap();
+    let original = consistent_copy(&server, dir.path());
     the_forgeries_of_issue_37_are_named(
         &Store::File(original.clone()),
         &|name| copy_file(dir.path(), &original, name),
@@ -551,28 +553,9 @@ fn audit_verify_names_the_forgeries_of_issue_37() {
 fn on_postgresql_audit_verify_names_the_forgeries_of_issue_37() {
     let mut server = Server::start_on_postgres("audit-forgeries-postgres", &[]);
     let logged = logged_with_an_erasure(&server);
-    server
-        .stop(Stop::Term, std::time::Duration::from_secs(30))
-        .unwrap();
-    let pg = server.postgres.as_ref().unwrap();
-    let keys = server.dir.path().to_path_buf();
-    let original = Store::Postgres {
-        url: pg.url(),
-        keys: keys.clone(),
-        _copy: None,
-    };
-    the_forgeries_of_issue_37_are_named(
-        &original,
-        &|name| {
-            let copy = pg.blocking_copy(&format!("forged_{name}"));
-            Store::Postgres {
-                url: copy.url(),
-                keys: keys.clone(),
-                _copy: Some(Box::new(copy)),
-            }
-        },
-        logged,
-    );
+    with_postgres_copies(&mut server, "forged", |original, copy| {
+        the_forgeries_of_issue_37_are_named(original, copy, logged);
+    });
 }
 
 /// A command without the keys directory (`pilot --db postgres://…` without `--keys-dir` or

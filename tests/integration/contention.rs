@@ -6,7 +6,8 @@ use std::time::Duration;
 
 use bdft_tests::send_signal;
 use bdft_tests::server::{
-    HeldWrite, Server, consented_synthetic_subject, dry_run, eventually, short_study,
+    HeldWrite, Server, consented_synthetic_subject, dry_run, eventually, replace_controller,
+    short_study,
 };
 use serde_json::{Value, json};
 
@@ -36,12 +37,7 @@ fn an_estop_is_answered_and_kept_while_the_store_is_held() {
     assert!(body.get("latch_not_kept").is_none(), "{body}");
     // The controller dies; its successor is told the latch (from the server's latch, not
     // the held store), and no test starts.
-    send_signal(pid as u32, "KILL").unwrap();
-    eventually(Duration::from_secs(30), || {
-        let (_, c) = api.get("/api/controller");
-        (c["connected"] == true && c["pid"].as_u64() != Some(pid) && c["estop_latched"] == true)
-            .then_some(())
-    });
+    assert_eq!(replace_controller(&api, pid)["estop_latched"], true);
     let (code, body) = api.post(&format!("/api/trials/{practice}/start"), json!({}));
     assert_eq!(code, 409, "{body}");
     assert!(

@@ -455,12 +455,7 @@ fn the_estop_latch_holds_across_a_controller_restart_until_reset() {
     let (subject, practice, pid) = consented_synthetic_subject(&server, &api, study);
     api.ok("/api/estop", json!({}));
     // The controller dies; its successor starts latched and the server keeps it so.
-    send_signal(pid as u32, "KILL").unwrap();
-    eventually(Duration::from_secs(20), || {
-        let (_, c) = api.get("/api/controller");
-        (c["connected"] == true && c["pid"].as_u64() != Some(pid) && c["estop_latched"] == true)
-            .then_some(())
-    });
+    assert_eq!(replace_controller(&api, pid)["estop_latched"], true);
     let (code, body) = api.post(&format!("/api/trials/{practice}/start"), json!({}));
     assert_eq!(code, 409, "{body}");
     assert!(

@@ -94,6 +94,55 @@ pub fn send_signal(pid: u32, name: &str) -> Result<(), String> {
     }
 }
 
+/// The CPU that named processes use over a stretch of time: [`CpuMeter::start`] reads their
+/// counters, [`CpuMeter::shares`] gives each one's use since, in % of one core.
+#[derive(Debug)]
+pub struct CpuMeter {
+    processes: Vec<(&'static str, u32, f64)>,
+    since: std::time::Instant,
+}
+
+impl CpuMeter {
+    pub fn start(processes: &[(&'static str, u32)]) -> Self {
+        Self {
+            processes: processes
+                .iter()
+                .map(|&(name, pid)| (name, pid, cpu_seconds(pid)))
+                .collect(),
+            since: std::time::Instant::now(),
+        }
+    }
+
+    /// Each process's CPU since the start, % of one core (one decimal).
+    pub fn shares(&self) -> serde_json::Map<String, serde_json::Value> {
+        let wall = self.since.elapsed().as_secs_f64();
+        self.processes
+            .iter()
+            .map(|&(name, pid, before)| {
+                let share = (cpu_seconds(pid) - before) / wall * 100.0;
+                (name.to_string(), serde_json::json!((share * 10.0).round() / 10.0))
+            })
+            .collect()
+    }
+}
+
+/// CPU seconds (user + system) process `pid` has used (0 if it is gone).
+fn cpu_seconds(pid: u32) -> f64 {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+    // After the command name in parentheses: state is field 3, utime and stime 14 and 15.
+    let fields: Vec<&str> = stat
+        .rsplit_once(')')
+        .map_or(vec![], |(_, rest)| rest.split_whitespace().collect());
+    let ticks = |i: usize| {
+        fields
+            .get(i)
+            .and_then(|f| f.parse::<f64>().ok())
+            .unwrap_or(0.0)
+    };
+    // Clock ticks are 1/100 s on Linux (USER_HZ).
+    (ticks(11) + ticks(12)) / 100.0
+}
+
 /// Whether a WebSocket read failed only because the socket's read timeout passed (nothing
 /// to read yet; the socket is still good).
 pub fn read_timed_out(e: &tungstenite::Error) -> bool {

@@ -730,3 +730,13 @@ pub fn consent_at(server: &Server, api: &Api, token: &str, subject: i64) -> (i64
     let practice = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
     (practice, pid)
 }
+
+/// Kills the controller `pid` (SIGKILL) and waits for its successor to connect: its status
+/// (`GET /api/controller`), whose `estop_latched` says whether it came up latched.
+pub fn replace_controller(api: &Api, pid: u64) -> Value {
+    crate::send_signal(pid as u32, "KILL").unwrap();
+    eventually(Duration::from_secs(60), || {
+        let (_, c) = api.get("/api/controller");
+        (c["connected"] == true && c["pid"].as_u64().is_some_and(|p| p != pid)).then_some(c)
+    })
+}

@@ -32,7 +32,7 @@ async fn start_trial(
     who: Experimenter,
     AppPath(id): AppPath<i64>,
 ) -> ApiResult<Trial> {
-    let site = stations::site_of_trial(&s.pool, &s.sites, id).await?;
+    let site = stations::site_driven_by(&s.pool, &s.sites, id).await?;
     who.may_drive(&s.pool, Drive::Start, &[&site]).await?;
     Ok(AppJson(
         trials::start(&s.pool, &s.sites, &who.username, id).await?,
@@ -49,7 +49,7 @@ async fn abort_trial(
     AppPath(id): AppPath<i64>,
     AppJson(b): AppJson<ReasonBody>,
 ) -> ApiResult<Done> {
-    let site = stations::site_of_trial(&s.pool, &s.sites, id).await?;
+    let site = stations::site_driven_by(&s.pool, &s.sites, id).await?;
     who.may_drive(&s.pool, Drive::Abort, &[&site]).await?;
     trials::abort(&s.pool, &s.sites, &who.username, id, &b.reason).await?;
     Ok(Done::ok())

@@ -398,18 +398,24 @@ pub async fn assign(
         .await
 }
 
+/// The stored site of `subject_id`'s stations (a subject's stations are at one site; none
+/// for a subject at no station, or at stations paired before sites existed: the server's
+/// first site).
+pub async fn subject_site(pool: &AnyPool, subject_id: i64) -> Result<Option<String>> {
+    let stations = store::stations::of_subject(pool, subject_id).await?;
+    Ok(stations.into_iter().next().and_then(|s| s.site))
+}
+
 /// The site whose machine trial `trial_id` drives: the one it ran at (recorded when it
-/// started), or else its subject's stations' site — a subject's stations are at one site,
-/// and one at no station is at the server's first, as `trials::start` runs it. What
+/// started), or else its subject's stations' site, as `trials::start` runs it. What
 /// starting or aborting it is checked against for an account limited to sites.
-pub async fn site_of_trial(pool: &AnyPool, sites: &Sites, trial_id: i64) -> Result<String> {
+pub async fn site_driven_by(pool: &AnyPool, sites: &Sites, trial_id: i64) -> Result<String> {
     let trial = store::trials::get(pool, trial_id).await?;
     if let Some(site) = trial.site {
         return Ok(site);
     }
-    let stations = store::stations::of_subject(pool, trial.subject_id).await?;
-    let stored = stations.first().and_then(|s| s.site.as_deref());
-    Ok(sites.name_of(stored).to_string())
+    let stored = subject_site(pool, trial.subject_id).await?;
+    Ok(sites.name_of(stored.as_deref()).to_string())
 }
 
 /// Whether two stations' roles have a seat in common.

@@ -43,8 +43,8 @@ async fn site_of_subject<'s>(
     sites: &'s Sites,
     subject: &store::subjects::Subject,
 ) -> Result<&'s ControllerLink> {
-    let stations = store::stations::of_subject(pool, subject.id).await?;
-    let stored = stations.first().and_then(|s| s.site.as_deref());
+    let stored = super::stations::subject_site(pool, subject.id).await?;
+    let stored = stored.as_deref();
     sites.stored(stored).ok_or_else(|| {
         AppError::Conflict(format!(
             "{}'s station is at site {:?}, which this server does not serve (its sites: {})",
