@@ -155,7 +155,6 @@ fn scenario(
     })
 }
 
-
 fn start_flooder(base: &str, token: &str, trial: i64, sockets: usize) -> Child {
     Command::new(std::env::current_exe().unwrap())
         .env(FLOOD, format!("{base} {token} {trial} {sockets}"))

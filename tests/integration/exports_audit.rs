@@ -26,7 +26,7 @@ fn notes_and_reasons_are_exported_and_the_audit_log_too() {
     p["trial_s"] = json!(1.0);
     p["practice_s"] = json!(0.5);
     p["step_interval_s"] = json!(0.5);
-    let name = "study \u{1}\u{7} with =controls";
+    let name = "study <&> \"quoted\" ∂ with =controls";
     let study = api.ok("/api/studies", json!({ "name": name, "params": p }))["id"]
         .as_i64()
         .unwrap();
@@ -116,7 +116,7 @@ fn notes_and_reasons_are_exported_and_the_audit_log_too() {
     let cli = parse_csv(&std::fs::read_to_string(&out).unwrap());
     assert!(cli.len() >= audit.len() - 1 && cli[0] == audit[0]);
 
-    // Plots of a study whose name has control characters render (no 500).
+    // Plots of a study whose name has markup and quotes render (no 500).
     for file in ["mse_tracking_mm2.png", "mse_tracking_mm2.svg"] {
         let (code, _) = api.get_text(&format!("/api/studies/{study}/plots/{file}"));
         assert_eq!(code, 200, "{file}");

@@ -120,7 +120,10 @@ impl CpuMeter {
             .iter()
             .map(|&(name, pid, before)| {
                 let share = (cpu_seconds(pid) - before) / wall * 100.0;
-                (name.to_string(), serde_json::json!((share * 10.0).round() / 10.0))
+                (
+                    name.to_string(),
+                    serde_json::json!((share * 10.0).round() / 10.0),
+                )
             })
             .collect()
     }
