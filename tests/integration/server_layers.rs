@@ -7,7 +7,7 @@ use std::time::Duration;
 use bdft_tests::send_signal;
 use bdft_tests::server::{
     Api, Server, assigned_station, consent_at, consented_synthetic_subject, dry_run, eventually,
-    pair_station, run_pilot, run_trial, short_study,
+    pair_station, replace_controller, run_pilot, run_trial, short_study,
 };
 use serde_json::{Value, json};
 
