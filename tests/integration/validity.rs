@@ -357,8 +357,10 @@ fn a_station_tab_hidden_during_a_test_has_it_filed_invalid_in_chromium() {
     let driver = Driver::start();
     let dir = bdft_tests::TempDir::new("validity-browser");
     let s = driver.session(dir.path());
-    // The station page with this station's token (as if it had been paired here).
-    s.goto(&format!("{}/station", server.base));
+    // The station page with this station's token (as if it had been paired here), set from
+    // a page of the same origin that runs no station code (the station page's own
+    // registration could overwrite it).
+    s.goto(&format!("{}/api/health", server.base));
     s.exec(
         "localStorage.setItem('bdft-station-token', arguments[0]); localStorage.setItem('bdft-station-code', 'PAIRED'); localStorage.setItem('bdft-station-code-at', String(Date.now())); localStorage.setItem('bdft-station-paired', '1');",
         json!([token]),
