@@ -155,25 +155,14 @@ fn one_address_holding_many_connections_cannot_keep_another_from_logging_in() {
     });
 }
 
-/// A station's registration from `from`.
-fn register(from: std::net::IpAddr, server: &Server) -> Answer {
-    raw::request(
-        from,
-        server.proc.addr,
-        "POST",
-        "/api/station/register",
-        &[],
-        Some("{}"),
-    )
-    .unwrap()
-}
-
 #[test]
 fn one_address_cannot_take_every_pairing_code() {
     let server = Server::start("bounded-register");
     // 256 registrations from one address as fast as it can: before the per-address limit
     // every code was taken, and every other station got 503 for an hour.
-    let answers: Vec<Answer> = (0..256).map(|_| register(loopback(2), &server)).collect();
+    let answers: Vec<Answer> = (0..256)
+        .map(|_| raw::register(loopback(2), server.proc.addr))
+        .collect();
     let given = answers.iter().filter(|a| a.status == 200).count();
     assert_eq!(given, 20, "the default is 20 a minute");
     for a in answers.iter().filter(|a| a.status != 200) {
@@ -213,7 +202,7 @@ fn an_address_shows_at_most_its_pairing_codes_its_oldest_withdrawn() {
     let study = short_study(&api, 60.0, 60.0);
     let codes: Vec<(String, String)> = (0..6)
         .map(|_| {
-            let a = register(loopback(2), &server);
+            let a = raw::register(loopback(2), server.proc.addr);
             assert_eq!(a.status, 200, "{a:?}");
             let b = a.json();
             (

@@ -7,7 +7,7 @@ use std::time::Duration;
 use bdft_tests::send_signal;
 use bdft_tests::server::{
     HeldWrite, Server, consented_synthetic_subject, dry_run, eventually, replace_controller,
-    short_study,
+    running_practice, short_study,
 };
 use serde_json::{Value, json};
 
@@ -106,13 +106,7 @@ fn a_reset_waits_for_the_press_before_it_to_be_recorded() {
 fn a_stalled_server_keeps_its_controller_link_and_the_running_test() {
     let server = Server::start("contention-stall");
     let api = server.experimenter();
-    let study = dry_run(&api, short_study(&api, 60.0, 3.0));
-    let (subject, practice, pid) = consented_synthetic_subject(&server, &api, study);
-    assert_eq!(
-        api.post(&format!("/api/trials/{practice}/start"), json!({}))
-            .0,
-        200
-    );
+    let (subject, _, pid) = running_practice(&server, &api, 3.0);
     // The server stalls (stopped, then continued: every thread of it, its runtime and its
     // reader alike) for four times the silence limit, and its store is held across the
     // test's end (its result waits to be filed). A controller that kept sending meanwhile

@@ -7,7 +7,7 @@ use std::time::Duration;
 use bdft_tests::send_signal;
 use bdft_tests::server::{
     Api, Server, assigned_station, consent_at, consented_synthetic_subject, dry_run, eventually,
-    pair_station, replace_controller, run_pilot, run_trial, short_study,
+    pair_station, replace_controller, run_pilot, run_trial, running_practice, short_study,
 };
 use serde_json::{Value, json};
 
@@ -405,13 +405,7 @@ fn one_input_source_per_test_and_withdrawal_stops_the_running_test() {
 fn a_hung_controller_is_noticed_within_its_silence_limit() {
     let server = Server::start("layers-hung");
     let api = server.experimenter();
-    let study = dry_run(&api, short_study(&api, 60.0, 60.0));
-    let (subject, practice, pid) = consented_synthetic_subject(&server, &api, study);
-    assert_eq!(
-        api.post(&format!("/api/trials/{practice}/start"), json!({}))
-            .0,
-        200
-    );
+    let (subject, _, pid) = running_practice(&server, &api, 60.0);
     let stopped_at = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .unwrap()

@@ -342,17 +342,7 @@ fn pairing_codes_are_bounded_and_a_waiting_station_learns_of_its_pairing_at_once
     // The codes shown at once are bounded; the refusal says why and what to do. One address
     // shows at most 16 (`bounded_clients`), so sixteen stations' addresses (127.0.0.10 to
     // .25) register 16 each (the code above was paired: it is no longer shown).
-    let register = |n: u8| {
-        raw::request(
-            raw::loopback(n),
-            server.proc.addr,
-            "POST",
-            "/api/station/register",
-            &[],
-            Some("{}"),
-        )
-        .unwrap()
-    };
+    let register = |n: u8| raw::register(raw::loopback(n), server.proc.addr);
     let shown = (10..26)
         .flat_map(|n| (0..16).map(move |_| n))
         .map(register)

@@ -127,3 +127,8 @@ pub fn request(
     stream.write_all(&bytes)?;
     read_answer(&mut stream, Duration::from_secs(60))
 }
+
+/// A station's registration (`POST /api/station/register`) from `from` at `to`.
+pub fn register(from: IpAddr, to: SocketAddr) -> Answer {
+    request(from, to, "POST", "/api/station/register", &[], Some("{}")).unwrap()
+}

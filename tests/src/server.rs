@@ -740,3 +740,14 @@ pub fn replace_controller(api: &Api, pid: u64) -> Value {
         (c["connected"] == true && c["pid"].as_u64().is_some_and(|p| p != pid)).then_some(c)
     })
 }
+
+/// A dry-run study with `practice_s`-long practice tests whose first synthetic subject's
+/// practice test has been started: (subject id, the practice trial's id, the controller's
+/// pid).
+pub fn running_practice(server: &Server, api: &Api, practice_s: f64) -> (i64, i64, u64) {
+    let study = dry_run(api, short_study(api, 60.0, practice_s));
+    let (subject, practice, pid) = consented_synthetic_subject(server, api, study);
+    let (code, body) = api.post(&format!("/api/trials/{practice}/start"), json!({}));
+    assert_eq!(code, 200, "start {practice}: {body}");
+    (subject, practice, pid)
+}
