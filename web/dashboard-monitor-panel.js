@@ -163,8 +163,14 @@ function hintText(st) {
           : `${who} is ready for the next test. Press Start when they are.`;
     case 'running':
       return `${who} is tracking. Abort only if needed (a reason is recorded); the e-stop is at the top right.`;
-    case 'held':
-      return `${who}'s remaining test failed as often as it is repeated by itself: repeat it (Schedule a redo) or accept it as incomplete with a reason.`;
+    case 'held': {
+      const f = st.failed;
+      if (f && f.phase === 'practice') {
+        return `${who}'s practice failed ${f.attempts} time${f.attempts === 1 ? '' : 's'} (trial ${f.trial_id}) and holds every scored test: repeat it (Schedule a redo) or accept it as incomplete with a reason, under Subjects.`;
+      }
+      const which = f ? `“${f.label}” (trial ${f.trial_id})` : 'remaining test';
+      return `${who}'s ${which} failed as often as it is repeated by itself: repeat it (Schedule a redo) or accept it as incomplete with a reason, under Subjects.`;
+    }
     case 'done':
       return st.reason === 'finished'
         ? `${who} has finished every test.`

@@ -357,9 +357,9 @@ function renderSchedule(d) {
   for (const { trial: t } of trials) {
     if (!latest.has(t.slot) || latest.get(t.slot).attempt < t.attempt) latest.set(t.slot, t);
   }
-  const next = [...latest.values()]
-    .filter((t) => t.status === 'scheduled' || t.status === 'running')
-    .sort((a, b) => a.slot - b.slot)[0];
+  // The server's queue decides (a failed practice holds it); never guessed here.
+  const next = trials.map((x) => x.trial).find((t) => t.id === d.next_trial_id);
+  const held = d.held;
   const tests = [...latest.values()].filter((t) => t.phase === 'test');
   const done = tests.filter((t) => t.status === 'complete').length;
   const notesOf = (tid) => d.notes.filter((n) => n.trial_id === tid);
@@ -372,8 +372,17 @@ function renderSchedule(d) {
       'p',
       {},
       `${s.synthetic ? 'Synthetic subject (the synthetic operator drives the tests)' : 'Person'} · starts ${SEAT_NAME[s.starting_station] || s.starting_station} · consent ${consentText(s)} · ${done} of ${tests.length} tests complete` +
-        (next ? ` · next: slot ${next.slot} (${next.phase === 'test' ? next.blinded_label : next.phase}, ${SEAT_NAME[next.station]})` : ' · nothing left to run'),
+        (next ? ` · next: slot ${next.slot} (${next.phase === 'test' ? next.blinded_label : next.phase}, ${SEAT_NAME[next.station]})` : held ? ' · held' : ' · nothing left to run'),
     ),
+    held
+      ? el(
+          'p',
+          { class: 'status warn', 'data-held': held.trial_id },
+          held.phase === 'practice'
+            ? `Held: the practice failed ${held.attempts} time${held.attempts === 1 ? '' : 's'} and no scored test runs until you redo it (Redo, trial ${held.trial_id}) or accept it as incomplete with a reason.`
+            : `Held: ${held.label} (trial ${held.trial_id}) failed ${held.attempts} times; redo it or accept it as incomplete with a reason.`,
+        )
+      : '',
     s.withdrawn_at ? el('p', { class: 'status err' }, `Withdrawn ${when(s.withdrawn_at)}: ${s.withdraw_reason || ''}`) : '',
     s.erased_at ? el('p', { class: 'status err' }, `Data erased ${when(s.erased_at)} (the audit log says by whom and why)`) : '',
     exposureBlock(d.exposure),

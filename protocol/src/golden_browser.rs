@@ -8,8 +8,8 @@ use crate::controller_to_server::LiveSample;
 use crate::params::{CompensatorKind, Seat};
 use crate::records::{ConsentDecision, DoneReason, StationRole, TestPhase, TrialStatus};
 use crate::server_to_browser::{
-    MonitorEvent, MonitorStation, MonitorTest, MonitorView, Phase, StationEvent, StationInfo,
-    StationSocket, StationView, StopNotice, TestView,
+    HeldTest, MonitorEvent, MonitorStation, MonitorTest, MonitorView, Phase, StationEvent,
+    StationInfo, StationSocket, StationView, StopNotice, TestView,
 };
 use crate::study::{StudyTexts, SurveyAnswer};
 
@@ -213,12 +213,18 @@ fn what_a_station_shows() {
         &StationView {
             phase: Phase::Held {
                 subject: "S01".into(),
+                failed: Some(HeldTest {
+                    trial_id: 3,
+                    label: "Practice".into(),
+                    phase: TestPhase::Practice,
+                    attempts: 3,
+                }),
             },
             station,
             stopped: None,
             texts: None,
         },
-        r#"{"phase":"held","subject":"S01","station":{"name":"Cab seat","role":"on"}}"#,
+        r#"{"phase":"held","subject":"S01","failed":{"trial_id":3,"label":"Practice","phase":"practice","attempts":3},"station":{"name":"Cab seat","role":"on"}}"#,
     );
 }
 

@@ -13,6 +13,7 @@
 //!   records (trial status, consent, station role) as the API and exports name them.
 
 pub mod browser_to_server;
+pub mod consent;
 pub mod controller_to_server;
 pub mod exposure;
 pub mod framing;

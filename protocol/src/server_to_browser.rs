@@ -79,14 +79,29 @@ pub enum Phase<T> {
         test: T,
     },
     /// A test failed as often as it may be repeated: the experimenter decides (repeat it
-    /// or accept it as incomplete) before anything else runs. Never "done" meanwhile.
+    /// or accept it as incomplete) before anything else runs. Never "done" meanwhile. A
+    /// practice never completed holds the schedule before any scored test; a scored test,
+    /// once every other is done.
     Held {
         subject: String,
+        /// The test waiting for the decision (absent in messages of earlier releases).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        failed: Option<HeldTest>,
     },
     Done {
         subject: String,
         reason: DoneReason,
     },
+}
+
+/// The test a held schedule waits on: which (blinded), what kind, and how often it failed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct HeldTest {
+    pub trial_id: i64,
+    pub label: String,
+    pub phase: TestPhase,
+    pub attempts: i64,
 }
 
 /// A test as the subject sees it: blinded (no field for the compensator).

@@ -4,6 +4,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::consent;
+pub use crate::consent::ConsentForm;
 use crate::identification::{IdentificationTask, MultisineSpec};
 use crate::params::{
     BodyModel, CompensatorKind, CompensatorSpec, ParamError, PlantParams, PopulationParams, Seat,
@@ -72,31 +74,6 @@ impl Default for SurveyParams {
             ],
             scale_points: 7,
             open_question: "What did you like or dislike about this controller?".into(),
-        }
-    }
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
-#[serde(deny_unknown_fields)]
-pub struct ConsentForm {
-    pub version: String,
-    pub text: String,
-}
-
-impl Default for ConsentForm {
-    fn default() -> Self {
-        Self {
-            version: "1.0".into(),
-            text: "You will control a machine's boom with a hand-held input device, following a \
-                   moving target on a screen, for about one hour: a short practice, then {tests} \
-                   tests of {trial_s} seconds, {tests_per_station} of them while seated on the \
-                   machine, which vibrates, and {tests_per_station} at a desk beside it. After \
-                   each test you answer a few questions. Risks: whole-body vibration comparable \
-                   to operating construction equipment, and fatigue. You may stop at any time \
-                   without giving a reason, and ask for your data to be withdrawn. Your data are \
-                   stored under a code, never your name."
-                .into(),
         }
     }
 }
@@ -193,14 +170,16 @@ impl StudyTexts {
 }
 
 /// The placeholders a text may use: scored tests in all and at each seat, the durations of
-/// a test and of the practice (s), and the minutes of tracking in all (practice included,
-/// rounded up).
-pub const PLACEHOLDERS: [&str; 5] = [
+/// a test and of the practice (s), the minutes of tests in all (practice and identification
+/// included, rounded up), and the description of what the study does
+/// (`consent::procedure`).
+pub const PLACEHOLDERS: [&str; 6] = [
     "tests",
     "tests_per_station",
     "trial_s",
     "practice_s",
     "minutes",
+    "procedure",
 ];
 
 /// Longest text besides the consent form's.
@@ -622,23 +601,30 @@ impl StudyParams {
     pub fn text_values(&self) -> Vec<(&'static str, String)> {
         let per_station = self.controllers.len();
         let tests = per_station * self.stations.len();
-        let minutes = ((self.practice_s + tests as f64 * self.trial_s) / 60.0).ceil();
         let values = [
             tests.to_string(),
             per_station.to_string(),
             shown(self.trial_s),
             shown(self.practice_s),
-            shown(minutes),
+            shown(consent::tracking_minutes(self)),
+            consent::procedure(self),
         ];
         PLACEHOLDERS.into_iter().zip(values).collect()
     }
 
-    /// The consent form and the station's texts with their placeholders filled in.
+    /// The consent form and the station's texts with their placeholders filled in. A
+    /// consent text that does not place `{procedure}` gets it appended: no form leaves out
+    /// what the protocol does.
     pub fn rendered_texts(&self) -> Result<(ConsentForm, StudyTexts), ParamError> {
         let values = self.text_values();
+        let mut text = render("consent.text", &self.consent.text, &values)?;
+        let procedure = consent::procedure(self);
+        if !text.contains(&procedure) {
+            text = format!("{}\n\n{procedure}", text.trim_end());
+        }
         let consent = ConsentForm {
             version: self.consent.version.clone(),
-            text: render("consent.text", &self.consent.text, &values)?,
+            text,
         };
         let mut texts = self.texts.clone();
         for (name, text) in texts.fields_mut() {

@@ -28,6 +28,7 @@ mod https;
 mod identification_study;
 mod isolation;
 mod lsl;
+mod practice_and_consent;
 mod protocol_package;
 mod server_api;
 mod server_layers;

@@ -128,7 +128,7 @@ fn the_station_gets_its_texts_filled_in_from_the_parameters() {
     assert_eq!(state["phase"], "consent", "{state}");
     let consent = state["consent"]["text"].as_str().unwrap();
     assert!(
-        consent.contains("then 6 tests of 90 seconds, 3 of them while seated on the machine"),
+        consent.contains("Then 6 tests of 90 seconds each: 3 while seated on the machine"),
         "the consent form follows the study: {consent}"
     );
     assert!(!consent.contains('{'), "{consent}");

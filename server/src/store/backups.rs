@@ -96,6 +96,17 @@ pub async fn locked_studies<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<(i64, St
     .await?)
 }
 
+/// The consent forms the locks kept (migration 0030): (study, text, its stored SHA-256).
+pub async fn locked_consent_forms<'c>(
+    db: impl AnyExecutor<'c>,
+) -> Result<Vec<(i64, String, String)>> {
+    Ok(sqlx::query_as(
+        "SELECT id, consent_text, consent_sha256 FROM studies WHERE consent_text IS NOT NULL ORDER BY id",
+    )
+    .fetch_all(db)
+    .await?)
+}
+
 /// Trials that carry a protocol hash other than their study's: (trial, study).
 pub async fn trials_off_their_protocol<'c>(db: impl AnyExecutor<'c>) -> Result<Vec<(i64, i64)>> {
     Ok(sqlx::query_as(

@@ -55,7 +55,7 @@ pub async fn erase(db: &mut AnyConnection, subject_id: i64, erasure_id: i64) -> 
     let marked = sqlx::query(
         "UPDATE subjects SET erased_at = (SELECT at FROM audit_log WHERE id = $1), \
          created_at = (SELECT at FROM audit_log WHERE id = $1), token_hash = 'erased:' || id, \
-         consent_version = NULL, consent_decision = NULL, consent_at = NULL, \
+         consent_version = NULL, consent_decision = NULL, consent_at = NULL, consent_sha256 = NULL, \
          withdrawn_at = NULL, withdraw_reason = NULL, drawn_json = NULL \
          WHERE id = $2 AND erased_at IS NULL",
     )

@@ -150,6 +150,7 @@ pub struct SubjectExportRow {
     pub starting_station: String,
     pub consent_version: Option<String>,
     pub consent_decision: Option<String>,
+    pub consent_sha256: Option<String>,
     pub consent_at: Option<i64>,
     pub withdrawn_at: Option<i64>,
     pub drawn_json: Option<String>,
@@ -162,7 +163,7 @@ pub async fn subject_rows<'c>(
     study_id: i64,
 ) -> Result<Vec<SubjectExportRow>> {
     Ok(sqlx::query_as(
-        "SELECT id, code, enrol_index, synthetic, starting_station, consent_version, consent_decision, consent_at, withdrawn_at, drawn_json \
+        "SELECT id, code, enrol_index, synthetic, starting_station, consent_version, consent_decision, consent_sha256, consent_at, withdrawn_at, drawn_json \
          FROM subjects WHERE study_id = $1 AND erased_at IS NULL ORDER BY enrol_index",
     )
     .bind(study_id)

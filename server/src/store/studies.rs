@@ -20,6 +20,11 @@ pub struct Study {
     pub locked_at: Option<i64>,
     /// SHA-256 of the canonical parameters, set when the protocol is locked.
     pub protocol_hash: Option<String>,
+    /// The consent form's text as the lock rendered it from the parameters (what every
+    /// subject is shown from then on), and its SHA-256 (none for a study not locked yet, or
+    /// locked before migration 0030).
+    pub consent_text: Option<String>,
+    pub consent_sha256: Option<String>,
     pub created_at: i64,
     /// Who acknowledged that a design is unstable on the machine, when and why (simulated
     /// studies only; cleared by an edit).
@@ -50,6 +55,8 @@ struct StudyRow {
     version: i64,
     locked_at: Option<i64>,
     protocol_hash: Option<String>,
+    consent_text: Option<String>,
+    consent_sha256: Option<String>,
     created_at: i64,
     instability_ack_json: Option<String>,
     population_json: Option<String>,
@@ -75,6 +82,8 @@ impl TryFrom<StudyRow> for Study {
             version: r.version,
             locked_at: r.locked_at,
             protocol_hash: r.protocol_hash,
+            consent_text: r.consent_text,
+            consent_sha256: r.consent_sha256,
             created_at: r.created_at,
             instability_ack: r
                 .instability_ack_json
@@ -180,13 +189,23 @@ fn locked() -> AppError {
     AppError::Conflict("the study's protocol is locked: a subject has been enrolled".into())
 }
 
-/// Locks the protocol with its hash (the first enrolment does this).
-pub async fn lock(db: &mut AnyConnection, id: i64, hash: &str) -> Result<()> {
+/// Locks the protocol with its hash and the consent form's text as rendered from it, with
+/// that text's SHA-256 (the first enrolment does this).
+pub async fn lock(
+    db: &mut AnyConnection,
+    id: i64,
+    hash: &str,
+    consent_text: &str,
+    consent_sha256: &str,
+) -> Result<()> {
     sqlx::query(
-        "UPDATE studies SET locked_at = $1, protocol_hash = $2 WHERE id = $3 AND locked_at IS NULL",
+        "UPDATE studies SET locked_at = $1, protocol_hash = $2, consent_text = $3, consent_sha256 = $4 \
+         WHERE id = $5 AND locked_at IS NULL",
     )
     .bind(now_ms())
     .bind(hash)
+    .bind(consent_text)
+    .bind(consent_sha256)
     .bind(id)
     .execute(db)
     .await?;

@@ -22,6 +22,9 @@ pub struct Subject {
     pub consent_version: Option<String>,
     pub consent_decision: Option<ConsentDecision>,
     pub consent_at: Option<i64>,
+    /// SHA-256 of the consent form's text the decision was made on (none for a decision
+    /// recorded before migration 0030).
+    pub consent_sha256: Option<String>,
     pub withdrawn_at: Option<i64>,
     pub withdraw_reason: Option<String>,
     pub created_at: i64,
@@ -45,6 +48,7 @@ struct SubjectRow {
     consent_version: Option<String>,
     consent_decision: Option<String>,
     consent_at: Option<i64>,
+    consent_sha256: Option<String>,
     withdrawn_at: Option<i64>,
     withdraw_reason: Option<String>,
     created_at: i64,
@@ -75,6 +79,7 @@ impl TryFrom<SubjectRow> for Subject {
             synthetic: r.synthetic,
             consent_version: r.consent_version,
             consent_at: r.consent_at,
+            consent_sha256: r.consent_sha256,
             withdrawn_at: r.withdrawn_at,
             withdraw_reason: r.withdraw_reason,
             created_at: r.created_at,
@@ -89,7 +94,7 @@ impl TryFrom<SubjectRow> for Subject {
     }
 }
 
-const COLUMNS: &str = "id, study_id, code, enrol_index, synthetic, starting_station, consent_version, consent_decision, consent_at, withdrawn_at, withdraw_reason, created_at, drawn_json, erased_at";
+const COLUMNS: &str = "id, study_id, code, enrol_index, synthetic, starting_station, consent_version, consent_decision, consent_at, consent_sha256, withdrawn_at, withdraw_reason, created_at, drawn_json, erased_at";
 
 pub async fn get<'c>(db: impl AnyExecutor<'c>, id: i64) -> Result<Subject> {
     let row: Option<SubjectRow> =
@@ -168,18 +173,20 @@ pub fn refuse_erased(subject: &Subject) -> AppError {
     ))
 }
 
-/// Records the subject's decision on the consent form `version`; only the first decision
-/// counts.
+/// Records the subject's decision on the consent form `version` whose text hashes to
+/// `text_sha256`; only the first decision counts.
 pub async fn record_consent(
     db: &mut AnyConnection,
     subject_id: i64,
     version: &str,
+    text_sha256: &str,
     decision: ConsentDecision,
 ) -> Result<()> {
-    let done = sqlx::query("UPDATE subjects SET consent_version = $1, consent_decision = $2, consent_at = $3 WHERE id = $4 AND consent_decision IS NULL AND erased_at IS NULL")
+    let done = sqlx::query("UPDATE subjects SET consent_version = $1, consent_decision = $2, consent_at = $3, consent_sha256 = $4 WHERE id = $5 AND consent_decision IS NULL AND erased_at IS NULL")
         .bind(version)
         .bind(decision.as_str())
         .bind(now_ms())
+        .bind(text_sha256)
         .bind(subject_id)
         .execute(&mut *db)
         .await?;

@@ -118,10 +118,19 @@ pub async fn of_subject<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result
 
 /// The subject's next test: the first in the queue (block by block, the practice's first,
 /// then in queue order) whose latest attempt is scheduled or running.
+///
+/// A person's practice that failed as often as it is repeated by itself holds the schedule:
+/// nothing scored runs on someone who never completed the warm-up until the experimenter
+/// redoes it or accepts it as incomplete with a reason. A synthetic subject's does not: a dry
+/// run has no experimenter to decide, and reports the failed practice as it is.
 pub async fn next<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result<Option<Trial>> {
     Ok(sqlx::query_as(
         "SELECT t.* FROM trials t WHERE t.subject_id = $1 AND t.status IN ('scheduled', 'running') \
          AND t.attempt = (SELECT MAX(attempt) FROM trials u WHERE u.subject_id = t.subject_id AND u.slot = t.slot) \
+         AND NOT EXISTS (SELECT 1 FROM trials p JOIN subjects s ON s.id = p.subject_id \
+           WHERE p.subject_id = t.subject_id AND s.synthetic = 0 AND p.phase = 'practice' \
+           AND p.status IN ('aborted', 'incomplete', 'invalid') AND p.accepted_reason IS NULL \
+           AND p.attempt = (SELECT MAX(attempt) FROM trials q WHERE q.subject_id = p.subject_id AND q.slot = p.slot)) \
          ORDER BY t.block, t.queue_order LIMIT 1",
     )
     .bind(subject_id)

@@ -14,6 +14,7 @@ use super::job::{Job, JobStatus, Progress};
 use crate::engine::procedure::enrolment::enrol;
 use crate::engine::procedure::filing::file_result;
 use crate::engine::procedure::orchestrator::{Operator, start_now};
+use crate::engine::procedure::stations::consent_form;
 use crate::engine::study::schedule::default_params;
 use crate::store::audit::NoDetail;
 use crate::store::records::Record;
@@ -164,6 +165,8 @@ pub async fn run_with_progress(
         trials: 0,
         complete: 0,
     };
+    // The form the lock renders from these parameters: what a person would agree to.
+    let consent_sha256 = bdft_protocol::hex::sha256(consent_form(&study).text.as_bytes());
     let mut work = Vec::new();
     for _ in 0..subjects {
         let (subject, _) = enrol(pool, &stability, &actor, study_id, true).await?;
@@ -172,6 +175,7 @@ pub async fn run_with_progress(
             change.db(),
             subject.id,
             &format!("{} (synthetic)", study.params.consent.version),
+            &consent_sha256,
             ConsentDecision::Agreed,
         )
         .await?;

@@ -1,7 +1,7 @@
 //! What a database file must pass to be kept as a backup or put back by a restore: SQLite's
 //! integrity check, migrations that this program knows (the same ones, not only the same
 //! numbers), and every locked study's protocol hash recomputed from its parameters, with each
-//! trial carrying its study's hash. Read-only: the file is never changed by a check.
+//! trial carrying its study's hash, and the hash of the consent form its lock kept. Read-only: the file is never changed by a check.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -57,6 +57,9 @@ pub async fn check_file(file: &Path, named: &Path) -> Result<Checked> {
         .map_err(unreadable)?;
     let schema = known_schema(named, &applied)?;
     let hashes = protocol_hashes(named, &mut db).await?;
+    if schema.version >= LOCKED_CONSENT_MIGRATION {
+        consent_hashes(named, &mut db).await?;
+    }
     let row_counts = store::backups::row_counts(&mut db)
         .await
         .map_err(unreadable)?;
@@ -130,6 +133,24 @@ fn known_schema(file: &Path, applied: &[AppliedMigration]) -> Result<AppliedMigr
         )));
     }
     Ok(last.clone())
+}
+
+/// The migration from which a lock keeps the consent form's text with its hash.
+const LOCKED_CONSENT_MIGRATION: i64 = 30;
+
+/// Recomputes the SHA-256 of each consent form a lock kept: what subjects agreed to must
+/// still be the text their decisions' hashes name.
+async fn consent_hashes(file: &Path, db: &mut sqlx::AnyConnection) -> Result<()> {
+    for (id, text, stored) in store::backups::locked_consent_forms(&mut *db).await? {
+        let recomputed = bdft_protocol::hex::sha256(text.as_bytes());
+        if recomputed != stored {
+            return Err(AppError::BadRequest(format!(
+                "{}: study {id}'s consent form does not match its hash (stored {stored}, recomputed {recomputed}): the text was changed after the lock",
+                file.display()
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// `0013 target step change`.

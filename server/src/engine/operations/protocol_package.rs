@@ -21,7 +21,7 @@ use bdft_protocol::study::{MAX_COMMENT_CHARS, OrderDesign, RigKind, StudyParams}
 use serde_json::Value;
 
 use crate::engine::procedure::queue::MAX_ATTEMPTS;
-use crate::engine::procedure::stations::rendered_texts;
+use crate::engine::procedure::stations::{consent_form, rendered_texts};
 use crate::engine::results::export::{self, ColumnType};
 use crate::engine::results::plots::esc;
 use crate::engine::study::schedule::{canonical_json, protocol_hash, schedule};
@@ -112,7 +112,7 @@ pub fn render(study: &Study, now_ms: i64, audit_key: Option<&str>) -> String {
         );
     }
     d.p("This document is generated from the study's parameters: the same value whose canonical JSON (Appendix) the protocol hash is the SHA-256 of. The seed is stored with the study and locked with it, but is not part of the hashed parameters.");
-    consent(&mut d, p);
+    consent(&mut d, study);
     instructions(&mut d, p);
     schedule_design(&mut d, p);
     randomization(&mut d, study);
@@ -220,14 +220,20 @@ fn seat(s: Seat) -> &'static str {
     }
 }
 
-fn consent(d: &mut Doc, p: &StudyParams) {
-    let (form, _) = rendered_texts(p);
+fn consent(d: &mut Doc, study: &Study) {
+    let form = consent_form(study);
+    let form_hash = bdft_protocol::hex::sha256(form.text.as_bytes());
+    let kept = if study.consent_text.is_some() {
+        "kept as the lock rendered it"
+    } else {
+        "as the first enrolment will lock it"
+    };
     d.h2("consent", "Consent");
     d.p(&format!(
-        "The subject reads this form (version {}) at the station before anything else and agrees or declines; a subject who declines takes no part. The form as the station shows it, its placeholders filled in from the parameters:",
+        "The subject reads this form (version {}) at the station before anything else and agrees or declines; a subject who declines takes no part. The form as the station shows it ({kept}), its description of the tests, the shaking and the exposure budget generated from the parameters; its text's SHA-256, which every subject's decision records, is {form_hash}:",
         form.version
     ));
-    d.study_text(&p.texts.language, &form.text);
+    d.study_text(&study.params.texts.language, &form.text);
 }
 
 fn instructions(d: &mut Doc, p: &StudyParams) {

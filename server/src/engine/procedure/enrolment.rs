@@ -6,6 +6,7 @@ use bdft_protocol::records::TestPhase;
 use serde::Serialize;
 use sqlx::AnyPool;
 
+use super::stations::consent_form;
 use crate::engine::study::schedule::{protocol_hash, schedule, starting_station, target};
 use crate::engine::study::stability::{StabilityCache, check_lockable};
 use crate::error::{AppError, Result};
@@ -49,7 +50,10 @@ pub async fn enrol(
         Some(h) => h.clone(),
         None => {
             let h = protocol_hash(&study.params);
-            store::studies::lock(change.db(), study_id, &h).await?;
+            // The form is kept as the lock renders it: what every subject agrees to.
+            let form = consent_form(&study);
+            let form_hash = bdft_protocol::hex::sha256(form.text.as_bytes());
+            store::studies::lock(change.db(), study_id, &h, &form.text, &form_hash).await?;
             h
         }
     };

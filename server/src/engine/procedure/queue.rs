@@ -2,10 +2,11 @@
 //! (aborted, incomplete or invalid) comes back as a new attempt at the end of its block, at
 //! most [`MAX_ATTEMPTS`] times; the experimenter can instead accept it as incomplete, or
 //! repeat it again by hand. The subject is finished only when every test is complete or
-//! accepted as incomplete.
+//! accepted as incomplete. A person's practice that failed so holds the schedule
+//! (`store::trials::next`): nothing scored runs before the experimenter decides.
 
-use bdft_protocol::records::TrialStatus;
-use bdft_protocol::server_to_browser::StopNotice;
+use bdft_protocol::records::{TestPhase, TrialStatus};
+use bdft_protocol::server_to_browser::{HeldTest, StopNotice};
 use sqlx::AnyConnection;
 
 use crate::error::Result;
@@ -43,6 +44,20 @@ pub async fn requeue_failed(db: &mut AnyConnection, trial_id: i64) -> Result<Opt
 /// incomplete (queued, running, or failed too often and waiting for the experimenter).
 pub fn anything_missing(trials: &[Trial]) -> bool {
     latest_attempts(trials).any(|t| !t.settled())
+}
+
+/// The test a held schedule waits on: a failed practice first (it holds every scored test),
+/// then the first failed test in queue order.
+pub fn held_test(trials: &[Trial]) -> Option<HeldTest> {
+    let waiting = latest_attempts(trials)
+        .filter(|t| t.status.failed() && !t.settled())
+        .min_by_key(|t| (t.phase != TestPhase::Practice, t.block, t.queue_order))?;
+    Some(HeldTest {
+        trial_id: waiting.id,
+        label: waiting.blinded_label.clone(),
+        phase: waiting.phase,
+        attempts: waiting.attempt,
+    })
 }
 
 /// What the subject is told about their last test when it was stopped: the most recently

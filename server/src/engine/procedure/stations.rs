@@ -434,6 +434,19 @@ pub fn rendered_texts(params: &StudyParams) -> (ConsentForm, StudyTexts) {
         .unwrap_or_else(|_| (params.consent.clone(), params.texts.clone()))
 }
 
+/// The consent form a study's subjects are shown: the text its lock rendered from the
+/// protocol, or (before the lock, or for a study locked before the text was kept) the form
+/// rendered now.
+pub fn consent_form(study: &Study) -> ConsentForm {
+    match &study.consent_text {
+        Some(text) => ConsentForm {
+            version: study.params.consent.version.clone(),
+            text: text.clone(),
+        },
+        None => rendered_texts(&study.params).0,
+    }
+}
+
 /// What `station` shows now, with each test given by `test` (blinded for the subject,
 /// with the compensator for the experimenter), and the study's texts filled in.
 async fn phase<T>(
@@ -446,8 +459,8 @@ async fn phase<T>(
     };
     let subject = store::subjects::get(pool, subject_id).await?;
     let study = store::studies::get(pool, subject.study_id).await?;
-    let (consent, texts) = rendered_texts(&study.params);
-    let phase = subject_phase(pool, station, &subject, &study, consent, test).await?;
+    let (_, texts) = rendered_texts(&study.params);
+    let phase = subject_phase(pool, station, &subject, &study, consent_form(&study), test).await?;
     Ok((phase, Some(texts)))
 }
 
@@ -507,7 +520,10 @@ async fn subject_phase<T>(
         // Never "done" while a test is missing: one that failed too often waits for the
         // experimenter.
         return Ok(if queue::anything_missing(&trials) {
-            Phase::Held { subject: code }
+            Phase::Held {
+                subject: code,
+                failed: queue::held_test(&trials),
+            }
         } else {
             Phase::Done {
                 subject: code,

@@ -4,11 +4,14 @@
 
 use bdft_protocol::browser_to_server::{RttPercentiles, SurveySubmission, TimingReport};
 use bdft_protocol::records::{ConsentDecision, TestPhase, TrialStatus};
+use bdft_protocol::server_to_browser::HeldTest;
 use bdft_protocol::server_to_controller::ServerToController;
 use serde::Serialize;
 use sqlx::AnyPool;
 
 use super::lsl::{self, Marker};
+use super::queue;
+use super::stations::consent_form;
 use super::trials::site_of_trial;
 use crate::engine::machine::sites::Sites;
 use crate::engine::study::exposure::{self, SubjectExposure};
@@ -22,6 +25,8 @@ use crate::store::{self, Change};
 struct Consented<'a> {
     decision: ConsentDecision,
     version: &'a str,
+    /// SHA-256 of the form's text the decision was made on.
+    text_sha256: &'a str,
     station: &'a str,
 }
 
@@ -34,9 +39,12 @@ pub async fn consent(
 ) -> Result<()> {
     let subject = store::subjects::get(pool, subject_id).await?;
     let study = store::studies::get(pool, subject.study_id).await?;
-    let version = &study.params.consent.version;
+    let form = consent_form(&study);
+    let version = &form.version;
+    let text_sha256 = &bdft_protocol::hex::sha256(form.text.as_bytes());
     let mut change = Change::begin(pool, format!("subject:{}", subject.code)).await?;
-    store::subjects::record_consent(change.db(), subject_id, version, decision).await?;
+    store::subjects::record_consent(change.db(), subject_id, version, text_sha256, decision)
+        .await?;
     change
         .commit(
             "consent",
@@ -44,6 +52,7 @@ pub async fn consent(
             Consented {
                 decision,
                 version,
+                text_sha256,
                 station: station_name,
             },
         )
@@ -238,13 +247,24 @@ pub struct SubjectDetail {
     pub notes: Vec<Note>,
     /// Vibration exposure (ISO 2631-1) day by day against the study's budget.
     pub exposure: SubjectExposure,
+    /// The test a station would run next (none while the schedule is held or finished).
+    pub next_trial_id: Option<i64>,
+    /// The failed test the schedule waits on until the experimenter redoes it or accepts
+    /// it as incomplete (a practice never completed holds every scored test).
+    pub held: Option<HeldTest>,
 }
 
 pub async fn detail(pool: &AnyPool, subject_id: i64) -> Result<SubjectDetail> {
     let subject = store::subjects::get(pool, subject_id).await?;
     let mut surveys = store::trials::surveys_of_subject(pool, subject_id).await?;
-    let trials = store::trials::of_subject(pool, subject_id)
-        .await?
+    let attempts = store::trials::of_subject(pool, subject_id).await?;
+    let next_trial_id = store::trials::next(pool, subject_id).await?.map(|t| t.id);
+    let held = if next_trial_id.is_none() && queue::anything_missing(&attempts) {
+        queue::held_test(&attempts)
+    } else {
+        None
+    };
+    let trials = attempts
         .into_iter()
         .map(|trial| {
             let survey = surveys
@@ -261,6 +281,8 @@ pub async fn detail(pool: &AnyPool, subject_id: i64) -> Result<SubjectDetail> {
         trials,
         notes: store::subjects::notes(pool, subject_id).await?,
         exposure,
+        next_trial_id,
+        held,
     })
 }
 

@@ -11,6 +11,7 @@ use sqlx::AnyPool;
 
 use super::lsl::{self, Marker};
 use super::orchestrator::{Operator, start_now};
+use super::queue;
 use crate::engine::machine::controller_link::{ControllerEvent, ControllerLink};
 use crate::engine::machine::estop_latch;
 use crate::engine::machine::sites::Sites;
@@ -83,6 +84,15 @@ pub async fn start(pool: &AnyPool, sites: &Sites, actor: &str, trial_id: i64) ->
         )));
     }
     let next = store::trials::next(pool, subject.id).await?;
+    if next.is_none() {
+        let attempts = store::trials::of_subject(pool, subject.id).await?;
+        if let Some(held) = queue::held_test(&attempts) {
+            return Err(AppError::Conflict(format!(
+                "{}'s schedule is held: {} (trial {}) failed {} times; redo it or accept it as incomplete with a reason first",
+                subject.code, held.label, held.trial_id, held.attempts
+            )));
+        }
+    }
     if next.as_ref().map(|t| t.id) != Some(trial.id) {
         return Err(AppError::Conflict(format!(
             "trial {} is not {}'s next test",

@@ -305,7 +305,7 @@ mod tests {
         assert!(
             consent
                 .text
-                .contains("then 10 tests of 140 seconds, 5 of them while seated"),
+                .contains("Then 10 tests of 140 seconds each: 5 while seated on the machine"),
             "{}",
             consent.text
         );
@@ -321,7 +321,7 @@ mod tests {
         assert!(
             consent
                 .text
-                .contains("then 6 tests of 90 seconds, 3 of them"),
+                .contains("Then 6 tests of 90 seconds each: 3 while seated"),
             "{}",
             consent.text
         );
@@ -330,7 +330,7 @@ mod tests {
         p.consent.text = "{tests} tests, {test_count}".into();
         let err = p.validate().unwrap_err().to_string();
         assert!(
-            err.starts_with("consent.text: unknown placeholder {test_count}; allowed: {tests}, {tests_per_station}, {trial_s}, {practice_s}, {minutes}"),
+            err.starts_with("consent.text: unknown placeholder {test_count}; allowed: {tests}, {tests_per_station}, {trial_s}, {practice_s}, {minutes}, {procedure}"),
             "{err}"
         );
         p.consent = ConsentForm::default();

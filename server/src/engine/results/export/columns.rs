@@ -442,6 +442,12 @@ pub fn subjects(drawn_keys: &[String]) -> Vec<Column> {
         ),
         col("consent_at", "", TIME, "when the subject decided"),
         col(
+            "consent_sha256",
+            "",
+            TEXT,
+            "SHA-256 (hex) of the consent form's text the decision was made on: the text the protocol package prints with the same hash (empty before a decision, or for one recorded before migration 0030)",
+        ),
+        col(
             "withdrawn",
             "",
             FLAG,

@@ -295,6 +295,7 @@ async fn subjects<W: AsyncWrite + Unpin>(
             opt_text(&s.consent_version),
             opt_text(&s.consent_decision),
             time(s.consent_at),
+            opt_text(&s.consent_sha256),
             Cell::flag(s.withdrawn_at.is_some()),
             time(s.withdrawn_at),
             Cell::text(order_summary(&own)),
