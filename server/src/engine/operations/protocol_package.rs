@@ -602,6 +602,8 @@ mod tests {
             version: 1,
             locked_at: None,
             protocol_hash: None,
+            consent_text: None,
+            consent_sha256: None,
             created_at: 0,
             instability_ack: None,
             population_version: 0,
