@@ -22,6 +22,7 @@ pub mod filters;
 pub mod identification;
 pub mod interlock;
 pub mod linalg;
+pub mod logging;
 pub mod lsl;
 pub mod model;
 pub mod operator;

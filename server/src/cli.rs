@@ -254,12 +254,7 @@ pub fn run() -> ExitCode {
             None => unreachable!("serve parses"),
         }
     });
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-        )
-        .with_writer(std::io::stderr)
-        .init();
+    bdft_controller::logging::init();
     if let Command::Controller(args) = &command {
         // The controller builds its own runtime beside its real-time thread.
         return match bdft_controller::runtime::serve_announcing(args) {
