@@ -19,6 +19,7 @@ mod controller_rig_udp;
 mod controller_starts;
 mod controller_trials;
 mod design_aids;
+mod env_sample;
 mod erasure;
 mod exports_analyst;
 mod exports_audit;
