@@ -100,6 +100,8 @@ pg_skips=(
   "backups::a_restore_refuses_a_running_server"
   "backups::scheduled_backups_keep_the_newest"
   "backups::relative_backup_paths_two_levels_up_work"
+  # It checks the modes of the SQLite file, its backup and its restore.
+  "file_modes::a_servers_keys_and_data_are_its_own_and_ignored_by_git"
   # Its fixtures are earlier releases' SQLite files.
   "upgrade::"
   # They tamper with copies of the SQLite file (audit_chain::on_postgresql_… do the same

@@ -24,6 +24,7 @@ mod erasure;
 mod exports_analyst;
 mod exports_audit;
 mod exposure;
+mod file_modes;
 mod hardening;
 mod https;
 mod identification_study;
