@@ -289,7 +289,7 @@ mod tests {
             .find(|a| a.get_id() == "controller_silence_ms")
             .unwrap();
         let help = arg.get_help().unwrap().to_string();
-        let beat = bdft_controller::runtime::link::HEARTBEAT.as_millis();
+        let beat = crate::engine::machine::controller_link::HEARTBEAT.as_millis();
         assert!(
             help.contains(&format!("heartbeats every {beat} ms")),
             "{help}"
