@@ -93,6 +93,7 @@ pg_skips=(
   "controller_cli::" "controller_estop::" "controller_identification::"
   "controller_input_udp::" "controller_link_loss::" "controller_messages::"
   "controller_rig_udp::" "controller_starts::" "controller_trials::" "structure::"
+  "env_sample::"
   # They run on PostgreSQL (or both stores) already in the first pass.
   "store_dialects::" "backups::on_postgresql" "audit_chain::on_postgresql"
   # A backup is a SQLite file (refused on PostgreSQL, which backups::on_postgresql_… tests).
