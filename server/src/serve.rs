@@ -157,9 +157,14 @@ pub async fn serve(
                     match tokio::time::timeout_at(due, first_byte(&stream)).await {
                         Ok(Ok(Some(TLS_HANDSHAKE))) => {}
                         Ok(Ok(Some(_))) => {
-                            let local = stream
-                                .local_addr()
-                                .map_or(peer, |a| SocketAddr::new(a.ip().to_canonical(), a.port()));
+                            // The address the client reached, for the page that names it.
+                            let local = match stream.local_addr() {
+                                Ok(a) => SocketAddr::new(a.ip().to_canonical(), a.port()),
+                                Err(e) => {
+                                    tracing::debug!("plain HTTP from {peer}: {e}");
+                                    return;
+                                }
+                            };
                             let io = Counted {
                                 stream,
                                 _held: held,
