@@ -93,6 +93,7 @@ pg_skips=(
   "controller_cli::" "controller_estop::" "controller_identification::"
   "controller_input_udp::" "controller_link_loss::" "controller_messages::"
   "controller_rig_udp::" "controller_starts::" "controller_trials::" "structure::"
+  "env_sample::"
   # They run on PostgreSQL (or both stores) already in the first pass.
   "store_dialects::" "backups::on_postgresql" "audit_chain::on_postgresql"
   # A backup is a SQLite file (refused on PostgreSQL, which backups::on_postgresql_… tests).
@@ -100,6 +101,8 @@ pg_skips=(
   "backups::a_restore_refuses_a_running_server"
   "backups::scheduled_backups_keep_the_newest"
   "backups::relative_backup_paths_two_levels_up_work"
+  # It checks the modes of the SQLite file, its backup and its restore.
+  "file_modes::a_servers_keys_and_data_are_its_own_and_ignored_by_git"
   # Its fixtures are earlier releases' SQLite files.
   "upgrade::"
   # They tamper with copies of the SQLite file (audit_chain::on_postgresql_… do the same

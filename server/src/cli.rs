@@ -19,6 +19,7 @@ use crate::engine::operations::{audit_signing, backup, presence, restore};
 use crate::engine::procedure::filing;
 use crate::engine::results::export;
 use crate::engine::results::export::{ExportFormat, ExportKind, ExportRequest, SampleCut, bids};
+use crate::files::Holds;
 use crate::store;
 use crate::store::accounts::Role;
 use bdft_protocol::link_auth::LinkKey;
@@ -610,8 +611,9 @@ async fn execute(command: Command) -> anyhow::Result<()> {
                 0
             };
             let tmp = out.with_extension("partial");
-            let file = tokio::fs::File::create(&tmp)
-                .await
+            // Subject data: the owner's only, as the database is (`crate::files`).
+            let file = crate::files::replace_private(&tmp)
+                .map(tokio::fs::File::from_std)
                 .with_context(|| format!("creating {}", tmp.display()))?;
             if let Err(e) = export::write(&pool, study, &req, file).await {
                 let _ = tokio::fs::remove_file(&tmp).await;
@@ -692,6 +694,9 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     }
     // The E-stop latch before any controller connects: each is told it.
     let latch = estop_latch::EStopLatch::open(&keys, &pool).await?;
+    // Every file is made by now: those an older release, a copy or a hand left open to
+    // other users are named, with the command that closes them.
+    crate::files::warn_open(&kept_files(&config, &keys));
     let events = controller_link::event_channel();
     let filing = filing::LinkFiling::start(pool.clone(), events.clone());
     let links = site_links
@@ -745,6 +750,36 @@ async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     crate::run(state, listener, &config.connections, tls, shutdown_signal()).await?;
     presence.end().await?;
     Ok(())
+}
+
+/// The files `serve` keeps that hold keys or subject data, for the check of who else may
+/// read them (`crate::files`): the database's, the keys, the E-stop latch, the backups.
+fn kept_files(config: &ServeConfig, keys: &std::path::Path) -> Vec<(PathBuf, Holds)> {
+    let mut files = vec![
+        (audit_signing::key_path(keys), Holds::Secret),
+        (estop_latch::latch_path(keys), Holds::Data),
+    ];
+    if let store::db::Location::File(db) = &config.db.db {
+        files.extend(
+            crate::files::database_files(db)
+                .into_iter()
+                .map(|f| (f, Holds::Data)),
+        );
+    }
+    match &config.tls.tls_key {
+        Some(key) => files.push((key.clone(), Holds::Secret)),
+        None if config.tls.tls_self_signed => {
+            files.push((crate::tls::self_signed_paths(keys).1, Holds::Secret));
+        }
+        None => {}
+    }
+    if let Some(dir) = &config.backup.backup_dir {
+        files.push((dir.clone(), Holds::DataDir));
+        if let Ok(entries) = std::fs::read_dir(dir) {
+            files.extend(entries.flatten().map(|e| (e.path(), Holds::Data)));
+        }
+    }
+    files
 }
 
 /// Each site's controller: where it comes from and its link key. Without --site, the one

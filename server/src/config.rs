@@ -278,6 +278,24 @@ impl std::str::FromStr for SiteArg {
 mod tests {
     use super::SiteArg;
 
+    /// The heartbeat period `serve --help` states (and `.env.sample` repeats, which the
+    /// integration test `env_sample` compares with the help) is the controller's.
+    #[test]
+    fn the_help_states_the_controllers_heartbeat() {
+        use clap::Args;
+        let command = super::ServeConfig::augment_args(clap::Command::new("serve"));
+        let arg = command
+            .get_arguments()
+            .find(|a| a.get_id() == "controller_silence_ms")
+            .unwrap();
+        let help = arg.get_help().unwrap().to_string();
+        let beat = crate::engine::machine::controller_link::HEARTBEAT.as_millis();
+        assert!(
+            help.contains(&format!("heartbeats every {beat} ms")),
+            "{help}"
+        );
+    }
+
     #[test]
     fn a_site_is_a_name_or_a_name_with_a_controller_address_and_key() {
         let local: SiteArg = "delft".parse().unwrap();

@@ -10,7 +10,10 @@
 //!   that address is answered 429 with Retry-After (plain HTTP; over TLS it is closed) and
 //!   takes no slot, so one address cannot make every new client wait;
 //! - every accepted socket has TCP_NODELAY (a live sample is sent when written, not held back
-//!   by Nagle's algorithm until the browser's next message acknowledges the previous one).
+//!   by Nagle's algorithm until the browser's next message acknowledges the previous one);
+//! - over TLS, a connection whose first byte is not a TLS handshake is plain HTTP (someone
+//!   typed `http://`): its one request is answered with a redirect to the same path over
+//!   HTTPS, in the slots, header timeout and a small head-size cap of any connection.
 //!
 //! `axum::serve` sets none of these (its hyper builder has no timer, so hyper's header
 //! timeout never runs), hence this accept loop on hyper's HTTP/1 builder.
@@ -48,6 +51,11 @@ const REFUSAL_TIME: Duration = Duration::from_secs(1);
 /// At most one warning about an address at its connection limit this often (a flood would
 /// otherwise write one per refused connection).
 const WARN_EVERY: Duration = Duration::from_secs(10);
+/// The first byte of a TLS connection: a handshake record (RFC 8446, 5.1).
+const TLS_HANDSHAKE: u8 = 0x16;
+/// The most a plain-HTTP request head on the HTTPS port may take (hyper's smallest buffer):
+/// the redirect needs only its request line and Host.
+const PLAIN_HTTP_HEAD: usize = 8192;
 
 /// Serves `app` on `listener` until `shutdown` resolves, then lets open requests finish;
 /// over TLS when `tls` is given (every connection, no plain HTTP on the same port).
@@ -69,6 +77,9 @@ pub async fn serve(
     let mut http = Builder::new();
     http.timer(TokioTimer::new())
         .header_read_timeout(limits.header_timeout());
+    // Plain HTTP on the HTTPS port: one small request, answered and closed.
+    let mut plain_http = http.clone();
+    plain_http.keep_alive(false).max_buf_size(PLAIN_HTTP_HEAD);
     // Connection tasks hold a receiver; `stop` tells them to finish, and its `closed()`
     // says they all have.
     let (stop, stopped) = watch::channel(());
@@ -136,12 +147,43 @@ pub async fn serve(
                 };
                 tokio::spawn(connection(http, app, peer, body, io, stopped));
             }
-            // The handshake runs in the connection's task, bounded like a request head, so
-            // a client that never finishes it holds one slot for that long and nothing else.
+            // The handshake runs in the connection's task, bounded like a request head (the
+            // wait for its first byte included), so a client that never finishes it holds
+            // one slot for that long and nothing else.
             Some(acceptor) => {
-                let handshake = limits.header_timeout();
+                let due = Instant::now() + limits.header_timeout();
+                let plain_http = plain_http.clone();
                 tokio::spawn(async move {
-                    match tokio::time::timeout(handshake, acceptor.accept(stream)).await {
+                    match tokio::time::timeout_at(due, first_byte(&stream)).await {
+                        Ok(Ok(Some(TLS_HANDSHAKE))) => {}
+                        Ok(Ok(Some(_))) => {
+                            // The address the client reached, for the page that names it.
+                            let local = match stream.local_addr() {
+                                Ok(a) => SocketAddr::new(a.ip().to_canonical(), a.port()),
+                                Err(e) => {
+                                    tracing::debug!("plain HTTP from {peer}: {e}");
+                                    return;
+                                }
+                            };
+                            let io = Counted {
+                                stream,
+                                _held: held,
+                            };
+                            let app = to_https(local);
+                            connection(plain_http, app, peer, body, io, stopped).await;
+                            return;
+                        }
+                        Ok(Ok(None)) => return,
+                        Ok(Err(e)) => {
+                            tracing::debug!("reading from {peer}: {e}");
+                            return;
+                        }
+                        Err(_) => {
+                            tracing::debug!("TLS handshake with {peer}: nothing sent in time");
+                            return;
+                        }
+                    }
+                    match tokio::time::timeout_at(due, acceptor.accept(stream)).await {
                         Ok(Ok(stream)) => {
                             let io = Counted {
                                 stream,
@@ -161,6 +203,88 @@ pub async fn serve(
     let _ = stop.send(());
     stop.closed().await;
     Ok(())
+}
+
+/// The connection's first byte, left in the socket to be read again (`None`: it closed
+/// before sending one).
+async fn first_byte(stream: &TcpStream) -> std::io::Result<Option<u8>> {
+    let mut first = [0u8; 1];
+    Ok(match stream.peek(&mut first).await? {
+        0 => None,
+        _ => Some(first[0]),
+    })
+}
+
+/// The app of a plain-HTTP connection to the HTTPS port, `local` the address it reached.
+fn to_https(local: SocketAddr) -> Router {
+    Router::new().fallback(move |req: Request<axum::body::Body>| async move {
+        redirect_to_https(local, req.headers().get(header::HOST), req.uri())
+    })
+}
+
+/// The answer to a plain-HTTP request on the HTTPS port: a permanent redirect (308: the
+/// method and body are kept) to the same path and query over HTTPS at the host the browser
+/// asked for; when the request names no such host, a page saying where to go instead (the
+/// Host header becomes the redirect's target, so it must be a host and nothing else).
+fn redirect_to_https(
+    local: SocketAddr,
+    host: Option<&HeaderValue>,
+    uri: &axum::http::Uri,
+) -> Response<axum::body::Body> {
+    let target = uri
+        .path_and_query()
+        .map(|p| p.as_str())
+        .filter(|p| p.starts_with('/'))
+        .unwrap_or("/");
+    let location = host
+        .and_then(|h| h.to_str().ok())
+        .filter(|h| plausible_host(h))
+        .and_then(|h| HeaderValue::try_from(format!("https://{h}{target}")).ok());
+    let mut response = match location {
+        Some(location) => (
+            StatusCode::PERMANENT_REDIRECT,
+            [(header::LOCATION, location)],
+        )
+            .into_response(),
+        None => {
+            let page = format!(
+                "<!doctype html>\n<title>This port speaks HTTPS</title>\n<p>This port speaks \
+                 HTTPS: open <a href=\"https://{local}/\">https://{local}/</a> (or this \
+                 server's name instead of its address).</p>\n"
+            );
+            (StatusCode::BAD_REQUEST, axum::response::Html(page)).into_response()
+        }
+    };
+    response
+        .headers_mut()
+        .insert(header::CONNECTION, HeaderValue::from_static("close"));
+    response
+}
+
+/// Whether a Host header is a host name or IP address with an optional port, and nothing
+/// else (no user, path, spaces or control characters).
+fn plausible_host(value: &str) -> bool {
+    let (host, port) = match value.rsplit_once(':') {
+        // An IPv6 address's colons are inside its brackets.
+        Some((host, port)) if !port.contains(']') => (host, Some(port)),
+        _ => (value, None),
+    };
+    let port_ok = port.is_none_or(|p| {
+        p.bytes().all(|b| b.is_ascii_digit()) && p.parse::<u16>().is_ok_and(|p| p > 0)
+    });
+    let host_ok = match host.strip_prefix('[').and_then(|h| h.strip_suffix(']')) {
+        Some(ip) => ip.parse::<std::net::Ipv6Addr>().is_ok(),
+        None => {
+            (1..=253).contains(&host.len())
+                && host.split('.').all(|label| {
+                    (1..=63).contains(&label.len())
+                        && label
+                            .bytes()
+                            .all(|b| b.is_ascii_alphanumeric() || b == b'-')
+                })
+        }
+    };
+    host_ok && port_ok
 }
 
 /// The 429 a connection over its address's limit gets, whole (status line to body).
@@ -507,6 +631,54 @@ mod tests {
         let third = per.enter(a).expect("a closed connection frees its place");
         drop((second, third, other));
         assert!(per.open().is_empty(), "{:?}", per.open());
+    }
+
+    #[test]
+    fn plain_http_is_sent_to_the_same_path_over_https_at_a_plausible_host_only() {
+        let local: SocketAddr = "192.0.2.7:8443".parse().unwrap();
+        let uri: axum::http::Uri = "/dashboard?study=3".parse().unwrap();
+        for host in [
+            "lab-pc:8443",
+            "127.0.0.1:8443",
+            "[::1]:8443",
+            "lab-pc",
+            "[fe80::1]",
+        ] {
+            let r = redirect_to_https(local, Some(&HeaderValue::from_static(host)), &uri);
+            assert_eq!(r.status(), StatusCode::PERMANENT_REDIRECT, "{host}");
+            assert_eq!(
+                r.headers()[header::LOCATION],
+                format!("https://{host}/dashboard?study=3"),
+            );
+        }
+        // A Host that could make the redirect point elsewhere than a host, or none.
+        let bad = [
+            "",
+            "evil@lab-pc",
+            "lab pc",
+            "lab-pc:",
+            "lab-pc:99999",
+            "lab-pc:0",
+            "lab-pc/x",
+            "::1",
+            "[::1",
+            "[zz::1]:80",
+            "a..b",
+            "lab-pc:80:80",
+        ];
+        for host in bad
+            .iter()
+            .map(|h| Some(HeaderValue::from_static(h)))
+            .chain([None])
+        {
+            let r = redirect_to_https(local, host.as_ref(), &uri);
+            assert_eq!(r.status(), StatusCode::BAD_REQUEST, "{host:?}");
+            assert!(r.headers().get(header::LOCATION).is_none());
+        }
+        // An asterisk-form target (OPTIONS *) goes to the root.
+        let star: axum::http::Uri = "*".parse().unwrap();
+        let r = redirect_to_https(local, Some(&HeaderValue::from_static("lab-pc")), &star);
+        assert_eq!(r.headers()[header::LOCATION], "https://lab-pc/");
     }
 
     #[test]

@@ -62,17 +62,52 @@ pub fn self_signed_paths(db: &Path) -> (PathBuf, PathBuf) {
 
 /// The self-signed certificate kept beside the database, made for `names` (DNS names or IP
 /// addresses) the first time. The key file is readable by its owner only.
+///
+/// A certificate already there is used as it is, whatever its subject (those of earlier
+/// releases say "rcgen self signed cert"): the stations have pinned its fingerprint, and a new
+/// one would make every station check the server again.
 pub fn self_signed(db: &Path, names: &[String]) -> anyhow::Result<Tls> {
     let (cert, key) = self_signed_paths(db);
     if !(cert.exists() && key.exists()) {
-        let made = rcgen::generate_simple_self_signed(names.to_vec())
+        let signing_key = rcgen::KeyPair::generate().context("making a TLS key")?;
+        let made = certificate_params(names)?
+            .self_signed(&signing_key)
             .context("making a self-signed certificate")?;
-        write_private(&key, made.signing_key.serialize_pem().as_bytes())?;
-        std::fs::write(&cert, made.cert.pem())
-            .with_context(|| format!("writing {}", cert.display()))?;
+        write_private(&key, signing_key.serialize_pem().as_bytes())?;
+        std::fs::write(&cert, made.pem()).with_context(|| format!("writing {}", cert.display()))?;
         tracing::info!(cert = %cert.display(), ?names, "made a self-signed certificate");
     }
     from_files(&cert, &key)
+}
+
+/// Who a self-signed certificate names as its subject (and, being self-signed, its issuer):
+/// what a browser shows when asked to trust it, so it says whose server it is.
+fn certificate_params(names: &[String]) -> anyhow::Result<rcgen::CertificateParams> {
+    let mut params = rcgen::CertificateParams::new(names.to_vec())
+        .context("the names of a self-signed certificate")?;
+    let mut subject = rcgen::DistinguishedName::new();
+    subject.push(
+        rcgen::DnType::CommonName,
+        format!("bdft-lab server {}", server_name(names)),
+    );
+    subject.push(rcgen::DnType::OrganizationName, "bdft-lab");
+    params.distinguished_name = subject;
+    Ok(params)
+}
+
+/// The name that tells this server from another lab's: the first of `names` that is not a
+/// loopback one (the host name, or the address it listens on), else the first.
+fn server_name(names: &[String]) -> &str {
+    let loopback = |n: &str| {
+        n == "localhost"
+            || n.parse::<std::net::IpAddr>()
+                .is_ok_and(|ip| ip.is_loopback())
+    };
+    names
+        .iter()
+        .find(|n| !loopback(n))
+        .or(names.first())
+        .map_or("", String::as_str)
 }
 
 /// The names a self-signed certificate covers: loopback, the machine's host name, and the
@@ -95,11 +130,7 @@ pub fn machine_names(listen: std::net::SocketAddr) -> Vec<String> {
 
 fn write_private(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     use std::io::Write;
-    use std::os::unix::fs::OpenOptionsExt;
-    let mut f = std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .mode(0o600)
+    let mut f = crate::files::new_private()
         .open(path)
         .with_context(|| format!("creating {}", path.display()))?;
     f.write_all(bytes)
@@ -147,6 +178,43 @@ mod tests {
         use std::os::unix::fs::PermissionsExt;
         let mode = std::fs::metadata(&key).unwrap().permissions().mode();
         assert_eq!(mode & 0o777, 0o600, "the key is its owner's only");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_new_certificate_names_the_lab_server_by_its_host() {
+        let names = |n: &[&str]| n.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        assert_eq!(
+            server_name(&names(&[
+                "localhost",
+                "127.0.0.1",
+                "::1",
+                "rig-pc",
+                "10.0.0.2"
+            ])),
+            "rig-pc"
+        );
+        assert_eq!(server_name(&names(&["localhost", "::1"])), "localhost");
+        let params = certificate_params(&names(&["localhost", "rig-pc"])).unwrap();
+        let subject = &params.distinguished_name;
+        let text = |ty| match subject.get(&ty) {
+            Some(rcgen::DnValue::Utf8String(s)) => s.clone(),
+            other => panic!("{ty:?}: {other:?}"),
+        };
+        assert_eq!(text(rcgen::DnType::CommonName), "bdft-lab server rig-pc");
+        assert_eq!(text(rcgen::DnType::OrganizationName), "bdft-lab");
+
+        // An earlier release's certificate, with rcgen's default subject, is kept: its
+        // fingerprint is the one the stations pinned.
+        let dir = std::env::temp_dir().join(format!("bdft-tls-old-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let db = dir.join("lab.db");
+        let (cert, key) = self_signed_paths(&db);
+        let old = rcgen::generate_simple_self_signed(vec!["localhost".into()]).unwrap();
+        std::fs::write(&cert, old.cert.pem()).unwrap();
+        write_private(&key, old.signing_key.serialize_pem().as_bytes()).unwrap();
+        let kept = self_signed(&db, &names(&["localhost", "rig-pc"])).unwrap();
+        assert_eq!(kept.fingerprint, fingerprint(old.cert.der()));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

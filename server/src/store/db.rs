@@ -186,6 +186,8 @@ async fn open_with(
     max_pages: Option<u32>,
 ) -> anyhow::Result<AnyPool> {
     drivers();
+    crate::files::create_database_file(path)
+        .with_context(|| format!("creating the database {}", path.display()))?;
     let opts: AnyConnectOptions = sqlite_url(path, "rwc")
         .parse()
         .with_context(|| format!("database path {}", path.display()))?;

@@ -10,7 +10,7 @@ use super::state::{Shared, lock};
 /// How often the controller beats: the server counts 75 ms of silence as a hang, so that a
 /// hung controller's trials are filed within 100 ms; two beats may go missing and the third
 /// be 25 ms late before a live controller is taken for hung.
-const HEARTBEAT: Duration = Duration::from_millis(25);
+pub const HEARTBEAT: Duration = Duration::from_millis(25);
 
 /// Sends a heartbeat every [`HEARTBEAT`] and declares the link lost after the configured
 /// silence.

@@ -21,6 +21,7 @@ use std::sync::{Arc, Mutex};
 use tokio::net::{TcpListener, UdpSocket};
 
 use super::rt_loop::{Command, LoopHandle};
+pub use heartbeat::HEARTBEAT;
 pub use state::LinkConfig;
 use state::{Io, Shared, lock};
 

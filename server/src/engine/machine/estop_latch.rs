@@ -263,18 +263,14 @@ impl EStopLatch {
 
 /// The latch file of the server whose key files are named after `stem`.
 pub fn latch_path(stem: &Path) -> PathBuf {
-    let mut name = stem.as_os_str().to_owned();
-    name.push(".estop-latch");
-    PathBuf::from(name)
+    crate::files::with_suffix(stem, ".estop-latch")
 }
 
 fn write_durably(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     use std::io::Write;
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".new");
-    let tmp = PathBuf::from(tmp);
+    let tmp = crate::files::with_suffix(path, ".new");
     {
-        let mut f = std::fs::File::create(&tmp)?;
+        let mut f = crate::files::replace_private(&tmp)?;
         f.write_all(bytes)?;
         f.sync_all()?;
     }

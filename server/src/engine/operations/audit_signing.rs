@@ -83,12 +83,8 @@ fn load_or_create_file(db: &Path) -> anyhow::Result<SigningKey> {
     let mut bytes = [0u8; 32];
     getrandom::fill(&mut bytes).map_err(|e| anyhow::anyhow!("random audit key: {e}"))?;
     let text = hex::encode(&bytes);
-    let mut options = std::fs::OpenOptions::new();
-    options.write(true).create_new(true);
-    #[cfg(unix)]
-    std::os::unix::fs::OpenOptionsExt::mode(&mut options, 0o600);
     use std::io::Write;
-    let mut file = options
+    let mut file = crate::files::new_private()
         .open(&path)
         .with_context(|| format!("creating {}", path.display()))?;
     file.write_all(format!("{text}\n").as_bytes())?;

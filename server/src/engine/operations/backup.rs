@@ -113,8 +113,10 @@ async fn write_checked(
     partial: &Path,
     made_by: &str,
 ) -> Result<Manifest> {
-    // A partial file is only ever one of ours that a crash left behind.
-    let _ = std::fs::remove_file(partial);
+    // A partial file is only ever one of ours that a crash left behind. The copy is made
+    // into an empty file of ours (SQLite takes an empty one), so it is private from its
+    // first byte: SQLite would create it with the umask's mode.
+    crate::files::replace_private(partial).map_err(|e| io_error(partial, "creating", e))?;
     let audit_before = store::backups::audit_rows(pool).await?;
     let started = Instant::now();
     let created_at_ms = store::db::now_ms();

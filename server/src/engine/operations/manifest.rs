@@ -67,7 +67,8 @@ pub fn write(file: &Path, manifest: &Manifest) -> Result<()> {
     let tmp = path.with_extension("partial");
     let text = serde_json::to_string_pretty(manifest)
         .map_err(|e| AppError::Internal(anyhow::anyhow!("manifest: {e}")))?;
-    std::fs::write(&tmp, text + "\n")
+    crate::files::replace_private(&tmp)
+        .and_then(|mut f| std::io::Write::write_all(&mut f, (text + "\n").as_bytes()))
         .and_then(|()| std::fs::rename(&tmp, &path))
         .map_err(|e| io_error(&path, "writing", e))
 }

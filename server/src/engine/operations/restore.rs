@@ -17,6 +17,7 @@ use super::checks::check_file;
 use super::manifest::{self, io_error};
 use super::presence::refuse_if_held;
 use crate::error::{AppError, Result};
+use crate::files::with_suffix;
 use crate::store::erasure::ErasureRow;
 use crate::store::{self, Change};
 
@@ -59,7 +60,8 @@ pub async fn restore(from: &Path, db: &Path) -> Result<Restored> {
         )));
     }
     refuse_if_held(db).await?;
-    let staging = sibling(db, ".restoring");
+    // Beside the database, so the final rename stays on one file system.
+    let staging = with_suffix(db, ".restoring");
     let outcome = stage(from, &manifest, db, &staging).await;
     if outcome.is_err() {
         let _ = std::fs::remove_file(&staging);
@@ -68,7 +70,7 @@ pub async fn restore(from: &Path, db: &Path) -> Result<Restored> {
     // The server may have started while the copy was checked.
     refuse_if_held(db).await?;
     let replaced_kept_as = if db.exists() {
-        let kept = sibling(
+        let kept = with_suffix(
             db,
             &format!(
                 ".replaced-{}",
@@ -82,6 +84,9 @@ pub async fn restore(from: &Path, db: &Path) -> Result<Restored> {
             .map_err(|e| AppError::Unavailable(format!("{}: {e:#}", db.display())))?;
         std::fs::hard_link(db, &kept)
             .map_err(|e| io_error(&kept, "keeping the replaced database as", e))?;
+        // A link shares the database's permissions: an older release's database was made
+        // readable by everyone, and the kept copy is one more file of subject data.
+        crate::files::make_private(&kept).map_err(|e| io_error(&kept, "making private", e))?;
         Some(kept)
     } else {
         None
@@ -134,13 +139,6 @@ async fn undone_erasures(replaced: &Path, restored: &Path) -> Result<Vec<Erasure
     Ok(undone)
 }
 
-/// `DB` + suffix, in the database's directory (so the final rename stays on one file system).
-fn sibling(db: &Path, suffix: &str) -> PathBuf {
-    let mut name = db.file_name().unwrap_or_default().to_os_string();
-    name.push(suffix);
-    db.with_file_name(name)
-}
-
 /// Copies, verifies, migrates and audits the backup at `staging`; returns its schema version
 /// after migration.
 async fn stage(
@@ -149,8 +147,15 @@ async fn stage(
     db: &Path,
     staging: &Path,
 ) -> Result<i64> {
-    let _ = std::fs::remove_file(staging);
-    std::fs::copy(from, staging).map_err(|e| io_error(from, "copying", e))?;
+    // Copied into a private file of ours, not by `fs::copy`, which would give the copy the
+    // backup's permissions (an older release's were readable by everyone), and the copy
+    // becomes the database.
+    std::fs::File::open(from)
+        .and_then(|mut backup| {
+            let mut copy = crate::files::replace_private(staging)?;
+            std::io::copy(&mut backup, &mut copy)
+        })
+        .map_err(|e| io_error(from, "copying", e))?;
     let hashed = staging.to_path_buf();
     let (sha256, bytes) = tokio::task::spawn_blocking(move || manifest::sha256_of(&hashed))
         .await

@@ -83,7 +83,7 @@ impl Backups {
     /// Backups in `policy.dir`, which is created if missing and must be writable.
     pub fn new(policy: Policy) -> anyhow::Result<Self> {
         let dir = &policy.dir;
-        std::fs::create_dir_all(dir).map_err(|e| {
+        crate::files::create_private_dirs(dir).map_err(|e| {
             anyhow::anyhow!("--backup-dir {}: cannot create it: {e}", dir.display())
         })?;
         let probe = dir.join(".bdft-write-probe");

@@ -42,8 +42,8 @@ pub enum ControllerSource {
 }
 
 /// How often the controller heartbeats (`bdft-controller serve`; it also sends live samples
-/// every 10 ms while a trial runs).
-pub const HEARTBEAT: Duration = Duration::from_millis(25);
+/// every 10 ms while a trial runs): the controller's own constant, not a copy of it.
+pub use bdft_controller::runtime::link::HEARTBEAT;
 
 /// How long the controller may stay silent before the link counts as lost: two heartbeats
 /// missing and the third 25 ms late. A hung controller (stopped, deadlocked, its machine

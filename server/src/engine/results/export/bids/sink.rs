@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use async_zip::tokio::write::ZipFileWriter;
 use async_zip::{Compression, ZipEntryBuilder};
-use tokio::io::AsyncWrite;
+use tokio::io::{AsyncWrite, AsyncWriteExt};
 
 use super::super::ExportError;
 use crate::error::AppError;
@@ -54,7 +54,8 @@ impl DirSink {
             // Left by an export that was killed: never a dataset, safe to remove.
             std::fs::remove_dir_all(&partial)?;
         }
-        std::fs::create_dir(&partial)?;
+        // Subject data, like the database: the owner's only (`crate::files`).
+        crate::files::create_private_dirs(&partial)?;
         Ok(Self {
             partial,
             out: out.to_path_buf(),
@@ -82,9 +83,17 @@ impl DatasetSink for DirSink {
     async fn file(&mut self, path: &str, bytes: &[u8]) -> Result<(), ExportError> {
         let path = self.partial.join(path);
         if let Some(dir) = path.parent() {
-            tokio::fs::create_dir_all(dir).await?;
+            tokio::fs::DirBuilder::new()
+                .recursive(true)
+                .mode(crate::files::DIR_MODE)
+                .create(dir)
+                .await?;
         }
-        tokio::fs::write(&path, bytes).await?;
+        let mut file = tokio::fs::OpenOptions::from(crate::files::new_private())
+            .open(&path)
+            .await?;
+        file.write_all(bytes).await?;
+        file.flush().await?;
         Ok(())
     }
 }
