@@ -61,10 +61,10 @@ function designTable(designs) {
 /** The fitted parameters; one the data did not identify says so and why, never a number
  * (its value and bounds are null: an unbounded interval read as a measurement misleads). */
 function fitTable(f) {
-  const row = (name, e, unit) => el('tr', { 'data-parameter': name },
+  const row = (name, e, unit) => el('tr', {},
     el('td', {}, name),
     ...(e.not_identified
-      ? [el('td', { colspan: 3, class: 'status warn', 'data-identified': 'no' }, `not identified (${e.not_identified})`)]
+      ? [el('td', { colspan: 3, class: 'not-identified' }, `not identified (${e.not_identified})`)]
       : [el('td', { class: 'num' }, num(e.value, 3)),
         el('td', { class: 'num' }, `[${num(e.lo, 3)}, ${num(e.hi, 3)}]`), el('td', {}, unit)]));
   return el('table', { class: 'grid', 'data-fit': 'body' },

@@ -212,7 +212,7 @@ pub struct BodyFit {
 pub const UNBOUNDED: f64 = 1e300;
 
 /// The reason of a parameter named unidentified by a fit stored before reasons were kept.
-const UNRECORDED: &str = "the fit could not pin it down (its reason was not recorded)";
+const UNRECORDED: &str = "the fit could not pin it down; its reason was not recorded";
 
 /// `unidentified` as stored now (name → why) or before reasons were kept (names).
 fn names_or_reasons<'de, D: Deserializer<'de>>(d: D) -> Result<BTreeMap<String, String>, D::Error> {
