@@ -27,6 +27,7 @@ mod hardening;
 mod https;
 mod identification_study;
 mod isolation;
+mod lab_pages;
 mod lsl;
 mod protocol_package;
 mod server_api;
