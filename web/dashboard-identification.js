@@ -58,10 +58,15 @@ function designTable(designs) {
     el('caption', {}, 'Designs tuned to this subject (k_h at its 95 % upper bound)'));
 }
 
+/** The fitted parameters; one the data did not identify says so and why, never a number
+ * (its value and bounds are null: an unbounded interval read as a measurement misleads). */
 function fitTable(f) {
   const row = (name, e, unit) => el('tr', {},
-    el('td', {}, name), el('td', { class: 'num' }, num(e.value, 3)),
-    el('td', { class: 'num' }, `[${num(e.lo, 3)}, ${num(e.hi, 3)}]`), el('td', {}, unit));
+    el('td', {}, name),
+    ...(e.not_identified
+      ? [el('td', { colspan: 3, class: 'not-identified' }, `not identified (${e.not_identified})`)]
+      : [el('td', { class: 'num' }, num(e.value, 3)),
+        el('td', { class: 'num' }, `[${num(e.lo, 3)}, ${num(e.hi, 3)}]`), el('td', {}, unit)]));
   return el('table', { class: 'grid', 'data-fit': 'body' },
     el('thead', {}, el('tr', {}, ...['Parameter', 'Fitted', '95 % interval', ''].map((h) => el('th', {}, h)))),
     el('tbody', {},
@@ -70,8 +75,7 @@ function fitTable(f) {
       row('torso damping', f.torso_zeta, ''),
       row('arm frequency (as gripped)', f.arm_f_hz, 'Hz'),
       row('arm damping', f.arm_zeta, '')),
-    el('caption', {}, `Residual r.m.s. ${num(f.residual_rms, 3)} (ln)` +
-      (f.unidentified.length ? ` · not identified: ${f.unidentified.join(', ')}` : '')));
+    el('caption', {}, `Residual r.m.s. ${num(f.residual_rms, 3)} (ln)`));
 }
 
 /** One panel of the Bode plot: `which` is 'magnitude' (log axis) or 'phase'. */

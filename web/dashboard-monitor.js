@@ -111,15 +111,13 @@ function syncPanels() {
   let empty = box.querySelector('.monitor-empty');
   if (!S.stations.length) {
     if (!empty) {
-      empty = el(
-        'p',
-        { class: 'monitor-empty muted' },
-        S.studyId
-          ? 'No station paired with this study yet. Open /station on each station’s computer and pair it under Stations.'
-          : 'Select or create a study first.',
-      );
+      empty = el('p', { class: 'monitor-empty muted' });
       box.append(empty);
     }
+    // The note made before a study was selected stays: its words follow the selection.
+    empty.textContent = S.studyId
+      ? 'No station paired with this study yet. Open /station on each station’s computer and pair it under Stations.'
+      : 'Select or create a study first.';
   } else if (empty) empty.remove();
   for (const p of panels.values()) renderPanel(p);
   pollAll();

@@ -2,6 +2,7 @@
 // server faster than real time (POST /api/studies/{id}/pilot, progress at GET /api/pilot).
 
 import { S, act, emit, errText, get, post, setStatus } from './dashboard-core.js';
+import { loadStudies } from './dashboard-study.js';
 
 const $ = (id) => document.getElementById(id);
 
@@ -73,12 +74,14 @@ async function check() {
     setStatus(
       $('pilot-status'),
       'ok',
-      `Last pilot run (dry run #${rep.study_id}, apart from the study's people): ${rep.subjects.length} synthetic subjects (${rep.subjects.join(', ')}), ${rep.complete} of ${rep.trials} trials complete.`,
+      `Last pilot run (dry run #${rep.study_id}, apart from the study's people; select it under Studies to see its results): ${rep.subjects.length} synthetic subjects (${rep.subjects.join(', ')}), ${rep.complete} of ${rep.trials} trials complete.`,
     );
   }
   if (timer) {
-    // It just finished: every view reloads.
+    // It just finished: every view reloads, and the study list shows the dry run it made
+    // (selectable, so its results can be looked at).
     timer = null;
+    await loadStudies();
     emit('trial', null);
   }
 }

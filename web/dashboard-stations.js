@@ -116,14 +116,15 @@ function render() {
   }
   syncRows(tbody, S.stations, {
     key: (st) => st.id,
-    sig: (st) => JSON.stringify([st, S.subjects.map((x) => [x.subject.id, x.subject.code, x.subject.withdrawn_at, x.tests_complete, x.tests]), rowStatus.get(st.id)]),
+    sig: (st) => JSON.stringify([st, S.subjects.map((x) => [x.subject.id, x.subject.code, x.subject.withdrawn_at, x.subject.erased_at, x.tests_complete, x.tests]), rowStatus.get(st.id)]),
     attrs: (st) => ({ 'data-station-row': st.id }),
     cells: (st) => {
       const sel = el(
         'select',
         { 'data-assign-station': st.id, 'aria-label': `Subject at station ${st.name}` },
         el('option', { value: '' }, '— nobody —'),
-        ...S.subjects.map(({ subject: s, tests_complete, tests }) =>
+        // An erased subject takes no further part (the server refuses the assignment).
+        ...S.subjects.filter(({ subject: s }) => !s.erased_at).map(({ subject: s, tests_complete, tests }) =>
           el(
             'option',
             { value: s.id, disabled: !!s.withdrawn_at && s.id !== st.subject_id },

@@ -130,6 +130,15 @@ export async function loadStudies(selectId) {
   }
 }
 
+/** A study's name in lists: a dry run says whose pilot it holds, so its synthetic
+ * subjects' results are never taken for a study's people. */
+function studyLabel(st) {
+  if (!st.dry_run) return st.name;
+  const of = st.dry_run.of_study === null ? null : S.studies.find((x) => x.id === st.dry_run.of_study);
+  const whose = of ? `Pilot of ${of.name}` : st.name;
+  return `${whose} — dry run #${st.id}`;
+}
+
 function fillSelect() {
   fillTable();
   const sel = $('study-select');
@@ -141,7 +150,9 @@ function fillSelect() {
   sel.disabled = false;
   sel.replaceChildren(
     ...S.studies.map((s) =>
-      el('option', { value: s.id }, `#${s.id} ${s.name}${s.locked_at ? ' — locked' : ' — not locked'}`),
+      el('option', { value: s.id, 'data-dry-run': s.dry_run ? 'yes' : null }, s.dry_run
+        ? studyLabel(s)
+        : `#${s.id} ${s.name}${s.locked_at ? ' — locked' : ' — not locked'}`),
     ),
   );
   if (S.studyId) sel.value = String(S.studyId);
@@ -158,9 +169,9 @@ function fillTable() {
     ...S.studies.map((st) =>
       el(
         'tr',
-        { 'data-study-id': st.id, class: st.id === S.studyId ? 'selected' : '' },
+        { 'data-study-id': st.id, class: [st.id === S.studyId ? 'selected' : '', st.dry_run ? 'dry-run' : ''].join(' ') },
         el('td', { class: 'num' }, st.id),
-        el('td', {}, st.name),
+        el('td', {}, studyLabel(st), st.dry_run ? [' ', el('span', { class: 'tag synthetic', 'data-dry-run-badge': st.id }, 'dry run')] : ''),
         el('td', { class: 'nowrap' }, when(st.created_at)),
         el(
           'td',

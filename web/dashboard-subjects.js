@@ -109,8 +109,34 @@ async function enrol(synthetic) {
 // ---- the subject list ---------------------------------------------------------------------
 
 function consentText(s) {
+  // An erased subject's consent went with their data: not "pending", which asks for it.
+  if (s.erased_at) return `erased ${when(s.erased_at)}`;
   if (!s.consent_decision) return 'pending';
   return `${s.consent_decision} (v${s.consent_version || '?'}, ${when(s.consent_at)})`;
+}
+
+/** The row's withdrawal: a reason and the button; an erased subject takes no further
+ * part, so there is nothing to do on their row. */
+function withdrawCell(s, st) {
+  if (s.erased_at) return el('td', { class: 'actions muted', 'data-erased': s.id }, 'erased: no action');
+  return el(
+    'td',
+    { class: 'actions' },
+    el('input', {
+      'data-keep': `withdraw-${s.id}`,
+      'data-withdraw-reason': s.id,
+      placeholder: 'reason',
+      maxlength: 500,
+      disabled: !!s.withdrawn_at,
+      'aria-label': `Reason for withdrawing ${s.code}`,
+    }),
+    el(
+      'button',
+      { type: 'button', class: 'danger-outline', 'data-action': 'withdraw', 'data-subject-id': s.id, disabled: !!s.withdrawn_at },
+      'Withdraw',
+    ),
+    st ? el('div', { class: `status ${st[0]}` }, st[1]) : null,
+  );
 }
 
 function renderList() {
@@ -140,13 +166,11 @@ function renderList() {
     cells: ({ subject: s, tests_complete, tests }) => {
       const stations = S.stations.filter((st) => st.subject_id === s.id).map((st) => st.name);
       const st = rowStatus.get(`withdraw-${s.id}`);
-      // An erased subject's data are gone: nothing left to withdraw.
-      const withdrawn = !!s.withdrawn_at || !!s.erased_at;
       return [
         el('td', { class: 'code' }, s.code),
         el('td', {}, s.synthetic ? el('span', { class: 'tag synthetic' }, 'synthetic') : 'person'),
         el('td', {}, s.starting_station),
-        el('td', { class: `consent-${s.consent_decision || 'pending'}` }, consentText(s)),
+        el('td', { class: s.erased_at ? 'consent-erased' : `consent-${s.consent_decision || 'pending'}` }, consentText(s)),
         el('td', { class: 'progress-cell' }, `${tests_complete} / ${tests}`, el('progress', { max: tests || 1, value: tests_complete })),
         el('td', {}, stations.join(', ') || el('span', { class: 'muted' }, '—')),
         el(
@@ -159,26 +183,7 @@ function renderList() {
               : el('span', { class: 'muted' }, '—'),
         ),
         // An analyst changes nothing: no withdraw column (the server would refuse it).
-        mayChange()
-          ? el(
-          'td',
-          { class: 'actions' },
-          el('input', {
-            'data-keep': `withdraw-${s.id}`,
-            'data-withdraw-reason': s.id,
-            placeholder: 'reason',
-            maxlength: 500,
-            disabled: withdrawn,
-            'aria-label': `Reason for withdrawing ${s.code}`,
-          }),
-          el(
-            'button',
-            { type: 'button', class: 'danger-outline', 'data-action': 'withdraw', 'data-subject-id': s.id, disabled: withdrawn },
-            'Withdraw',
-          ),
-          st ? el('div', { class: `status ${st[0]}` }, st[1]) : null,
-        )
-          : null,
+        mayChange() ? withdrawCell(s, st) : null,
       ];
     },
     empty: note('No subject enrolled yet.'),

@@ -6,7 +6,7 @@
 
 import { api, wsUrl } from './common.js';
 import { describe, setError } from './station-errors.js';
-import { show, state } from './station-phases.js';
+import { show, showSection, state } from './station-phases.js';
 import { onSample } from './station-pursuit.js';
 
 const TOKEN_KEY = 'bdft-station-token';
@@ -23,6 +23,53 @@ const CLOSE_REPLACED = 4001;
 const CLOSE_FLOOD = 1008;
 
 const $ = (id) => document.getElementById(id);
+
+// ---------------------------------------------------------------------------------------
+// One tab per browser.
+
+/** The name of the lock (and channel) a station's tab holds while it is open. */
+const TAB_LOCK = 'bdft-station-tab';
+
+/**
+ * Runs `start` in the one tab of this browser that is the station. A station is one
+ * computer in front of one subject, and every tab of a browser shares its pairing
+ * (localStorage): a second tab would feed the same subject's test. So a second tab is
+ * refused, saying so, and becomes the station only once the first is closed. The tab holds
+ * a Web Lock, which the browser frees when the tab goes; where there are none (a page
+ * served over plain HTTP to another computer is not a secure context), the tabs ask each
+ * other over a BroadcastChannel.
+ */
+export function claimTab(start) {
+  if (navigator.locks) {
+    navigator.locks.request(TAB_LOCK, { ifAvailable: true }, (lock) => {
+      if (lock) return holdWhile(start);
+      showSection('other-tab');
+      // Queued: granted when the other tab closes.
+      navigator.locks.request(TAB_LOCK, () => holdWhile(start));
+      return null;
+    });
+    return;
+  }
+  const channel = new BroadcastChannel(TAB_LOCK);
+  let mine = false;
+  channel.onmessage = (ev) => {
+    if (ev.data === 'who' && mine) channel.postMessage('here');
+    else if (ev.data === 'here' && !mine) showSection('other-tab');
+  };
+  channel.postMessage('who');
+  // An open station answers at once; a tab that heard nothing within a second is the one.
+  setTimeout(() => {
+    if (document.body.dataset.phase === 'other-tab') return;
+    mine = true;
+    start();
+  }, 1000);
+}
+
+/** Starts the station and holds the tab's lock for as long as the page lives. */
+function holdWhile(start) {
+  start();
+  return new Promise(() => {});
+}
 
 // ---------------------------------------------------------------------------------------
 // Token and pairing.

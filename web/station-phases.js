@@ -46,17 +46,21 @@ export function show(s) {
   if (active && phase === 'running' && !run) startRun(s.test);
   showStopped(active && ['ready', 'move', 'held'].includes(phase) ? s.stopped : null);
 
-  if (document.body.dataset.phase !== displayed) {
-    document.body.dataset.phase = displayed;
-    for (const sec of document.querySelectorAll('section.phase')) sec.hidden = sec.dataset.for !== displayed;
-    // Move the focus to the new content so that a keyboard or screen reader follows it.
-    const target = document.querySelector(`section[data-for="${displayed}"] h1`);
-    if (target) {
-      target.tabIndex = -1;
-      target.focus({ preventScroll: true });
-    }
-    window.scrollTo(0, 0);
+  showSection(displayed);
+}
+
+/** Shows the section of `displayed` (a phase, or what the page shows instead of one) alone. */
+export function showSection(displayed) {
+  if (document.body.dataset.phase === displayed) return;
+  document.body.dataset.phase = displayed;
+  for (const sec of document.querySelectorAll('section.phase')) sec.hidden = sec.dataset.for !== displayed;
+  // Move the focus to the new content so that a keyboard or screen reader follows it.
+  const target = document.querySelector(`section[data-for="${displayed}"] h1`);
+  if (target) {
+    target.tabIndex = -1;
+    target.focus({ preventScroll: true });
   }
+  window.scrollTo(0, 0);
 }
 
 /** What the subject is told about a test that was stopped (never a controller's name). */
@@ -66,13 +70,16 @@ function showStopped(stopped) {
     box.hidden = true;
     return;
   }
-  const why = {
-    invalid: 'the display was hidden or stopped updating',
-    aborted: 'it was stopped by the experimenter',
-    incomplete: 'of a technical problem',
-  }[stopped.status] || 'of a problem';
-  const then = stopped.repeated ? 'It will be repeated later.' : 'The experimenter will decide how to go on.';
-  const text = `${stopped.label} was stopped because ${why}. ${then}`;
+  // Each status a whole sentence of its own, so that every one reads well after the label.
+  const what = {
+    invalid: 'was stopped because the display was hidden or stopped updating',
+    aborted: 'was stopped by the experimenter',
+    incomplete: 'was stopped by a technical problem',
+  }[stopped.status] || 'was stopped by a problem';
+  const then = !stopped.repeated
+    ? 'The experimenter will decide how to go on.'
+    : stopped.repeated_next ? 'It will be repeated next.' : 'It will be repeated later.';
+  const text = `${stopped.label} ${what}. ${then}`;
   if (box.textContent !== text) box.textContent = text;
   box.hidden = false;
 }

@@ -4,7 +4,7 @@
 // /api/station/ws for input, live samples, changes and the E-stop latch.
 //
 // This module starts the page; the parts are in their own modules:
-//   station-connection.js   token and pairing, polling the state, the socket
+//   station-connection.js   one tab per browser, token and pairing, polling the state, the socket
 //   station-phases.js       which phase shows, and when a test's run starts and ends
 //   station-instructions.js the study's texts: before a test, moving seats, the end
 //   station-consent.js      the consent form and the subject's decision
@@ -18,7 +18,7 @@
 // token, the socket, the run) is assigned only in the module that declares it; the others
 // read it live.
 
-import { newCode, refresh } from './station-connection.js';
+import { claimTab, newCode, refresh } from './station-connection.js';
 import { confirmDecline, decide } from './station-consent.js';
 import { setError } from './station-errors.js';
 import { input, setupPointer } from './station-input.js';
@@ -48,7 +48,7 @@ function init() {
   });
   readColors();
   requestAnimationFrame(frame);
-  refresh();
+  claimTab(refresh);
 }
 
 init();

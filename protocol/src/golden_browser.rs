@@ -204,6 +204,7 @@ fn what_a_station_shows() {
                 label: "Controller 2".into(),
                 status: TrialStatus::Invalid,
                 repeated: true,
+                repeated_next: false,
             }),
             texts: None,
         },
@@ -297,5 +298,19 @@ fn live_socket_events() {
     assert_golden(
         &MonitorEvent::EStop { latched: true },
         r#"{"type":"estop","latched":true}"#,
+    );
+}
+
+#[test]
+fn a_stop_notice_says_when_the_repeat_is_the_next_test() {
+    // Only then is `repeated_next` written: a notice without it reads as before.
+    assert_golden(
+        &StopNotice {
+            label: "Controller 2".into(),
+            status: TrialStatus::Aborted,
+            repeated: true,
+            repeated_next: true,
+        },
+        r#"{"label":"Controller 2","status":"aborted","repeated":true,"repeated_next":true}"#,
     );
 }

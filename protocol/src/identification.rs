@@ -6,7 +6,9 @@
 //! `TargetSpec::Identification`), the task the person is given, and what the test measured
 //! (`FrfPoint`s and the seated body fitted to them, `BodyFit`).
 
-use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Deserializer, Serialize};
 
 use crate::params::{BodyModel, ParamError, check};
 
@@ -198,11 +200,131 @@ pub struct BodyFit {
     /// RMS of the fit's residual, |log(model / measured)| over the points (natural log).
     pub residual_rms: f64,
     /// Parameters the data could not pin down (their interval spans more than a factor of
-    /// 10, or the fit's information matrix is singular along them), by name.
-    pub unidentified: Vec<String>,
+    /// 10, or the fit's information matrix is singular along them), by name, with why.
+    /// Fits stored before the reasons were kept listed the names only.
+    #[serde(deserialize_with = "names_or_reasons")]
+    #[cfg_attr(feature = "openapi", schema(value_type = BTreeMap<String, String>))]
+    pub unidentified: BTreeMap<String, String>,
+}
+
+/// An interval end this large is no bound at all: the fit's [0, f64::MAX] along a direction
+/// the data do not inform, stored as a number before such parameters were left empty.
+pub const UNBOUNDED: f64 = 1e300;
+
+/// The reason of a parameter named unidentified by a fit stored before reasons were kept.
+const UNRECORDED: &str = "the fit could not pin it down; its reason was not recorded";
+
+/// `unidentified` as stored now (name → why) or before reasons were kept (names).
+fn names_or_reasons<'de, D: Deserializer<'de>>(d: D) -> Result<BTreeMap<String, String>, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum Stored {
+        Names(Vec<String>),
+        Reasons(BTreeMap<String, String>),
+    }
+    Ok(match Stored::deserialize(d)? {
+        Stored::Names(names) => names.into_iter().map(|n| (n, UNRECORDED.into())).collect(),
+        Stored::Reasons(r) => r,
+    })
+}
+
+/// One fitted parameter as the API and the exports report it: its value and 95 % interval,
+/// or none of them and why, when the data did not identify it (a number there would be read
+/// as a measurement).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct Reported {
+    pub value: Option<f64>,
+    pub lo: Option<f64>,
+    pub hi: Option<f64>,
+    /// Why the data did not identify it; null when they did.
+    pub not_identified: Option<String>,
+}
+
+impl Reported {
+    /// The exports' status of the parameter: `identified` or `not identified: why`.
+    pub fn status(&self) -> String {
+        match &self.not_identified {
+            None => "identified".into(),
+            Some(why) => format!("not identified: {why}"),
+        }
+    }
+}
+
+/// A `BodyFit` as the API reports it (`BodyFit::report`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct FitReport {
+    pub k_h: Reported,
+    pub torso_f_hz: Reported,
+    pub torso_zeta: Reported,
+    pub arm_f_hz: Reported,
+    pub arm_zeta: Reported,
+    pub residual_rms: f64,
 }
 
 impl BodyFit {
+    /// The fitted parameters' names, in the order of `estimates`.
+    pub const PARAMETERS: [&'static str; 5] =
+        ["k_h", "torso_f_hz", "torso_zeta", "arm_f_hz", "arm_zeta"];
+
+    /// The fitted parameters, in the order of `PARAMETERS`.
+    pub fn estimates(&self) -> [Estimate; 5] {
+        [
+            self.k_h,
+            self.torso_f_hz,
+            self.torso_zeta,
+            self.arm_f_hz,
+            self.arm_zeta,
+        ]
+    }
+
+    /// The fit with every parameter whose value or interval end is not a finite number
+    /// below `UNBOUNDED` named unidentified: what every stored fit goes through, so that a
+    /// fit stored before such parameters were named (or with their reasons) is reported
+    /// right too.
+    pub fn checked(mut self) -> Self {
+        for (name, e) in Self::PARAMETERS.into_iter().zip(self.estimates()) {
+            if ![e.value, e.lo, e.hi]
+                .iter()
+                .all(|x| x.is_finite() && x.abs() < UNBOUNDED)
+            {
+                self.unidentified
+                    .entry(name.into())
+                    .or_insert_with(|| "its 95 % interval is unbounded".into());
+            }
+        }
+        self
+    }
+
+    /// Each parameter as reported, in the order of `PARAMETERS`.
+    pub fn reported(&self) -> [Reported; 5] {
+        let estimates = self.estimates();
+        std::array::from_fn(|i| {
+            let why = self.unidentified.get(Self::PARAMETERS[i]).cloned();
+            let known = |x: f64| why.is_none().then_some(x);
+            Reported {
+                value: known(estimates[i].value),
+                lo: known(estimates[i].lo),
+                hi: known(estimates[i].hi),
+                not_identified: why,
+            }
+        })
+    }
+
+    /// The fit as the API reports it.
+    pub fn report(&self) -> FitReport {
+        let [k_h, torso_f_hz, torso_zeta, arm_f_hz, arm_zeta] = self.reported();
+        FitReport {
+            k_h,
+            torso_f_hz,
+            torso_zeta,
+            arm_f_hz,
+            arm_zeta,
+            residual_rms: self.residual_rms,
+        }
+    }
+
     /// The body the fit describes, for the stability gate and per-subject designs.
     pub fn body(&self) -> BodyModel {
         BodyModel::Seated {
@@ -218,6 +340,33 @@ impl BodyFit {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_unbounded_or_unidentified_parameter_is_reported_empty_with_why() {
+        let e = |value, lo, hi| Estimate { value, lo, hi };
+        // A fit as stored before reasons were kept: names only, the singular direction's
+        // interval [0, f64::MAX] and a damping no body has.
+        let stored = r#"{"k_h":{"value":0.5,"lo":0.4,"hi":0.6},
+            "torso_f_hz":{"value":4.36e-8,"lo":0.0,"hi":1.7976931348623157e308},
+            "torso_zeta":{"value":4955376.8,"lo":1.0,"hi":1e12},
+            "arm_f_hz":{"value":2.0,"lo":1.8,"hi":2.2},
+            "arm_zeta":{"value":0.3,"lo":0.2,"hi":0.4},
+            "residual_rms":0.1,"unidentified":["torso_zeta"]}"#;
+        let fit: BodyFit = serde_json::from_str(stored).unwrap();
+        let fit = fit.checked();
+        let r = fit.report();
+        assert_eq!(r.k_h.value, Some(0.5));
+        assert_eq!(r.k_h.status(), "identified");
+        for p in [&r.torso_f_hz, &r.torso_zeta] {
+            assert_eq!((p.value, p.lo, p.hi), (None, None, None), "{p:?}");
+            assert!(p.status().starts_with("not identified: "), "{p:?}");
+        }
+        assert!(r.torso_f_hz.status().contains("unbounded"));
+        // Stored again, the reasons are kept.
+        let again: BodyFit = serde_json::from_str(&serde_json::to_string(&fit).unwrap()).unwrap();
+        assert_eq!(again.unidentified, fit.unidentified);
+        assert_eq!(again.arm_f_hz, e(2.0, 1.8, 2.2));
+    }
 
     #[test]
     fn the_default_multisine_is_valid_and_lasts_its_periods() {

@@ -29,14 +29,18 @@ pub struct StationView {
 
 /// What the subject is told about a test that was stopped: which one (blinded), how it ended
 /// (`aborted`: by the experimenter or the E-stop; `incomplete`: a technical fault;
-/// `invalid`: the display was hidden or stalled), and whether it will be repeated later
-/// (otherwise the experimenter decides).
+/// `invalid`: the display was hidden or stalled), and whether it will be repeated
+/// (otherwise the experimenter decides) — as the very next test, or later.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct StopNotice {
     pub label: String,
     pub status: TrialStatus,
     pub repeated: bool,
+    /// The repeat is the subject's next test (absent, false, from servers before it was
+    /// told apart).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub repeated_next: bool,
 }
 
 /// The station itself, as its page shows it.

@@ -6,7 +6,7 @@
 
 use bdft_tests::TempDir;
 use bdft_tests::exports::parse_csv;
-use bdft_tests::server::{Api, Server, assigned_station, pilot_copy, trial_rows};
+use bdft_tests::server::{Api, Server, assigned_station, pilot_copy, trial_rows, with_store};
 use bdft_tests::webdriver::{Driver, artifacts_dir};
 use serde_json::{Value, json};
 
@@ -426,4 +426,132 @@ fn a_personalized_study_runs_each_subjects_lqr_designs_tuned_to_their_own_body()
     );
     let (_, audit) = api.get_text("/api/audit/export");
     assert_eq!(audit.matches("design.personalize").count(), 4);
+}
+
+/// A fit as the old code stored one whose torso the data could not pin down: the singular
+/// direction's interval [0, f64::MAX], a damping no body has, and the names without reasons.
+fn store_unidentified_torso(server: &Server, subject: i64) {
+    with_store(server, async |pool| {
+        let (json,): (String,) =
+            sqlx::query_as("SELECT fit_json FROM identifications WHERE subject_id = $1")
+                .bind(subject)
+                .fetch_one(pool)
+                .await
+                .unwrap();
+        let mut fit: Value = serde_json::from_str(&json).unwrap();
+        fit["torso_f_hz"] = json!({ "value": 4.36e-8, "lo": 0.0, "hi": f64::MAX });
+        fit["torso_zeta"] = json!({ "value": 4_955_376.8, "lo": 0.9, "hi": 2.6e13 });
+        fit["unidentified"] = json!(["torso_zeta"]);
+        sqlx::query("UPDATE identifications SET fit_json = $1 WHERE subject_id = $2")
+            .bind(fit.to_string())
+            .bind(subject)
+            .execute(pool)
+            .await
+            .unwrap();
+    });
+}
+
+#[test]
+fn an_unidentified_parameter_is_empty_in_the_exports_and_not_identified_on_the_dashboard() {
+    let server = Server::start("ident-unidentified");
+    let base = server.base.clone();
+    let api = server.experimenter();
+    let (code, study) = create(&api, &params_with_identification(&api, 2.0));
+    assert_eq!(code, 200, "{study}");
+    let copy = pilot_copy(&api, study["id"].as_i64().unwrap(), 1);
+    let (_, subjects) = api.get(&format!("/api/studies/{copy}/subjects"));
+    let subject = subjects[0]["subject"]["id"].as_i64().unwrap();
+    let code = subjects[0]["subject"]["code"].as_str().unwrap().to_string();
+    store_unidentified_torso(&server, subject);
+
+    // The API: no number for either, and why (the unbounded interval named as such).
+    let (_, view) = api.get(&format!("/api/subjects/{subject}/identification"));
+    let fit = &view["tests"][0]["fit"];
+    for key in ["torso_f_hz", "torso_zeta"] {
+        let p = &fit[key];
+        assert!(
+            p["value"].is_null() && p["lo"].is_null() && p["hi"].is_null(),
+            "{key}: {p}"
+        );
+        assert!(p["not_identified"].is_string(), "{key}: {p}");
+    }
+    assert!(
+        fit["torso_f_hz"]["not_identified"]
+            .as_str()
+            .unwrap()
+            .contains("unbounded"),
+        "{fit}"
+    );
+    assert!(fit["k_h"]["value"].is_f64() && fit["k_h"]["not_identified"].is_null());
+
+    // The subjects export: every number a finite number, the unidentified ones empty, and
+    // the status saying why.
+    let (h, rows) = csv(&api, copy, "subjects");
+    let row = rows.iter().find(|r| r[1] == code).unwrap();
+    let cell = |name: &str| &row[h.iter().position(|c| c == name).unwrap()];
+    for (name, value) in h.iter().zip(row) {
+        if name.starts_with("identified.") && !name.ends_with("_status") && !value.is_empty() {
+            let x: f64 = value
+                .parse()
+                .unwrap_or_else(|_| panic!("{name} = {value:?} is no number"));
+            assert!(x.is_finite() && x.abs() < 1e300, "{name} = {value}");
+        }
+    }
+    for key in ["torso_f_hz", "torso_zeta"] {
+        for suffix in ["", "_lo", "_hi"] {
+            assert_eq!(
+                cell(&format!("identified.{key}{suffix}")),
+                "",
+                "{key}{suffix}"
+            );
+        }
+        let status = cell(&format!("identified.{key}_status"));
+        assert!(status.starts_with("not identified: "), "{key}: {status}");
+    }
+    assert!(cell("identified.torso_f_hz_status").contains("unbounded"));
+    assert_eq!(cell("identified.k_h_status"), "identified");
+    assert!(!cell("identified.k_h").is_empty());
+    // The codebook documents the status columns.
+    let (_, codebook) = api.get_text(&format!("/api/studies/{copy}/export/codebook"));
+    assert!(
+        codebook.contains("identified.torso_f_hz_status"),
+        "{codebook}"
+    );
+
+    // The dashboard's subject view says so instead of a number.
+    let downloads = TempDir::new("ident-unidentified-downloads");
+    let driver = Driver::start();
+    let dash = driver.session(downloads.path());
+    dash.log_in_to_dashboard(&base);
+    dash.find("#estop");
+    dash.wait_until(
+        "return [...document.querySelectorAll('#study-select option')].some((o) => o.value === arguments[0]);",
+        json!([copy.to_string()]),
+    );
+    dash.choose("#study-select", &copy.to_string());
+    let row = format!("#subjects tr[data-subject-id='{subject}']");
+    dash.find(&row);
+    dash.click(&row);
+    // Each parameter's row: the unidentified ones say so and why, with no value or interval.
+    let rows = dash.wait_until(
+        "const t = document.querySelector('table[data-fit=body]'); \
+         return t ? Object.fromEntries([...t.tBodies[0].rows].map((r) => [r.cells[0].textContent, r.textContent])) : null;",
+        json!([]),
+    );
+    for name in ["torso frequency", "torso damping"] {
+        let row = rows[name].as_str().unwrap();
+        assert!(row.contains("not identified ("), "{name}: {row}");
+        assert!(!row.contains('[') && !row.contains("e308"), "{name}: {row}");
+    }
+    assert!(
+        rows["torso frequency"]
+            .as_str()
+            .unwrap()
+            .contains("unbounded")
+    );
+    let k_h = rows["k_h"].as_str().unwrap();
+    assert!(
+        !k_h.contains("not identified") && k_h.contains('['),
+        "{k_h}"
+    );
 }

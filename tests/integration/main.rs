@@ -29,6 +29,7 @@ mod hardening;
 mod https;
 mod identification_study;
 mod isolation;
+mod lab_pages;
 mod lsl;
 mod practice_and_consent;
 mod protocol_package;

@@ -414,7 +414,7 @@ fn a_station_tab_hidden_during_a_test_has_it_filed_invalid_in_chromium() {
     // Back at the station: it says what happened, and the test comes back.
     s.wait_phase("ready");
     s.wait_until(
-        "const n = document.getElementById('stopped-notice'); return !n.hidden && n.textContent.includes('repeated later');",
+        "const n = document.getElementById('stopped-notice'); return !n.hidden && n.textContent.includes('It will be repeated next.');",
         json!([]),
     );
     let (slot, attempt) = next_test(&api, subject, &station);

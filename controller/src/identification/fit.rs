@@ -13,7 +13,7 @@
 //! continuous response by 2·10⁻⁴ in frequency, far below any measured precision, so the fit
 //! uses the continuous model.
 //!
-//! **The fit.** θ = ln(k_h, f_t, ζ_t, f_a, ζ_a); the residual at a point is the complex log
+//! **The fit.** θ = ln(k_h, f_t, ζ_t, f_a, ζ_a) (`BodyFit::PARAMETERS`' order); the residual at a point is the complex log
 //! ratio ln(G(jω; θ)/Ĥ) (phase wrapped), weighted by √2·|Ĥ|/σ_Ĥ — the standard deviation of
 //! each of its real and imaginary parts to first order — so the cost is χ² when the points'
 //! variances are right. Levenberg–Marquardt from a few starting bodies (the torso and arm
@@ -25,8 +25,10 @@
 //! variances' degrees of freedom, 2(P − 1): the weights are estimated from P periods, not
 //! known (module docs of `estimate`). A parameter whose interval spans more than a factor
 //! of 10, or lies along a direction where the information matrix is singular, is named in
-//! `unidentified` (a singular direction's parameters get the interval [0, f64::MAX]).
+//! `unidentified` with why (a singular direction's parameters get the interval [0, f64::MAX],
+//! which the API and the exports report as no interval: `BodyFit::report`).
 
+use std::collections::BTreeMap;
 use std::f64::consts::PI;
 
 use bdft_protocol::identification::{BodyFit, Estimate, FrfPoint, MultisineSpec};
@@ -35,9 +37,6 @@ use nalgebra::{Complex, DMatrix, DVector, SMatrix, SVector};
 use super::IdentificationError;
 use super::estimate::{CONFIDENCE, estimate};
 use crate::special::beta_inc;
-
-/// The parameters in the order of θ.
-pub const PARAMETERS: [&str; 5] = ["k_h", "torso_f_hz", "torso_zeta", "arm_f_hz", "arm_zeta"];
 
 type Theta = SVector<f64, 5>;
 type Info = SMatrix<f64, 5, 5>;
@@ -239,19 +238,30 @@ pub fn fit_body(points: &[FrfPoint]) -> Result<BodyFit, IdentificationError> {
     }
     let periods = points.iter().map(|p| p.periods).min().unwrap_or(2).max(2);
     let t = t_quantile(0.5 + CONFIDENCE / 2.0, 2.0 * f64::from(periods) - 2.0);
-    let mut unidentified = vec![];
+    let mut unidentified = BTreeMap::new();
     let est: Vec<Estimate> = (0..5)
         .map(|p| {
             let value = theta[p].exp();
             let half = t * cov[(p, p)].sqrt();
-            let (lo, hi) = if singular[p] || !half.is_finite() {
-                (0.0, f64::MAX)
+            let (lo, hi, why) = if singular[p] || !half.is_finite() {
+                let why = "the data carry no information on it (the fit's information matrix is singular along it)";
+                (0.0, f64::MAX, Some(why.to_string()))
             } else {
-                ((theta[p] - half).exp(), (theta[p] + half).exp())
+                let (lo, hi) = ((theta[p] - half).exp(), (theta[p] + half).exp());
+                let span = hi / lo;
+                let why = if span.is_nan() {
+                    Some("its 95 % interval could not be computed".to_string())
+                } else {
+                    (span > UNIDENTIFIED_SPAN).then(|| {
+                        format!(
+                            "its 95 % interval spans a factor of {span:.3e}, more than {UNIDENTIFIED_SPAN}"
+                        )
+                    })
+                };
+                (lo, hi, why)
             };
-            let span = hi / lo;
-            if singular[p] || span.is_nan() || span > UNIDENTIFIED_SPAN {
-                unidentified.push(PARAMETERS[p].to_string());
+            if let Some(why) = why {
+                unidentified.insert(BodyFit::PARAMETERS[p].to_string(), why);
             }
             Estimate { value, lo, hi }
         })

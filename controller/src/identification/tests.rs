@@ -291,7 +291,7 @@ fn the_fits_95_percent_intervals_cover_the_true_body_of_85_to_100_percent_of_sub
             if !hit {
                 eprintln!(
                     "subject {i}: {} = {:.4} outside [{:.4}, {:.4}] (fit {:.4}; residual {:.3})",
-                    super::fit::PARAMETERS[p],
+                    bdft_protocol::identification::BodyFit::PARAMETERS[p],
                     s.truth[p],
                     e.lo,
                     e.hi,
@@ -320,7 +320,7 @@ fn the_fits_95_percent_intervals_cover_the_true_body_of_85_to_100_percent_of_sub
         assert!(
             (0.85..=1.0).contains(&share),
             "{}: {c} of {SUBJECTS}",
-            super::fit::PARAMETERS[p]
+            bdft_protocol::identification::BodyFit::PARAMETERS[p]
         );
     }
 }

@@ -3,8 +3,8 @@
 //! written in the trial's filing transaction.
 
 use bdft_controller::analysis::personal::PersonalDesign;
-use bdft_protocol::identification::{BodyFit, FrfPoint};
-use serde::Serialize;
+use bdft_protocol::identification::{BodyFit, FitReport, FrfPoint};
+use serde::{Serialize, Serializer};
 use sqlx::{AnyConnection, AnyExecutor};
 
 use super::db::now_ms;
@@ -16,7 +16,10 @@ pub struct Identification {
     pub trial_id: i64,
     pub subject_id: i64,
     pub points: Vec<FrfPoint>,
-    /// The fitted body, or why the fit failed (`fit_error`).
+    /// The fitted body, or why the fit failed (`fit_error`); reported with its unidentified
+    /// parameters empty (`BodyFit::report`).
+    #[serde(serialize_with = "as_report")]
+    #[schema(value_type = Option<FitReport>)]
     pub fit: Option<BodyFit>,
     pub fit_error: Option<String>,
     /// The designs tuned to the fitted body, in a personalized study (migration 0026).
@@ -24,6 +27,16 @@ pub struct Identification {
     pub designs: Option<Vec<PersonalDesign>>,
     /// When it was filed (ms since the epoch).
     pub created_at: i64,
+}
+
+fn as_report<S: Serializer>(fit: &Option<BodyFit>, s: S) -> std::result::Result<S::Ok, S::Error> {
+    fit.as_ref().map(BodyFit::report).serialize(s)
+}
+
+/// A stored fit, `checked` so that one stored before unidentified parameters were named
+/// with their reasons (or left empty) reads as one stored now.
+fn stored_fit(json: &str) -> serde_json::Result<BodyFit> {
+    serde_json::from_str::<BodyFit>(json).map(BodyFit::checked)
 }
 
 #[derive(sqlx::FromRow)]
@@ -53,7 +66,7 @@ impl TryFrom<Row> for Identification {
             fit: r
                 .fit_json
                 .as_deref()
-                .map(serde_json::from_str)
+                .map(stored_fit)
                 .transpose()
                 .map_err(bad)?,
             fit_error: r.fit_error,
@@ -124,7 +137,7 @@ pub async fn latest_fit<'c>(db: impl AnyExecutor<'c>, subject_id: i64) -> Result
     .fetch_optional(db)
     .await?;
     json.map(|(j,)| {
-        serde_json::from_str(&j).map_err(|e| {
+        stored_fit(&j).map_err(|e| {
             AppError::Internal(anyhow::anyhow!(
                 "stored body fit of subject {subject_id}: {e}"
             ))

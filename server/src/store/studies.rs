@@ -32,6 +32,16 @@ pub struct Study {
     /// The calibrated version of the population `params` holds (0: the study's own;
     /// `population_versions`).
     pub population_version: i64,
+    /// Set when the study is a dry run (synthetic subjects only, so never pooled with a
+    /// study's people: results and exports are per study): which study it copies.
+    pub dry_run: Option<DryRun>,
+}
+
+/// A dry run's origin (`dry_runs`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct DryRun {
+    /// The study whose pilot runs in it; none for a dry run made on its own.
+    pub of_study: Option<i64>,
 }
 
 /// Who acknowledged that a study's design is unstable on the machine, when and why.
@@ -61,6 +71,8 @@ struct StudyRow {
     instability_ack_json: Option<String>,
     population_json: Option<String>,
     population_version: Option<i64>,
+    dry_run_id: Option<i64>,
+    dry_run_of: Option<i64>,
 }
 
 impl TryFrom<StudyRow> for Study {
@@ -89,13 +101,19 @@ impl TryFrom<StudyRow> for Study {
                 .instability_ack_json
                 .and_then(|j| serde_json::from_str(&j).ok()),
             population_version: r.population_version.unwrap_or(0),
+            dry_run: r.dry_run_id.map(|_| DryRun {
+                of_study: r.dry_run_of,
+            }),
         })
     }
 }
 
 /// A study with the newest calibrated population that applies to it: its own, or for a
 /// dry-run copy its parent's when that is newer (`population_versions`).
-const SELECT: &str = "SELECT s.*, p.population_json, p.version AS population_version FROM studies s \
+/// And whether it is a dry run, of which study.
+const SELECT: &str = "SELECT s.*, p.population_json, p.version AS population_version, \
+     d.study_id AS dry_run_id, d.of_study AS dry_run_of FROM studies s \
+     LEFT JOIN dry_runs d ON d.study_id = s.id \
      LEFT JOIN population_versions p ON p.id = (SELECT v.id FROM population_versions v \
      WHERE v.study_id = s.id OR v.study_id = (SELECT d.of_study FROM dry_runs d WHERE d.study_id = s.id) \
      ORDER BY v.id DESC LIMIT 1)";

@@ -607,6 +607,7 @@ mod tests {
             created_at: 0,
             instability_ack: None,
             population_version: 0,
+            dry_run: None,
         }
     }
 

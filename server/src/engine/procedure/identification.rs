@@ -5,6 +5,8 @@
 //! body there too (`bdft_controller::analysis::personal`), and put in place of the designs
 //! of the subject's tests not yet run.
 
+use std::collections::BTreeMap;
+
 use bdft_controller::analysis::personal::{PersonalDesign, personalize};
 use bdft_protocol::identification::{BodyFit, Estimate, FrfPoint};
 use bdft_protocol::params::BodyModel;
@@ -106,7 +108,9 @@ pub async fn measure(params: &StudyParams, trial: &Trial, record: &Record) -> Op
                 Err(format!("the record could not be estimated: {e}")),
             ),
             Ok(points) => {
-                let fit = fit_body(&points).map_err(|e| format!("the body fit failed: {e}"));
+                let fit = fit_body(&points)
+                    .map(BodyFit::checked)
+                    .map_err(|e| format!("the body fit failed: {e}"));
                 (points, fit)
             }
         };
@@ -137,7 +141,7 @@ struct Filed<'a> {
     torso_f_hz: Option<Estimate>,
     arm_f_hz: Option<Estimate>,
     residual_rms: Option<f64>,
-    unidentified: Option<&'a [String]>,
+    unidentified: Option<&'a BTreeMap<String, String>>,
     fit_error: Option<&'a str>,
 }
 
@@ -167,7 +171,7 @@ pub async fn store(change: &mut Change, trial: &Trial, measured: &Measured) -> R
                 torso_f_hz: fit.map(|f| f.torso_f_hz),
                 arm_f_hz: fit.map(|f| f.arm_f_hz),
                 residual_rms: fit.map(|f| f.residual_rms),
-                unidentified: fit.map(|f| f.unidentified.as_slice()),
+                unidentified: fit.map(|f| &f.unidentified),
                 fit_error: measured.fit.as_ref().err().map(String::as_str),
             },
         )

@@ -61,7 +61,7 @@ pub fn held_test(trials: &[Trial]) -> Option<HeldTest> {
 }
 
 /// What the subject is told about their last test when it was stopped: the most recently
-/// started attempt, if it failed; whether its test is queued again.
+/// started attempt, if it failed; whether its test is queued again, and as the next test.
 pub fn stop_notice(trials: &[Trial]) -> Option<StopNotice> {
     let last = trials
         .iter()
@@ -70,12 +70,18 @@ pub fn stop_notice(trials: &[Trial]) -> Option<StopNotice> {
     if !last.status.failed() {
         return None;
     }
-    let repeated = trials.iter().any(|t| {
+    let repeat = trials.iter().find(|t| {
         t.slot == last.slot && t.attempt > last.attempt && t.status == TrialStatus::Scheduled
     });
+    // The test the station offers next: the first still to run in the queue's order (a
+    // slot's latest attempt, by block then queue order, as `store::trials::next` picks it).
+    let next = latest_attempts(trials)
+        .filter(|t| t.status == TrialStatus::Scheduled)
+        .min_by_key(|t| (t.block, t.queue_order));
     Some(StopNotice {
         label: last.blinded_label.clone(),
         status: last.status,
-        repeated,
+        repeated: repeat.is_some(),
+        repeated_next: repeat.is_some_and(|r| next.is_some_and(|n| n.id == r.id)),
     })
 }

@@ -496,11 +496,20 @@ pub fn subjects(drawn_keys: &[String]) -> Vec<Column> {
                 unit: unit.into(),
                 ty: num(6),
                 meaning: format!(
-                    "{what} {meaning}, from the subject's latest identification test with a fit (the identification export has its points); empty without one"
+                    "{what} {meaning}, from the subject's latest identification test with a fit (the identification export has its points); empty without one, or when the data did not identify it (identified.{key}_status says why)"
                 )
                 .into(),
             });
         }
+        c.push(Column {
+            name: format!("identified.{key}_status").into(),
+            unit: "".into(),
+            ty: TEXT,
+            meaning: format!(
+                "whether the data identified the {meaning}: `identified`, or `not identified: ` and why as the fit gave it (the fitted value's 95 % interval spans more than a factor of 10, or the data carry no information on it); then identified.{key} and its bounds are empty; empty without a fit"
+            )
+            .into(),
+        });
     }
     c.push(col(
         "identified.residual_rms",

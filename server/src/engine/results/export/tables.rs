@@ -3,7 +3,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use bdft_protocol::identification::{BodyFit, Estimate};
+use bdft_protocol::identification::BodyFit;
 use bdft_protocol::records::TestPhase;
 use bdft_protocol::study::SurveyParams;
 use sqlx::AnyPool;
@@ -320,15 +320,26 @@ async fn subjects<W: AsyncWrite + Unpin>(
             .into_iter()
             .rev()
             .find_map(|i| i.fit);
-        for e in fit.as_ref().map(identified).unwrap_or_default() {
-            cells.extend([
-                Cell::Num(Some(e.value)),
-                Cell::Num(Some(e.lo)),
-                Cell::Num(Some(e.hi)),
-            ]);
-        }
-        if fit.is_none() {
-            cells.extend((0..3 * IDENTIFIED.len()).map(|_| Cell::Num(None)));
+        // A parameter the data did not identify has no value or interval, and says why.
+        match fit.as_ref().map(BodyFit::reported) {
+            Some(reported) => {
+                for r in reported {
+                    cells.extend([
+                        Cell::Num(r.value),
+                        Cell::Num(r.lo),
+                        Cell::Num(r.hi),
+                        Cell::text(r.status()),
+                    ]);
+                }
+            }
+            None => cells.extend((0..IDENTIFIED.len()).flat_map(|_| {
+                [
+                    Cell::Num(None),
+                    Cell::Num(None),
+                    Cell::Num(None),
+                    Cell::Text(None),
+                ]
+            })),
         }
         cells.push(Cell::Num(fit.as_ref().map(|f| f.residual_rms)));
         cells.extend(
@@ -339,11 +350,6 @@ async fn subjects<W: AsyncWrite + Unpin>(
         t.row(&cells).await?;
     }
     Ok(())
-}
-
-/// The identified body's parameters in the subjects export's order (`columns::IDENTIFIED`).
-fn identified(f: &BodyFit) -> Vec<Estimate> {
-    vec![f.k_h, f.torso_f_hz, f.torso_zeta, f.arm_f_hz, f.arm_zeta]
 }
 
 async fn identification<W: AsyncWrite + Unpin>(
