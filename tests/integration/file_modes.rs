@@ -166,7 +166,10 @@ fn serve_names_a_database_others_may_read_and_the_command_that_closes_it() {
     assert!(warned(&backups, "chmod 700"), "{log}");
     assert!(log.contains("(mode 0644)"), "{log}");
     // A log written to a file is plain text: no terminal colour codes.
-    assert!(!log.contains('\u{1b}'), "escape codes in a log file: {log:?}");
+    assert!(
+        !log.contains('\u{1b}'),
+        "escape codes in a log file: {log:?}"
+    );
     // The files it made itself are not named.
     let key = server.dir.path().join("bdft-lab.audit-key");
     assert!(!log.contains(&key.display().to_string()), "{log}");

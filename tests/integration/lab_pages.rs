@@ -214,17 +214,6 @@ fn the_dashboard_has_no_two_elements_with_one_id_and_its_monitor_says_no_station
     assert_eq!(duplicates, json!([]), "ids used more than once");
 }
 
-/// The station page of this browser set to the paired station `token` (as if paired here),
-/// from a page of the same origin that runs no station code.
-fn paired_station_page(s: &Session, base: &str, token: &str) {
-    s.goto(&format!("{base}/api/health"));
-    s.exec(
-        "localStorage.setItem('bdft-station-token', arguments[0]); localStorage.setItem('bdft-station-code', 'PAIRED'); localStorage.setItem('bdft-station-code-at', String(Date.now())); localStorage.setItem('bdft-station-paired', '1');",
-        json!([token]),
-    );
-    s.goto(&format!("{base}/station"));
-}
-
 #[test]
 fn a_station_says_in_one_sentence_that_the_experimenter_stopped_a_test_and_when_it_comes_back() {
     let server = Server::start("lab-stop-notice");
@@ -234,7 +223,7 @@ fn a_station_says_in_one_sentence_that_the_experimenter_stopped_a_test_and_when_
     let downloads = TempDir::new("lab-stop-notice");
     let driver = Driver::start();
     let s = driver.session(downloads.path());
-    paired_station_page(&s, &server.base, &token);
+    s.open_paired_station(&server.base, &token);
     s.wait_phase("ready");
     let station = Api::with_bearer(&server.base, &token);
     let first = station.get("/api/station/state").1["test"].clone();
@@ -284,7 +273,7 @@ fn a_second_tab_of_a_stations_browser_is_refused_and_becomes_the_station_when_th
     let downloads = TempDir::new("lab-two-tabs");
     let driver = Driver::start();
     let s = driver.session(downloads.path());
-    paired_station_page(&s, &server.base, &token);
+    s.open_paired_station(&server.base, &token);
     s.wait_phase("ready");
     let first = s.cmd("GET", "/window", json!(null)).unwrap();
 

@@ -8,19 +8,8 @@ use bdft_tests::TempDir;
 use bdft_tests::server::{
     Api, Server, eventually, person_at_a_station, run_trial, short_study, trial_rows,
 };
-use bdft_tests::webdriver::{Driver, Session};
+use bdft_tests::webdriver::Driver;
 use serde_json::{Value, json};
-
-/// The station page of `token` in `page` (the token set from a same-origin page that runs
-/// no station code, so the page's own registration cannot overwrite it).
-fn open_station(page: &Session, base: &str, token: &str) {
-    page.goto(&format!("{base}/api/health"));
-    page.exec(
-        "localStorage.setItem('bdft-station-token', arguments[0]); localStorage.setItem('bdft-station-paired', '1');",
-        json!([token]),
-    );
-    page.goto(&format!("{base}/station"));
-}
 
 /// The latest attempt of the subject's practice.
 fn practice(api: &Api, subject: i64) -> Value {
@@ -95,7 +84,7 @@ fn a_practice_never_completed_holds_the_schedule_until_the_experimenter_decides(
     let held_line = dash.text(&format!("[data-held='{}']", failed["id"]));
     assert!(held_line.contains("no scored test runs"), "{held_line}");
     let seat = driver.session(downloads.path());
-    open_station(&seat, &server.base, &token);
+    seat.open_paired_station(&server.base, &token);
     seat.wait_phase("held");
 
     // The experimenter accepts the practice as incomplete, with a reason: the first scored
@@ -140,7 +129,7 @@ fn the_consent_form_says_what_the_locked_protocol_does_and_is_hashed_with_it() {
     let downloads = TempDir::new("consent-downloads");
     let driver = Driver::start();
     let page = driver.session(downloads.path());
-    open_station(&page, &server.base, &token);
+    page.open_paired_station(&server.base, &token);
     page.wait_phase("consent");
     let shown = page.text("#consent-text");
     // Every kind of test with its count and length, the shaking, the exposure budget.

@@ -188,14 +188,7 @@ fn the_station_page_shows_the_texts_confirms_a_decline_fits_and_counts_the_comme
         json!({ "width": 1280, "height": 800 }),
     )
     .expect("window size");
-    // The token is set from a page of the same origin that runs no station code: the
-    // station page's own registration could otherwise overwrite it before a reload.
-    page.goto(&format!("{}/api/health", api.base));
-    page.exec(
-        "localStorage.setItem('bdft-station-token', arguments[0]); localStorage.setItem('bdft-station-paired', '1');",
-        json!([token]),
-    );
-    page.goto(&format!("{}/station", api.base));
+    page.open_paired_station(&api.base, &token);
     page.wait_phase("consent");
     assert_eq!(
         page.exec("return document.documentElement.lang", json!([])),

@@ -357,15 +357,7 @@ fn a_station_tab_hidden_during_a_test_has_it_filed_invalid_in_chromium() {
     let driver = Driver::start();
     let dir = bdft_tests::TempDir::new("validity-browser");
     let s = driver.session(dir.path());
-    // The station page with this station's token (as if it had been paired here), set from
-    // a page of the same origin that runs no station code (the station page's own
-    // registration could overwrite it).
-    s.goto(&format!("{}/api/health", server.base));
-    s.exec(
-        "localStorage.setItem('bdft-station-token', arguments[0]); localStorage.setItem('bdft-station-code', 'PAIRED'); localStorage.setItem('bdft-station-code-at', String(Date.now())); localStorage.setItem('bdft-station-paired', '1');",
-        json!([token]),
-    );
-    s.goto(&format!("{}/station", server.base));
+    s.open_paired_station(&server.base, &token);
     let station_tab = s.cmd("GET", "/window", json!(null)).unwrap();
     // On a loaded machine the controller link can drop and fault an attempt before the tab
     // is hidden (the server repeats it): then the next attempt is tried, at most three.

@@ -200,6 +200,18 @@ impl Session {
         self.find("#estop");
     }
 
+    /// Opens the station page at `base` as the paired station `token` (as if it had been
+    /// paired in this browser). The token is set from a page of the same origin that runs no
+    /// station code: the station page's own registration could otherwise overwrite it.
+    pub fn open_paired_station(&self, base: &str, token: &str) {
+        self.goto(&format!("{base}/api/health"));
+        self.exec(
+            "localStorage.setItem('bdft-station-token', arguments[0]); localStorage.setItem('bdft-station-code', 'PAIRED'); localStorage.setItem('bdft-station-code-at', String(Date.now())); localStorage.setItem('bdft-station-paired', '1');",
+            json!([token]),
+        );
+        self.goto(&format!("{base}/station"));
+    }
+
     /// Sets a <select>'s value and fires `change`, as a person choosing an option does.
     pub fn choose(&self, css: &str, value: &str) {
         self.find(css);
