@@ -6,8 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::exposure::{ACTION_A8_M_S2, ACTION_VDV_M_S175};
-use crate::identification::IdentificationTask;
-use crate::study::StudyParams;
+use crate::identification::{IdentificationTask, MultisineSpec};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
@@ -42,85 +41,109 @@ fn plural(n: usize, one: &str, many: &str) -> String {
     format!("{n} {}", if n == 1 { one } else { many })
 }
 
-/// What the study does, in the order a subject meets it, from the parameters alone (the
-/// server's schedule follows the same parameters: practice at the desk, then one block per
-/// seat, the identification test on the machine).
-pub fn procedure(p: &StudyParams) -> String {
-    let per_seat = p.controllers.len();
-    let tests = per_seat * p.stations.len();
-    let mut s = Vec::new();
-    if p.practice_s > 0.0 {
-        s.push(format!(
-            "First, a practice run of {} seconds at the desk beside the machine, to get to know \
-             the display and the input device; it is not scored.",
-            figure(p.practice_s)
-        ));
-    }
-    s.push(format!(
-        "{} {} of {} seconds each: {} while seated on the machine, which vibrates as you \
-         control it, and {} at a desk beside it, one seat after the other. After each test you \
-         answer a few questions about it.",
-        if p.practice_s > 0.0 {
-            "Then"
-        } else {
-            "You take"
-        },
-        plural(tests, "test", "tests"),
-        figure(p.trial_s),
-        per_seat,
-        per_seat
-    ));
-    if let Some(id) = &p.identification {
-        let what = match id.task {
-            IdentificationTask::HoldStill => "hold the input device still",
-            IdentificationTask::Relax => {
-                "hold the input device lightly and let your arm go with the motion"
-            }
-        };
-        let when = if id.personalized {
-            " It comes before your first scored test: what it measures of your arm is used to \
-             tune some of the controllers to you."
-        } else {
-            ""
-        };
-        s.push(format!(
-            "On the machine there is one more test, of {} seconds, that is not scored: the \
-             machine shakes the seat by itself, with vibrations between {} and {} Hz, while you \
-             {what}.{when}",
-            figure(id.excitation.duration_s()),
-            figure(id.excitation.f_min_hz),
-            figure(id.excitation.f_max_hz),
-        ));
-    }
-    s.push(format!(
-        "A test that has to be stopped (by you, the experimenter or a technical fault) may be \
-         repeated. In all about {} minutes of tests, besides the questions and breaks.",
-        figure(tracking_minutes(p))
-    ));
-    let limits = if p.exposure_budget_a8_m_s2 <= ACTION_A8_M_S2
-        && p.exposure_budget_vdv_m_s175 <= ACTION_VDV_M_S175
-    {
-        " (within the action values of the European directive 2002/44/EC)"
-    } else {
-        " (above the action values of the European directive 2002/44/EC, within its limit values)"
-    };
-    s.push(format!(
-        "The vibration you are exposed to on a day is kept within a budget of A(8) {} m/s² and \
-         VDV {} m/s^1.75 (ISO 2631-1){limits}, and the machine stops a test by itself when the \
-         seat shakes more than {} m/s² (RMS over a second).",
-        figure(p.exposure_budget_a8_m_s2),
-        figure(p.exposure_budget_vdv_m_s175),
-        figure(p.max_cab_rms_mm_s2 / 1000.0),
-    ));
-    s.join(" ")
+/// What the form's description tells, as a study's parameters give it
+/// (`StudyParams::procedure`).
+#[derive(Debug, Clone, Copy)]
+pub struct Procedure<'a> {
+    pub practice_s: f64,
+    pub trial_s: f64,
+    /// Scored tests at each seat (one per compensator), and the seats.
+    pub tests_per_seat: usize,
+    pub seats: usize,
+    /// The identification test, when the study has one.
+    pub identification: Option<IdentificationTest<'a>>,
+    pub budget_a8_m_s2: f64,
+    pub budget_vdv_m_s175: f64,
+    /// The interlock: RMS cab acceleration over a second that stops a test.
+    pub max_cab_rms_m_s2: f64,
 }
 
-/// Minutes of tests in all (practice, scored and identification tests), rounded up.
-pub fn tracking_minutes(p: &StudyParams) -> f64 {
-    let tests = p.controllers.len() * p.stations.len();
-    let identification = p
-        .identification
-        .as_ref()
-        .map_or(0.0, |id| id.excitation.duration_s());
-    ((p.practice_s + tests as f64 * p.trial_s + identification) / 60.0).ceil()
+/// What the form says of the identification test.
+#[derive(Debug, Clone, Copy)]
+pub struct IdentificationTest<'a> {
+    pub excitation: &'a MultisineSpec,
+    pub task: IdentificationTask,
+    pub personalized: bool,
+}
+
+impl Procedure<'_> {
+    /// What the study does, in the order a subject meets it (the server's schedule follows
+    /// the same parameters: practice at the desk, then one block per seat, the
+    /// identification test on the machine).
+    pub fn text(&self) -> String {
+        let per_seat = self.tests_per_seat;
+        let tests = per_seat * self.seats;
+        let mut s = Vec::new();
+        if self.practice_s > 0.0 {
+            s.push(format!(
+                "First, a practice run of {} seconds at the desk beside the machine, to get to \
+                 know the display and the input device; it is not scored.",
+                figure(self.practice_s)
+            ));
+        }
+        s.push(format!(
+            "{} {} of {} seconds each: {per_seat} while seated on the machine, which vibrates \
+             as you control it, and {per_seat} at a desk beside it, one seat after the other. \
+             After each test you answer a few questions about it.",
+            if self.practice_s > 0.0 {
+                "Then"
+            } else {
+                "You take"
+            },
+            plural(tests, "test", "tests"),
+            figure(self.trial_s),
+        ));
+        if let Some(id) = &self.identification {
+            let what = match id.task {
+                IdentificationTask::HoldStill => "hold the input device still",
+                IdentificationTask::Relax => {
+                    "hold the input device lightly and let your arm go with the motion"
+                }
+            };
+            let when = if id.personalized {
+                " It comes before your first scored test: what it measures of your arm is used \
+                 to tune some of the controllers to you."
+            } else {
+                ""
+            };
+            s.push(format!(
+                "On the machine there is one more test, of {} seconds, that is not scored: the \
+                 machine shakes the seat by itself, with vibrations between {} and {} Hz, while \
+                 you {what}.{when}",
+                figure(id.excitation.duration_s()),
+                figure(id.excitation.f_min_hz),
+                figure(id.excitation.f_max_hz),
+            ));
+        }
+        s.push(format!(
+            "A test that has to be stopped (by you, the experimenter or a technical fault) may \
+             be repeated. In all about {} minutes of tests, besides the questions and breaks.",
+            figure(self.minutes())
+        ));
+        let limits = if self.budget_a8_m_s2 <= ACTION_A8_M_S2
+            && self.budget_vdv_m_s175 <= ACTION_VDV_M_S175
+        {
+            "within the action values of the European directive 2002/44/EC"
+        } else {
+            "above the action values of the European directive 2002/44/EC, within its limit values"
+        };
+        s.push(format!(
+            "The vibration you are exposed to on a day is kept within a budget of A(8) {} m/s² \
+             and VDV {} m/s^1.75 (ISO 2631-1; {limits}), and the machine stops a test by itself \
+             when the seat shakes more than {} m/s² (RMS over a second).",
+            figure(self.budget_a8_m_s2),
+            figure(self.budget_vdv_m_s175),
+            figure(self.max_cab_rms_m_s2),
+        ));
+        s.join(" ")
+    }
+
+    /// Minutes of tests in all (practice, scored and identification tests), rounded up.
+    pub fn minutes(&self) -> f64 {
+        let tests = (self.tests_per_seat * self.seats) as f64;
+        let identification = self
+            .identification
+            .map_or(0.0, |id| id.excitation.duration_s());
+        ((self.practice_s + tests * self.trial_s + identification) / 60.0).ceil()
+    }
 }

@@ -172,7 +172,7 @@ impl StudyTexts {
 /// The placeholders a text may use: scored tests in all and at each seat, the durations of
 /// a test and of the practice (s), the minutes of tests in all (practice and identification
 /// included, rounded up), and the description of what the study does
-/// (`consent::procedure`).
+/// (`consent::Procedure`).
 pub const PLACEHOLDERS: [&str; 6] = [
     "tests",
     "tests_per_station",
@@ -606,10 +606,31 @@ impl StudyParams {
             per_station.to_string(),
             shown(self.trial_s),
             shown(self.practice_s),
-            shown(consent::tracking_minutes(self)),
-            consent::procedure(self),
+            shown(self.procedure().minutes()),
+            self.procedure().text(),
         ];
         PLACEHOLDERS.into_iter().zip(values).collect()
+    }
+
+    /// What the consent form's description tells of this study.
+    pub fn procedure(&self) -> consent::Procedure<'_> {
+        consent::Procedure {
+            practice_s: self.practice_s,
+            trial_s: self.trial_s,
+            tests_per_seat: self.controllers.len(),
+            seats: self.stations.len(),
+            identification: self
+                .identification
+                .as_ref()
+                .map(|id| consent::IdentificationTest {
+                    excitation: &id.excitation,
+                    task: id.task,
+                    personalized: id.personalized,
+                }),
+            budget_a8_m_s2: self.exposure_budget_a8_m_s2,
+            budget_vdv_m_s175: self.exposure_budget_vdv_m_s175,
+            max_cab_rms_m_s2: self.max_cab_rms_mm_s2 / 1000.0,
+        }
     }
 
     /// The consent form and the station's texts with their placeholders filled in. A
@@ -618,7 +639,7 @@ impl StudyParams {
     pub fn rendered_texts(&self) -> Result<(ConsentForm, StudyTexts), ParamError> {
         let values = self.text_values();
         let mut text = render("consent.text", &self.consent.text, &values)?;
-        let procedure = consent::procedure(self);
+        let procedure = self.procedure().text();
         if !text.contains(&procedure) {
             text = format!("{}\n\n{procedure}", text.trim_end());
         }
