@@ -254,16 +254,7 @@ fn in_chromium_a_subjects_schedule_draws_the_identification_as_a_bode_plot() {
     let downloads = TempDir::new("ident-downloads");
     let driver = Driver::start();
     let dash = driver.session(downloads.path());
-    dash.log_in_to_dashboard(&base);
-    dash.find("#estop");
-    dash.wait_until(
-        "return [...document.querySelectorAll('#study-select option')].some((o) => o.value === arguments[0]);",
-        json!([copy.to_string()]),
-    );
-    dash.choose("#study-select", &copy.to_string());
-    let row = format!("#subjects tr[data-subject-id='{subject}']");
-    dash.find(&row);
-    dash.click(&row);
+    dash.open_schedule(&base, copy, subject);
     // Both panels, a point per excited line with its bounds, the fitted curve and the band.
     let points = dash.wait_until(
         "const m = document.querySelectorAll('.bode-plot[data-panel=magnitude] circle'); \
@@ -522,16 +513,7 @@ fn an_unidentified_parameter_is_empty_in_the_exports_and_not_identified_on_the_d
     let downloads = TempDir::new("ident-unidentified-downloads");
     let driver = Driver::start();
     let dash = driver.session(downloads.path());
-    dash.log_in_to_dashboard(&base);
-    dash.find("#estop");
-    dash.wait_until(
-        "return [...document.querySelectorAll('#study-select option')].some((o) => o.value === arguments[0]);",
-        json!([copy.to_string()]),
-    );
-    dash.choose("#study-select", &copy.to_string());
-    let row = format!("#subjects tr[data-subject-id='{subject}']");
-    dash.find(&row);
-    dash.click(&row);
+    dash.open_schedule(&base, copy, subject);
     // Each parameter's row: the unidentified ones say so and why, with no value or interval.
     let rows = dash.wait_until(
         "const t = document.querySelector('table[data-fit=body]'); \

@@ -212,6 +212,20 @@ impl Session {
         self.goto(&format!("{base}/station"));
     }
 
+    /// Logs in to the dashboard at `base`, selects `study` once the list offers it and opens
+    /// `subject`'s schedule.
+    pub fn open_schedule(&self, base: &str, study: i64, subject: i64) {
+        self.log_in_to_dashboard(base);
+        self.wait_until(
+            "return [...document.querySelectorAll('#study-select option')].some((o) => o.value === arguments[0]);",
+            json!([study.to_string()]),
+        );
+        self.choose("#study-select", &study.to_string());
+        let row = format!("#subjects tr[data-subject-id='{subject}']");
+        self.find(&row);
+        self.click(&row);
+    }
+
     /// Sets a <select>'s value and fires `change`, as a person choosing an option does.
     pub fn choose(&self, css: &str, value: &str) {
         self.find(css);
