@@ -563,11 +563,14 @@ impl StudyParams {
                 format!("the items must be, in order: {}", RATING_KEYS.join(", ")),
             );
         }
+        // Lengths are in characters, as the messages say: a label in another script is
+        // allowed as many as an English one.
+        let chars = |t: &str| t.chars().count();
         for i in &s.items {
             if i.label.trim().is_empty()
-                || i.label.len() > 300
-                || i.low_anchor.len() > 60
-                || i.high_anchor.len() > 60
+                || chars(&i.label) > 300
+                || chars(&i.low_anchor) > 60
+                || chars(&i.high_anchor) > 60
             {
                 return invalid(
                     "survey.items",
@@ -575,13 +578,13 @@ impl StudyParams {
                 );
             }
         }
-        if s.open_question.len() > 300 {
+        if chars(&s.open_question) > 300 {
             return invalid("survey.open_question", "at most 300 characters".into());
         }
         if self.consent.version.trim().is_empty()
-            || self.consent.version.len() > 40
+            || chars(&self.consent.version) > 40
             || self.consent.text.trim().is_empty()
-            || self.consent.text.len() > 20_000
+            || chars(&self.consent.text) > 20_000
         {
             return invalid(
                 "consent",

@@ -299,6 +299,24 @@ mod tests {
     }
 
     #[test]
+    fn survey_and_consent_texts_are_counted_in_characters() {
+        let mut p = default_params();
+        p.survey.items[0].label = "é".repeat(300);
+        p.survey.items[0].low_anchor = "é".repeat(60);
+        p.survey.open_question = "é".repeat(300);
+        p.consent.version = "é".repeat(40);
+        p.validate()
+            .expect("as many characters as allowed, whatever their bytes");
+        p.survey.items[0].label.push('é');
+        assert!(
+            p.validate()
+                .unwrap_err()
+                .to_string()
+                .starts_with("survey.items:")
+        );
+    }
+
+    #[test]
     fn the_consent_text_follows_the_study_durations_and_counts() {
         let mut p = default_params();
         let (consent, texts) = p.rendered_texts().unwrap();
