@@ -239,16 +239,23 @@ fn the_station_tells_the_subject_the_identification_task_and_shows_no_target() {
     assert!(!view.to_string().contains("\"pid"), "{view}");
 }
 
+/// A one-subject pilot of a study with 2 s tests and an identification test: (the dry-run
+/// copy's id, its subject as the subjects list gives it).
+fn identified_in_a_pilot(api: &Api) -> (i64, Value) {
+    let (code, study) = create(api, &params_with_identification(api, 2.0));
+    assert_eq!(code, 200, "{study}");
+    let copy = pilot_copy(api, study["id"].as_i64().unwrap(), 1);
+    let (_, subjects) = api.get(&format!("/api/studies/{copy}/subjects"));
+    (copy, subjects[0]["subject"].clone())
+}
+
 #[test]
 fn in_chromium_a_subjects_schedule_draws_the_identification_as_a_bode_plot() {
     let server = Server::start("ident-browser");
     let base = server.base.clone();
     let api = server.experimenter();
-    let (code, study) = create(&api, &params_with_identification(&api, 2.0));
-    assert_eq!(code, 200, "{study}");
-    let copy = pilot_copy(&api, study["id"].as_i64().unwrap(), 1);
-    let (_, subjects) = api.get(&format!("/api/studies/{copy}/subjects"));
-    let subject = subjects[0]["subject"]["id"].as_i64().unwrap();
+    let (copy, identified) = identified_in_a_pilot(&api);
+    let subject = identified["id"].as_i64().unwrap();
     let (_, view) = api.get(&format!("/api/subjects/{subject}/identification"));
 
     let downloads = TempDir::new("ident-downloads");
@@ -447,12 +454,9 @@ fn an_unidentified_parameter_is_empty_in_the_exports_and_not_identified_on_the_d
     let server = Server::start("ident-unidentified");
     let base = server.base.clone();
     let api = server.experimenter();
-    let (code, study) = create(&api, &params_with_identification(&api, 2.0));
-    assert_eq!(code, 200, "{study}");
-    let copy = pilot_copy(&api, study["id"].as_i64().unwrap(), 1);
-    let (_, subjects) = api.get(&format!("/api/studies/{copy}/subjects"));
-    let subject = subjects[0]["subject"]["id"].as_i64().unwrap();
-    let code = subjects[0]["subject"]["code"].as_str().unwrap().to_string();
+    let (copy, identified) = identified_in_a_pilot(&api);
+    let subject = identified["id"].as_i64().unwrap();
+    let code = identified["code"].as_str().unwrap().to_string();
     store_unidentified_torso(&server, subject);
 
     // The API: no number for either, and why (the unbounded interval named as such).
