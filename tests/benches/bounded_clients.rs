@@ -37,7 +37,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use bdft_tests::raw::{self, loopback};
-use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, eventually};
+use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, eventually, wait_latched};
 use bdft_tests::setting;
 use bdft_tests::station::summary;
 use serde_json::{Value, json};
@@ -201,9 +201,7 @@ fn measure(
         eventually(Duration::from_secs(30), || {
             (experimenter.post("/api/estop/reset", json!({})).0 == 200).then_some(())
         });
-        eventually(Duration::from_secs(20), || {
-            (experimenter.get("/api/controller").1["estop_latched"] == false).then_some(())
-        });
+        wait_latched(experimenter, false);
     }
 }
 

@@ -14,7 +14,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use bdft_tests::server::{
-    Api, HeldWrite, Server, eventually, pilot_copy, replace_controller, short_study,
+    Api, HeldWrite, Server, pilot_copy, replace_controller, short_study, wait_latched,
 };
 use bdft_tests::{binary, setting, setting_list};
 use serde_json::{Value, json};
@@ -34,9 +34,7 @@ fn main() {
         let kept = latch_kept_across_a_controller_kill(&api);
         let load_finished = load.stop();
         api.ok("/api/estop/reset", json!({}));
-        eventually(Duration::from_secs(60), || {
-            (api.get("/api/controller").1["estop_latched"] == false).then_some(())
-        });
+        wait_latched(&api, false);
         report.push(json!({
             "scenario": name,
             "answered_ms": summary(times),

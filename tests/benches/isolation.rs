@@ -20,7 +20,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use bdft_tests::server::{Api, Server, eventually, person_at_a_station, short_study};
+use bdft_tests::server::{Api, Server, eventually, person_at_a_station, short_study, wait_latched};
 use bdft_tests::station::{self, summary};
 use bdft_tests::{setting, setting_list};
 use serde_json::{Value, json};
@@ -132,9 +132,7 @@ fn scenario(
         eventually(Duration::from_secs(30), || {
             (api.post("/api/estop/reset", json!({})).0 == 200).then_some(())
         });
-        eventually(Duration::from_secs(20), || {
-            (api.get("/api/controller").1["estop_latched"] == false).then_some(())
-        });
+        wait_latched(api, false);
     }
     let flood = stop_flooder(&mut flooder);
     let _ = ws.close(None);

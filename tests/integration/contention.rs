@@ -7,7 +7,7 @@ use std::time::Duration;
 use bdft_tests::send_signal;
 use bdft_tests::server::{
     HeldWrite, Server, consented_synthetic_subject, dry_run, eventually, replace_controller,
-    running_practice, short_study,
+    running_practice, short_study, wait_latched,
 };
 use serde_json::{Value, json};
 
@@ -65,9 +65,7 @@ fn an_estop_is_answered_and_kept_while_the_store_is_held() {
     assert_eq!(code, 409, "{body}");
     // Only a reset releases it, recorded after the press.
     api.ok("/api/estop/reset", json!({}));
-    eventually(Duration::from_secs(30), || {
-        (api.get("/api/controller").1["estop_latched"] == false).then_some(())
-    });
+    wait_latched(&api, false);
     let (_, log) = api.get("/api/audit?limit=10000");
     let actions: Vec<&str> = log
         .as_array()
@@ -95,9 +93,7 @@ fn a_reset_waits_for_the_press_before_it_to_be_recorded() {
     assert_eq!(api.get("/api/controller").1["estop_latched"], true);
     drop(lock);
     api.ok("/api/estop/reset", json!({}));
-    eventually(Duration::from_secs(30), || {
-        (api.get("/api/controller").1["estop_latched"] == false).then_some(())
-    });
+    wait_latched(&api, false);
     assert_eq!(audit_rows(&api, "estop").len(), 1);
     assert_eq!(audit_rows(&api, "estop.reset").len(), 1);
 }

@@ -6,6 +6,7 @@ use std::time::{Duration, Instant};
 use bdft_tests::controller_link::Proc;
 use bdft_tests::server::{
     Api, Server, assigned_station, dry_run, eventually, pair_station, run_trial, short_study,
+    wait_latched,
 };
 use bdft_tests::{TempDir, binary};
 use serde_json::{Value, json};
@@ -164,13 +165,9 @@ fn a_subject_goes_through_the_whole_protocol_via_the_api() {
     assert!(stats.iter().all(|s| s["n"] == 1));
     // The e-stop latches on the controller, the dashboard sees it, and it clears on reset.
     api.ok("/api/estop", json!({}));
-    eventually(Duration::from_secs(10), || {
-        (api.get("/api/controller").1["estop_latched"] == true).then_some(())
-    });
+    wait_latched(&api, true);
     api.ok("/api/estop/reset", json!({}));
-    eventually(Duration::from_secs(10), || {
-        (api.get("/api/controller").1["estop_latched"] == false).then_some(())
-    });
+    wait_latched(&api, false);
     // Every experimenter action is in the audit log.
     let (_, audit) = api.get("/api/audit?limit=1000");
     let actions: Vec<&str> = audit

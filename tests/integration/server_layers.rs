@@ -8,6 +8,7 @@ use bdft_tests::send_signal;
 use bdft_tests::server::{
     Api, Server, assigned_station, consent_at, consented_synthetic_subject, dry_run, eventually,
     pair_station, replace_controller, run_pilot, run_trial, running_practice, short_study,
+    wait_latched,
 };
 use serde_json::{Value, json};
 
@@ -458,9 +459,7 @@ fn the_estop_latch_holds_across_a_controller_restart_until_reset() {
     );
     // Only the experimenter's reset releases it, and then tests run again.
     api.ok("/api/estop/reset", json!({}));
-    eventually(Duration::from_secs(20), || {
-        (api.get("/api/controller").1["estop_latched"] == false).then_some(())
-    });
+    wait_latched(&api, false);
     let done = run_trial(&api, subject, practice);
     assert_eq!(done["status"], "complete", "{done}");
 }

@@ -617,6 +617,13 @@ pub fn controller_ready(api: &Api) {
     });
 }
 
+/// Waits until the server says the E-stop is latched (`true`) or released (`false`).
+pub fn wait_latched(api: &Api, latched: bool) {
+    eventually(Duration::from_secs(30), || {
+        (api.get("/api/controller").1["estop_latched"] == latched).then_some(())
+    });
+}
+
 /// Every attempt of the subject's tests, as the dashboard's subject view lists them.
 pub fn trial_rows(api: &Api, subject: i64) -> Vec<Value> {
     let (_, d) = api.get(&format!("/api/subjects/{subject}"));
