@@ -260,11 +260,7 @@ impl SyntheticOperator {
     /// draws none).
     #[inline]
     fn deviate(&mut self) -> f64 {
-        if self.noisy() {
-            self.rng.normal()
-        } else {
-            0.0
-        }
+        if self.noisy() { self.rng.normal() } else { 0.0 }
     }
 
     /// How hard the operator grips now: the factor on a seated body's arm frequency.
@@ -346,7 +342,10 @@ mod tests {
         let x = &out[1_000..];
         let (mean, std) = crate::signals::mean_std(x);
         assert!((std - 0.7).abs() < 0.02, "{std}");
-        let lag1 = x.windows(2).map(|w| (w[0] - mean) * (w[1] - mean)).sum::<f64>()
+        let lag1 = x
+            .windows(2)
+            .map(|w| (w[0] - mean) * (w[1] - mean))
+            .sum::<f64>()
             / (x.len() - 1) as f64
             / (std * std);
         let (c, w) = (2.0 / dt, 2.0 * std::f64::consts::PI * 8.0);

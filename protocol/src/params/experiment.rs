@@ -129,7 +129,11 @@ impl OperatorParams {
                 (0.0, 10.0),
             ),
             ("operator.remnant_std_mm", self.remnant_std_mm, (0.0, 50.0)),
-            ("operator.motor_noise_mm", self.motor_noise_mm, MOTOR_NOISE_MM),
+            (
+                "operator.motor_noise_mm",
+                self.motor_noise_mm,
+                MOTOR_NOISE_MM,
+            ),
         ];
         for (name, value, (low, high)) in checks {
             check(name, value, low, high)?;

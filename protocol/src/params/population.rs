@@ -265,7 +265,11 @@ impl PopulationParams {
                 &self.vibration_regression_per_m_s2,
                 VIBRATION_REGRESSION_PER_M_S2,
             ),
-            ("population.motor_noise_mm", &self.motor_noise_mm, MOTOR_NOISE_MM),
+            (
+                "population.motor_noise_mm",
+                &self.motor_noise_mm,
+                MOTOR_NOISE_MM,
+            ),
         ];
         for (name, s, (lo, hi)) in spreads {
             s.validate(name, lo, hi)?;

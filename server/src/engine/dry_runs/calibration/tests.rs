@@ -199,7 +199,12 @@ fn the_feedthrough_loop_shakes_the_lqr_most_and_the_compensators_cut_it() {
     };
     assert!(share("lqr") > 0.25, "lqr {}", share("lqr"));
     for k in ["pid", "pid-notch", "pid-shaper", "lqr-cabvel"] {
-        assert!(share(k) < share("lqr"), "{k} {} vs lqr {}", share(k), share("lqr"));
+        assert!(
+            share(k) < share("lqr"),
+            "{k} {} vs lqr {}",
+            share(k),
+            share("lqr")
+        );
     }
     // At the desk no body rides: both runs are the same trials.
     let off = |f: &Findings| cell(f, "pid", Seat::Off).mean_ms_cab_accel;
