@@ -103,6 +103,27 @@ export function readColors() {
   colors.cylinder = cssVar('--cylinder', colors.cylinder);
 }
 
+/**
+ * The axis's gridlines for a target range of ±`range` mm: zero, the multiples of the
+ * largest step of 1, 2 or 5 × 10ⁿ that fits twice into the range, and ±range itself;
+ * symmetric, so the two halves read alike (±12.5 rounded two ways gave +13 and −12).
+ */
+export function axisTicks(range) {
+  const half = range / 2;
+  const decade = 10 ** Math.floor(Math.log10(half));
+  const step = [5, 2, 1].map((m) => m * decade).find((s) => s <= half);
+  const ticks = [0];
+  for (let k = 1; k * step < range - 1e-9 * range; k += 1) ticks.push(k * step, -k * step);
+  ticks.push(range, -range);
+  return ticks.sort((a, b) => a - b);
+}
+
+/** A gridline's label: signed, with as many decimals as the value has (at most one). */
+export function tickLabel(mm) {
+  const text = Number.isInteger(mm) ? String(Math.abs(mm)) : Math.abs(mm).toFixed(1);
+  return `${mm > 0 ? '+' : mm < 0 ? '−' : ''}${text} mm`;
+}
+
 function draw(now) {
   const r = run;
   const canvas = $('track');
@@ -126,11 +147,11 @@ function draw(now) {
   geom.limitMm = limit;
   const yOf = (mm) => centerY - Math.max(-limit, Math.min(limit, mm)) * pxPerMm;
 
-  // Grid: zero and ±range, labelled in mm.
+  // Grid: zero, round ticks and ±range, labelled in mm.
   ctx.font = '600 20px system-ui, sans-serif';
   ctx.textAlign = 'right';
   ctx.textBaseline = 'middle';
-  for (const mm of [-range, -range / 2, 0, range / 2, range]) {
+  for (const mm of axisTicks(range)) {
     const y = Math.round(yOf(mm)) + 0.5;
     ctx.strokeStyle = mm === 0 ? '#8b949e' : '#30363d';
     ctx.lineWidth = mm === 0 ? 2 : 1;
@@ -139,7 +160,7 @@ function draw(now) {
     ctx.lineTo(right, y);
     ctx.stroke();
     ctx.fillStyle = '#c9d1d9';
-    ctx.fillText(`${mm > 0 ? '+' : ''}${Math.round(mm)} mm`, left - 10, y);
+    ctx.fillText(tickLabel(mm), left - 10, y);
   }
 
   // Time: the newest sample at the right edge, extrapolated between samples for a smooth

@@ -301,3 +301,64 @@ fn a_second_tab_of_a_stations_browser_is_refused_and_becomes_the_station_when_th
         .unwrap();
     s.wait_phase("ready");
 }
+
+#[test]
+fn the_tracking_displays_axis_is_labelled_at_round_symmetric_ticks() {
+    let server = Server::start("lab-axis");
+    let downloads = TempDir::new("lab-axis");
+    let driver = Driver::start();
+    let page = driver.session(downloads.path());
+    page.goto(&format!("{}/station-pursuit.js", server.base));
+    // The module the station draws with, asked for the gridlines of a range and their
+    // labels (a returned promise is awaited by WebDriver).
+    let axis = |range: f64| -> Value {
+        page.exec(
+            "return import('/station-pursuit.js').then((m) => m.axisTicks(arguments[0]).map((t) => [t, m.tickLabel(t)]));",
+            json!([range]),
+        )
+    };
+    let ticks = |range: f64| -> Vec<(f64, String)> {
+        axis(range)
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|t| (t[0].as_f64().unwrap(), t[1].as_str().unwrap().to_string()))
+            .collect()
+    };
+    // The default study's ±25 mm: the issue's +25, +13, 0, −12, −25 becomes round steps of
+    // 10 and the range.
+    let default = ticks(25.0);
+    let values: Vec<f64> = default.iter().map(|t| t.0).collect();
+    assert_eq!(values, [-25.0, -20.0, -10.0, 0.0, 10.0, 20.0, 25.0]);
+    let labels: Vec<&str> = default.iter().map(|t| t.1.as_str()).collect();
+    assert_eq!(
+        labels,
+        ["−25 mm", "−20 mm", "−10 mm", "0 mm", "+10 mm", "+20 mm", "+25 mm"]
+    );
+    // Every range the study form allows: symmetric, zero in the middle, ±range at the ends,
+    // each tick inside a multiple of one step of 1, 2 or 5 × 10ⁿ.
+    for range in [1.0, 2.5, 7.0, 12.0, 30.0, 99.0, 120.0, 500.0] {
+        let t = ticks(range);
+        let v: Vec<f64> = t.iter().map(|t| t.0).collect();
+        assert!(v.iter().zip(v.iter().rev()).all(|(a, b)| a == &-b), "{range}: {v:?}");
+        assert_eq!((v[0], v[v.len() - 1]), (-range, range), "{range}: {v:?}");
+        assert!(v.contains(&0.0) && v.len() >= 5, "{range}: {v:?}");
+        let step = v[v.len() / 2 + 1];
+        let mantissa = step / 10f64.powf(step.log10().floor());
+        assert!(
+            [1.0, 2.0, 5.0].iter().any(|m| (m - mantissa).abs() < 1e-9),
+            "{range}: step {step}"
+        );
+        assert!(step <= range / 2.0 && step * 5.0 > range / 2.0, "{range}: step {step}");
+        for (value, label) in &t {
+            assert!(!label.contains('-'), "{range}: {label} uses a hyphen");
+            let number: f64 = label
+                .trim_end_matches(" mm")
+                .replace('−', "-")
+                .trim_start_matches('+')
+                .parse()
+                .unwrap();
+            assert_eq!(number, *value, "{range}: {label}");
+        }
+    }
+}
