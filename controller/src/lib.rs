@@ -28,6 +28,7 @@ pub mod model;
 pub mod operator;
 pub mod param_set;
 pub mod params;
+pub mod perception;
 pub mod population;
 pub mod rng;
 pub mod runner;

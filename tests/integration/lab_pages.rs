@@ -333,14 +333,19 @@ fn the_tracking_displays_axis_is_labelled_at_round_symmetric_ticks() {
     let labels: Vec<&str> = default.iter().map(|t| t.1.as_str()).collect();
     assert_eq!(
         labels,
-        ["−25 mm", "−20 mm", "−10 mm", "0 mm", "+10 mm", "+20 mm", "+25 mm"]
+        [
+            "−25 mm", "−20 mm", "−10 mm", "0 mm", "+10 mm", "+20 mm", "+25 mm"
+        ]
     );
     // Every range the study form allows: symmetric, zero in the middle, ±range at the ends,
     // each tick inside a multiple of one step of 1, 2 or 5 × 10ⁿ.
     for range in [1.0, 2.5, 7.0, 12.0, 30.0, 99.0, 120.0, 500.0] {
         let t = ticks(range);
         let v: Vec<f64> = t.iter().map(|t| t.0).collect();
-        assert!(v.iter().zip(v.iter().rev()).all(|(a, b)| a == &-b), "{range}: {v:?}");
+        assert!(
+            v.iter().zip(v.iter().rev()).all(|(a, b)| a == &-b),
+            "{range}: {v:?}"
+        );
         assert_eq!((v[0], v[v.len() - 1]), (-range, range), "{range}: {v:?}");
         assert!(v.contains(&0.0) && v.len() >= 5, "{range}: {v:?}");
         let step = v[v.len() / 2 + 1];
@@ -349,7 +354,10 @@ fn the_tracking_displays_axis_is_labelled_at_round_symmetric_ticks() {
             [1.0, 2.0, 5.0].iter().any(|m| (m - mantissa).abs() < 1e-9),
             "{range}: step {step}"
         );
-        assert!(step <= range / 2.0 && step * 5.0 > range / 2.0, "{range}: step {step}");
+        assert!(
+            step <= range / 2.0 && step * 5.0 > range / 2.0,
+            "{range}: step {step}"
+        );
         for (value, label) in &t {
             assert!(!label.contains('-'), "{range}: {label} uses a hyphen");
             let number: f64 = label

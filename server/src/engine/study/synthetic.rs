@@ -3,8 +3,8 @@
 //! the operator and body of each of its tests (learning over positions, tiring over time on
 //! task), and answers the survey after each completed test from what it perceived.
 
-use bdft_controller::population;
 use bdft_controller::rng::Rng;
+use bdft_controller::{perception, population};
 use bdft_protocol::params::{BodyModel, OperatorParams, SubjectDraw};
 use bdft_protocol::records::TrialStatus;
 use bdft_protocol::study::{StudyParams, SurveyAnswer};
@@ -69,7 +69,7 @@ struct SyntheticAnswer {
     perceived: Perceived,
 }
 
-/// `population::Perception` as the audit log names it.
+/// `perception::Perception` as the audit log names it.
 #[derive(Debug, Serialize)]
 struct Perceived {
     rms_error_mm: f64,
@@ -96,27 +96,13 @@ pub async fn answer_survey(
     if !trial.phase.scored() || trial.status != TrialStatus::Complete {
         return Ok(());
     }
-    let channel = |name: &str| {
-        bdft_protocol::trial::record_channel(name)
-            .and_then(|i| record.channels.get(i))
-            .map_or(&[][..], Vec::as_slice)
-    };
-    let perceived = population::perceive(
-        &population::Seen {
-            target: channel("target_mm"),
-            hand: channel("hand_mm"),
-            y: channel("cyl_pos_mm"),
-            cab_accel: channel("cab_accel_mm_s2"),
-        },
-        trial.seat,
-        record.dt,
-    );
-    let (ratings, comment) = population::answers(
+    let perceived = perception::perceive_record(&record.channels, trial.seat, record.dt);
+    let (ratings, comment) = perception::answer_test(
         d,
         &perceived,
         trial.seat,
         study.params.survey.scale_points,
-        Rng::derive(trial.target_seed as u64, Rng::SURVEY).next_u64(),
+        trial.target_seed as u64,
     );
     let answer = SurveyAnswer {
         accuracy: Some(i64::from(ratings[0])),

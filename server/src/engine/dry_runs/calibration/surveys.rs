@@ -1,15 +1,14 @@
 //! What a population's subjects answer in the surveys, cell by cell: each subject's scored
 //! test run in full with its record (the trial a pilot runs, `runtime::local::run`), then
-//! perceived and answered as a pilot's subject answers (`population::perceive`, `answers`).
+//! perceived and answered as a pilot's subject answers (`perception::perceive`, `answers`).
 //! The batch simulator keeps no records to perceive, so this costs a pilot's time per test:
 //! for pilots of a few subjects.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use bdft_controller::population;
-use bdft_controller::rng::Rng;
+use bdft_controller::perception;
 use bdft_protocol::study::StudyParams;
-use bdft_protocol::trial::{Outcome, record_channel};
+use bdft_protocol::trial::Outcome;
 use serde::Serialize;
 
 use super::findings::median;
@@ -30,9 +29,9 @@ pub struct SurveyCell {
     pub mean_ratings: [f64; 4],
     /// Their standard deviations over subjects.
     pub sd_ratings: [f64; 4],
-    /// Medians of what was perceived (`population::Perception`): RMS tracking error (mm),
+    /// Medians of what was perceived (`perception::Perception`): RMS tracking error (mm),
     /// response lag (s), felt cab acceleration (m/s²) and seen shake (mm) — what
-    /// `population::MIDDLING` is set from.
+    /// `perception::MIDDLING` is set from.
     pub median_error_mm: f64,
     pub median_response_s: f64,
     pub median_felt_m_s2: f64,
@@ -40,7 +39,7 @@ pub struct SurveyCell {
 }
 
 /// One answered test: its cell, ratings and what was perceived.
-type Answered = (usize, [u8; 4], population::Perception);
+type Answered = (usize, [u8; 4], perception::Perception);
 
 /// Every `subjects`' answers in every one of `cells`, on every core. `progress` counts the
 /// tests run; `cancel` stops them (409).
@@ -67,27 +66,13 @@ pub fn surveys(
         if result.outcome != Outcome::Complete {
             return Ok(None);
         }
-        let channel = |name: &str| {
-            record_channel(name)
-                .and_then(|i| channels.get(i))
-                .map_or(&[][..], Vec::as_slice)
-        };
-        let perceived = population::perceive(
-            &population::Seen {
-                target: channel("target_mm"),
-                hand: channel("hand_mm"),
-                y: channel("cyl_pos_mm"),
-                cab_accel: channel("cab_accel_mm_s2"),
-            },
-            cell.seat,
-            DT,
-        );
-        let (ratings, _) = population::answers(
+        let perceived = perception::perceive_record(&channels, cell.seat, DT);
+        let (ratings, _) = perception::answer_test(
             &synthetic::draw(params, subject.seed, subject.index),
             &perceived,
             cell.seat,
             params.survey.scale_points,
-            Rng::derive(target_seed, Rng::SURVEY).next_u64(),
+            target_seed,
         );
         Ok(Some((c, ratings, perceived)))
     };
