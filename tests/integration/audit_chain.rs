@@ -158,8 +158,7 @@ fn copy_file(dir: &Path, source: &Path, name: &str) -> Store {
     Store::File(db)
 }
 
-/// Some studies made through the API, and the log verified by the server itself: the
-/// entry its start's checkpoint signed.
+/// Some studies made through the API; the log verified up to its start's checkpoint.
 fn logged_and_checkpointed(server: &Server) -> i64 {
     let api = server.experimenter();
     for _ in 0..4 {

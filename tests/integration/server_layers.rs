@@ -1,6 +1,6 @@
 //! The server's layers seen from outside: changes racing each other are serialized or
 //! refused with a 409 (never a 500), every change has its audit row, and the OpenAPI
-//! document describes every operation with its schemas.
+//! document describes every operation.
 
 use std::time::Duration;
 
@@ -12,8 +12,7 @@ use bdft_tests::server::{
 };
 use serde_json::{Value, json};
 
-/// Runs `n` copies of `call` at once (each with its own logged-in client); returns the
-/// status codes and bodies.
+/// Runs `n` copies of `call` at once (each its own logged-in client): statuses and bodies.
 fn at_once(
     server: &Server,
     n: usize,
@@ -238,8 +237,7 @@ fn the_openapi_document_has_schemas_for_every_operation() {
     assert!(!test_view.contains_key("controller") && !test_view.contains_key("compensator"));
 }
 
-/// Study parameters with the bench (Ziegler–Nichols) PID family: unstable on the machine at
-/// the study's K_BF 0.78 (stable only up to 0.35).
+/// The bench (Ziegler–Nichols) PIDs: unstable on the machine at K_BF 0.78 (up to 0.35).
 fn bench_tuned(api: &Api, rig: &str) -> Value {
     let (_, mut params) = api.get("/api/defaults");
     let zn = json!({ "kp": 0.5203636363636363, "ti": 0.14818833271649967, "td": 0.03704708317912492, "n": 10.0 });

@@ -1,9 +1,8 @@
 //! One server, two labs (`serve --site lab-a --site lab-b`, each with a controller of its
 //! own): stations are paired to a site, a subject's stations are at one site, a trial runs
 //! on its subject's site's machine and records it; a lost controller files only its own
-//! site's trials; an E-stop stops one site or every site (and a name no site has stops
-//! every site), latched per site, and a site's reset is refused while every site's latch
-//! holds.
+//! site's trials; an E-stop stops one site or every site (a name no site has stops every
+//! site), latched per site; a site's reset is refused while every site's latch holds.
 
 use std::time::Duration;
 
@@ -93,8 +92,8 @@ fn start(api: &Api, trial: i64) -> (u16, Value) {
     api.post(&format!("/api/trials/{trial}/start"), json!({}))
 }
 
-/// A server with the admin account and two sites, lab-a and lab-b, each with a simulated
-/// controller it starts.
+/// A server with the admin account and two sites, lab-a and lab-b, each with its own
+/// simulated controller.
 fn two_sites(tag: &str) -> Server {
     let args = [
         "--admin-password",

@@ -1,6 +1,7 @@
 //! The code's structure, read from its own sources: the server's layers (http → engine →
-//! store), the engine's rooms and the one direction of their imports, and no pair of
-//! modules importing each other in the server or the controller. A source scan, not a
+//! store), the engine's rooms and the one direction of their imports, no pair of modules
+//! importing each other in the server or the controller, SQL in the store alone (its tests
+//! too), and no source file over `MAX_LINES` but the listed ones. A source scan, not a
 //! compiler: paths are resolved as written (`crate::…`, `super::…`, grouped `{…}`), and
 //! code under `#[cfg(test)]` is left out (a test may reach across; the product may not).
 
@@ -293,6 +294,163 @@ fn no_two_modules_import_each_other() {
         );
     }
     assert!(found.is_empty(), "import cycles:\n{}", found.join("\n"));
+}
+
+/// What names SQL in Rust source: sqlx's statement builders and the statements' own words
+/// opening a string literal.
+const SQL_MARKERS: [&str; 10] = [
+    "sqlx::query",
+    "sqlx::raw_sql",
+    "query_as(",
+    "query_scalar(",
+    "\"SELECT ",
+    "\"INSERT INTO",
+    "\"UPDATE ",
+    "\"DELETE FROM",
+    "\"CREATE TABLE",
+    "\"PRAGMA",
+];
+
+#[test]
+fn sql_is_written_in_the_store_alone_tests_included() {
+    let src = crate_src("server");
+    let mut wrong = Vec::new();
+    for (module, file) in modules(&src) {
+        if module.get(1).map(String::as_str) == Some("store") {
+            continue;
+        }
+        // The whole file, its tests too: a test that needs the database goes beside the
+        // store, as the error mapping's do.
+        let text = std::fs::read_to_string(&file).unwrap();
+        for marker in SQL_MARKERS {
+            if text.contains(marker) {
+                wrong.push(format!("{} names {marker}", name(&module)));
+            }
+        }
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}
+
+/// The longest a source file may be: past it a file holds more than one idea.
+const MAX_LINES: usize = 600;
+
+/// The files allowed past `MAX_LINES`, each with why (paths from the workspace root).
+const LONG_FILES: [(&str, &str); 16] = [
+    (
+        "server/src/store/audit_chain.rs",
+        "the hash chain, its signed checkpoints and their verification are one format; split, the rules that must agree byte for byte would sit apart",
+    ),
+    (
+        "controller/src/runtime/rt_loop.rs",
+        "the real-time tick and its safety ordering (E-stop first, then staleness, then the rig) read as one sequence",
+    ),
+    (
+        "server/src/engine/results/export/columns.rs",
+        "the exports' contract: every column with its unit and meaning, one table the codebook is made from",
+    ),
+    (
+        "server/src/engine/procedure/stations.rs",
+        "a station's protocol state machine: pairing, phases and their guards change together",
+    ),
+    (
+        "server/src/engine/operations/protocol_package.rs",
+        "the ethics package: one document assembled in its order",
+    ),
+    (
+        "server/src/serve.rs",
+        "the server's start-up: listeners, TLS, sites and supervision wired in their order",
+    ),
+    (
+        "server/src/cli.rs",
+        "the commands' arguments; to be one command per file (issue 40)",
+    ),
+    (
+        "server/src/engine/dry_runs/calibration/fit.rs",
+        "the simulated-moments fit, its bootstrap and its profiles share one problem's state",
+    ),
+    (
+        "server/src/engine/dry_runs/calibration/tests.rs",
+        "the thesis's findings, one test each, over shared cached populations",
+    ),
+    (
+        "tests/src/server.rs",
+        "the integration tests' server harness: processes, API client and waits used by every scenario",
+    ),
+    (
+        "tests/src/soak/station.rs",
+        "the soak's simulated station: one client's whole protocol",
+    ),
+    (
+        "tests/src/soak/verify.rs",
+        "the soak's checks of everything stored, one pass over the database",
+    ),
+    (
+        "tests/integration/server_api.rs",
+        "the API's scenarios, sharing one study set-up",
+    ),
+    (
+        "tests/integration/erasure.rs",
+        "erasure's scenarios across every table and export",
+    ),
+    (
+        "tests/integration/store_dialects.rs",
+        "the same store checks on SQLite and PostgreSQL",
+    ),
+    (
+        "tests/integration/backups.rs",
+        "backup, restore and their checks, one file's life cycle",
+    ),
+];
+
+#[test]
+fn no_source_file_is_longer_than_the_limit_but_the_listed() {
+    let root = crate_src("server").join("../..");
+    let mut files = Vec::new();
+    for dir in [
+        "controller/src",
+        "protocol/src",
+        "server/src",
+        "tests/src",
+        "tests/integration",
+    ] {
+        fn walk(dir: &Path, files: &mut Vec<PathBuf>) {
+            for entry in std::fs::read_dir(dir).unwrap() {
+                let path = entry.unwrap().path();
+                if path.is_dir() {
+                    walk(&path, files);
+                } else if path.extension().is_some_and(|e| e == "rs" || e == "js") {
+                    files.push(path);
+                }
+            }
+        }
+        walk(&root.join(dir), &mut files);
+    }
+    let mut wrong = Vec::new();
+    for file in files {
+        let rel = file
+            .strip_prefix(&root)
+            .unwrap()
+            .to_string_lossy()
+            .into_owned();
+        let lines = std::fs::read_to_string(&file).unwrap().lines().count();
+        let listed = LONG_FILES.iter().any(|(path, _)| *path == rel);
+        if lines > MAX_LINES && !listed {
+            wrong.push(format!(
+                "{rel}: {lines} lines (at most {MAX_LINES}, or listed with why)"
+            ));
+        }
+        if listed && lines <= MAX_LINES {
+            wrong.push(format!(
+                "{rel}: {lines} lines, listed as long: take it off the list"
+            ));
+        }
+    }
+    for (path, _) in LONG_FILES {
+        if !root.join(path).exists() {
+            wrong.push(format!("{path}: listed as long, and gone"));
+        }
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
 }
 
 /// The scanner itself: resolution of relative and grouped paths, and loops found.

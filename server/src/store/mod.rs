@@ -15,6 +15,8 @@ pub mod db;
 pub mod dialect;
 pub mod dry_runs;
 pub mod erasure;
+#[cfg(test)]
+mod error_mapping_tests;
 pub mod exports;
 pub mod exposure;
 pub mod identifications;
