@@ -10,7 +10,7 @@ use bdft_tests::server::{Server, eventually, short_study};
 use bdft_tests::station;
 use serde_json::json;
 
-use crate::station_safety::{next_of, person_at_a_station, socket_view, trial_row};
+use crate::station_safety::{next_of, person_and_practice, socket_view, trial_row};
 
 /// What the server documents (engine::station_sockets): a station's sockets are read at
 /// most 2,000 messages a second together, 200 at once.
@@ -27,8 +27,8 @@ fn a_station_flooding_on_four_sockets_does_not_stop_another_stations_test() {
     // Practice runs of 10 s: the flood (cut off after 3 s of it) runs inside the other test.
     let study = short_study(&api, 60.0, 10.0);
     let (flood_subject, flooder, flood_token, flood_trial) =
-        person_at_a_station(&server, &api, study);
-    let (subject, station, token, trial) = person_at_a_station(&server, &api, study);
+        person_and_practice(&server, &api, study);
+    let (subject, station, token, trial) = person_and_practice(&server, &api, study);
     let mut ws = station::connect(&server.base, &token);
     for t in [trial, flood_trial] {
         let (code, body) = api.post(&format!("/api/trials/{t}/start"), json!({}));

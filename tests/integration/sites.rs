@@ -7,7 +7,10 @@
 use std::time::Duration;
 
 use bdft_tests::exports::parse_csv;
-use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, dry_run, eventually, short_study};
+use bdft_tests::server::{
+    ADMIN_PASSWORD, Api, Server, dry_run, eventually, next_trial, short_study, trial_ended,
+    trial_row,
+};
 use bdft_tests::webdriver::{Driver, artifacts_dir};
 use serde_json::{Value, json};
 
@@ -66,26 +69,6 @@ fn subject_at(api: &Api, study: i64, site: &str) -> (i64, i64) {
         .ok("/api/station/consent", json!({ "decision": "agreed" }));
     let (_, s) = api.get(&format!("/api/subjects/{subject}"));
     (subject, s["trials"][0]["trial"]["id"].as_i64().unwrap())
-}
-
-/// The row of `trial` of `subject`.
-fn trial(api: &Api, subject: i64, trial: i64) -> Value {
-    let (_, s) = api.get(&format!("/api/subjects/{subject}"));
-    s["trials"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|t| t["trial"].clone())
-        .find(|t| t["id"] == trial)
-        .unwrap()
-}
-
-/// Waits until `trial` of `subject` has ended; its row.
-fn ended(api: &Api, subject: i64, id: i64) -> Value {
-    eventually(Duration::from_secs(30), || {
-        let t = trial(api, subject, id);
-        (t["status"] != "running").then_some(t)
-    })
 }
 
 fn start(api: &Api, trial: i64) -> (u16, Value) {
@@ -157,7 +140,7 @@ fn two_sites_run_their_own_trials_lose_and_stop_them_apart() {
         .status()
         .unwrap();
     assert!(status.success());
-    let a_row = ended(&api, a, a_first);
+    let a_row = trial_ended(&api, a, a_first);
     assert_eq!(a_row["status"], "incomplete", "{a_row}");
     assert!(
         a_row["status_reason"]
@@ -166,19 +149,19 @@ fn two_sites_run_their_own_trials_lose_and_stop_them_apart() {
             .contains("controller lost"),
         "{a_row}"
     );
-    assert_eq!(trial(&api, b, b_first)["status"], "running");
+    assert_eq!(trial_row(&api, b, b_first)["status"], "running");
     eventually(Duration::from_secs(30), || {
         let s = site(&api, "lab-a");
         // Connected, and its latch (a controller starts latched) cleared by the server's.
         (s["connected"] == true && s["pid"].as_u64() != Some(killed) && s["estop_latched"] == false)
             .then_some(())
     });
-    assert_eq!(trial(&api, b, b_first)["status"], "running");
+    assert_eq!(trial_row(&api, b, b_first)["status"], "running");
 
     // lab-b's E-stop stops lab-b's test alone and latches lab-b alone.
     let stopped = api.ok("/api/estop?site=lab-b", json!({}));
     assert_eq!(stopped["sites"], json!(["lab-b"]), "{stopped}");
-    let b_row = ended(&api, b, b_first);
+    let b_row = trial_ended(&api, b, b_first);
     assert_eq!(b_row["status"], "aborted", "{b_row}");
     assert!(
         b_row["status_reason"]
@@ -189,7 +172,7 @@ fn two_sites_run_their_own_trials_lose_and_stop_them_apart() {
     );
     assert_eq!(site(&api, "lab-b")["estop_latched"], true);
     assert_eq!(site(&api, "lab-a")["estop_latched"], false);
-    let b_again = next_test(&api, b);
+    let b_again = next_trial(&api, b);
     let (code, e) = start(&api, b_again);
     assert_eq!(code, 409, "{e}");
     assert!(
@@ -200,7 +183,7 @@ fn two_sites_run_their_own_trials_lose_and_stop_them_apart() {
         "{e}"
     );
     // lab-a runs on meanwhile.
-    let a_again = next_test(&api, a);
+    let a_again = next_trial(&api, a);
     let (code, t) = eventually(Duration::from_secs(30), || {
         let (code, t) = start(&api, a_again);
         (code != 503).then_some((code, t))
@@ -211,7 +194,7 @@ fn two_sites_run_their_own_trials_lose_and_stop_them_apart() {
     eventually(Duration::from_secs(10), || {
         (site(&api, "lab-b")["estop_latched"] == false).then_some(())
     });
-    assert_eq!(trial(&api, a, a_again)["status"], "running");
+    assert_eq!(trial_row(&api, a, a_again)["status"], "running");
 
     // A name no site has stops every site: a stop is never refused for a typo.
     let stopped = api.ok("/api/estop?site=lab-z", json!({}));
@@ -219,7 +202,7 @@ fn two_sites_run_their_own_trials_lose_and_stop_them_apart() {
     // Nor for a query that does not parse.
     let stopped = api.ok("/api/estop?sight=lab-a", json!({}));
     assert_eq!(stopped["sites"], json!(["lab-a", "lab-b"]), "{stopped}");
-    assert_eq!(ended(&api, a, a_again)["status"], "aborted");
+    assert_eq!(trial_ended(&api, a, a_again)["status"], "aborted");
     // Every site's latch holds until it is reset for every site.
     let (code, e) = api.post("/api/estop/reset?site=lab-a", json!({}));
     assert_eq!(code, 409, "{e}");
@@ -263,20 +246,6 @@ fn two_sites_run_their_own_trials_lose_and_stop_them_apart() {
             &json!("site:lab-b")
         ]
     );
-}
-
-/// The subject's next test (first by block and queue order: a failed test is re-queued).
-fn next_test(api: &Api, subject: i64) -> i64 {
-    let (_, s) = api.get(&format!("/api/subjects/{subject}"));
-    s["trials"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|t| &t["trial"])
-        .filter(|t| t["status"] == "scheduled")
-        .min_by_key(|t| (t["block"].as_i64(), t["queue_order"].as_i64()))
-        .and_then(|t| t["id"].as_i64())
-        .unwrap_or_else(|| panic!("no test of subject {subject} to start: {s}"))
 }
 
 #[test]
@@ -462,7 +431,7 @@ fn an_account_limited_to_a_site_drives_only_its_machine_but_stops_any() {
     // Starting a test at lab-b is refused, naming bob's sites; at lab-a it runs.
     let e = refusal(start(&bob, b_first), 403);
     assert!(e.contains("\"lab-a\"") && e.contains("\"lab-b\""), "{e}");
-    assert_eq!(trial(&admin, b, b_first)["status"], "scheduled");
+    assert_eq!(trial_row(&admin, b, b_first)["status"], "scheduled");
     let (code, t) = start(&bob, a_first);
     assert_eq!((code, &t["site"]), (200, &json!("lab-a")), "{t}");
     let (code, t) = start(&admin, b_first);
@@ -477,14 +446,14 @@ fn an_account_limited_to_a_site_drives_only_its_machine_but_stops_any() {
     };
     let e = refusal(abort(&bob, b_first), 403);
     assert!(e.contains("\"lab-b\""), "{e}");
-    assert_eq!(trial(&admin, b, b_first)["status"], "running");
+    assert_eq!(trial_row(&admin, b, b_first)["status"], "running");
     assert_eq!(abort(&bob, a_first).0, 200);
-    assert_eq!(ended(&admin, a, a_first)["status"], "aborted");
+    assert_eq!(trial_ended(&admin, a, a_first)["status"], "aborted");
 
     // Bob presses lab-b's E-stop: never refused. Resetting it is.
     let stopped = bob.ok("/api/estop?site=lab-b", json!({}));
     assert_eq!(stopped["sites"], json!(["lab-b"]), "{stopped}");
-    assert_eq!(ended(&admin, b, b_first)["status"], "aborted");
+    assert_eq!(trial_ended(&admin, b, b_first)["status"], "aborted");
     let e = refusal(bob.post("/api/estop/reset?site=lab-b", json!({})), 403);
     assert!(e.contains("\"lab-b\""), "{e}");
     // A reset of every site is one of lab-b too.
@@ -540,7 +509,7 @@ fn an_account_limited_to_a_site_drives_only_its_machine_but_stops_any() {
         json!({ "sites": null }),
     );
     assert_eq!(changed["sites"], Value::Null, "{changed}");
-    let b_again = next_test(&admin, b);
+    let b_again = next_trial(&admin, b);
     let (code, t) = start(&bob, b_again);
     assert_eq!((code, &t["site"]), (200, &json!("lab-b")), "{t}");
     let changed = admin.ok(

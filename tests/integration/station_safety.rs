@@ -27,7 +27,7 @@ const OPENING_BURST: u32 = 4;
 
 /// A person enrolled, consented and assigned to a new station serving both seats, with the
 /// controller connected: (subject id, station id, station token, the practice trial's id).
-pub fn person_at_a_station(server: &Server, api: &Api, study: i64) -> (i64, i64, String, i64) {
+pub fn person_and_practice(server: &Server, api: &Api, study: i64) -> (i64, i64, String, i64) {
     let (subject, station, token) = server::person_at_a_station(server, api, study);
     let (_, detail) = api.get(&format!("/api/subjects/{subject}"));
     let practice = detail["trials"][0]["trial"]["id"].as_i64().unwrap();
@@ -85,8 +85,8 @@ fn a_flooding_station_is_throttled_then_cut_off_while_another_runs_normally() {
     // Practice runs of 8 s: long enough to outlast the flood's three seconds.
     let study = short_study(&api, 60.0, 8.0);
     let (flood_subject, flooder, flood_token, flood_trial) =
-        person_at_a_station(&server, &api, study);
-    let (calm_subject, calm, calm_token, calm_trial) = person_at_a_station(&server, &api, study);
+        person_and_practice(&server, &api, study);
+    let (calm_subject, calm, calm_token, calm_trial) = person_and_practice(&server, &api, study);
     let mut calm_ws = station_socket(&server, &calm_token);
     let flood_ws = station_socket(&server, &flood_token);
     for trial in [calm_trial, flood_trial] {
@@ -160,7 +160,7 @@ fn a_second_socket_of_a_station_replaces_the_first() {
     let server = Server::start("station-replace");
     let api = server.experimenter();
     let study = short_study(&api, 60.0, 60.0);
-    let (_, station, token, _) = person_at_a_station(&server, &api, study);
+    let (_, station, token, _) = person_and_practice(&server, &api, study);
     let began = Instant::now();
     let mut first = station_socket(&server, &token);
     // The latch comes first on every new socket: the page knows at once.

@@ -10,7 +10,8 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use bdft_tests::server::{self, Api, Server, eventually};
+use bdft_tests::server::{self, Api, Server, eventually, trial_ended, trial_row};
+use bdft_tests::station;
 use bdft_tests::webdriver::Driver;
 use serde_json::{Value, json};
 use tungstenite::stream::MaybeTlsStream;
@@ -39,7 +40,7 @@ fn person_study(api: &Api, controllers: usize, trial_s: f64, practice_s: f64) ->
 
 /// A person enrolled, consented and assigned to a station serving both seats, with the
 /// controller connected: (subject id, the station's API).
-fn person_at_a_station(server: &Server, api: &Api, study: i64) -> (i64, Api) {
+fn person_and_station_client(server: &Server, api: &Api, study: i64) -> (i64, Api) {
     let (subject, _, token) = server::person_at_a_station(server, api, study);
     (subject, Api::with_bearer(&server.base, &token))
 }
@@ -48,47 +49,24 @@ fn trials(api: &Api, subject: i64) -> Vec<Value> {
     server::trial_rows(api, subject)
 }
 
-fn row(api: &Api, subject: i64, trial: i64) -> Value {
-    trials(api, subject)
-        .into_iter()
-        .find(|t| t["id"] == trial)
-        .unwrap()
-}
-
-/// Waits (generously) until `trial` has ended; returns its row.
-fn ended(api: &Api, subject: i64, trial: i64) -> Value {
-    eventually(Duration::from_secs(60), || {
-        let t = row(api, subject, trial);
-        (t["status"] != "running" && t["status"] != "scheduled").then_some(t)
-    })
-}
-
 /// What the station shows now.
 fn state(station: &Api) -> Value {
     station.get("/api/station/state").1
 }
 
-/// The (slot, attempt) of the station's next test.
-fn next_test(api: &Api, subject: i64, station: &Api) -> (i64, i64) {
+/// The (slot, attempt) of the test the station shows.
+fn shown_test(api: &Api, subject: i64, station: &Api) -> (i64, i64) {
     let s = state(station);
     let id = s["test"]["trial_id"]
         .as_i64()
         .unwrap_or_else(|| panic!("{s}"));
-    let t = row(api, subject, id);
+    let t = trial_row(api, subject, id);
     (t["slot"].as_i64().unwrap(), t["attempt"].as_i64().unwrap())
 }
 
 fn station_socket(server: &Server, station: &Api) -> Socket {
-    let url = format!(
-        "{}/api/station/ws?token={}",
-        server.base.replace("http://", "ws://"),
-        station.bearer.as_deref().unwrap()
-    );
-    let (ws, _) = tungstenite::connect(url).expect("station socket");
-    match ws.get_ref() {
-        MaybeTlsStream::Plain(s) => s.set_read_timeout(Some(Duration::from_millis(5))).unwrap(),
-        _ => unreachable!("plain TCP"),
-    }
+    let mut ws = station::connect(&server.base, station.bearer.as_deref().unwrap());
+    station::read_timeout(&mut ws, Duration::from_millis(5));
     ws
 }
 
@@ -137,7 +115,7 @@ fn a_hidden_or_silent_display_stops_the_test_and_files_it_invalid() {
     let server = Server::start("validity-display");
     let api = server.experimenter();
     let study = person_study(&api, 2, 2.0, 60.0);
-    let (subject, station) = person_at_a_station(&server, &api, study);
+    let (subject, station) = person_and_station_client(&server, &api, study);
     let practice = state(&station)["test"]["trial_id"].as_i64().unwrap();
 
     // A page that reports a healthy display, then one report of 800 ms hidden (the limit is
@@ -159,7 +137,7 @@ fn a_hidden_or_silent_display_stops_the_test_and_files_it_invalid() {
         "frames": 30, "longest_gap_ms": 17.0, "hidden_ms": 800.0, "inputs": 50 }),
     ))
     .unwrap();
-    let filed = ended(&api, subject, practice);
+    let filed = trial_ended(&api, subject, practice);
     assert_eq!(filed["status"], "invalid", "{filed}");
     let reason = filed["status_reason"].as_str().unwrap();
     assert!(
@@ -177,7 +155,7 @@ fn a_hidden_or_silent_display_stops_the_test_and_files_it_invalid() {
     assert_eq!(s["phase"], "ready", "{s}");
     assert_eq!(s["stopped"]["status"], "invalid", "{s}");
     assert_eq!(s["stopped"]["repeated"], true, "{s}");
-    assert_eq!(next_test(&api, subject, &station), (0, 2));
+    assert_eq!(shown_test(&api, subject, &station), (0, 2));
 
     // A page that feeds input but never reports its display (its tab hidden and throttled,
     // or its drawing stalled): the watchdog stops it too.
@@ -188,7 +166,7 @@ fn a_hidden_or_silent_display_stops_the_test_and_files_it_invalid() {
         Arc::new(AtomicBool::new(false)),
     );
     let feeder = feed(ws, again, reporting, Arc::clone(&stop));
-    let filed = ended(&api, subject, again);
+    let filed = trial_ended(&api, subject, again);
     stop.store(true, Ordering::Relaxed);
     feeder.join().unwrap();
     assert_eq!(filed["status"], "invalid", "{filed}");
@@ -223,7 +201,7 @@ fn start_and_abort(api: &Api, subject: i64, trial: i64) -> Value {
         &format!("/api/trials/{trial}/abort"),
         json!({ "reason": "subject sneezed" }),
     );
-    ended(api, subject, trial)
+    trial_ended(api, subject, trial)
 }
 
 #[test]
@@ -233,7 +211,7 @@ fn a_failed_test_comes_back_at_the_end_of_its_block_and_the_station_never_says_d
     let api = server.experimenter();
     // Two compensators: the practice (block 0), slots 1–2 (block 1), slots 3–4 (block 2).
     let study = person_study(&api, 2, 30.0, 30.0);
-    let (subject, station) = person_at_a_station(&server, &api, study);
+    let (subject, station) = person_and_station_client(&server, &api, study);
     let id_of = |slot: i64, attempt: i64| {
         trials(&api, subject)
             .into_iter()
@@ -246,7 +224,7 @@ fn a_failed_test_comes_back_at_the_end_of_its_block_and_the_station_never_says_d
     // The aborted practice comes back; accepted as incomplete, it is not run again.
     let filed = start_and_abort(&api, subject, id_of(0, 1));
     assert_eq!(filed["status"], "aborted", "{filed}");
-    assert_eq!(next_test(&api, subject, &station), (0, 2));
+    assert_eq!(shown_test(&api, subject, &station), (0, 2));
     let s = state(&station);
     assert_eq!(
         (&s["stopped"]["status"], &s["stopped"]["repeated"]),
@@ -264,23 +242,23 @@ fn a_failed_test_comes_back_at_the_end_of_its_block_and_the_station_never_says_d
     );
     assert_eq!(accepted["status"], "incomplete");
     assert!(accepted["accepted_reason"].is_string(), "{accepted}");
-    assert_eq!(next_test(&api, subject, &station), (1, 1));
+    assert_eq!(shown_test(&api, subject, &station), (1, 1));
 
     // A failed scored test goes to the end of its block: after the block's other test,
     // before the next block.
     start_and_abort(&api, subject, id_of(1, 1));
-    assert_eq!(next_test(&api, subject, &station), (2, 1));
+    assert_eq!(shown_test(&api, subject, &station), (2, 1));
     start_and_abort(&api, subject, id_of(2, 1));
-    assert_eq!(next_test(&api, subject, &station), (1, 2));
+    assert_eq!(shown_test(&api, subject, &station), (1, 2));
     start_and_abort(&api, subject, id_of(1, 2));
-    assert_eq!(next_test(&api, subject, &station), (2, 2));
+    assert_eq!(shown_test(&api, subject, &station), (2, 2));
     start_and_abort(&api, subject, id_of(2, 2));
-    assert_eq!(next_test(&api, subject, &station), (1, 3));
+    assert_eq!(shown_test(&api, subject, &station), (1, 3));
     // The third attempt is the last the server makes by itself.
     start_and_abort(&api, subject, id_of(1, 3));
-    assert_eq!(next_test(&api, subject, &station), (2, 3));
+    assert_eq!(shown_test(&api, subject, &station), (2, 3));
     start_and_abort(&api, subject, id_of(2, 3));
-    assert_eq!(next_test(&api, subject, &station), (3, 1));
+    assert_eq!(shown_test(&api, subject, &station), (3, 1));
     let s = state(&station);
     assert_eq!(s["stopped"]["repeated"], false, "{s}");
     assert!(
@@ -310,7 +288,7 @@ fn a_failed_test_comes_back_at_the_end_of_its_block_and_the_station_never_says_d
         &format!("/api/trials/{}/redo", id_of(1, 3)),
         json!({ "reason": "one more try" }),
     );
-    assert_eq!(next_test(&api, subject, &station), (1, 4));
+    assert_eq!(shown_test(&api, subject, &station), (1, 4));
     let (code, body) = api.post(&format!("/api/trials/{}/start", id_of(1, 4)), json!({}));
     assert_eq!(code, 200, "{body}");
     let (code, body) = api.post(
@@ -322,7 +300,7 @@ fn a_failed_test_comes_back_at_the_end_of_its_block_and_the_station_never_says_d
         &format!("/api/trials/{}/abort", id_of(1, 4)),
         json!({ "reason": "still broken" }),
     );
-    ended(&api, subject, id_of(1, 4));
+    trial_ended(&api, subject, id_of(1, 4));
     assert_eq!(state(&station)["phase"], "held");
     for (slot, attempt) in [(1, 4), (2, 3)] {
         api.ok(
@@ -351,7 +329,7 @@ fn a_station_tab_hidden_during_a_test_has_it_filed_invalid_in_chromium() {
     let server = Server::start("validity-browser");
     let api = server.experimenter();
     let study = person_study(&api, 2, 30.0, 60.0);
-    let (subject, station) = person_at_a_station(&server, &api, study);
+    let (subject, station) = person_and_station_client(&server, &api, study);
     let token = station.bearer.clone().unwrap();
 
     let driver = Driver::start();
@@ -374,7 +352,7 @@ fn a_station_tab_hidden_during_a_test_has_it_filed_invalid_in_chromium() {
                  const r = document.getElementById('track').getBoundingClientRect(); return r.width > 0 && r.height > 0;",
                 json!([]),
             ) == json!(true);
-            let running = row(&api, subject, trial)["status"] == "running";
+            let running = trial_row(&api, subject, trial)["status"] == "running";
             (laid_out || !running).then_some(laid_out && running)
         });
         if !drawing {
@@ -388,7 +366,7 @@ fn a_station_tab_hidden_during_a_test_has_it_filed_invalid_in_chromium() {
         s.cmd("POST", "/window", json!({ "handle": other["handle"] }))
             .unwrap();
         s.goto("about:blank");
-        filed = ended(&api, subject, trial);
+        filed = trial_ended(&api, subject, trial);
         // Closing it brings the station's tab to the front again.
         let _ = s.cmd("DELETE", "/window", json!(null));
         s.cmd("POST", "/window", json!({ "handle": station_tab }))
@@ -409,7 +387,7 @@ fn a_station_tab_hidden_during_a_test_has_it_filed_invalid_in_chromium() {
         "const n = document.getElementById('stopped-notice'); return !n.hidden && n.textContent.includes('It will be repeated next.');",
         json!([]),
     );
-    let (slot, attempt) = next_test(&api, subject, &station);
+    let (slot, attempt) = shown_test(&api, subject, &station);
     assert_eq!(slot, 0, "the practice again");
     assert!(attempt > filed["attempt"].as_i64().unwrap());
 }

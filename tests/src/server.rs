@@ -635,6 +635,32 @@ pub fn trial_rows(api: &Api, subject: i64) -> Vec<Value> {
         .collect()
 }
 
+/// The row of `trial` of `subject`.
+pub fn trial_row(api: &Api, subject: i64, trial: i64) -> Value {
+    trial_rows(api, subject)
+        .into_iter()
+        .find(|t| t["id"] == trial)
+        .unwrap_or_else(|| panic!("subject {subject} has no trial {trial}"))
+}
+
+/// Waits (generously: a loaded machine) until `trial` of `subject` has ended, neither
+/// scheduled nor running; its row.
+pub fn trial_ended(api: &Api, subject: i64, trial: i64) -> Value {
+    eventually(Duration::from_secs(60), || {
+        let t = trial_row(api, subject, trial);
+        (t["status"] != "running" && t["status"] != "scheduled").then_some(t)
+    })
+}
+
+/// The subject's next test, as the server says (`next_trial_id`: first by block and queue
+/// order, a failed test re-queued).
+pub fn next_trial(api: &Api, subject: i64) -> i64 {
+    let (_, s) = api.get(&format!("/api/subjects/{subject}"));
+    s["next_trial_id"]
+        .as_i64()
+        .unwrap_or_else(|| panic!("no test of subject {subject} to start: {s}"))
+}
+
 /// Runs `trial` (started by the experimenter) to its end; returns its final row. A start
 /// the server cannot serve now (503: the controller restarting after its link was lost on a
 /// loaded machine) is tried again once the controller is back.
