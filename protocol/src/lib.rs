@@ -11,6 +11,34 @@
 //! - [`browser_to_server`] / [`server_to_browser`]: the stations' and the dashboard's
 //!   messages (JSON bodies and WebSocket text); [`records`]: the states of the study's
 //!   records (trial status, consent, station role) as the API and exports name them.
+//!
+//! Files (`docs/protocol.md` documents the wire): `framing`: 4-byte length + JSON, `FrameCodec`,
+//! the one codec both ends of the link use, and `BlockingFramed` for blocking clients. `trial`:
+//! what a trial runs and produces; `RECORD_CHANNELS`: the full-rate record's columns — name, unit,
+//! meaning, resolution — that the stored record, the samples export and `simulate --out` all use.
+//! `numbers`: the one number format of analysts' files: rounded to a column's resolution and 12
+//! significant digits, no float noise. `params`: every parameter that crosses a process: plant,
+//! body, seat, compensator designs, operator, step targets, each with its defaults and `validate`.
+//! `browser_to_server` / `server_to_browser`: operator input, consent, survey answers, timing
+//! reports, the station's `StationView`, the experimenter's `MonitorView`, the live sockets'
+//! events. `exposure`: the 2002/44/EC action and limit values, a test's `TrialExposure`, the daily
+//! `DoseSum` — A(8) and the day's VDV — and the `ExposureAllowance` a test on the machine starts
+//! with. `records`: `TrialStatus` — `invalid` for a test whose display was hidden or stalled —,
+//! `ConsentDecision`, `StationRole`, `DoneReason`, `TestPhase` — practice, scored test or
+//! identification test —: the states the server's rows hold, each with its names and parse errors
+//! that list them. `study`: study parameters, with the display limits `max_hidden_ms` and
+//! `max_frame_gap_ms`, and the station's texts — consent form, instructions — with their
+//! placeholders and the one renderer that fills them in from the parameters. `consent`: the consent
+//! form and its `{procedure}`: what the study does, generated from the parameters, appended when a
+//! lab's text leaves it out. `link_auth`: the link key, key files, and the HMAC-SHA256 proofs of
+//! the challenge–response both ends run before anything else. `hex`: the one text form of every
+//! hash, key, token and signature: encode, decode, SHA-256 in hex. `PROTOCOL_VERSION` is exchanged
+//! in the handshake. Golden tests pin the wire text (`golden.rs`, `golden_browser.rs`). The
+//! `openapi` feature derives the OpenAPI schemas the server's document uses.
+//!
+//! *Invariants:* the controller and the server never define their own copies of these;
+//! `StationView` has no field that could carry a compensator's name; messages without fields are
+//! empty struct variants, so they refuse unknown fields too.
 
 pub mod browser_to_server;
 pub mod consent;

@@ -1,4 +1,51 @@
 //! Helpers shared by the end-to-end tests: locating the product's binaries and running them.
+//!
+//! This crate is the one integration-test package: it runs the product's binaries as real
+//! processes. One integration binary (`integration/main.rs`), one module per area; unit tests of
+//! the maths live next to the code.
+//!
+//! - The root: `binary`, `controller` (runs `bdft-controller`), `TempDir`, `send_signal`,
+//!   `read_timed_out`; `controller_link`: `Proc` spawns a process on port 0 and reads its address,
+//!   `Link` speaks the protocol as the server does.
+//! - `server`: `Server` starts `bdft-server` on a fresh database — and restarts it on its port
+//!   after SIGKILL or SIGTERM —, `Api` calls it with cookies, CSRF and bearer tokens (`try_call`
+//!   when a refused connection is an answer); `HeldWrite` holds the store's write lock from a
+//!   connection of its own (the contention tests, the bench and the soak's store-held fault);
+//!   `CpuMeter` gives the benches each process's CPU share.
+//! - `station`: a station's page as tests and benchmarks play it — its socket, input fed at a rate
+//!   with each input timed to its echo, a flood until the server closes it.
+//! - `webdriver`: a minimal W3C WebDriver client for Debian's headless Chromium through
+//!   chromedriver, used by `integration/browser.rs`, which runs over HTTPS.
+//! - `exports`: exports read back as tables and compared — equal bytes, or a report of what
+//!   differs.
+//! - `postgres`: a database of its own on the test command's PostgreSQL server (`PgDatabase`, also
+//!   made from another as its template), and `BDFT_TEST_STORE=postgres`, which starts every
+//!   `Server` on one — the test command's second pass of the end-to-end tests.
+//! - `raw`: HTTP by hand from a loopback address of its own (a socket bound to 127.0.0.2 before
+//!   connecting), so the server's per-address limits tell two clients on one machine apart.
+//! - `audit_chain`: the tests' own implementation of the audit chain's formats, independent of the
+//!   server's.
+//! - `soak` (`src/bin/soak.rs`): the lab-day soak; `integration/soak.rs` runs 2 minutes in CI and
+//!   20 minutes in the slow set, `#[ignore]`d, which `scripts/test.sh --slow` includes.
+//!
+//! Benchmarks (`benches/`): `echo` (input-to-echo latency), `estop_latency`, `isolation` (a victim
+//! station, the API and the E-stop while another station floods from its own process),
+//! `estop_contention` (the E-stop's answer with the store's write lock held, during a pilot, an
+//! export and a calibration, and its latch across a controller kill), `audit_verify`, and
+//! `bounded_clients` (a new client's login and API and the E-stop while one address floods with
+//! slow bodies and reconnecting idle connections).
+//!
+//! Fixtures and areas worth knowing: `tests/fixtures/exposure/`: scipy's analog W_d at the
+//! one-third-octave centres and its a_w and VDV of two recorded tests the product exported
+//! (`make.sh`, `make_fixture.py`), which `integration/exposure.rs` holds the Rust weighting and the
+//! loop's figures to. `integration/lsl.rs` runs the LSL streams in a loopback-only network
+//! namespace of its own (the test re-runs itself under `unshare -n` after `ip link set lo up`, and
+//! refuses to run where another interface exists), read by `tests/scripts/lsl_client.py` with
+//! pylsl's bundled liblsl. `tests/fixtures/upgrade/`: one directory per release — a database it
+//! made, every export it made of it, and the script that made them — which the `upgrade` test opens
+//! with the code under test. `integration/structure.rs` reads the sources instead of running them:
+//! the server's layers, the engine's rooms and their one direction, and no import cycle between two
+//! modules.
 
 use std::path::PathBuf;
 use std::process::{Command, Output};

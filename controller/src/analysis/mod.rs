@@ -9,6 +9,28 @@
 //!
 //! K_BF enters the map affinely (r_c = K_BF·(p_h − h)), so A(K) = A₀ + K·(A₁ − A₀) is read
 //! once and the largest stable K_BF is found by scanning and bisecting on K.
+//!
+//! Files: `design_view`: `analyze --model design|implemented` — the LQR loops' continuous design
+//! model (ideal measurements, so the observer poles are exactly the designed ones) beside the
+//! sampled loop, every pole difference attributed to the element that makes it (rate filter,
+//! accelerometer filters, sampling) by adding them one at a time; for the PID family the two views
+//! are one. `robustness`: the design fixed on the nominal plant and run on perturbed rigs
+//! (`ClosedLoop::with_rig`) — the K_H × structure-frequency map of the largest stable K_BF (K_H
+//! only scales the loop gain, so it divides) and the Monte-Carlo pass rate. `state_space`: any
+//! block's state-space map probed off its `step` (`probe`), evaluated on the unit circle after one
+//! Hessenberg reduction (O(n²) a frequency); the stability analysis, `frequency` and `nyquist` all
+//! read their matrices here. `frequency`: Bode data of the rig's parts, the body, each compensator
+//! and closed loop (`bdft-controller frequency`). `personal`: a design tuned to one person's body —
+//! the LQR's α (largest) or the cab feedback's β (smallest) within a band around the study's,
+//! keeping the gate's margin by the same `margin` (bisection: the margin is monotone in each weight
+//! in every loop we have), and stable off the machine. `nyquist`: the feedthrough loop opened at
+//! r_c (G = h/r_c off `tick`), the shaper split off as an exact FIR Σaᵢz^{−dᵢ} in series with the
+//! small rest; the largest stable K_BF is min(−1/x) over G's negative-real-axis crossings x, the
+//! verdict Z = P − N from the same crossings. The shaper designs' margins (analyze, robustness)
+//! come from here, the others' from eigenvalues.
+//!
+//! *Invariant:* the Nyquist verdict equals the sampled loop's eigenvalue verdict (tested per
+//! design, below and above each margin, and on robustness map cells).
 
 use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};

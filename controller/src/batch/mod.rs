@@ -15,6 +15,16 @@
 //! with an interlock trip among the lanes). The one difference is where the deviates come
 //! from: the batch draws its own, vectorized (`normal`), from streams seeded by each trial's
 //! seeds — the same model and the same distributions, another realization of the noise.
+//!
+//! Files: `rig` (plant, body, compensators, interlock), `operator`, `trial` (the tick, and `Build`:
+//! the run-time choice of the AVX-512, AVX2 or baseline build — one of the crate's three places
+//! with `unsafe`, a call after the CPU check), `normal` (vectorized xoshiro256++ streams and
+//! Box–Muller with polynomial ln/sin/cos).
+//!
+//! *Invariant:* on the scalar trials' deviates a batch reproduces `runtime::local::metrics` bit for
+//! bit (every compensator, body kind and seat), and every build gives the same bits; a long update
+//! is one loop over the lanes with each lane's arithmetic inside, the form the loop vectorizer
+//! takes reliably.
 
 // Every quantity is an array over the lanes and every operation a `for l in 0..LANES` over
 // several such arrays at once: the form the vectorizer turns into straight vector code.

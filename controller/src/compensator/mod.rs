@@ -4,6 +4,17 @@
 //!
 //! `build` designs everything (Riccati, observer, shaper) and allocates once; `step` never
 //! allocates, locks or blocks.
+//!
+//! `CompensatorKind` (the names used everywhere), `CompensatorSpec` (a design with all its
+//! parameters, serializable: what is recorded with a trial), `Compensator` (built once, `step` per
+//! tick). `pid`: PID with filtered derivative and conditional-integration anti-windup,
+//! Ziegler–Nichols from the ultimate gain, the notch. `lqr`: LQR + observer (Luenberger with placed
+//! poles, or the steady-state Kalman filter from the dual Riccati equation, `ObserverDesign`) + N̄
+//! scaling, cab velocity from high-pass + leaky integrator. `variants`: the workbench's design
+//! names (`pid-shaper:zvd`, `lqr-cabacc:kalman`, …).
+//!
+//! *Invariant:* `step` never allocates, locks, blocks or logs (checked by `alloc_check.rs`, a
+//! counting allocator in the test binary, for every variant); fixed-size nalgebra types only.
 
 mod lqr;
 mod pid;

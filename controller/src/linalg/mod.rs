@@ -3,6 +3,11 @@
 //!
 //! Design code runs once per trial set-up, so it works on heap matrices (`DMatrix`); only the
 //! per-tick code uses fixed-size types.
+//!
+//! Routines: `zoh` (matrix exponential, Van Loan block), `eigenvalues` (balanced Schur), `care`
+//! (matrix sign function + Newton–Kleinman, balanced), `lyapunov`, `place_observer` (parametric
+//! Sylvester method for several outputs, the solve refined on its residual: clustered poles are as
+//! sensitive to L as V is ill-conditioned).
 
 mod care;
 mod discretize;

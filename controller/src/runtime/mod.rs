@@ -4,6 +4,27 @@
 //! absolute deadlines; the I/O side ([`link`]) speaks the protocol with the server, builds
 //! trials ([`setup`]) and sends their records. They share only lock-free queues, atomics and
 //! the latest-value input cells ([`handoff`]).
+//!
+//! Files: `rt_loop`: the loop thread (absolute deadlines via `clock_nanosleep`, overruns counted
+//! and skipped, lockstep mode), commands in and events out through `rtrb` SPSC queues; `slot`: a
+//! trial as the loop holds it (built and allocated on the I/O side by `setup`, moved in and out by
+//! pointer, record prefaulted); `handoff`: seqlock latest-value operator input; `histogram`:
+//! allocation-free log-linear timing histograms; `rig_udp`: the UDP rig backend and `rig-sim`;
+//! `os`: SCHED_FIFO, mlockall, affinity, the monotonic clock (the libc calls: `unsafe` allowed
+//! here); `local`: a trial run to its end in the calling thread, without the clock (pilots, the
+//! planner, the bench). The tokio side: `handshake` (pending-connection caps, the
+//! challenge–response, the small pre-authentication frame limit), `link/` (the I/O side, its
+//! imports running down to `link::state`, what its tasks share: `connection.rs` — accepting, the
+//! one control connection's reader and writer —, `requests.rs` — validation of what the server
+//! sends and the rules a trial must pass to start —, `pump.rs` — the event pump: live samples,
+//! record chunks, results —, `heartbeat.rs` — heartbeats and the link watchdog —, `input_port.rs` —
+//! the UDP input of a haptic host, pinned sender, increasing sequence), `estop_path` (the E-stop's
+//! own connection: sets the loop's E-stop flag on arrival and confirms).
+//!
+//! *Invariants:* nothing a peer sends is read beyond the hello until its proof checks out. The loop
+//! thread never allocates, locks, blocks or logs after start-up
+//! (`rt_loop::tests::the_loop_tick_never_allocates`); it never frees a trial either — finished
+//! slots go back to the I/O side.
 
 pub mod estop_path;
 pub mod handoff;

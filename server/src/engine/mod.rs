@@ -13,10 +13,15 @@
 //! accounts   → nothing                                 (stands alone)
 //! ```
 //!
-//! Every change goes through `store::Change`, so it is committed with its audit row. The
-//! root holds what every room shares: the name and reason checks (one rule for every kind of
-//! name, `name_rule`), `COMPUTE`, and
-//! `beat_every`, the heartbeat of a process working on the database.
+//! A room may use the rooms listed after its arrow, and no other. Every change
+//! goes through `store::Change`, so it is committed with its audit row. The root holds only
+//! what every room shares: `name_rule` — the one rule of every name (studies, stations,
+//! configuration versions, usernames and sites, the last two with a stricter alphabet after
+//! it): a length in characters, no control characters, no bidirectional marks, overrides or
+//! isolates —, `check_name` (its 1–200 of a study, a station or a configuration version),
+//! `check_reason`, `beat_every` (the heartbeat of a pilot process or a server in its
+//! database), and `COMPUTE`, the one permit the statistics, the planner and the workbench's
+//! analysis take in turn, off the async threads.
 //!
 //! *Invariant:* nothing here imports axum; `http` calls in, never the reverse.
 

@@ -6,6 +6,40 @@
 //! `extract`, `bodies`, `page`), never another area; the experimenter router carries the
 //! authentication layer, so a route added there is protected by default; every API route
 //! is registered with `routes!`, so it is in the document.
+//!
+//! `app` groups the area routers by caller (anyone, bearer token, experimenter), the experimenter
+//! group under the `require_experimenter` layer, and splits the OpenAPI document out of the same
+//! routers (`utoipa-axum`), served at `/api/openapi.json` with every operation's security and error
+//! answers filled in; every answer names its media types (JSON with its schema, CSV and SVG as
+//! text, PNG and Parquet by media type alone; a WebSocket upgrade has no body).
+//!
+//! Areas: `session` (login, logout, first account), `accounts` (admin-only account management),
+//! `erasure` (admin-only: erase a subject, the erasures with the backups still holding their data),
+//! `protocol_package` (a study's ethics-board page, with the pages' headers), `studies`, `subjects`
+//! (and the subject's own page's API: progress, withdrawal), `stations` (pairing, assignment,
+//! monitor view), `station_client` (the station's own API), `trials`, `controller` (health, E-stop,
+//! link status), `live` (the station and dashboard WebSockets: size caps, pings, the station's read
+//! budget and opening limit, the E-stop latch pushed to the station; each socket reads its peer all
+//! the time, so a closed one releases its task and descriptor), `pilot`, `calibration`, `backups`
+//! (admin-only: the backup directory's listing and "back up now"), `configs` (configuration
+//! versions, a study's picks), `bench` (bench runs, their views and CSV; a 4 MiB body for an
+//! uploaded reference), `results` (summary, plots, exports, audit log, the power planner),
+//! `workbench` (read-only analysis of a study's designs: frequency, Nyquist, poles, robustness),
+//! `pages` (`web/`, embedded with `include_dir` or served from `--web-dir`, strict CSP). Shared
+//! infrastructure: `error` (status codes, `AppJson`), `extract` (session layer, CSRF, the role
+//! check, `Experimenter::may_drive` — the per-site check the handlers that start, abort or reset a
+//! machine or run the bench on one call before acting —, bearer extractors, `AppPath` and
+//! `AppQuery`, whose rejections are the JSON error), `bodies`, `page` (every page's content type,
+//! no-cache and security headers: the strict CSP).
+//!
+//! More invariants: an `Experimenter` extractor used outside the experimenter router fails closed;
+//! the layer refuses analysts every state-changing route but the E-stop (and logging out), and
+//! everyone but admins `/api/accounts…`, `/api/backups…` and the erasure routes (one table,
+//! `ADMIN_ONLY`), so a new route fails closed; every API route's request and response schemas are
+//! documented, so they cannot drift; path and query parameters are read through
+//! `AppPath`/`AppQuery` (or `query`), never axum's own extractors, whose rejections are plain text;
+//! an account limited to sites drives only those sites' machines, and the E-stop handler never
+//! checks sites.
 
 pub mod bodies;
 pub mod error;

@@ -4,6 +4,74 @@
 //! half-stored and no change goes unaudited.
 //!
 //! *Invariant:* no module outside `store` writes SQL; only hashes of tokens are stored.
+//!
+//! Modules: `studies` (a study with its newest population version overlaid), `subjects` (with
+//! notes), `trials` (with surveys), `records`, `exposure` (a subject's tests on the machine with
+//! their figures), `identifications`, `stations`, `accounts` (with the sites an account is limited
+//! to, `experimenter_sites`), `audit` (the log and the non-person actors it accepts), `audit_chain`
+//! (each entry's hash chained to the one before — an HMAC under the chain key, never stored in the
+//! database; the details hashed with a salt of the entry's own; rows from before 0028 in their
+//! unkeyed format —, the signed checkpoints, the erasures' redaction records, and `verify`, which
+//! pages through the log in bounded memory and names the first entry that fails), `exports`,
+//! `configs` (configuration versions and a study's picks), `erasure` (one erasure's statements and
+//! the erasures so far), `bench` (bench runs and results), `latch` (the E-stop latches as the store
+//! records them beside each press's and reset's audit row — every site's at once, and each site's
+//! own; the server's own latch is `machine::estop_latch`), `pilot_runs` (pilot processes, their
+//! heartbeats and trials), `populations` (calibrated population versions), `dry_runs` (which
+//! studies are dry runs and what each copies), `server_runs` (serving processes and their
+//! heartbeats) and `process_runs` (what it shares with `pilot_runs`), `backups` (`VACUUM INTO`, the
+//! integrity check, row counts and the migrations a file holds), `dialect` (`Dialect`: which SQL a
+//! connection speaks where the two differ — the write lock, the audit page's JSON, a vacuum; its
+//! own module so `audit_chain` reads it without importing `db`), `db` (open: every connection
+//! through sqlx's `Any` driver, so each query is written once for both stores — `$N` placeholders,
+//! `RETURNING id`, flags as integers read through `db::Flag` —; a `Location`, a SQLite file or a
+//! `postgres://` URL; a file's path made absolute — its directory canonicalized — before it becomes
+//! a `sqlite://` URL, which would shorten a leading `../..`; on SQLite WAL, foreign keys,
+//! `secure_delete` so deleted content is overwritten, set on each connection; migrations —
+//! `MIGRATOR`, and `POSTGRES_MIGRATOR` for PostgreSQL —; the write lock per dialect; a file opened
+//! read-only as it is; folding the WAL in; the optional page cap; the time unit), `tokens`, and
+//! `error_mapping_tests` (how database errors map to `AppError`). Rows map to the protocol's enums
+//! (`TrialStatus`, `Seat`, `StationRole`, `ConsentDecision`, `CompensatorKind`).
+//!
+//! Migrations (`migrations/`): embedded, append-only, commented SQL (SQLite: the default store).
+//! `migrations/postgres/` holds the same schema in PostgreSQL's dialect for the multi-site store
+//! (its first migration, 0026, is the whole schema after SQLite's 0001–0026; every later migration
+//! comes in both dialects under one number); the integration test `store_dialects` applies both and
+//! compares them, and what their triggers refuse, against the PostgreSQL server the test command
+//! starts; `the_servers_store_runs_on_postgres` runs the server's own store code there (migrate,
+//! chain, a change, reopen). `serve` does not take a `postgres://` `--db` yet. Bench runs left
+//! running by a stopped server are failed at start-up.
+//!
+//! More invariants:
+//!
+//! - A [`Change`] holds the store's one write lock from its start (SQLite's `BEGIN IMMEDIATE`; on
+//!   PostgreSQL a transaction-scoped advisory lock every change takes, the same one-writer order);
+//!   its audit row names a real account (with its id) or a non-person actor that says what it is
+//!   (`audit` lists them; a trigger refuses a bare word); racing writers wait for the lock; a
+//!   unique-constraint clash is a 409; a change dropped uncommitted closes its connection, so no
+//!   connection goes back to the pool inside a transaction — not even one SQLite rolled back by
+//!   itself on a full disk.
+//! - An audit row's detail is a type of the module that commits it (shapes several actions share
+//!   are one type: `audit::NoDetail`, `audit::Reason`), stored by `json_text` with its keys in
+//!   sorted order, as the log has always held them.
+//! - An audit entry without a keyed hash counts only up to the newest signed checkpoint, a
+//!   redaction marker only where its erasure recorded it.
+//! - A trial takes a result only while `running`; a trial marked invalid while it runs
+//!   (`invalid_reason`) is filed invalid whatever the outcome, never complete; `next` follows the
+//!   queue (block, then `queue_order`), not the schedule's `slot`.
+//! - The audit log is append-only (SQL triggers refuse UPDATE and DELETE; the one exception, 0021,
+//!   lets an erasure replace only the details of the rows older than it about its subject by the
+//!   redaction marker naming it); an erased subject never changes again and gets no tests; a
+//!   subject is marked erased only with its erasure's audit row; a locked study's parameters cannot
+//!   change (trigger).
+//! - The audit chain and its checkpoints are append-only too (0023), and so are the entries' salts
+//!   and the redaction records (0028; a salt is deleted only once its entry's details are the
+//!   redaction marker); every audit row is chained and salted in the transaction that appends it.
+//! - A study's `version` goes up with every edit, and an edit names the version it was based on (a
+//!   stale one is a 409 with the current study).
+//! - A configuration version is immutable (triggers); a trial's `config_id` is set by a trigger at
+//!   insertion from the picks of its study (or of the study a dry run copies), only when its design
+//!   is the picked version's design to the byte.
 
 pub mod accounts;
 pub mod audit;

@@ -13,6 +13,25 @@
 //! Everything waits on conditions (a station connected, the controller back with a new
 //! process, no test running, no connection left); the only timed things are what the
 //! simulated people do (think, reload, stay offline) and the schedule's gaps.
+//!
+//! Modules: [`plan`] (the seeded schedule: warm-up, the server restarts, the baseline quiet point,
+//! then every other fault kind in a seeded order, repeated while the run lasts — the first round
+//! always complete, so every kind is injected at least once), [`station`] (a browser-like station
+//! as `web/station.js` behaves: a page thread for state, consent, surveys and timing figures, a
+//! socket thread for 60–250 Hz input tracking the live target, 60 Hz "frames" and display reports;
+//! faults arrive as commands: reload, offline, hidden, flood), [`experimenter`] (the dashboard:
+//! enrols, assigns, starts each ready test, accepts a test failed three times as incomplete, holds
+//! the live feed), [`faults`] (each fault injected, journaled with what it expects, and its
+//! recovery awaited; the slow clients — slow request bodies and idle connections from another
+//! address, 127.0.0.2 — with the API timed meanwhile), [`disk`] (the full disk: the server runs
+//! with `--db-max-pages`, the soak keeps little room under that cap with ballast rows of its own
+//! and fills it for a fault; the integrity check), [`host`] (the server's RSS, descriptors by kind
+//! and client connections from /proc), [`journal`] (`soak.jsonl`: everything the soak did and was
+//! answered), [`verify`] (the journal against the trials, subjects, samples and audit exports;
+//! integrity; memory and descriptors at the end's quiet point against the baseline's; the server's
+//! log free of panics).
+//!
+//! *Invariant:* a rule the product breaks is a violation in the verdict, never a panic of the soak.
 
 mod disk;
 mod experimenter;

@@ -3,6 +3,16 @@
 //! (`may_drive`: the machines it may start, abort, reset and run the bench on), rate-limited login
 //! (`login_limiter`, with argon2id in bounded memory from `passwords`), the one-time set-up
 //! link and sessions. No HTTP here: `http::session` carries cookies.
+//!
+//! Files: `mod.rs` (credentials, roles, account management with the last-admin rule, the sites an
+//! account is limited to — checked against the server's sites —, and `may_drive`, the refusal of a
+//! limited account's start, abort, reset or bench run at another site's machine, read at each
+//! action, login, the set-up link — one at a time, valid for an hour —, sessions), `login_limiter`
+//! (attempts reserved before the check, per username and address and per address; bounded, swept; a
+//! refusal says when the oldest attempt leaves the window, the 429's Retry-After), `passwords`
+//! (argon2id, two at a time in reused buffers: bounded memory), `estop_sessions` (the sessions the
+//! store confirmed within the hour, bounded: the E-stop's route alone is authenticated from them,
+//! so a busy store cannot delay it; a logout forgets one at once).
 
 pub mod estop_sessions;
 pub mod login_limiter;
