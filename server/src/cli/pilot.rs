@@ -1,0 +1,100 @@
+//! `bdft-server pilot`: the whole protocol for synthetic subjects, into the database.
+
+use std::path::PathBuf;
+
+use super::{newest_study, read_params};
+use crate::config::DbConfig;
+use crate::engine::dry_runs::pilot;
+use crate::engine::operations::audit_signing;
+use crate::store;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    db: DbConfig,
+    /// Study to add the subjects to [default: the newest; a default study if none].
+    #[arg(long)]
+    study: Option<i64>,
+    /// Number of synthetic subjects.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=500))]
+    subjects: u32,
+    /// Seed of a study created for the pilot.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Parameters of the study created for the pilot (JSON, as `GET /api/defaults` gives
+    /// them; e.g. another population) [default: the default study's]; only into a
+    /// database with no study yet.
+    #[arg(long, conflicts_with = "study")]
+    params: Option<PathBuf>,
+    /// Add an identification test (the default multisine, hold-still) to the study the
+    /// pilot creates, at the start of each subject's block on the machine; a study given
+    /// with --study must have one in its parameters already.
+    #[arg(long)]
+    identification: bool,
+    /// As --identification, with the study's LQR designs tuned to each subject's fitted
+    /// body (`identification.personalized`).
+    #[arg(long)]
+    personalized: bool,
+}
+
+pub async fn run(args: Args) -> anyhow::Result<()> {
+    let Args {
+        db,
+        study,
+        subjects,
+        seed,
+        params,
+        identification,
+        personalized,
+    } = args;
+    audit_signing::use_key_if_present(&db.db)?;
+    let pool = db.db.open().await?;
+    let identification = identification || personalized;
+    let with_identification = |mut p: bdft_protocol::study::StudyParams| {
+        if identification && p.identification.is_none() {
+            p.identification = Some(Default::default());
+        }
+        if let Some(id) = p.identification.as_mut() {
+            id.personalized |= personalized;
+        }
+        p
+    };
+    let study = match (params, study) {
+        (Some(path), _) => {
+            Some(pilot::new_study(&pool, &with_identification(read_params(&path)?), seed).await?)
+        }
+        (None, None) if identification && store::studies::all(&pool).await?.is_empty() => Some(
+            pilot::new_study(
+                &pool,
+                &with_identification(crate::engine::study::schedule::default_params()),
+                seed,
+            )
+            .await?,
+        ),
+        (None, study) => {
+            if identification {
+                let s = newest_study(&pool, study).await?;
+                let params = store::studies::get(&pool, s).await?.params;
+                if params.identification.is_none() {
+                    anyhow::bail!(
+                        "--identification: study {s} has no identification test; add \"identification\" to its parameters"
+                    );
+                }
+                if personalized && !params.identification.is_some_and(|id| id.personalized) {
+                    anyhow::bail!(
+                        "--personalized: study {s} does not personalize its designs; set \"identification\": {{\"personalized\": true}} in its parameters"
+                    );
+                }
+            }
+            study
+        }
+    };
+    let started = std::time::Instant::now();
+    let report = pilot::run(&pool, study, subjects, seed).await?;
+    println!("{}", serde_json::to_string(&report)?);
+    tracing::info!(
+        elapsed_s = started.elapsed().as_secs_f64(),
+        "pilot finished"
+    );
+    Ok(())
+}
