@@ -425,7 +425,7 @@ mod calibrate {
             pid,off,ms_cab_accel,3.02,0.5,8,1e5mm2/s4,\n\
             pid,off,mse_tracking_mm2,1.2,,,cm2,fit\n\
             lqr,off,ms_cab_accel,4.32,,,1e5 mm²/s⁴,hold-out\n\
-            lqr,on,mse_tracking_mm2,150,,,,\n";
+            lqr,on,mse_tracking_mm2,1.5,,,cm2,\n";
         let mut t = parse_table(&p, csv).unwrap();
         assert_eq!((t.cells.len(), t.held_out.len()), (3, 1));
         assert!((t.cells[0].mean - 3.02e5).abs() < 1e-6, "{:?}", t.cells[0]);
