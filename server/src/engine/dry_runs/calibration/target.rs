@@ -178,28 +178,8 @@ pub fn parse_table(params: &StudyParams, csv: &str) -> Result<Target> {
                 header.len()
             )));
         }
-        let kind: CompensatorKind = f[0].parse().map_err(|_| {
-            bad(format!(
-                "controller {:?} is not one of {}",
-                f[0],
-                CompensatorKind::STUDY.map(|k| k.name()).join(", ")
-            ))
-        })?;
-        let seat: Seat = f[1]
-            .parse()
-            .map_err(|_| bad(format!("station {:?}: allowed on, off", f[1])))?;
-        let controller = params
-            .controllers
-            .iter()
-            .position(|c| c.kind() == kind)
-            .filter(|_| params.stations.contains(&seat))
-            .ok_or_else(|| {
-                bad(format!(
-                    "the study runs no {} test at the {} station",
-                    kind.name(),
-                    seat.as_str()
-                ))
-            })?;
+        let (kind, cell) = cell_of(params, f[0], f[1]).map_err(bad)?;
+        let seat = cell.seat;
         let metric = Metric::parse(f[2]).map_err(bad)?;
         let (unit, factor) = match f.get(6).filter(|u| !u.is_empty()) {
             None => metric.units()[0],
@@ -271,7 +251,6 @@ pub fn parse_table(params: &StudyParams, csv: &str) -> Result<Target> {
             ),
             _ => None,
         };
-        let cell = Cell { controller, seat };
         let what = format!("{} at {} ({})", kind.name(), seat.as_str(), metric.name());
         let (same, other) = if hold {
             (&held_out, &cells)
@@ -316,6 +295,37 @@ pub fn parse_table(params: &StudyParams, csv: &str) -> Result<Target> {
     })
 }
 
+/// The study's cell of `controller` at `station` as a table row or a hold-out item names
+/// them, or what is wrong with them.
+fn cell_of(
+    params: &StudyParams,
+    controller: &str,
+    station: &str,
+) -> std::result::Result<(CompensatorKind, Cell), String> {
+    let kind: CompensatorKind = controller.parse().map_err(|_| {
+        format!(
+            "controller {controller:?} is not one of {}",
+            CompensatorKind::STUDY.map(|k| k.name()).join(", ")
+        )
+    })?;
+    let seat: Seat = station
+        .parse()
+        .map_err(|_| format!("station {station:?}: allowed on, off"))?;
+    let controller = params
+        .controllers
+        .iter()
+        .position(|c| c.kind() == kind)
+        .filter(|_| params.stations.contains(&seat))
+        .ok_or_else(|| {
+            format!(
+                "the study runs no {} test at the {} station",
+                kind.name(),
+                seat.as_str()
+            )
+        })?;
+    Ok((kind, Cell { controller, seat }))
+}
+
 /// The table's header, as messages give it.
 const HEADER_FORM: &str = "controller,station,metric,mean with optional sd,n,unit,use (unit: the metric's, e.g. mm2 or 1e5mm2/s4; use: fit or hold-out)";
 
@@ -342,34 +352,13 @@ pub fn hold_out(params: &StudyParams, target: &mut Target, spec: &str) -> Result
                     .into(),
             ));
         }
-        let kind: CompensatorKind = parts[0].parse().map_err(|_| {
-            bad(format!(
-                "controller {:?} is not one of {}",
-                parts[0],
-                CompensatorKind::STUDY.map(|k| k.name()).join(", ")
-            ))
-        })?;
-        let seat: Seat = parts[1]
-            .parse()
-            .map_err(|_| bad(format!("station {:?}: allowed on, off", parts[1])))?;
+        let (kind, cell) = cell_of(params, parts[0], parts[1]).map_err(bad)?;
+        let seat = cell.seat;
         let metric = parts
             .get(2)
             .map(|m| Metric::parse(m))
             .transpose()
             .map_err(bad)?;
-        let controller = params
-            .controllers
-            .iter()
-            .position(|c| c.kind() == kind)
-            .filter(|_| params.stations.contains(&seat))
-            .ok_or_else(|| {
-                bad(format!(
-                    "the study runs no {} test at the {} station",
-                    kind.name(),
-                    seat.as_str()
-                ))
-            })?;
-        let cell = Cell { controller, seat };
         let named = |t: &TargetCell| t.cell == cell && metric.is_none_or(|m| m == t.metric);
         let (out, kept): (Vec<TargetCell>, Vec<TargetCell>) = std::mem::take(&mut target.cells)
             .into_iter()
