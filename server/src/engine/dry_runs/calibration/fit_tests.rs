@@ -256,10 +256,14 @@ mod calibrate {
     }
 
     /// The coverage test's study: pid, pid-shaper and lqr at both stations (6 cells, 12
-    /// rows of the two metrics) with 20 s tests, what a dev-profile test affords twenty
+    /// rows of the two metrics) with 10 s tests, what a dev-profile test affords twenty
     /// fits of.
     fn small_study() -> StudyParams {
-        let mut p = study();
+        let mut p = StudyParams {
+            trial_s: 10.0,
+            practice_s: 10.0,
+            ..study()
+        };
         p.controllers
             .retain(|c| ["pid", "pid-shaper", "lqr"].contains(&c.kind().name()));
         assert_eq!(p.controllers.len(), 3);
