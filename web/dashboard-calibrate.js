@@ -1,5 +1,6 @@
 // Calibration: fit the selected study's synthetic population to a table of cell means (CSV
-// controller,station,metric,mean[,sd,n]) or to the study's own completed tests, by simulated
+// controller,station,metric,mean[,sd,n[,unit[,use]]]) or to the study's own completed tests,
+// with rows held out of the fit (controller:station[:metric], comma-separated), by simulated
 // moments on the server, in the background (POST /api/studies/{id}/calibrate, progress at
 // GET /api/calibration, cancel at POST /api/calibration/cancel). The result is the study's
 // next population version, which its pilots and planner then use.
@@ -24,9 +25,13 @@ function request() {
   }
   const table = $('cal-source').value === 'table' ? $('cal-table').value : null;
   if (table !== null && !table.trim()) {
-    return { error: 'Table: paste CSV with the header controller,station,metric,mean (and optionally sd,n).' };
+    return { error: 'Table: paste CSV with the header controller,station,metric,mean (and optionally sd,n,unit,use).' };
   }
-  return { body: { table, simulated_subjects: subjects, seed: Number($('cal-seed').value) || 0 } };
+  const holdOut = $('cal-hold-out').value.trim();
+  if (holdOut && !holdOut.split(',').every((item) => /^\s*[\w-]+:\s*(on|off)\s*(:\s*\w+\s*)?$/.test(item))) {
+    return { error: 'Hold out: items controller:station[:metric], comma-separated, e.g. lqr:on,pid:on:ms_cab_accel.' };
+  }
+  return { body: { table, hold_out: holdOut || null, simulated_subjects: subjects, seed: Number($('cal-seed').value) || 0 } };
 }
 
 async function start() {
@@ -94,6 +99,8 @@ async function check() {
   }
 }
 
+const range = (c) => (c.low === null || c.low === undefined ? '—' : `${num(c.low)} – ${num(c.high)}`);
+
 const num = (v) => (v === null || v === undefined || Number.isNaN(v) ? '—' : Number(v).toPrecision(4));
 
 /** The fit: its parameters with intervals, the target cells and the predictions. */
@@ -103,17 +110,26 @@ function show(fit) {
     el('tbody', {}, ...fit.parameters.map((p) =>
       el('tr', {}, el('th', {}, p.name), el('td', {}, num(p.before)), el('td', {}, num(p.fitted)), el('td', {}, `${num(p.low)} – ${num(p.high)}`)))));
   // A prediction's "target" column holds what the study's subjects gave (observed, not fitted).
+  const inside = (c) => (c.inside === null || c.inside === undefined ? '' : c.inside ? 'inside' : 'OUTSIDE');
   const cellRows = (cells) => cells.map((c) =>
     el('tr', {}, el('th', {}, `${c.controller} ${c.station}`), el('td', {}, c.metric),
       el('td', {}, c.observed === null || c.observed === undefined ? num(c.target) : `${num(c.observed)} (n ${c.observed_n})`),
-      el('td', {}, num(c.prediction)), el('td', {}, `± ${num(c.monte_carlo_error)}`)));
+      el('td', {}, num(c.prediction)), el('td', {}, `± ${num(c.monte_carlo_error)}`),
+      el('td', { title: c.note || '' }, `${range(c)}${c.note ? ' *' : ''}`), el('td', {}, inside(c))));
+  const heldOut = fit.held_out || [];
   const cells = el('table', { class: 'grid numeric' },
-    el('thead', {}, el('tr', {}, ...['Cell', 'metric', 'target', 'prediction', 'Monte-Carlo error'].map((h) => el('th', {}, h)))),
+    el('thead', {}, el('tr', {}, ...['Cell', 'metric', 'target', 'prediction', 'Monte-Carlo error', '95 % prediction interval', 'held out'].map((h) => el('th', {}, h)))),
     el('tbody', {}, ...cellRows(fit.cells)),
-    el('tbody', {}, el('tr', {}, el('th', { colspan: 5 }, 'Predicted, not in the target (the ratings beside what the subjects gave, never fitted)')), ...cellRows(fit.predictions)));
+    ...(heldOut.length ? [el('tbody', {}, el('tr', {}, el('th', { colspan: 7 }, 'Held out of the fit: predicted, beside the target')), ...cellRows(heldOut))] : []),
+    el('tbody', {}, el('tr', {}, el('th', { colspan: 7 }, 'Predicted, not in the target (the ratings beside what the subjects gave, never fitted; * the metric was never fitted: its model discrepancy is unknown and left out)')), ...cellRows(fit.predictions)));
+  const gof = fit.goodness_of_fit;
   const notes = [
-    el('p', { class: 'muted small' }, `Objective ${num(fit.objective_before)} → ${num(fit.objective)} in ${fit.iterations} iterations, ${fit.simulated_subjects} simulated subjects; intervals: ${fit.intervals}.`),
+    el('p', { class: gof && gof.verdict.startsWith('fits') ? 'status ok' : 'status warn' }, `Verdict: ${gof ? gof.verdict : '—'}.`),
+    el('p', { class: 'muted small' }, `Objective ${num(fit.objective_before)} → ${num(fit.objective)} in ${fit.iterations} iterations, ${fit.simulated_subjects} simulated subjects; intervals: ${fit.intervals}. Prediction intervals: ${fit.prediction_intervals}.`),
   ];
+  if (fit.at_bound && fit.at_bound.length) {
+    notes.push(el('p', { class: 'status warn' }, `At a bound (the fit wanted to go further): ${fit.at_bound.join(', ')}.`));
+  }
   if (fit.not_identified.length) {
     notes.push(el('p', { class: 'status warn' }, `Not identified by this target (left as they were): ${fit.not_identified.join(', ')}.`));
   }

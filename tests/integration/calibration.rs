@@ -5,9 +5,9 @@
 use std::process::Command;
 use std::time::Duration;
 
-use bdft_tests::binary;
 use bdft_tests::exports::parse_csv;
 use bdft_tests::server::{Server, eventually, pilot_copy, short_study};
+use bdft_tests::{TempDir, binary};
 use serde_json::{Value, json};
 
 /// A 10-cell table of tracking error (sd and n) a paper might print.
@@ -251,4 +251,141 @@ fn the_validation_table_is_one_command() {
     );
     // The first 8 answer the surveys: every cell's mean ratings, a row each.
     assert!(text.contains("Surveys of the first 8 subjects"), "{text}");
+}
+
+/// `bdft-server calibrate --hold-out` on a real study: bad input (a table mixing units, a
+/// row held out and fitted, a metric the study does not record, a hold-out item naming no
+/// fitted row) refused naming the row or item, by the command and by the API (422); and a
+/// small fit with rows held out, each printed with its prediction, 95 % interval and the
+/// table's value.
+#[test]
+fn the_calibrate_command_holds_rows_out_and_refuses_bad_ones_naming_them() {
+    let server = Server::start("calibrate-hold-out");
+    let api = server.experimenter();
+    let study = short_study(&api, 10.0, 1.0);
+    let dir = TempDir::new("calibrate-hold-out");
+    let db = server.store();
+    let study_arg = study.to_string();
+    let calibrate = |table: &str, hold_out: Option<&str>| {
+        let path = dir.path().join("table.csv");
+        std::fs::write(&path, table).unwrap();
+        let mut args = vec![
+            "calibrate",
+            "--db",
+            &db,
+            "--study",
+            &study_arg,
+            "--table",
+            path.to_str().unwrap(),
+            "--subjects",
+            "8",
+            "--seed",
+            "2",
+        ];
+        if let Some(h) = hold_out {
+            args.extend(["--hold-out", h]);
+        }
+        Command::new(binary("bdft-server"))
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let head = "controller,station,metric,mean,sd,n,unit,use\n";
+    let fit_rows: String = TABLE
+        .lines()
+        .skip(1)
+        .map(|l| format!("{l},mm2,fit\n"))
+        .collect();
+    let bad: [(String, Option<&str>, &str); 5] = [
+        (
+            format!(
+                "{head}{fit_rows}pid,off,ms_cab_accel,3.02,,,1e5mm2/s4,\npid,on,ms_cab_accel,450000,,,mm2/s4,\n"
+            ),
+            None,
+            "table row 12: ms_cab_accel in mm2/s4, but row 11 gave it in 1e5mm2/s4; a table gives each metric in one unit",
+        ),
+        (
+            format!("{head}{fit_rows}lqr,on,mse_tracking_mm2,150,,,,hold-out\n"),
+            None,
+            "table row 11: lqr at on (mse_tracking_mm2) is held out here and fitted on row 7; a cell is fitted or held out, not both",
+        ),
+        (
+            format!("{head}{fit_rows}lqr,on,rating_accuracy,5,,,,\n"),
+            None,
+            "table row 11: metric \"rating_accuracy\" is not one the study records; allowed mse_tracking_mm2 (mm2), ms_cab_accel (mm2/s4)",
+        ),
+        (
+            format!("{head}{fit_rows}"),
+            Some("lqr:on:ms_cab_accel"),
+            "hold_out item 1 \"lqr:on:ms_cab_accel\": the target has no lqr at on (ms_cab_accel) to hold out",
+        ),
+        (
+            format!("{head}{fit_rows}"),
+            Some("lqr:on,pid:on:speed"),
+            "hold_out item 2 \"pid:on:speed\": metric \"speed\" is not one the study records",
+        ),
+    ];
+    for (table, hold_out, said) in &bad {
+        let out = calibrate(table, *hold_out);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(said), "{said}: {err}");
+        let (code, e) = api.post(
+            &format!("/api/studies/{study}/calibrate"),
+            json!({ "table": table, "hold_out": hold_out, "simulated_subjects": 8 }),
+        );
+        assert_eq!(code, 422, "{e}");
+        assert!(
+            e["error"].as_str().unwrap().starts_with(said),
+            "{said}: {e}"
+        );
+    }
+    let (_, st) = api.get(&format!("/api/studies/{study}"));
+    assert_eq!(st["population_version"], 0, "nothing stored: {st}");
+
+    // Fitted on 8 of the 10 rows; the two held out are predicted beside their targets.
+    let out = calibrate(TABLE, Some("lqr:on, pid:off:mse_tracking_mm2"));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let report: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let fit = &report["fit"];
+    assert_eq!(fit["cells"].as_array().unwrap().len(), 8, "{fit}");
+    let held = fit["held_out"].as_array().unwrap();
+    let want = [("lqr", "on", 170.0), ("pid", "off", 110.0)];
+    assert_eq!(held.len(), want.len(), "{fit}");
+    for (c, (controller, station, target)) in held.iter().zip(want) {
+        assert_eq!(
+            (
+                c["controller"].as_str(),
+                c["station"].as_str(),
+                c["metric"].as_str()
+            ),
+            (Some(controller), Some(station), Some("mse_tracking_mm2")),
+            "{c}"
+        );
+        assert_eq!(c["target"].as_f64(), Some(target), "{c}");
+        let (p, low, high) = (
+            c["prediction"].as_f64().unwrap(),
+            c["low"].as_f64().unwrap(),
+            c["high"].as_f64().unwrap(),
+        );
+        assert!(low < p && p < high, "{c}");
+        assert_eq!(
+            c["inside"].as_bool(),
+            Some(low <= target && target <= high),
+            "{c}"
+        );
+        let line = format!(
+            "held out {controller} {station} mse_tracking_mm2: predicted {p:.4} [{low:.4}, {high:.4}], target {target:.4}: "
+        );
+        assert!(err.contains(&line), "{line} in {err}");
+    }
+    // Neither is among the plain predictions; the verdict is printed and in the report.
+    assert_eq!(
+        fit["predictions"].as_array().unwrap().len(),
+        10 + 40,
+        "cab acceleration in every cell and the ratings: {fit}"
+    );
+    let verdict = fit["goodness_of_fit"]["verdict"].as_str().unwrap();
+    assert!(err.contains(&format!("verdict: {verdict}")), "{err}");
+    assert!(fit["at_bound"].is_array(), "{fit}");
 }

@@ -365,8 +365,8 @@ const LONG_FILES: [(&str, &str); 15] = [
         "the simulated-moments fit, its bootstrap and its profiles share one problem's state",
     ),
     (
-        "server/src/engine/dry_runs/calibration/tests.rs",
-        "the thesis's findings, one test each, over shared cached populations",
+        "server/src/engine/dry_runs/calibration/fit_tests.rs",
+        "the calibration's recovery, coverage and refusals over shared small studies and pilots",
     ),
     (
         "tests/src/server.rs",

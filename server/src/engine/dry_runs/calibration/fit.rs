@@ -20,25 +20,31 @@ use bdft_protocol::trial::Metrics;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
+use super::predict::{
+    AT_BOUND_LOG, GoodnessOfFit, MetricDiscrepancy, Parts, discrepancies, goodness, interval,
+    metric_index, parameter_and_prior, prior_log_sd,
+};
 use super::sim::{Cell, SubjectRef, all_cells, simulate};
 use super::table_error::TableError;
-use super::target::{Metric, Target, mean_sd};
+use super::target::{Metric, Target, TargetCell, mean_sd};
 use crate::engine::dry_runs::job::Progress;
 use crate::error::{AppError, Result};
 
 /// A population parameter the calibration may fit: a median, or the people's spread.
 #[derive(Debug, Clone, Copy)]
-struct Knob {
-    name: &'static str,
-    get: fn(&PopulationParams) -> f64,
-    set: fn(&mut PopulationParams, f64),
-    bounds: (f64, f64),
+pub(super) struct Knob {
+    pub(super) name: &'static str,
+    pub(super) get: fn(&PopulationParams) -> f64,
+    pub(super) set: fn(&mut PopulationParams, f64),
+    pub(super) bounds: (f64, f64),
 }
 
 /// The medians a target of tracking error and cab acceleration moves: the delay (the error
 /// level), the operator's error gain (how fast they correct), the slowing under vibration
-/// (the riding effect) and the body's feedthrough gain (vibration on the machine).
-const MEDIANS: [Knob; 4] = [
+/// (the riding effect) and the body's feedthrough gain (vibration on the machine). Adding a
+/// knob is one entry here: the fit, its intervals, the predictions' Jacobian and prior
+/// ranges and the coverage test's true populations all follow this table.
+pub(super) const MEDIANS: [Knob; 4] = [
     Knob {
         name: "reaction_delay_s",
         get: |p| p.reaction_delay_s.median,
@@ -116,6 +122,17 @@ pub struct CellFit {
     /// The fitted population's simulated mean and its Monte-Carlo standard error.
     pub prediction: f64,
     pub monte_carlo_error: f64,
+    /// The 95 % prediction interval of the mean (`predict`): the fitted parameters'
+    /// uncertainty, the unidentified knobs' prior range, the Monte-Carlo error and the
+    /// metric's model discrepancy where the fit estimated it; for a held-out row also the
+    /// row's own error. None for the ratings, and where the simulation gave no mean.
+    pub low: Option<f64>,
+    pub high: Option<f64>,
+    /// For a held-out row: whether its target lies inside [low, high].
+    pub inside: Option<bool>,
+    /// What the interval leaves out, if anything (a metric never fitted: its discrepancy is
+    /// unknown).
+    pub note: Option<String>,
 }
 
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
@@ -136,6 +153,16 @@ pub struct FitReport {
     /// Every other metric in every cell of the study, predicted by the fitted population:
     /// the honest test of the model.
     pub predictions: Vec<CellFit>,
+    /// The rows held out of the fit: each predicted with its interval, beside its target.
+    pub held_out: Vec<CellFit>,
+    /// The misfit against what the Monte-Carlo and the target's errors allow, and the verdict.
+    pub goodness_of_fit: GoodnessOfFit,
+    /// Every fitted knob that ended within 1 % (in log) of a bound, named with the bound.
+    pub at_bound: Vec<String>,
+    /// Each metric's model discrepancy (method of moments on its fitted cells).
+    pub discrepancy: Vec<MetricDiscrepancy>,
+    /// How the prediction intervals were made.
+    pub prediction_intervals: String,
     #[schema(value_type = Object)]
     pub population: PopulationParams,
 }
@@ -171,9 +198,6 @@ struct Problem<'a> {
     progress: &'a Progress,
     cancel: &'a AtomicBool,
 }
-
-/// The judgement used where a table gives no spread: a cell mean known to ±10 %.
-const DEFAULT_LOG_SE: f64 = 0.1;
 
 impl Problem<'_> {
     fn population(&self, theta: &[f64]) -> PopulationParams {
@@ -213,14 +237,57 @@ impl Problem<'_> {
     /// the knobs `which` (one column each, in that order), by forward differences of
     /// `JACOBIAN_STEP`.
     fn jacobian(&self, theta: &[f64], m: &DVector<f64>, which: &[usize]) -> Result<DMatrix<f64>> {
+        Ok(self.jacobians(theta, m, None, which)?.0)
+    }
+
+    /// `jacobian`, and from the same evaluations the Jacobian of every output's log mean
+    /// (`outputs`; `p` their values at `theta`; an empty matrix without `p`).
+    fn jacobians(
+        &self,
+        theta: &[f64],
+        m: &DVector<f64>,
+        p: Option<&DVector<f64>>,
+        which: &[usize],
+    ) -> Result<(DMatrix<f64>, DMatrix<f64>)> {
         let mut jac = DMatrix::zeros(m.len(), which.len());
+        let mut jac_p = DMatrix::zeros(p.map_or(0, |p| p.len()), which.len());
         for (c, &k) in which.iter().enumerate() {
             let mut th = theta.to_vec();
             th[k] += JACOBIAN_STEP;
-            let (mk, _) = self.moments(&self.run(&th)?);
+            let e = self.run(&th)?;
+            let (mk, _) = self.moments(&e);
             jac.set_column(c, &((mk - m) / JACOBIAN_STEP));
+            if let Some(p) = p {
+                jac_p.set_column(c, &((self.predicted(&e).0 - p) / JACOBIAN_STEP));
+            }
         }
-        Ok(jac)
+        Ok((jac, jac_p))
+    }
+
+    /// Every cell × metric of the study: what the fit predicts (`predicted`' order).
+    fn outputs(&self) -> Vec<(Cell, Metric)> {
+        self.cells
+            .iter()
+            .flat_map(|&c| Metric::ALL.map(|m| (c, m)))
+            .collect()
+    }
+
+    /// Every output's log mean in an evaluation and its Monte-Carlo variance (NaN where the
+    /// simulation gave fewer than two trials).
+    fn predicted(&self, e: &Eval) -> (DVector<f64>, DVector<f64>) {
+        let (mean, var): (Vec<f64>, Vec<f64>) = self
+            .outputs()
+            .into_iter()
+            .map(|(c, m)| {
+                let (mean, se, _) = e.cell(self.index(c), m);
+                if mean > 0.0 {
+                    (mean.ln(), (se / mean).powi(2))
+                } else {
+                    (f64::NAN, f64::NAN)
+                }
+            })
+            .unzip();
+        (DVector::from_vec(mean), DVector::from_vec(var))
     }
 
     /// One damped Gauss–Newton (Levenberg–Marquardt) step of the knobs `free` from `theta`,
@@ -451,7 +518,7 @@ impl Problem<'_> {
                 }
                 _ => {
                     m.push(t.mean.ln());
-                    var.push(DEFAULT_LOG_SE.powi(2));
+                    var.push(t.metric.default_log_se().powi(2));
                 }
             }
         }
@@ -541,6 +608,23 @@ pub fn fit(
     progress: &Progress,
     cancel: &AtomicBool,
 ) -> Result<FitReport> {
+    fit_with(params, target, source, n_sim, seed, true, progress, cancel)
+}
+
+/// `fit`, with the profiles of the `PROFILED` parameters' ends (`profile`) or without (the
+/// linearized bootstrap's intervals; the predictions do not use the profiles, and a
+/// profile costs about as many evaluations as the fit).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn fit_with(
+    params: &StudyParams,
+    target: &Target,
+    source: &str,
+    n_sim: usize,
+    seed: u64,
+    profile: bool,
+    progress: &Progress,
+    cancel: &AtomicBool,
+) -> Result<FitReport> {
     if !(8..=MAX_SUBJECTS).contains(&n_sim) {
         return Err(AppError::BadRequest(format!(
             "simulated_subjects: 8 to {MAX_SUBJECTS}"
@@ -574,6 +658,7 @@ pub fn fit(
     let mut theta: Vec<f64> = before.iter().map(|v| v.ln()).collect();
     let mut eval = problem.run(&theta)?;
     let (mut m, mc) = problem.moments(&eval);
+    let mut p = problem.predicted(&eval).0;
     let w: DVector<f64> = (&t_var + &mc).map(|v| 1.0 / v.max(1e-12));
     let criterion = Criterion {
         target: &t,
@@ -584,11 +669,12 @@ pub fn fit(
     let mut lambda = 1e-2;
     let mut iterations = 0;
     let mut jac;
+    let mut jac_p;
     let mut identified: Vec<usize>;
     let all: Vec<usize> = (0..problem.knobs.len()).collect();
     loop {
         iterations += 1;
-        jac = problem.jacobian(&theta, &m, &all)?;
+        (jac, jac_p) = problem.jacobians(&theta, &m, Some(&p), &all)?;
         // Identified: half an e-fold of the parameter moves the moments by at least one
         // standard error (weighted norm of the column).
         identified = all
@@ -613,6 +699,7 @@ pub fn fit(
                 theta = th;
                 eval = e;
                 m = mt;
+                p = problem.predicted(&eval).0;
                 current = o;
                 lambda = (lambda / 10.0).max(1e-6);
                 accepted = true;
@@ -625,20 +712,44 @@ pub fn fit(
             break;
         }
         if current < 1e-3 {
-            jac = problem.jacobian(&theta, &m, &all)?;
+            (jac, jac_p) = problem.jacobians(&theta, &m, Some(&p), &all)?;
             break;
         }
     }
+    // Each metric's model discrepancy (`predict`), from its fitted moments' misfit; it
+    // enters the intervals' weights (w2) and draws, and the prediction intervals.
+    let moment_metric: Vec<Option<Metric>> = target
+        .cells
+        .iter()
+        .map(|c| Some(c.metric))
+        .chain(std::iter::repeat(None))
+        .take(m.len())
+        .collect();
+    let residual = &m - &t;
+    let tau2 = discrepancies(&moment_metric, &residual, &w, identified.len());
+    let tau2_of = |i: usize| {
+        moment_metric[i]
+            .and_then(|mt| tau2[metric_index(mt)])
+            .unwrap_or(0.0)
+    };
+    let w2 = DVector::from_fn(m.len(), |i, _| 1.0 / (1.0 / w[i] + tau2_of(i)));
+    let criterion2 = Criterion {
+        target: &t,
+        weights: &w2,
+    };
     // Covariance of the identified log-parameters.
     let j = jac.select_columns(identified.iter());
-    let jw = j.transpose() * DMatrix::from_diagonal(&w);
+    let jw = j.transpose() * DMatrix::from_diagonal(&w2);
     let info = &jw * &j;
     let cov = info.clone().try_inverse();
+    // The bootstrap's moves of the identified log-parameters (for the predictions).
+    let mut deltas: Vec<DVector<f64>> = Vec::new();
     // Intervals by a two-sided bootstrap, linearized at the fit: each resample redraws the
     // target (the study's subjects resampled, or the table's cells together from their
     // standard errors and the simulated subjects' correlation between cells: `TableError`)
     // and the simulated subjects (resampled: the Monte-Carlo error, with its correlation
-    // across cells), and moves the fit by the Gauss–Newton step that answers the change.
+    // across cells), adds the metrics' model discrepancy where the fit found one, and moves
+    // the fit by the Gauss–Newton step that answers the change.
     let (low_high, intervals): (Vec<(f64, f64)>, String) = match &cov {
         Some(cov) => {
             let mut rng = Rng::new(seed ^ 0xb007);
@@ -651,11 +762,19 @@ pub fn fit(
                         .map(|_| rows[((rng.next_f64() * n as f64) as usize).min(n - 1)].clone())
                         .collect()
                 };
+            let discrepant = (0..m.len()).any(|i| tau2_of(i) > 0.0);
             for _ in 0..BOOTSTRAP {
                 let tb = match &target.subjects {
                     Some(rows) => {
-                        let boot =
+                        let mut boot =
                             super::target::from_subjects(&problem.cells, resample(rows, &mut rng));
+                        // Only the fitted cells (not the held-out ones).
+                        boot.cells.retain(|b| {
+                            target
+                                .cells
+                                .iter()
+                                .any(|a| a.cell == b.cell && a.metric == b.metric)
+                        });
                         if boot.cells.len() != target.cells.len()
                             || boot
                                 .cells
@@ -669,6 +788,11 @@ pub fn fit(
                     }
                     None => &t + table.draw(&mut rng),
                 };
+                let tb = if discrepant {
+                    tb + DVector::from_fn(m.len(), |i, _| rng.normal() * tau2_of(i).sqrt())
+                } else {
+                    tb
+                };
                 let mb = problem
                     .moments(&Eval {
                         rows: resample(&eval.rows, &mut rng),
@@ -681,6 +805,7 @@ pub fn fit(
                 for (i, d) in delta.iter().enumerate() {
                     draws[i].push(theta[identified[i]] + d);
                 }
+                deltas.push(delta);
             }
             let mut ci: Vec<(f64, f64)> = draws
                 .into_iter()
@@ -699,19 +824,22 @@ pub fn fit(
             let optimum = Optimum {
                 theta: &theta,
                 identified: &identified,
-                criterion: current,
+                criterion: criterion2.of(&m),
                 jac: &jac,
             };
             let mut profiled = "";
             for (i, &k) in identified.iter().enumerate() {
-                if PROFILED.contains(&problem.knobs[k].name) && ci[i].0 > 0.0 && ci[i].1.is_finite()
+                if profile
+                    && PROFILED.contains(&problem.knobs[k].name)
+                    && ci[i].0 > 0.0
+                    && ci[i].1.is_finite()
                 {
                     let ends = problem.profile_ends(
                         &optimum,
                         i,
                         cov[(i, i)],
                         [ci[i].0.ln(), ci[i].1.ln()],
-                        criterion,
+                        criterion2,
                     )?;
                     ci[i] = (ends[0].exp(), ends[1].exp());
                     profiled = "; the delay's and the feedthrough gain's ends then carried onto their profiles (the other identified parameters refitted at each value, each end where the criterion rises above the fit's as far as the linear model's does at the bootstrap's end: the bootstrap's interval where the model is linear, bending with the delay–gain and the feedthrough–slowing ridges where it is not)";
@@ -721,19 +849,27 @@ pub fn fit(
                 "the study's subjects resampled".to_string()
             } else {
                 format!(
-                    "the table's cells redrawn together from their standard errors (sd/√n) with the simulated subjects' correlation of log metric between cells (mean {:.2}{}), as the same people give every cell; a cell without sd and n ±10 % on its own",
+                    "the table's cells redrawn together from their standard errors (sd/√n) with the simulated subjects' correlation of log metric between cells (mean {:.2}{}), as the same people give every cell; a cell without sd and n on its own, by its metric's judged error ({})",
                     table.mean_correlation,
                     if table.shrink > 0.0 {
                         format!(", shrunk by {:.0e} for a factor", table.shrink)
                     } else {
                         String::new()
-                    }
+                    },
+                    Metric::ALL
+                        .map(|m| format!("{} ±{:.0} %", m.name(), 100.0 * m.default_log_se()))
+                        .join(", ")
                 )
+            };
+            let discrepancy = if discrepant {
+                "; each metric's model discrepancy (below) added to its cells' variances and draws"
+            } else {
+                ""
             };
             (
                 ci,
                 format!(
-                    "95 % bootstrap ({BOOTSTRAP} resamples, linearized at the fit): {data}, and the simulated subjects resampled (the Monte-Carlo error){profiled}"
+                    "95 % bootstrap ({BOOTSTRAP} resamples, linearized at the fit): {data}, and the simulated subjects resampled (the Monte-Carlo error){discrepancy}{profiled}"
                 ),
             )
         }
@@ -758,9 +894,74 @@ pub fn fit(
         .filter(|k| !identified.contains(k))
         .map(|k| problem.knobs[k].name.to_string())
         .collect();
+    // The fitted knobs that ended at a bound (within 1 % in log).
+    let at_bound: Vec<String> = identified
+        .iter()
+        .filter_map(|&k| {
+            let knob = &problem.knobs[k];
+            let v = (knob.get)(&population);
+            let (lo, hi) = knob.bounds;
+            if (v / lo).ln().abs() <= AT_BOUND_LOG {
+                Some(format!("{} (at its lower bound {lo})", knob.name))
+            } else if (hi / v).ln().abs() <= AT_BOUND_LOG {
+                Some(format!("{} (at its upper bound {hi})", knob.name))
+            } else {
+                None
+            }
+        })
+        .collect();
     let name = |c: Cell| params.controllers[c.controller].kind().name().to_string();
-    let fit_of = |cell: Cell, metric: Metric, t: Option<&super::target::TargetCell>| {
+    // The goodness of fit: the misfit against χ² with moments − identified parameters.
+    let label = |i: usize| match target.cells.get(i) {
+        Some(c) => format!(
+            "{} {} {}",
+            name(c.cell),
+            c.cell.seat.as_str(),
+            c.metric.name()
+        ),
+        None => "the mean log spread".to_string(),
+    };
+    let worst: Vec<(String, f64)> = (0..m.len())
+        .map(|i| (label(i), residual[i] * w[i].sqrt()))
+        .collect();
+    let goodness_of_fit = goodness(
+        current,
+        m.len() as i64 - identified.len() as i64,
+        &worst,
+        &at_bound,
+    );
+    // Every output's prediction interval (`predict`).
+    let outputs = problem.outputs();
+    let (_, p_mc) = problem.predicted(&eval);
+    let prior_sd: Vec<f64> = problem
+        .knobs
+        .iter()
+        .map(|k| prior_log_sd((k.get)(&population), k.bounds))
+        .collect();
+    let spread = parameter_and_prior(&jac_p, &identified, &deltas, &prior_sd);
+    let fit_of = |cell: Cell, metric: Metric, t: Option<&TargetCell>, held: bool| {
         let (mean, se, _) = eval.cell(problem.index(cell), metric);
+        let o = outputs
+            .iter()
+            .position(|&x| x == (cell, metric))
+            .expect("an output");
+        let discrepancy = tau2[metric_index(metric)];
+        // A held-out row's own error: its log mean's standard error.
+        let own = match t {
+            Some(t) if held => match (t.sd, t.n) {
+                (Some(sd), Some(n)) if t.log.is_some() => (sd / t.mean).powi(2) / n as f64,
+                _ => metric.default_log_se().powi(2),
+            },
+            _ => 0.0,
+        };
+        let parts = Parts {
+            parameters: spread[o].0,
+            prior: spread[o].1,
+            monte_carlo: p_mc[o],
+            discrepancy: discrepancy.unwrap_or(0.0),
+            target: own,
+        };
+        let range = interval(mean, parts.total());
         CellFit {
             controller: name(cell),
             station: cell.seat.as_str().to_string(),
@@ -772,20 +973,48 @@ pub fn fit(
             observed_n: None,
             prediction: mean,
             monte_carlo_error: se,
+            low: range.map(|r| r.0),
+            high: range.map(|r| r.1),
+            inside: t
+                .filter(|_| held)
+                .and_then(|t| range.map(|r| r.0 <= t.mean && t.mean <= r.1)),
+            note: discrepancy.is_none().then(|| {
+                format!(
+                    "{} was not in the fitted target: its model discrepancy is unknown, and the interval leaves it out",
+                    metric.name()
+                )
+            }),
         }
     };
     let cells = target
         .cells
         .iter()
-        .map(|t| fit_of(t.cell, t.metric, Some(t)))
+        .map(|t| fit_of(t.cell, t.metric, Some(t), false))
         .collect();
-    let predictions = problem
-        .cells
+    let held_out = target
+        .held_out
         .iter()
-        .flat_map(|&c| Metric::ALL.map(|m| (c, m)))
-        .filter(|(c, m)| !target.cells.iter().any(|t| t.cell == *c && t.metric == *m))
-        .map(|(c, m)| fit_of(c, m, None))
+        .map(|t| fit_of(t.cell, t.metric, Some(t), true))
         .collect();
+    let in_target =
+        |c: Cell, m: Metric, rows: &[TargetCell]| rows.iter().any(|t| t.cell == c && t.metric == m);
+    let predictions = outputs
+        .iter()
+        .filter(|&&(c, m)| !in_target(c, m, &target.cells) && !in_target(c, m, &target.held_out))
+        .map(|&(c, m)| fit_of(c, m, None, false))
+        .collect();
+    let discrepancy = Metric::ALL
+        .iter()
+        .map(|&mt| MetricDiscrepancy {
+            metric: mt.name().to_string(),
+            fitted_cells: target.cells.iter().filter(|c| c.metric == mt).count(),
+            log_sd: tau2[metric_index(mt)].map(f64::sqrt),
+        })
+        .collect();
+    let prediction_intervals = format!(
+        "95 % on the log scale, the log mean ± 1.96 √(sum of variances): the identified parameters' bootstrap draws through the Jacobian of every cell × metric's log mean (forward differences, step {JACOBIAN_STEP} in log), each unidentified knob's prior range (its value ×/÷ {} within its bounds, as a 95 % range) through the same Jacobian, the Monte-Carlo error, the metric's model discrepancy where its cells were fitted (unknown, left out and noted, for a metric never fitted), and for a held-out row its own error (sd/√n of the mean, else its metric's judged error); the knobs the calibration never fits are taken as known",
+        super::predict::PRIOR_FACTOR
+    );
     Ok(FitReport {
         source: source.to_string(),
         simulated_subjects: n_sim,
@@ -797,6 +1026,11 @@ pub fn fit(
         intervals,
         cells,
         predictions,
+        held_out,
+        goodness_of_fit,
+        at_bound,
+        discrepancy,
+        prediction_intervals,
         population,
     })
 }

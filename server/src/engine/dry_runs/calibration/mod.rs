@@ -2,6 +2,7 @@
 
 pub mod findings;
 pub mod fit;
+pub mod predict;
 pub mod ratings;
 pub mod run;
 pub mod sim;
@@ -9,5 +10,7 @@ pub mod surveys;
 pub mod table_error;
 pub mod target;
 
+#[cfg(test)]
+mod fit_tests;
 #[cfg(test)]
 mod tests;

@@ -70,6 +70,10 @@ pub fn predicted(
                 observed_n: observed.map(|o| o.1),
                 prediction: a.mean_ratings[i],
                 monte_carlo_error: a.sd_ratings[i] / (a.n.max(1) as f64).sqrt(),
+                low: None,
+                high: None,
+                inside: None,
+                note: None,
             });
         }
     }

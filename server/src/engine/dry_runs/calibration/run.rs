@@ -13,7 +13,7 @@ use sqlx::AnyPool;
 use super::fit::{FitReport, check_enough, fit};
 use super::ratings::{PeopleRated, predicted};
 use super::sim::all_cells;
-use super::target::{Target, from_subjects, parse_table};
+use super::target::{Target, from_subjects, hold_out, parse_table};
 use crate::engine::dry_runs::job::{Job, JobStatus, Progress};
 use crate::error::{AppError, Result};
 use crate::store::exports::Withdrawn;
@@ -23,10 +23,16 @@ use crate::store::{self, Change};
 #[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CalibrateRequest {
-    /// A table of cell means, CSV `controller,station,metric,mean[,sd,n]`; absent: the
-    /// study's own completed tests.
+    /// A table of cell means, CSV `controller,station,metric,mean[,sd,n[,unit[,use]]]`
+    /// (unit: the metric's, e.g. mm2, 1e5mm2/s4; use: fit or hold-out); absent: the study's
+    /// own completed tests.
     #[serde(default)]
     pub table: Option<String>,
+    /// Rows of the target left out of the fit and predicted: comma-separated
+    /// `controller:station[:metric]` (no metric: every metric of the cell), e.g.
+    /// `lqr:on,pid:on:ms_cab_accel`.
+    #[serde(default)]
+    pub hold_out: Option<String>,
     /// Simulated subjects per evaluation (8 to 512) [default 48].
     #[serde(default = "default_subjects")]
     pub simulated_subjects: usize,
@@ -145,6 +151,10 @@ pub async fn prepare(pool: &AnyPool, study_id: i64, req: CalibrateRequest) -> Re
             )
         }
     };
+    let mut target = target;
+    if let Some(spec) = &req.hold_out {
+        hold_out(&study.params, &mut target, spec)?;
+    }
     check_enough(&target)?;
     Ok(Prepared {
         study,
