@@ -2,8 +2,9 @@
 
 use std::path::PathBuf;
 
+use super::open_store;
 use crate::config::DbConfig;
-use crate::engine::operations::{audit_signing, backup};
+use crate::engine::operations::backup;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -20,8 +21,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     if !path.is_file() {
         anyhow::bail!("--db {}: no such database", path.display());
     }
-    audit_signing::use_key_if_present(&db.db)?;
-    let pool = db.db.open().await?;
+    let pool = open_store(&db).await?;
     let made = backup::make(&pool, &out, backup::COMMAND_LINE)
         .await
         .map_err(|e| anyhow::anyhow!(e.describe()))?;

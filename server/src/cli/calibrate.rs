@@ -4,11 +4,10 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 
-use super::{newest_study, progress_ticker};
+use super::{newest_study, open_store, progress_ticker};
 use crate::config::DbConfig;
 use crate::engine::dry_runs::calibration::fit::FitReport;
 use crate::engine::dry_runs::calibration::run::{CalibrateRequest, calibrate};
-use crate::engine::operations::audit_signing;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -49,8 +48,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         subjects,
         seed,
     } = args;
-    audit_signing::use_key_if_present(&db.db)?;
-    let pool = db.db.open().await?;
+    let pool = open_store(&db).await?;
     let study = newest_study(&pool, study).await?;
     let table = match table {
         Some(path) => Some(

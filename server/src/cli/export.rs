@@ -4,9 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 
-use super::newest_study;
+use super::{newest_study, open_store};
 use crate::config::DbConfig;
-use crate::engine::operations::audit_signing;
 use crate::engine::results::export;
 use crate::engine::results::export::{ExportFormat, ExportKind, ExportRequest, SampleCut, bids};
 
@@ -76,8 +75,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
                     "--format, --subject, --trial: a BIDS dataset is every recorded test of the study, as TSV; give none of them with --kind bids"
                 );
             }
-            audit_signing::use_key_if_present(&db.db)?;
-            let pool = db.db.open().await?;
+            let pool = open_store(&db).await?;
             let study = newest_study(&pool, study).await?;
             let mut sink = bids::DirSink::create(&out)?;
             let written = bids::write(&pool, study, &mut sink).await?;
@@ -90,8 +88,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
                 format,
                 cut: SampleCut::from_options(subject, trial)?,
             };
-            audit_signing::use_key_if_present(&db.db)?;
-            let pool = db.db.open().await?;
+            let pool = open_store(&db).await?;
             let study = if kind.per_study() {
                 newest_study(&pool, study).await?
             } else {

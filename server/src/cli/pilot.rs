@@ -2,10 +2,9 @@
 
 use std::path::PathBuf;
 
-use super::{newest_study, read_params};
+use super::{newest_study, open_store, read_params};
 use crate::config::DbConfig;
 use crate::engine::dry_runs::pilot;
-use crate::engine::operations::audit_signing;
 use crate::store;
 
 #[derive(Debug, clap::Args)]
@@ -47,8 +46,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         identification,
         personalized,
     } = args;
-    audit_signing::use_key_if_present(&db.db)?;
-    let pool = db.db.open().await?;
+    let pool = open_store(&db).await?;
     let identification = identification || personalized;
     let with_identification = |mut p: bdft_protocol::study::StudyParams| {
         if identification && p.identification.is_none() {

@@ -1,9 +1,8 @@
 //! `bdft-server plan`: the power planner's report for a study.
 
-use super::{newest_study, progress_ticker};
+use super::{newest_study, open_store, progress_ticker};
 use crate::config::DbConfig;
 use crate::engine::dry_runs::power::{self, PlanRequest, PlanSource};
-use crate::engine::operations::audit_signing;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -53,8 +52,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         alpha,
         seed,
     } = args;
-    audit_signing::use_key_if_present(&db.db)?;
-    let pool = db.db.open().await?;
+    let pool = open_store(&db).await?;
     let study = newest_study(&pool, study).await?;
     let req = PlanRequest {
         source: match source {
