@@ -9,7 +9,8 @@
 //!
 //! Files beside the layers:
 //!
-//! - `main.rs` → `cli.rs`: `bdft-server`'s commands — `serve` (the default), `pilot`, `plan`,
+//! - `main.rs` → `cli/` (one module per command, `mod.rs` the list and the dispatch):
+//!   `bdft-server`'s commands — `serve` (the default), `pilot`, `plan`,
 //!   `calibrate`, `findings`, `export`, `backup`, `restore`, `audit verify`, and the hidden
 //!   `controller`, which is how `serve` starts its controller from the same executable.
 //! - `config.rs` — every setting as one `clap::Args` struct per command with its environment
