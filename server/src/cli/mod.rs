@@ -147,7 +147,7 @@ fn read_params(path: &std::path::Path) -> anyhow::Result<bdft_protocol::study::S
 /// process's chain key, so the command's audit entries are keyed as the server's are.
 async fn open_store(db: &crate::config::DbConfig) -> anyhow::Result<sqlx::AnyPool> {
     crate::engine::operations::audit_signing::use_key_if_present(&db.db)?;
-    Ok(db.db.open().await?)
+    db.db.open().await
 }
 
 async fn newest_study(pool: &sqlx::AnyPool, study: Option<i64>) -> anyhow::Result<i64> {
