@@ -478,6 +478,18 @@ fn an_unidentified_parameter_is_empty_in_the_exports_and_not_identified_on_the_d
         "{fit}"
     );
     assert!(fit["k_h"]["value"].is_f64() && fit["k_h"]["not_identified"].is_null());
+    // A body with a parameter not identified is no one's: the Bode plot draws no fitted
+    // curve, and the stability of the designs for it is refused, saying which and why —
+    // never analysed (nor printed) with the absurd values stored.
+    assert_eq!(view["fitted"], json!([]), "{view}");
+    let (code, st) = api.get(&format!("/api/subjects/{subject}/stability"));
+    assert_eq!(code, 409, "{st}");
+    let why = st.to_string();
+    assert!(
+        why.contains("torso_") && why.contains("not identified"),
+        "{st}"
+    );
+    assert!(!why.contains("4.36e-8") && !why.contains("e308"), "{st}");
 
     // The subjects export: every number a finite number, the unidentified ones empty, and
     // the status saying why.
