@@ -31,10 +31,10 @@
 //! the operator's bandwidth and passes through uncorrected.
 
 pub use bdft_protocol::identification::IdentificationTask;
-pub use bdft_protocol::params::OperatorParams;
+pub use bdft_protocol::params::{MOTOR_NOISE_CORNER_HZ, OperatorParams};
 
 use crate::error::ParamError;
-use crate::filters::Biquad;
+use crate::filters::{Biquad, FirstOrder};
 use crate::params::check;
 use crate::rng::Rng;
 
@@ -58,6 +58,12 @@ pub fn shake_filter(dt: f64) -> Biquad {
 /// The operator's neuromuscular lag ω²/(s² + 2ζωs + ω²) at corner `w` (rad/s).
 pub(crate) fn neuromuscular_lag(w: f64, zeta: f64, dt: f64) -> Biquad {
     Biquad::tustin([0.0, 0.0, w * w], [1.0, 2.0 * zeta * w, w * w], dt, None)
+}
+
+/// The motor noise's first-order lag ω/(s + ω) at `MOTOR_NOISE_CORNER_HZ`.
+pub(crate) fn motor_lag(dt: f64) -> FirstOrder {
+    let w = 2.0 * std::f64::consts::PI * MOTOR_NOISE_CORNER_HZ;
+    FirstOrder::tustin([0.0, w], [1.0, w], dt, None)
 }
 
 /// Time constant of the operator's running impressions of shake and vibration (s).
@@ -98,24 +104,34 @@ pub struct SyntheticOperator {
     grip_countdown: u32,
     /// White-noise standard deviation before the lag that gives remnant_std_mm after it.
     pub(crate) remnant_in_std: f64,
+    /// The motor noise's lag (`motor_lag`), and the standard deviation before it that gives
+    /// motor_noise_mm after it. The motor noise is the remnant's own white deviate, shaped
+    /// a second way: one noise source whose spectrum has the arm's slow part and a part flat
+    /// to the tremor band.
+    pub(crate) motor: FirstOrder,
+    pub(crate) motor_in_std: f64,
     pub(crate) rng: Rng,
 }
 
-/// Σh² of the discrete lag's impulse response: the fraction of a white input's variance it
-/// passes.
-fn variance_gain(lag: &Biquad) -> f64 {
-    let mut f = *lag;
-    f.reset();
-    let mut sum = f.step(1.0).powi(2);
+/// Σh² of a discrete lag's impulse response (`step` the lag's tick from rest): the fraction
+/// of a white input's variance it passes.
+fn variance_gain(mut step: impl FnMut(f64) -> f64) -> f64 {
+    let mut sum = step(1.0).powi(2);
     // The response decays as e^(−ζω t); 60 time constants leave less than 1e-50 of it.
     for _ in 0..200_000 {
-        let h = f.step(0.0);
+        let h = step(0.0);
         sum += h * h;
         if h.abs() < 1e-30 && sum > 0.0 {
             break;
         }
     }
     sum
+}
+
+/// The arm's lag from rest, as a tick.
+fn from_rest(mut lag: Biquad) -> impl FnMut(f64) -> f64 {
+    lag.reset();
+    move |u| lag.step(u)
 }
 
 impl SyntheticOperator {
@@ -125,6 +141,7 @@ impl SyntheticOperator {
         let delay = (params.reaction_delay_s / dt).round() as usize;
         let (w, z) = (params.neuromuscular_w, params.neuromuscular_zeta);
         let arm = neuromuscular_lag(w, z, dt);
+        let motor = motor_lag(dt);
         Ok(Self {
             params,
             dt,
@@ -144,7 +161,15 @@ impl SyntheticOperator {
             slowed: 1.0,
             withheld: 0.0,
             grip_countdown: GRIP_EVERY,
-            remnant_in_std: params.remnant_std_mm / variance_gain(&arm).sqrt(),
+            remnant_in_std: params.remnant_std_mm / variance_gain(from_rest(arm)).sqrt(),
+            motor,
+            motor_in_std: params.motor_noise_mm
+                / variance_gain({
+                    let mut m = motor;
+                    m.reset();
+                    move |u| m.step(u)
+                })
+                .sqrt(),
             rng: Rng::derive(seed, Rng::OPERATOR),
         })
     }
@@ -173,19 +198,28 @@ impl SyntheticOperator {
         // calm (withheld = 0), the command is exactly the pursuit t_seen + gain·e.
         let command =
             (t_seen + gain * e - self.withheld * (1.0 + gain) * e + self.integral) / self.k_bf;
-        let noise = self.remnant();
-        self.arm.step(command + noise)
+        let d = self.deviate();
+        let noise = self.shaken * self.remnant_in_std * d;
+        let motor = self.shaken * self.motor.step(self.motor_in_std * d);
+        self.arm.step(command + noise) + motor
+    }
+
+    /// Whether the operator draws a noise deviate each tick.
+    pub(crate) fn noisy(&self) -> bool {
+        self.remnant_in_std > 0.0 || self.motor_in_std > 0.0
     }
 
     /// One tick of the identification test (`holding`): the operator tracks nothing and
     /// holds the device at its centre, so the intended hand position is the remnant alone,
-    /// through the neuromuscular lag. Felt vibration still grows the remnant, slows the arm
-    /// and — holding still — stiffens the grip as in tracking; relaxed, the grip stays 1.
+    /// through the neuromuscular lag — no motor noise, which is the noise of active
+    /// corrections (signal-dependent: Harris & Wolpert). Felt vibration still grows the
+    /// remnant, slows the arm and — holding still — stiffens the grip as in tracking;
+    /// relaxed, the grip stays 1.
     #[inline]
     pub fn hold(&mut self, felt_accel: f64) -> f64 {
         self.feel(felt_accel);
-        let noise = self.remnant();
-        self.arm.step(noise)
+        let d = self.deviate();
+        self.arm.step(self.shaken * self.remnant_in_std * d)
     }
 
     /// Sets the task of an identification test (what `hold` does with the grip).
@@ -222,14 +256,11 @@ impl SyntheticOperator {
         }
     }
 
-    /// This tick's remnant, before the lag (mm of intended hand position).
+    /// This tick's standard-normal noise deviate (0 for an operator without noise, which
+    /// draws none).
     #[inline]
-    fn remnant(&mut self) -> f64 {
-        if self.remnant_in_std > 0.0 {
-            self.shaken * self.remnant_in_std * self.rng.normal()
-        } else {
-            0.0
-        }
+    fn deviate(&mut self) -> f64 {
+        if self.noisy() { self.rng.normal() } else { 0.0 }
     }
 
     /// How hard the operator grips now: the factor on a seated body's arm frequency.
@@ -293,6 +324,36 @@ mod tests {
         assert_ne!(a, run(4));
         let (_, std) = crate::signals::mean_std(&a[10_000..]);
         assert!((std - 2.0).abs() < 0.15, "{std}");
+    }
+
+    #[test]
+    fn motor_noise_has_its_spread_and_the_first_order_lags_correlation() {
+        // Motor noise alone: white noise through the Tustin first-order lag ω/(s + ω) at
+        // 8 Hz. Its impulse response is b, b(1 + a)a^(k−1) with a = (c − ω)/(c + ω),
+        // c = 2/dt, so the lag-one autocorrelation is (1 + a)/2 (γ₁/γ₀ summed in closed
+        // form); the remnant's second-order lag at 12 rad/s would give nearly 1.
+        let p = OperatorParams {
+            motor_noise_mm: 0.7,
+            ..quiet()
+        };
+        let dt = 1e-3;
+        let mut op = SyntheticOperator::new(p, dt, 1.0, 5).unwrap();
+        let out: Vec<f64> = (0..400_000).map(|_| op.step(0.0, 0.0, 0.0)).collect();
+        let x = &out[1_000..];
+        let (mean, std) = crate::signals::mean_std(x);
+        assert!((std - 0.7).abs() < 0.02, "{std}");
+        let lag1 = x
+            .windows(2)
+            .map(|w| (w[0] - mean) * (w[1] - mean))
+            .sum::<f64>()
+            / (x.len() - 1) as f64
+            / (std * std);
+        let (c, w) = (2.0 / dt, 2.0 * std::f64::consts::PI * 8.0);
+        let a = (c - w) / (c + w);
+        assert!((lag1 - (1.0 + a) / 2.0).abs() < 0.003, "{lag1}");
+        // Holding still (the identification test), there is no motor noise.
+        let mut held = SyntheticOperator::new(p, dt, 1.0, 5).unwrap();
+        assert!((0..10_000).all(|_| held.hold(0.0) == 0.0));
     }
 
     /// sin(2π·f·t).

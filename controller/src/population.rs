@@ -69,6 +69,7 @@ pub fn draw(pop: &PopulationParams, seed: u64) -> SubjectDraw {
         &pop.vibration_regression_per_m_s2,
         bounds::VIBRATION_REGRESSION_PER_M_S2,
     );
+    let motor_noise_mm = at(&mut rng, &pop.motor_noise_mm, bounds::MOTOR_NOISE_MM);
     let drawn_body = pop.body == BodySource::Drawn;
     let body_or_zero = |v: f64| if drawn_body { v } else { 0.0 };
     SubjectDraw {
@@ -91,6 +92,7 @@ pub fn draw(pop: &PopulationParams, seed: u64) -> SubjectDraw {
         vibration_remnant_per_m_s2,
         vibration_slowing_per_m_s2,
         vibration_regression_per_m_s2,
+        motor_noise_mm,
         survey_bias_points,
         survey_noise_points: pop.survey_noise_sd,
     }
@@ -138,6 +140,7 @@ pub fn operator(d: &SubjectDraw, position: u32, hours_on_task: f64) -> OperatorP
         vibration_remnant_per_m_s2: d.vibration_remnant_per_m_s2,
         vibration_slowing_per_m_s2: d.vibration_slowing_per_m_s2,
         vibration_regression_per_m_s2: d.vibration_regression_per_m_s2,
+        motor_noise_mm: (d.motor_noise_mm * (1.0 + u + f)).min(bounds::MOTOR_NOISE_MM.1),
     }
 }
 

@@ -3,7 +3,7 @@
 
 use crate::operator::{GRIP_EVERY, SyntheticOperator, neuromuscular_lag};
 
-use super::rig::BiquadLanes;
+use super::rig::{BiquadLanes, FirstOrderLanes};
 use super::{LANES, Lanes, ZERO};
 
 #[derive(Debug, Clone)]
@@ -18,6 +18,8 @@ pub(crate) struct OperatorLanes {
     neuromuscular_w: Lanes,
     neuromuscular_zeta: Lanes,
     remnant_in_std: Lanes,
+    motor_in_std: Lanes,
+    motor: FirstOrderLanes,
     k_bf: Lanes,
     dt: f64,
     impression_a: f64,
@@ -60,6 +62,8 @@ impl OperatorLanes {
             neuromuscular_w: lanes(|o| o.params.neuromuscular_w),
             neuromuscular_zeta: lanes(|o| o.params.neuromuscular_zeta),
             remnant_in_std: lanes(|o| o.remnant_in_std),
+            motor_in_std: lanes(|o| o.motor_in_std),
+            motor: FirstOrderLanes::new(ops[0].motor),
             k_bf: lanes(|o| o.k_bf),
             dt: ops[0].dt,
             impression_a: ops[0].impression_a,
@@ -138,6 +142,11 @@ impl OperatorLanes {
         }
 
         let mut input = ZERO;
+        let mut motor_in = ZERO;
+        for l in 0..LANES {
+            motor_in[l] = self.motor_in_std[l] * deviates[l];
+        }
+        let motor = self.motor.step(&motor_in);
         for l in 0..LANES {
             let e = t_seen[l] - y_seen[l];
             let gain =
@@ -148,6 +157,10 @@ impl OperatorLanes {
                 / self.k_bf[l];
             input[l] = command + self.shaken[l] * self.remnant_in_std[l] * deviates[l];
         }
-        (self.arm.step(&input), regripped)
+        let mut hand = self.arm.step(&input);
+        for l in 0..LANES {
+            hand[l] += self.shaken[l] * motor[l];
+        }
+        (hand, regripped)
     }
 }

@@ -74,18 +74,18 @@ impl BiquadLanes {
 
 /// A first-order section with one design for all lanes.
 #[derive(Debug, Clone)]
-struct FirstOrderLanes {
+pub(crate) struct FirstOrderLanes {
     f: FirstOrder,
     z: Lanes,
 }
 
 impl FirstOrderLanes {
-    fn new(f: FirstOrder) -> Self {
+    pub(crate) fn new(f: FirstOrder) -> Self {
         Self { f, z: [f.z; LANES] }
     }
 
     #[inline(always)]
-    fn step(&mut self, u: &Lanes) -> Lanes {
+    pub(crate) fn step(&mut self, u: &Lanes) -> Lanes {
         let FirstOrder { b0, b1, a1, .. } = self.f;
         let mut y = ZERO;
         for l in 0..LANES {

@@ -12,7 +12,8 @@ use crate::runtime::local;
 const DT: f64 = 1e-3;
 
 /// Lane `l`'s subject: delays from 0.15 to 0.36 s (rings of different lengths), gains,
-/// remnant (none in lane 2), shake aversion and grip all different.
+/// remnant (none in lane 2), motor noise (none in lane 3), shake aversion and grip all
+/// different.
 fn operator(l: usize) -> OperatorParams {
     let x = l as f64 / (LANES - 1) as f64;
     OperatorParams {
@@ -27,6 +28,7 @@ fn operator(l: usize) -> OperatorParams {
         vibration_remnant_per_m_s2: 1.0 - x,
         vibration_slowing_per_m_s2: 2.0 * x,
         vibration_regression_per_m_s2: 4.0 * (1.0 - x),
+        motor_noise_mm: if l == 3 { 0.0 } else { 0.1 + 0.4 * x },
     }
 }
 

@@ -260,7 +260,7 @@ impl BatchTrial {
         let lanes = runners.iter().map(lane).collect::<Result<Vec<_>, _>>()?;
         let deviates = ScalarDeviates {
             remnant: std::array::from_fn(|l| {
-                (lanes[l].operator.remnant_in_std > 0.0).then_some(lanes[l].operator.rng)
+                lanes[l].operator.noisy().then_some(lanes[l].operator.rng)
             }),
             accel: std::array::from_fn(|l| {
                 let p = &lanes[l].rig.plant;

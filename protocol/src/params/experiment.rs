@@ -40,7 +40,18 @@ pub struct OperatorParams {
     /// 1/(1 + x·felt). McRuer: in a disturbing task people lower their crossover; unlike
     /// the slowing it leaves the arm's filtering of its own 4–6 Hz output as it was.
     pub vibration_regression_per_m_s2: f64,
+    /// Motor noise of active tracking at the hand (mm, standard deviation): white noise
+    /// through a first-order lag at `MOTOR_NOISE_CORNER_HZ`, added after the arm's
+    /// neuromuscular lag, so its spectrum stays flat up to the tremor band where the
+    /// remnant's falls off (Levison's motor noise on the control rate; the submovements'
+    /// edges). It is what a desk operator's corrections put into the cab modes; 0 = none,
+    /// as for an operator set up before it existed.
+    pub motor_noise_mm: f64,
 }
+
+/// Corner of the motor noise's first-order lag (Hz): physiological tremor and the edges of
+/// submovements reach 6–12 Hz (shared/docs/person-model-evidence.md §2–3).
+pub const MOTOR_NOISE_CORNER_HZ: f64 = 8.0;
 
 impl Default for OperatorParams {
     fn default() -> Self {
@@ -56,6 +67,7 @@ impl Default for OperatorParams {
             vibration_remnant_per_m_s2: 0.5,
             vibration_slowing_per_m_s2: 0.0,
             vibration_regression_per_m_s2: 0.0,
+            motor_noise_mm: 0.0,
         }
     }
 }
@@ -117,6 +129,11 @@ impl OperatorParams {
                 (0.0, 10.0),
             ),
             ("operator.remnant_std_mm", self.remnant_std_mm, (0.0, 50.0)),
+            (
+                "operator.motor_noise_mm",
+                self.motor_noise_mm,
+                MOTOR_NOISE_MM,
+            ),
         ];
         for (name, value, (low, high)) in checks {
             check(name, value, low, high)?;

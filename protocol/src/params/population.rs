@@ -105,6 +105,10 @@ pub struct PopulationParams {
     /// before it existed has none (a study keeps the behaviour it was locked with).
     #[serde(default = "Spread::none")]
     pub vibration_regression_per_m_s2: Spread,
+    /// Motor noise of active tracking at the hand (mm; `OperatorParams::motor_noise_mm`). A
+    /// population stored before it existed has none.
+    #[serde(default = "Spread::none")]
+    pub motor_noise_mm: Spread,
     /// Survey: the subject's own offset on the rating scale (points, normal with this
     /// standard deviation around 0) and the noise of each answer (points).
     pub survey_bias_sd: f64,
@@ -141,6 +145,10 @@ impl Default for PopulationParams {
             vibration_remnant_per_m_s2: Spread::new(0.5, 0.5),
             vibration_slowing_per_m_s2: Spread::new(SLOWING_MEDIAN, 0.5),
             vibration_regression_per_m_s2: Spread::new(REGRESSION_MEDIAN, 0.2),
+            // None by default: at the level the desk's vibration asks for, the riding
+            // loop amplifies it past the interlock (docs/synthetic-subjects.md, "What it
+            // does not reproduce"); a calibration can fit it.
+            motor_noise_mm: Spread::none(),
             survey_bias_sd: 0.7,
             survey_noise_sd: 0.5,
         }
@@ -179,12 +187,13 @@ pub mod bounds {
     pub const VIBRATION_REMNANT_PER_M_S2: (f64, f64) = (0.0, 10.0);
     pub const VIBRATION_SLOWING_PER_M_S2: (f64, f64) = (0.0, 10.0);
     pub const VIBRATION_REGRESSION_PER_M_S2: (f64, f64) = (0.0, 20.0);
+    pub const MOTOR_NOISE_MM: (f64, f64) = (0.0, 10.0);
 }
 
 impl PopulationParams {
     pub fn validate(&self) -> Result<(), ParamError> {
         use bounds::*;
-        let spreads: [(&'static str, &Spread, (f64, f64)); 19] = [
+        let spreads: [(&'static str, &Spread, (f64, f64)); 20] = [
             (
                 "population.reaction_delay_s",
                 &self.reaction_delay_s,
@@ -256,6 +265,11 @@ impl PopulationParams {
                 &self.vibration_regression_per_m_s2,
                 VIBRATION_REGRESSION_PER_M_S2,
             ),
+            (
+                "population.motor_noise_mm",
+                &self.motor_noise_mm,
+                MOTOR_NOISE_MM,
+            ),
         ];
         for (name, s, (lo, hi)) in spreads {
             s.validate(name, lo, hi)?;
@@ -295,6 +309,9 @@ pub struct SubjectDraw {
     /// 0 for a subject drawn before the operator's crossover regression under vibration.
     #[serde(default)]
     pub vibration_regression_per_m_s2: f64,
+    /// 0 for a subject drawn before the operator's motor noise.
+    #[serde(default)]
+    pub motor_noise_mm: f64,
     pub survey_bias_points: f64,
     pub survey_noise_points: f64,
 }

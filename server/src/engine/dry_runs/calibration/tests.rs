@@ -169,6 +169,49 @@ fn people_rarely_trip_the_interlock() {
 }
 
 #[test]
+fn the_feedthrough_loop_shakes_the_lqr_most_and_the_compensators_cut_it() {
+    // The same 200 subjects coupled and with the body's coupling set to zero (`findings
+    // --subjects 200` prints the table): the share of on-machine vibration the feedthrough
+    // loop carries is largest with the LQR, the design closest to its feedthrough stability
+    // limit, and smaller with each design that cuts the loop at the cab modes.
+    let subjects = enrolled(1, 200);
+    let params = default_params();
+    // Every cell on the machine, and the PID's at the desk.
+    let cells: Vec<_> = all_cells(&params)
+        .into_iter()
+        .filter(|c| c.seat == Seat::On || c.controller == 0)
+        .collect();
+    let run = |p: &StudyParams| {
+        let rows = simulate(
+            p,
+            &subjects,
+            &cells,
+            &Progress::default(),
+            &AtomicBool::new(false),
+        )
+        .unwrap();
+        super::findings::summarize(p, &cells, &rows)
+    };
+    let (coupled, uncoupled) = (run(&params), run(&super::findings::uncoupled(&params)));
+    let share = |k: &str| {
+        let ms = |f: &Findings| cell(f, k, Seat::On).mean_ms_cab_accel;
+        1.0 - ms(&uncoupled) / ms(&coupled)
+    };
+    assert!(share("lqr") > 0.25, "lqr {}", share("lqr"));
+    for k in ["pid", "pid-notch", "pid-shaper", "lqr-cabvel"] {
+        assert!(
+            share(k) < share("lqr"),
+            "{k} {} vs lqr {}",
+            share(k),
+            share("lqr")
+        );
+    }
+    // At the desk no body rides: both runs are the same trials.
+    let off = |f: &Findings| cell(f, "pid", Seat::Off).mean_ms_cab_accel;
+    assert_eq!(off(&coupled), off(&uncoupled));
+}
+
+#[test]
 fn subjects_differ_consistently_across_their_tests() {
     for f in both() {
         let icc = f.icc_log_mse.unwrap();
