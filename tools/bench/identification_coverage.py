@@ -80,7 +80,7 @@ def felt_rms_m_s2(path, noise_mm_s2, skip_s):
     export: the measured channel's mean square less the accelerometer noise's variance."""
     sq, n = 0.0, 0
     for r in read_csv(path):
-        if float(r["t"]) < skip_s - 1e-9:
+        if float(r["t_s"]) < skip_s - 1e-9:
             continue
         a = float(r["cab_accel_mm_s2"])
         sq += a * a
@@ -108,7 +108,7 @@ def pilot(binary, params, seed, subjects, work):
     noise = params["plant"]["accel_noise_std"]
     trial_of = {}
     for r in read_csv(trials_csv):
-        if r["phase"] == "identification" and r.get("outcome", "complete") == "complete":
+        if r["phase"] == "identification" and r["status"] == "complete" and r["latest"] == "1":
             trial_of[r["subject_code"]] = r["trial_id"]
     out = []
     for r in read_csv(subj_csv):
@@ -160,6 +160,7 @@ def main():
         lo, _, hi = part.partition("-")
         seeds.extend(range(int(lo), int(hi or lo) + 1))
     tmp = a.keep or tempfile.mkdtemp(prefix="ident-coverage-")
+    os.makedirs(tmp, exist_ok=True)
     params = default_params(a.bin, tmp)
     params["identification"] = {"task": a.task}
     params["population"]["body_k_h"]["cv"] = a.kh_cv
