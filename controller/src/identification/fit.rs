@@ -481,6 +481,17 @@ fn fit_with(
             unidentified.insert(BodyFit::PARAMETERS[z].to_string(), why);
         }
     }
+    // A resonance is known as a whole or not at all: a frequency whose damping the data did
+    // not pin down (or the reverse) is a peak the fit may have put anywhere the noise let it.
+    for (f, z) in [(1, 2), (3, 4)] {
+        for (a, b) in [(f, z), (z, f)] {
+            let (name_a, name_b) = (BodyFit::PARAMETERS[a], BodyFit::PARAMETERS[b]);
+            if unidentified.contains_key(name_a) && !unidentified.contains_key(name_b) {
+                let why = format!("its resonance's {name_a} was not identified");
+                unidentified.insert(name_b.to_string(), why);
+            }
+        }
+    }
     if lack_of_fit > MAX_LACK_OF_FIT {
         for name in BodyFit::PARAMETERS {
             unidentified.insert(
