@@ -482,8 +482,8 @@ fn an_unidentified_parameter_is_empty_in_the_exports_and_not_identified_on_the_d
     // curve, and the stability of the designs for it is refused, saying which and why —
     // never analysed (nor printed) with the absurd values stored.
     assert_eq!(view["fitted"], json!([]), "{view}");
-    let (code, st) = api.get(&format!("/api/subjects/{subject}/stability"));
-    assert_eq!(code, 409, "{st}");
+    let (status, st) = api.get(&format!("/api/subjects/{subject}/stability"));
+    assert_eq!(status, 409, "{st}");
     let why = st.to_string();
     assert!(
         why.contains("torso_") && why.contains("not identified"),
