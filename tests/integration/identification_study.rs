@@ -347,6 +347,16 @@ fn a_personalized_study_runs_each_subjects_lqr_designs_tuned_to_their_own_body()
         );
         let (_, view) = api.get(&format!("/api/subjects/{id}/identification"));
         let designs = view["tests"][0]["designs"].as_array().unwrap();
+        // A body with a parameter the test did not identify is tuned to by no design: the
+        // subject runs the study's (issue 42).
+        let fit = &view["tests"][0]["fit"];
+        if ["k_h", "torso_f_hz", "torso_zeta", "arm_f_hz", "arm_zeta"]
+            .iter()
+            .any(|p| fit[p]["not_identified"].is_string())
+        {
+            assert!(designs.is_empty(), "{view}");
+            continue;
+        }
         assert_eq!(designs.len(), 2, "lqr and lqr-cabvel: {view}");
         let (_, own) = api.get(&format!("/api/subjects/{id}/stability"));
         for d in designs {
