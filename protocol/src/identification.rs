@@ -325,7 +325,25 @@ impl BodyFit {
         }
     }
 
-    /// The body the fit describes, for the stability gate and per-subject designs.
+    /// The body the fit describes, when the data identified every parameter of it: what the
+    /// stability analyses, per-subject designs and the fitted curve may use. Otherwise why
+    /// not (the first parameter not identified, and why): a value the data did not pin down
+    /// is no person's body.
+    pub fn identified_body(&self) -> Result<BodyModel, String> {
+        match self.unidentified.iter().next() {
+            None => Ok(self.body()),
+            Some((name, why)) => Err(format!(
+                "{name} was not identified ({why}){}",
+                match self.unidentified.len() {
+                    1 => String::new(),
+                    n => format!(", nor {} other parameter(s)", n - 1),
+                }
+            )),
+        }
+    }
+
+    /// The body the fit describes, every value as fitted (identified or not): for the
+    /// stability gate and per-subject designs use `identified_body`.
     pub fn body(&self) -> BodyModel {
         BodyModel::Seated {
             k_h: self.k_h.value,

