@@ -749,27 +749,8 @@ mod tests {
     #[test]
     fn exact_points_give_back_the_body_and_too_few_are_refused() {
         let truth = [0.55f64, 1.2, 0.35, 2.4, 0.3];
-        let theta = truth.map(f64::ln);
-        let points: Vec<FrfPoint> = (0..20)
-            .map(|i| {
-                let f_hz = 0.5 * 16f64.powf(i as f64 / 19.0);
-                let g = feedthrough(&theta, f_hz);
-                // A 1 % spread, as if measured; the values themselves exact.
-                let sd = 0.01 * g.norm();
-                FrfPoint {
-                    f_hz,
-                    magnitude: g.norm(),
-                    magnitude_lo: g.norm() - 2.0 * sd,
-                    magnitude_hi: g.norm() + 2.0 * sd,
-                    phase_deg: g.arg().to_degrees(),
-                    phase_lo_deg: g.arg().to_degrees() - 1.0,
-                    phase_hi_deg: g.arg().to_degrees() + 1.0,
-                    coherence: 1.0,
-                    std_dev: sd,
-                    periods: 6,
-                }
-            })
-            .collect();
+        // A 1 % spread, as if measured; the values themselves exact.
+        let points = points_of(truth, 0.01);
         let fit = fit_body(&points).unwrap();
         for (e, t) in [
             fit.k_h,
