@@ -93,6 +93,7 @@ pg_skips=(
   # A backup is a SQLite file (refused on PostgreSQL, which backups::on_postgresql_… tests).
   "backups::backups_taken_while_a_pilot_runs"
   "backups::a_restore_refuses_a_running_server"
+  "backups::a_server_stopped_as_soon_as_it_is_up"
   "backups::scheduled_backups_keep_the_newest"
   "backups::relative_backup_paths_two_levels_up_work"
   # It checks the modes of the SQLite file, its backup and its restore.

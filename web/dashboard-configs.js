@@ -1,4 +1,4 @@
-// Versioned controller configurations: the list of versions, a new version from a design
+// Versioned compensator configurations: the list of versions, a new version from a design
 // (each save is a new version; a version never changes), and the selected study's pick of
 // versions (PUT /api/studies/{id}/configs, refused once the study is locked).
 

@@ -156,8 +156,8 @@ export function mmss(s) {
 /** Seats (and a station's role: the seats it serves). */
 export const SEAT_NAME = { on: 'ON the machine', off: 'OFF (desk)', both: 'both seats' };
 
-/** Human name of a controller kind (the real, unblinded one). */
-export const CONTROLLER_NAME = {
+/** Human name of a compensator kind (the real, unblinded one). */
+export const COMPENSATOR_NAME = {
   pid: 'PID',
   'pid-notch': 'PID + notch',
   'pid-shaper': 'PID + input shaper',
@@ -186,8 +186,8 @@ export function validityText(t) {
   return parts.join(' · ');
 }
 
-export function controllerName(kind) {
-  return CONTROLLER_NAME[kind] ? `${CONTROLLER_NAME[kind]} (${kind})` : kind;
+export function compensatorName(kind) {
+  return COMPENSATOR_NAME[kind] ? `${COMPENSATOR_NAME[kind]} (${kind})` : kind;
 }
 
 // ---- small helpers --------------------------------------------------------------------

@@ -4,7 +4,7 @@
 // only state-changing requests: each shows its outcome in the panel, then the station is read
 // again and the other views are told a trial changed.
 
-import { act, controllerName, emit, errText, post } from './dashboard-core.js';
+import { act, compensatorName, emit, errText, post } from './dashboard-core.js';
 import { renderPanel } from './dashboard-monitor-panel.js';
 import { panels, poll } from './dashboard-monitor-state.js';
 
@@ -61,7 +61,7 @@ async function startTest(p) {
   p.busy = true;
   renderPanel(p);
   const r = await act(
-    `Start trial ${test.trial_id} at “${p.station.name}” (${p.state.subject}, ${test.phase === 'test' ? test.label : test.phase}, ${controllerName(test.controller)})`,
+    `Start trial ${test.trial_id} at “${p.station.name}” (${p.state.subject}, ${test.phase === 'test' ? test.label : test.phase}, ${compensatorName(test.controller)})`,
     p.result,
     () => post(`/api/trials/${test.trial_id}/start`),
     () => 'started',

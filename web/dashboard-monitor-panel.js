@@ -5,7 +5,7 @@
 // it reads the state and the live samples, and never asks the server anything.
 
 import {
-  S, CONTROLLER_NAME, controllerName, el, mmss, num, validityText, when, SEAT_NAME,
+  S, COMPENSATOR_NAME, compensatorName, el, mmss, num, validityText, when, SEAT_NAME,
 } from './dashboard-core.js';
 import { StripChart } from './dashboard-chart.js';
 import { estopLatched, live } from './dashboard-monitor-live.js';
@@ -25,7 +25,7 @@ export function makePanel(st) {
   const f = {
     subject: fact('Subject'),
     test: fact('Test'),
-    controller: fact('Controller', 'big'),
+    controller: fact('Compensator', 'big'),
     label: fact('Subject sees'),
     where: fact('Where'),
     time: fact('Time left', 'big'),
@@ -196,7 +196,7 @@ export function renderPanel(p) {
   const test = st && st.test;
   p.f.subject.v.textContent = st && st.subject ? st.subject : '—';
   p.f.test.v.textContent = test ? (UNSCORED[test.phase] ? `${UNSCORED[test.phase]} (not scored), trial ${test.trial_id}` : `Test ${test.number} of ${test.of}, trial ${test.trial_id}`) : '—';
-  if (test) p.f.controller.v.replaceChildren(CONTROLLER_NAME[test.controller] || test.controller, el('span', { class: 'sub' }, test.controller));
+  if (test) p.f.controller.v.replaceChildren(COMPENSATOR_NAME[test.controller] || test.controller, el('span', { class: 'sub' }, test.controller));
   else p.f.controller.v.textContent = '—';
   p.f.label.v.textContent = test ? test.label : st && st.phase === 'survey' ? st.label : '—';
   p.f.where.v.textContent = test ? `${SEAT_NAME[test.station] || test.station}, ${mmss(test.duration_s)} long` : '—';
@@ -209,7 +209,7 @@ export function renderPanel(p) {
   p.startBtn.textContent = ready ? (UNSCORED[test.phase] ? `Start ${UNSCORED[test.phase].toLowerCase()}` : `Start test ${test.number}`) : 'Start test';
   p.startBtn.title = estopLatched
     ? 'The E-stop is latched: reset it first'
-    : ready ? `Start trial ${test.trial_id} (${controllerName(test.controller)})` : 'Only when the station is ready';
+    : ready ? `Start trial ${test.trial_id} (${compensatorName(test.controller)})` : 'Only when the station is ready';
   p.latch.textContent = estopLatched ? LATCH_TEXT : '';
   p.latch.hidden = !estopLatched;
   p.abortBtn.disabled = phase !== 'running' || p.busy;
@@ -255,7 +255,7 @@ function renderLast(p) {
   p.last.hidden = false;
   p.last.className = `mon-last st-${li.status}`;
   const text =
-    `Last run: trial ${li.id} (${li.code}, ${li.phase === 'test' ? li.blinded_label : li.phase}, ${controllerName(li.controller)}) — ${li.status}` +
+    `Last run: trial ${li.id} (${li.code}, ${li.phase === 'test' ? li.blinded_label : li.phase}, ${compensatorName(li.controller)}) — ${li.status}` +
     (li.status_reason ? ` (${li.status_reason})` : '') +
     (li.mse_tracking_mm2 !== null ? ` · MSE ${num(li.mse_tracking_mm2)} mm²` : '') +
     (li.ms_cab_accel !== null ? ` · cab accel MS ${num(li.ms_cab_accel)} (mm/s²)²` : '') +

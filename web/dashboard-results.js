@@ -1,7 +1,7 @@
 // Results of the selected study: box plots and the learning curve rendered by the server, the
 // table of averages per compensator × seat, key comparisons, and the CSV exports.
 
-import { S, CONTROLLER_NAME, controllerName, debounce, el, errText, get, num, on, setStatus } from './dashboard-core.js';
+import { S, COMPENSATOR_NAME, compensatorName, debounce, el, errText, get, num, on, setStatus } from './dashboard-core.js';
 import * as downloads from './dashboard-download.js';
 
 const $ = (id) => document.getElementById(id);
@@ -15,7 +15,7 @@ export const VARIABLES = [
   ['rating_controllability', 'Rating: overall controllability', 'Controllability'],
 ];
 
-const STATIONS = ['on', 'off'];
+const SEATS = ['on', 'off'];
 const TWINS = [
   ['pid-notch', 'pid'],
   ['pid-shaper', 'pid'],
@@ -78,7 +78,7 @@ export async function refresh(force) {
   }
 }
 
-function controllerOrder(stats) {
+function compensatorOrder(stats) {
   const fromStudy = S.study && Array.isArray(S.study.params.controllers) ? S.study.params.controllers.map((c) => c.kind) : [];
   const seen = [...new Set(stats.map((s) => s.controller))];
   return [...fromStudy, ...seen.filter((c) => !fromStudy.includes(c))];
@@ -104,8 +104,8 @@ function renderAverages(stats) {
   if (!stats.length) {
     body.append(el('tr', {}, el('td', { colspan: 2 + VARIABLES.length, class: 'muted' }, 'No completed test yet.')));
   }
-  for (const c of stats.length ? controllerOrder(stats) : []) {
-    for (const s of STATIONS) {
+  for (const c of stats.length ? compensatorOrder(stats) : []) {
+    for (const s of SEATS) {
       const cells = VARIABLES.map(([v]) => {
         const x = find(c, s, v);
         if (!x) return el('td', { class: 'muted' }, '—');
@@ -123,7 +123,7 @@ function renderAverages(stats) {
         el(
           'tr',
           { 'data-controller': c, 'data-station': s, class: `station-${s}` },
-          el('th', { scope: 'row', class: 'nowrap', title: c }, CONTROLLER_NAME[c] || c),
+          el('th', { scope: 'row', class: 'nowrap', title: c }, COMPENSATOR_NAME[c] || c),
           el('td', { class: 'nowrap' }, s === 'on' ? 'on machine' : 'off (desk)'),
           ...cells,
         ),
@@ -149,7 +149,7 @@ function renderComparisons(stats) {
         el(
           'tr',
           {},
-          el('td', {}, `${controllerName(comp)} vs ${controllerName(twin)}`),
+          el('td', {}, `${compensatorName(comp)} vs ${compensatorName(twin)}`),
           el('td', {}, v === 'mse_tracking_mm2' ? 'tracking MSE (mm²)' : 'cab accel MS ((mm/s²)²)'),
           el('td', { class: 'num' }, `${num(a.mean)} (n=${a.n})`),
           el('td', { class: 'num' }, `${num(b.mean)} (n=${b.n})`),
@@ -208,7 +208,7 @@ function renderStatistics() {
       { 'data-test': r.test, class: r.reachable ? '' : 'unreachable' },
       el('td', {}, TEST_NAME[r.test] || r.test),
       el('td', {}, r.station),
-      el('td', {}, r.test === 'rm_anova' ? r.a : r.b && r.a !== r.b ? `${controllerName(r.a)} vs ${controllerName(r.b)}` : controllerName(r.a) || 'all'),
+      el('td', {}, r.test === 'rm_anova' ? r.a : r.b && r.a !== r.b ? `${compensatorName(r.a)} vs ${compensatorName(r.b)}` : compensatorName(r.a) || 'all'),
       el('td', { class: 'num' }, String(r.n)),
       el('td', { class: 'num' }, num(r.statistic)),
       el('td', { class: 'num' }, fmtP(r.p_value)),

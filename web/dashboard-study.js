@@ -1,7 +1,7 @@
 // Studies: the selector in the top bar, and the parameter form (create, edit until locked,
 // read-only with its protocol hash once locked).
 
-import { S, act, el, emit, get, send, setStatus, when, controllerName } from './dashboard-core.js';
+import { S, act, el, emit, get, send, setStatus, when, compensatorName } from './dashboard-core.js';
 
 const $ = (id) => document.getElementById(id);
 
@@ -267,9 +267,9 @@ function fillForm(params) {
   for (const f of FIELDS) deletePath(rest, f.path);
   $('p-json').value = JSON.stringify(rest, null, 2);
   setStatus($('p-json-error'), 'err', '');
-  const ctl = Array.isArray(params.controllers) ? params.controllers.map((c) => controllerName(c.kind)) : [];
+  const ctl = Array.isArray(params.controllers) ? params.controllers.map((c) => compensatorName(c.kind)) : [];
   $('p-controllers').textContent =
-    `Controllers compared (${ctl.length}): ${ctl.join(', ')} · practice: ${controllerName(params.practice_controller)} ` +
+    `Compensators compared (${ctl.length}): ${ctl.join(', ')} · practice: ${compensatorName(params.practice_controller)} ` +
     `· stations: ${(params.stations || []).join(', ')} — edit these in Advanced.`;
 }
 
@@ -335,7 +335,7 @@ async function showStability(st) {
   const yes = (ok) => el('td', { class: ok ? 'ok' : 'err' }, ok ? 'stable' : 'UNSTABLE');
   const rows = rep.verdicts.map((v) =>
     el('tr', { class: v.stable_on && v.stable_off ? '' : 'unstable' },
-      el('td', {}, controllerName(v.controller)),
+      el('td', {}, compensatorName(v.controller)),
       yes(v.stable_on),
       yes(v.stable_off),
       el('td', {}, v.max_stable_kbf == null ? 'above 20' : v.max_stable_kbf.toFixed(2)),

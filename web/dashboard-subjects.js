@@ -2,7 +2,7 @@
 // with every trial attempt (real controller, blinded label, results, survey) and its actions.
 
 import {
-  S, act, CONTROLLER_NAME, el, emit, get, num, on, post, setStatus, syncRows, validityText, when, SEAT_NAME,
+  S, act, COMPENSATOR_NAME, el, emit, get, num, on, post, setStatus, syncRows, validityText, when, SEAT_NAME,
 } from './dashboard-core.js';
 import { reloadSelected } from './dashboard-study.js';
 import { mayChange } from './dashboard-accounts.js';
@@ -422,7 +422,7 @@ function renderSchedule(d) {
         el(
           'td',
           { class: 'controller' },
-          CONTROLLER_NAME[t.controller] || t.controller,
+          COMPENSATOR_NAME[t.controller] || t.controller,
           el('div', { class: 'sub' }, t.controller),
           el('div', { class: 'label' }, `sees “${t.blinded_label}”`),
         ),

@@ -3,7 +3,7 @@
 // tables in both views, and the robustness map with its Monte-Carlo pass rate. The server
 // computes every number (GET /api/studies/{id}/workbench/…); this file only draws them.
 
-import { S, controllerName, el, errText, get, num, on, setStatus } from './dashboard-core.js';
+import { S, compensatorName, el, errText, get, num, on, setStatus } from './dashboard-core.js';
 import { fitCanvas, frame, niceStep, tickLabel, yGrid } from './dashboard-chart.js';
 
 const $ = (id) => document.getElementById(id);
@@ -22,7 +22,7 @@ export function init() {
     $('wb-kbf').value = S.study ? S.study.params.k_bf : '';
     const pick = $('wb-robust-design');
     const kinds = S.study ? S.study.params.controllers.map((c) => c.kind) : [];
-    pick.replaceChildren(...kinds.map((k) => el('option', { value: k }, controllerName(k))));
+    pick.replaceChildren(...kinds.map((k) => el('option', { value: k }, compensatorName(k))));
   });
 }
 
@@ -76,7 +76,7 @@ function verdictTable(rep) {
   const rows = rep.compensators.map((c) => {
     const n = c.nyquist;
     return el('tr', { 'data-design': c.name },
-      el('td', {}, controllerName(c.name)),
+      el('td', {}, compensatorName(c.name)),
       el('td', { class: n.stable ? 'ok' : 'err' }, verdict(n)),
       el('td', {}, String(n.encirclements)),
       el('td', {}, String(n.open_loop_unstable)),
@@ -252,7 +252,7 @@ function poleTable(cmp) {
     : el('p', { class: 'muted small' }, 'no differences');
   const empty = !d.length && !i.length ? el('p', { class: 'muted small' }, 'the shaper’s delays are not poles of a rational system: see its Nyquist verdict') : '';
   return el('details', { class: 'wb-poles', 'data-design': cmp.name },
-    el('summary', {}, `${controllerName(cmp.name)} — ${cmp.differences.length} difference(s)`),
+    el('summary', {}, `${compensatorName(cmp.name)} — ${cmp.differences.length} difference(s)`),
     el('p', { class: 'muted small' }, cmp.note), empty, both, diffs);
 }
 

@@ -1,5 +1,6 @@
-//! Speed of the identification's analysis: estimation and fit of one subject's default test
-//! (70 s at 1 kHz), run with `cargo bench -p bdft-controller --bench identify`.
+//! Speed of the identification's analysis: estimation and fit (with the jackknife over the
+//! record's periods, as the server's filing runs it) of one subject's default test (70 s at
+//! 1 kHz), run with `cargo bench -p bdft-controller --bench identify`.
 //!
 //! The records are simulated first (not timed): subjects of the default population holding
 //! still on the simulated rig. Medians over repeated runs: the machines are shared. Then each
@@ -12,7 +13,7 @@ use std::time::Instant;
 use bdft_controller::analysis::personal::personalize;
 use bdft_controller::closed_loop::LoopSetup;
 use bdft_controller::compensator::{study_spec, variants};
-use bdft_controller::identification::{estimate, fit_body};
+use bdft_controller::identification::{estimate, fit_record};
 use bdft_controller::population;
 use bdft_controller::runtime::setup::build_runner;
 use bdft_protocol::identification::{IdentificationTask, MultisineSpec};
@@ -42,7 +43,7 @@ fn record(i: u64, spec: MultisineSpec) -> (Vec<f32>, Vec<f32>) {
     let st = StartTrial {
         trial_id: 1,
         compensator: variants::variant("pid", &plant, dt).unwrap(),
-        station: Seat::On,
+        seat: Seat::On,
         k_bf: 0.6,
         target: TargetSpec::Identification {
             excitation: spec,
@@ -60,6 +61,7 @@ fn record(i: u64, spec: MultisineSpec) -> (Vec<f32>, Vec<f32>) {
         stale_input_ms: 100.0,
         max_cab_rms_mm_s2: DEFAULT_MAX_CAB_RMS_MM_S2,
         exposure_allowance: None,
+        cancellation: None,
     };
     let (mut runner, _) = build_runner(&st, dt, false).unwrap();
     let (mut u, mut y) = (vec![], vec![]);
@@ -81,7 +83,8 @@ fn main() {
             let t0 = Instant::now();
             let points = estimate(&spec, dt, black_box(u), black_box(y)).unwrap();
             let t1 = Instant::now();
-            black_box(fit_body(&points).unwrap());
+            // What the server's filing runs: the fit with the jackknife over the record.
+            black_box(fit_record(&points, &spec, dt, u, y).unwrap());
             let t2 = Instant::now();
             est_ms.push((t1 - t0).as_secs_f64() * 1e3);
             fit_ms.push((t2 - t1).as_secs_f64() * 1e3);
@@ -103,7 +106,8 @@ fn main() {
     for kind in [CompensatorKind::Lqr, CompensatorKind::LqrCabvel] {
         let mut ms = vec![];
         for (u, y) in &records {
-            let fit = fit_body(&estimate(&spec, dt, u, y).unwrap()).unwrap();
+            let points = estimate(&spec, dt, u, y).unwrap();
+            let fit = fit_record(&points, &spec, dt, u, y).unwrap();
             let setup = LoopSetup {
                 plant,
                 body: fit.body(),
@@ -111,7 +115,7 @@ fn main() {
                     k_bf: STUDY_KBF,
                     ..LoopParams::default()
                 },
-                station: Seat::On,
+                seat: Seat::On,
                 compensator: study_spec(kind, &plant),
             };
             let t0 = Instant::now();

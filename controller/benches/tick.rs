@@ -1,6 +1,7 @@
 //! Speed of the control core, run with `cargo bench -p bdft-controller --bench tick`.
 //!
-//! - cost of one closed-loop tick (plant + accelerometer + body + compensator) per compensator;
+//! - cost of one closed-loop tick (plant + accelerometer + body + compensator) per compensator,
+//!   and what model-based cancellation adds to it;
 //! - one 140 s protocol trial (140,000 ticks with the synthetic operator) end to end;
 //! - the same discrete PID-notch loop as `tools/bench/forced_response.py`, timed here and
 //!   there (python-control's `forced_response`) in the same run, with the ratio;
@@ -9,7 +10,7 @@
 //!   (`cargo bench -p bdft-controller --bench tick -- loop` runs only this part);
 //! - the power planner's batched trials (`batch::metrics`, `LANES` subjects per batch)
 //!   against the same trials one at a time (`runtime::local::metrics`), per compensator
-//!   (`-- batch` runs only this part).
+//!   (`-- batch` runs only this part); `-- cancellation` runs only the cancellation's cost.
 //!
 //! Medians over repeated runs: the machines are shared and noisy.
 
@@ -18,6 +19,7 @@ use std::process::Command;
 use std::time::Instant;
 
 use bdft_controller::batch::{self, LANES};
+use bdft_controller::cancellation::{CancellationModel, Canceller};
 use bdft_controller::closed_loop::{ClosedLoop, Drive, LoopSetup};
 use bdft_controller::compensator::{CompensatorKind, default_spec};
 use bdft_controller::operator::OperatorParams;
@@ -28,6 +30,7 @@ use bdft_controller::runtime::rt_loop::Event;
 use bdft_controller::runtime::slot::SlotTick;
 use bdft_controller::signals::StepParams;
 use bdft_controller::simulate::{SignalKind, SimConfig, simulate};
+use bdft_protocol::params::PopulationParams;
 use bdft_protocol::trial::InputSource;
 
 const RUNS: usize = 9;
@@ -47,7 +50,7 @@ fn setup(kind: CompensatorKind, noise: bool) -> LoopSetup {
         plant,
         body: BodyModel::default(),
         loop_params: LoopParams::default(),
-        station: Seat::On,
+        seat: Seat::On,
     }
 }
 
@@ -193,14 +196,46 @@ fn batch_cost(report: &mut serde_json::Map<String, serde_json::Value>) {
     report.insert("planner_trial_tick_ns".into(), rows.into());
 }
 
+/// Model-based cancellation (issue 38's budget: 50 ns a trial a tick): the PID tick with and
+/// without a canceller, in the same run.
+fn cancellation_cost(report: &mut serde_json::Map<String, serde_json::Value>) {
+    let mut plain = ClosedLoop::new(&setup(CompensatorKind::Pid, true), 1).expect("design");
+    let mut cancelling = plain.clone();
+    cancelling.set_canceller(Some(
+        Canceller::new(
+            &CancellationModel {
+                // The all-pass runs too.
+                phase_lag_deg: 30.0,
+                ..CancellationModel::of_seated(&PopulationParams::default().median_body())
+                    .expect("seated")
+            },
+            1e-3,
+        )
+        .expect("model"),
+    ));
+    let (without, with) = (
+        time_ticks(&mut plain, 200_000),
+        time_ticks(&mut cancelling, 200_000),
+    );
+    println!(
+        "cancellation: PID tick {without:.1} ns without, {with:.1} ns with (+{:.1} ns)",
+        with - without
+    );
+    report.insert(
+        "cancellation_ns".into(),
+        serde_json::json!({ "without": without, "with": with, "added": with - without }),
+    );
+}
+
 fn main() {
     let mut report = serde_json::Map::new();
     let only = std::env::args()
         .skip(1)
-        .find(|a| a == "loop" || a == "batch");
+        .find(|a| a == "loop" || a == "batch" || a == "cancellation");
     match only.as_deref() {
         Some("loop") => loop_cost(&mut report),
-        Some(_) => batch_cost(&mut report),
+        Some("batch") => batch_cost(&mut report),
+        Some(_) => cancellation_cost(&mut report),
         None => {}
     }
     if only.is_some() {
@@ -220,6 +255,8 @@ fn main() {
         ticks.insert(kind.name().into(), ns.into());
     }
     report.insert("tick_ns".into(), ticks.into());
+
+    cancellation_cost(&mut report);
 
     let mut trial = serde_json::Map::new();
     println!("140 s trial (steps, synthetic operator, station on), median of {RUNS}");

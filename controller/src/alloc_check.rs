@@ -57,6 +57,12 @@ mod tests {
         assert!(allocations_during(|| drop(std::hint::black_box(vec![1u8; 64]))) >= 1);
     }
 
+    /// The population's median body as a cancellation model (issue 38's generic model).
+    fn generic_model() -> crate::cancellation::CancellationModel {
+        let body = bdft_protocol::params::PopulationParams::default().median_body();
+        crate::cancellation::CancellationModel::of_seated(&body).unwrap()
+    }
+
     #[test]
     fn a_closed_loop_tick_never_allocates() {
         let plant = PlantParams::default();
@@ -75,21 +81,39 @@ mod tests {
                     plant,
                     body,
                     loop_params: LoopParams::default(),
-                    station: Seat::On,
+                    seat: Seat::On,
                 };
-                let mut lp = ClosedLoop::new(&setup, 1).unwrap();
-                let mut op =
-                    SyntheticOperator::new(OperatorParams::default(), 1e-3, 0.6, 1).unwrap();
-                let n = allocations_during(|| {
-                    for k in 0..5_000 {
-                        let target = if k < 2_500 { 20.0 } else { -30.0 };
-                        let p_h = op.step(target, lp.last_measurement().y, lp.felt_accel());
-                        lp.set_grip(op.grip());
-                        std::hint::black_box(lp.tick(Drive::Hand(p_h)));
-                    }
-                    lp.reset();
-                });
-                assert_eq!(n, 0, "{name} allocated {n} times in 5,000 ticks");
+                // Without and with model-based cancellation (a bound that trips within the
+                // run, so the tripped path runs too).
+                for limit_mm in [None, Some(0.05)] {
+                    let mut lp = ClosedLoop::new(&setup, 1).unwrap();
+                    lp.set_canceller(limit_mm.map(|limit_mm| {
+                        crate::cancellation::Canceller::new(
+                            &crate::cancellation::CancellationModel {
+                                phase_lag_deg: 30.0,
+                                limit_mm,
+                                ..generic_model()
+                            },
+                            1e-3,
+                        )
+                        .unwrap()
+                    }));
+                    let mut op =
+                        SyntheticOperator::new(OperatorParams::default(), 1e-3, 0.6, 1).unwrap();
+                    let n = allocations_during(|| {
+                        for k in 0..5_000 {
+                            let target = if k < 2_500 { 20.0 } else { -30.0 };
+                            let p_h = op.step(target, lp.last_measurement().y, lp.felt_accel());
+                            lp.set_grip(op.grip());
+                            std::hint::black_box(lp.tick(Drive::Hand(p_h)));
+                        }
+                        lp.reset();
+                    });
+                    assert_eq!(
+                        n, 0,
+                        "{name} (cancelling: {limit_mm:?}) allocated {n} times in 5,000 ticks"
+                    );
+                }
             }
         }
     }
@@ -112,7 +136,7 @@ mod tests {
                     plant,
                     body: crate::model::SEATED_FOR_TESTS,
                     loop_params: LoopParams::default(),
-                    station: Seat::On,
+                    seat: Seat::On,
                 };
                 let hand = if synthetic {
                     HandSource::Synthetic(

@@ -4,6 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::cancellation::{Cancelled, Canceller};
 use crate::compensator::{Compensator, CompensatorSpec};
 use crate::error::DesignError;
 use crate::model::{Body, Measurement, Plant};
@@ -16,7 +17,9 @@ pub struct LoopSetup {
     pub plant: PlantParams,
     pub body: BodyModel,
     pub loop_params: LoopParams,
-    pub station: Seat,
+    /// On the machine or at the desk (key `station`, the parameter files' name).
+    #[serde(rename = "station")]
+    pub seat: Seat,
     pub compensator: CompensatorSpec,
 }
 
@@ -49,6 +52,26 @@ pub struct TickRecord {
     pub y: f64,
     /// Seat accelerometer (mm/s²), measured at the start of the tick.
     pub cab_accel: f64,
+    /// What cancellation subtracted from the device's reading (mm; 0 without it).
+    pub cancellation: f64,
+    /// Cancellation's guard turned it off on this tick (for the rest of the test).
+    pub cancellation_tripped: bool,
+}
+
+/// The cylinder reference from the device's reading: K_BF times the reading less what the
+/// canceller (if any) predicts the cab added to it. The one path of the simulated and the
+/// real rig's loops.
+#[inline]
+pub(crate) fn reference_from_device(
+    k_bf: f64,
+    device_mm: f64,
+    cab_accel_mm_s2: f64,
+    canceller: &mut Option<Canceller>,
+) -> (f64, Cancelled) {
+    let cancelled = canceller
+        .as_mut()
+        .map_or(Cancelled::default(), |c| c.step(cab_accel_mm_s2));
+    (k_bf * (device_mm - cancelled.output_mm), cancelled)
 }
 
 #[derive(Debug, Clone)]
@@ -57,7 +80,9 @@ pub struct ClosedLoop {
     pub(crate) body: Body,
     pub(crate) compensator: Compensator,
     pub(crate) k_bf: f64,
-    pub(crate) station: Seat,
+    pub(crate) seat: Seat,
+    /// Model-based cancellation of the feedthrough, when the test has it.
+    pub(crate) canceller: Option<Canceller>,
     last: Measurement,
 }
 
@@ -71,7 +96,8 @@ impl ClosedLoop {
             body: Body::new(setup.body, dt),
             compensator: Compensator::build(&setup.compensator, &setup.plant, dt)?,
             k_bf: setup.loop_params.k_bf,
-            station: setup.station,
+            seat: setup.seat,
+            canceller: None,
             last: Measurement::default(),
         })
     }
@@ -99,7 +125,7 @@ impl ClosedLoop {
     /// The true cab acceleration at the operator's seat (mm/s²): what a person on the
     /// machine feels; 0 at the desk.
     pub fn felt_accel(&self) -> f64 {
-        match self.station {
+        match self.seat {
             Seat::On => self.plant.state()[crate::model::idx::XC_DD],
             Seat::Off => 0.0,
         }
@@ -114,19 +140,32 @@ impl ClosedLoop {
         self.k_bf = k_bf;
     }
 
+    /// Cancels the feedthrough with `canceller` from the next tick (None: no cancellation).
+    pub fn set_canceller(&mut self, canceller: Option<Canceller>) {
+        self.canceller = canceller;
+    }
+
+    pub fn canceller(&self) -> Option<&Canceller> {
+        self.canceller.as_ref()
+    }
+
     #[inline]
     pub fn tick(&mut self, drive: Drive) -> TickRecord {
         let m = self.plant.measure();
         self.last = m;
         // The body responds to the true cab motion; at the desk station it is not shaken.
-        let h = match self.station {
+        let h = match self.seat {
             Seat::On => self.body.step(self.plant.cab_displacement()),
             Seat::Off => 0.0,
         };
-        let (hand, r_c) = match drive {
-            Drive::Hand(p_h) => (p_h, self.k_bf * (p_h - h)),
-            Drive::Reference(r) => (0.0, r),
-            Drive::Excited { hand, r_c } => (hand, r_c),
+        let (hand, r_c, cancelled) = match drive {
+            Drive::Hand(p_h) => {
+                let (r_c, c) =
+                    reference_from_device(self.k_bf, p_h - h, m.cab_accel, &mut self.canceller);
+                (p_h, r_c, c)
+            }
+            Drive::Reference(r) => (0.0, r, Cancelled::default()),
+            Drive::Excited { hand, r_c } => (hand, r_c, Cancelled::default()),
         };
         let v = self.compensator.step(r_c, m);
         let applied = self.plant.step(v);
@@ -137,32 +176,55 @@ impl ClosedLoop {
             valve: applied,
             y: m.y,
             cab_accel: m.cab_accel,
+            cancellation: cancelled.output_mm,
+            cancellation_tripped: cancelled.tripped_now,
         }
     }
 
-    /// Back to rest: plant, body and compensator states zeroed.
+    /// Back to rest: plant, body, compensator and canceller states zeroed.
     pub fn reset(&mut self) {
         self.plant.write_state(&[0.0; 7]);
         self.body.reset();
         self.compensator.reset();
+        if let Some(c) = &mut self.canceller {
+            c.reset();
+        }
         self.last = Measurement::default();
     }
 }
 
+/// Plant, body, compensator, then the canceller's filters when there is one.
 impl LinearState for ClosedLoop {
     fn state_len(&self) -> usize {
-        self.plant.state_len() + self.body.state_len() + self.compensator.state_len()
+        self.plant.state_len()
+            + self.body.state_len()
+            + self.compensator.state_len()
+            + self.canceller.as_ref().map_or(0, LinearState::state_len)
     }
     fn read_state(&self, out: &mut [f64]) {
-        let (p, b) = (self.plant.state_len(), self.body.state_len());
+        let (p, b, c) = (
+            self.plant.state_len(),
+            self.body.state_len(),
+            self.compensator.state_len(),
+        );
         self.plant.read_state(out);
         self.body.read_state(&mut out[p..]);
         self.compensator.read_state(&mut out[p + b..]);
+        if let Some(k) = &self.canceller {
+            k.read_state(&mut out[p + b + c..]);
+        }
     }
     fn write_state(&mut self, s: &[f64]) {
-        let (p, b) = (self.plant.state_len(), self.body.state_len());
+        let (p, b, c) = (
+            self.plant.state_len(),
+            self.body.state_len(),
+            self.compensator.state_len(),
+        );
         self.plant.write_state(s);
         self.body.write_state(&s[p..]);
         self.compensator.write_state(&s[p + b..]);
+        if let Some(k) = &mut self.canceller {
+            k.write_state(&s[p + b + c..]);
+        }
     }
 }

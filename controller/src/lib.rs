@@ -30,8 +30,11 @@
 //! - `compensator/` — the compensators behind one interface (`CompensatorKind`, `CompensatorSpec`,
 //!   `Compensator`).
 //! - `state` — `LinearState`: every per-tick block exposes its state as a flat vector.
-//! - `closed_loop` — `ClosedLoop::tick`: measure → body → feedthrough → compensator → plant, the
-//!   order the real-time loop uses.
+//! - `closed_loop` — `ClosedLoop::tick`: measure → body → feedthrough → (cancellation) →
+//!   compensator → plant, the order the real-time loop uses.
+//! - `cancellation` — model-based cancellation of the feedthrough (issue 38): the fitted
+//!   body's device-over-cab-acceleration as two biquads, a deliberately wrong model's gain
+//!   and phase lag, and the guard that turns it off.
 //! - `analysis/` — stability, design view, robustness, frequency, Nyquist and personal designs, all
 //!   read off the code that runs.
 //! - `signals` — swept sine, smoothed trapezoid, and the protocol's random-step target (seeded;
@@ -89,6 +92,7 @@
 
 pub mod analysis;
 pub mod batch;
+pub mod cancellation;
 pub mod closed_loop;
 pub mod compensator;
 pub mod error;

@@ -31,7 +31,7 @@
 //! the operator's bandwidth and passes through uncorrected.
 
 pub use bdft_protocol::identification::IdentificationTask;
-pub use bdft_protocol::params::{MOTOR_NOISE_CORNER_HZ, OperatorParams};
+pub use bdft_protocol::params::{MAX_VIBRATION_DELAY_S, MOTOR_NOISE_CORNER_HZ, OperatorParams};
 
 use crate::error::ParamError;
 use crate::filters::{Biquad, FirstOrder};
@@ -66,6 +66,13 @@ pub(crate) fn motor_lag(dt: f64) -> FirstOrder {
     FirstOrder::tustin([0.0, w], [1.0, w], dt, None)
 }
 
+/// The ticks of reaction delay `per_m_s2` (s per m/s²) adds at `felt` m/s² RMS, at most
+/// `MAX_VIBRATION_DELAY_S`.
+#[inline]
+pub(crate) fn added_delay(per_m_s2: f64, felt: f64, dt: f64) -> usize {
+    ((per_m_s2 * felt).min(MAX_VIBRATION_DELAY_S) / dt).round() as usize
+}
+
 /// Time constant of the operator's running impressions of shake and vibration (s).
 const IMPRESSION_S: f64 = 1.0;
 /// The grip is re-evaluated every this many ticks: it changes over seconds, and retuning
@@ -77,10 +84,15 @@ pub struct SyntheticOperator {
     pub(crate) params: OperatorParams,
     pub(crate) dt: f64,
     pub(crate) k_bf: f64,
-    /// Ring buffers of what the display showed: target and cylinder position.
+    /// Ring buffers of what the display showed: target and cylinder position, long enough
+    /// for the reaction delay and the most felt vibration can add to it.
     pub(crate) seen_target: Vec<f64>,
     seen_y: Vec<f64>,
     head: usize,
+    /// The reaction delay in ticks, and the lag the operator reads the display with now
+    /// (the delay plus what felt vibration adds, re-evaluated with the grip).
+    pub(crate) delay: usize,
+    lag: usize,
     integral: f64,
     /// The neuromuscular lag.
     pub(crate) arm: Biquad,
@@ -139,6 +151,11 @@ impl SyntheticOperator {
         params.validate()?;
         check("kbf", k_bf, 1e-3, crate::params::MAX_KBF)?;
         let delay = (params.reaction_delay_s / dt).round() as usize;
+        let most_added = if params.vibration_delay_s_per_m_s2 > 0.0 {
+            (MAX_VIBRATION_DELAY_S / dt).round() as usize
+        } else {
+            0
+        };
         let (w, z) = (params.neuromuscular_w, params.neuromuscular_zeta);
         let arm = neuromuscular_lag(w, z, dt);
         let motor = motor_lag(dt);
@@ -146,9 +163,11 @@ impl SyntheticOperator {
             params,
             dt,
             k_bf,
-            seen_target: vec![0.0; delay + 1],
-            seen_y: vec![0.0; delay + 1],
+            seen_target: vec![0.0; delay + most_added + 1],
+            seen_y: vec![0.0; delay + most_added + 1],
             head: 0,
+            delay,
+            lag: delay,
             integral: 0.0,
             arm,
             shake_filter: shake_filter(dt),
@@ -181,10 +200,10 @@ impl SyntheticOperator {
         let len = self.seen_target.len();
         self.seen_target[self.head] = target;
         self.seen_y[self.head] = y;
-        // The oldest entry is what the operator reacts to now.
-        let oldest = (self.head + 1) % len;
-        let (t_seen, y_seen) = (self.seen_target[oldest], self.seen_y[oldest]);
-        self.head = oldest;
+        // What the display showed `lag` ticks ago is what the operator reacts to now.
+        let at = (self.head + len - self.lag) % len;
+        let (t_seen, y_seen) = (self.seen_target[at], self.seen_y[at]);
+        self.head = (self.head + 1) % len;
 
         let shake = self.shake_filter.step(y_seen);
         self.shake_ms += self.impression_a * (shake * shake - self.shake_ms);
@@ -244,6 +263,8 @@ impl SyntheticOperator {
             self.shaken = 1.0 + self.params.vibration_remnant_per_m_s2 * felt;
             let regression = self.params.vibration_regression_per_m_s2 * felt;
             self.withheld = regression / (1.0 + regression);
+            self.lag =
+                self.delay + added_delay(self.params.vibration_delay_s_per_m_s2, felt, self.dt);
             let slowed = 1.0 + self.params.vibration_slowing_per_m_s2 * felt;
             if slowed != self.slowed {
                 self.slowed = slowed;
@@ -418,6 +439,38 @@ mod tests {
         assert!((calm - 20.0).abs() < 1e-6, "{calm}");
         let shaken = settle(3.0);
         assert!((shaken - 8.0).abs() < 0.1, "{shaken}");
+    }
+
+    #[test]
+    fn felt_vibration_delays_the_reaction_up_to_its_cap() {
+        // 10 s of a 4 Hz sine felt at `rms` m/s² with the target at 0, then a 10 mm target
+        // step: pure pursuit, so the hand leaves 0 when the step has been seen, τ + the
+        // added delay (0.2 s per m/s², at most `MAX_VIBRATION_DELAY_S`) after it.
+        let p = OperatorParams {
+            vibration_delay_s_per_m_s2: 0.2,
+            ..quiet()
+        };
+        let dt = 1e-3;
+        let reaction = |rms: f64| {
+            let mut op = SyntheticOperator::new(p, dt, 1.0, 1).unwrap();
+            let felt = |k: usize| rms * 1e3 * 2f64.sqrt() * sine(4.0, k as f64 * dt);
+            for k in 0..10_000 {
+                op.step(0.0, 0.0, felt(k));
+            }
+            (0..2_000)
+                .position(|k| op.step(10.0, 0.0, felt(10_000 + k)) != 0.0)
+                .expect("the hand moves") as f64
+                * dt
+        };
+        // Calm: τ = 0.25 s (Tustin's lag passes a step on the tick it arrives).
+        let calm = reaction(0.0);
+        assert!((calm - 0.25).abs() < 1e-9, "{calm}");
+        // 0.5 m/s²: 0.1 s later (the felt RMS's ripple may move it by a tick).
+        let shaken = reaction(0.5) - calm;
+        assert!((shaken - 0.1).abs() <= 0.002, "{shaken}");
+        // 3 m/s² would add 0.6 s: the cap's 0.3.
+        let capped = reaction(3.0) - calm;
+        assert!((capped - MAX_VIBRATION_DELAY_S).abs() <= 0.002, "{capped}");
     }
 
     #[test]

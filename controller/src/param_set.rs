@@ -70,12 +70,12 @@ impl ParamSet {
             .unwrap_or_else(|| default_spec(kind, &self.plant))
     }
 
-    pub fn setup(&self, kind: CompensatorKind, station: Seat, k_bf: f64) -> LoopSetup {
+    pub fn setup(&self, kind: CompensatorKind, seat: Seat, k_bf: f64) -> LoopSetup {
         LoopSetup {
             plant: self.plant,
             body: self.body,
             loop_params: LoopParams { dt: self.dt, k_bf },
-            station,
+            seat,
             compensator: self.compensator(kind),
         }
     }

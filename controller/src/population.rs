@@ -68,6 +68,11 @@ pub fn draw(pop: &PopulationParams, seed: u64) -> SubjectDraw {
         bounds::VIBRATION_REGRESSION_PER_M_S2,
     );
     let motor_noise_mm = at(&mut rng, &pop.motor_noise_mm, bounds::MOTOR_NOISE_MM);
+    let vibration_delay_s_per_m_s2 = at(
+        &mut rng,
+        &pop.vibration_delay_s_per_m_s2,
+        bounds::VIBRATION_DELAY_S_PER_M_S2,
+    );
     let drawn_body = pop.body == BodySource::Drawn;
     let body_or_zero = |v: f64| if drawn_body { v } else { 0.0 };
     SubjectDraw {
@@ -90,6 +95,7 @@ pub fn draw(pop: &PopulationParams, seed: u64) -> SubjectDraw {
         vibration_remnant_per_m_s2,
         vibration_slowing_per_m_s2,
         vibration_regression_per_m_s2,
+        vibration_delay_s_per_m_s2,
         motor_noise_mm,
         survey_bias_points,
         survey_noise_points: pop.survey_noise_sd,
@@ -138,6 +144,7 @@ pub fn operator(d: &SubjectDraw, position: u32, hours_on_task: f64) -> OperatorP
         vibration_remnant_per_m_s2: d.vibration_remnant_per_m_s2,
         vibration_slowing_per_m_s2: d.vibration_slowing_per_m_s2,
         vibration_regression_per_m_s2: d.vibration_regression_per_m_s2,
+        vibration_delay_s_per_m_s2: d.vibration_delay_s_per_m_s2,
         motor_noise_mm: (d.motor_noise_mm * (1.0 + u + f)).min(bounds::MOTOR_NOISE_MM.1),
     }
 }
@@ -196,14 +203,9 @@ pub(crate) mod tests {
                 d.vibration_remnant_per_m_s2,
             ),
             (
-                "vibration_slowing",
-                pop.vibration_slowing_per_m_s2,
-                d.vibration_slowing_per_m_s2,
-            ),
-            (
-                "vibration_regression",
-                pop.vibration_regression_per_m_s2,
-                d.vibration_regression_per_m_s2,
+                "vibration_delay",
+                pop.vibration_delay_s_per_m_s2,
+                d.vibration_delay_s_per_m_s2,
             ),
         ]
     }
@@ -309,6 +311,7 @@ pub(crate) mod tests {
             &mut pop.vibration_remnant_per_m_s2,
             &mut pop.vibration_slowing_per_m_s2,
             &mut pop.vibration_regression_per_m_s2,
+            &mut pop.vibration_delay_s_per_m_s2,
             &mut pop.motor_noise_mm,
         ] {
             s.cv = 0.0;
@@ -337,7 +340,7 @@ pub(crate) mod tests {
                         k_bf: 0.78,
                         ..LoopParams::default()
                     },
-                    station: seat,
+                    seat,
                     compensator: study_spec(kind, &plant),
                 },
                 signal: SignalKind::Steps,

@@ -132,6 +132,8 @@ pub struct TrialRunner<L> {
     pub(crate) interlock: Option<VibrationInterlock>,
     tripped: bool,
     exposure: ExposureMeter,
+    /// The tick cancellation's guard turned it off, if it did.
+    cancellation_off: Option<u64>,
 }
 
 impl<L: Loop> TrialRunner<L> {
@@ -148,6 +150,7 @@ impl<L: Loop> TrialRunner<L> {
             interlock: None,
             tripped: false,
             exposure: ExposureMeter::new(dt, None),
+            cancellation_off: None,
         }
     }
 
@@ -216,6 +219,9 @@ impl<L: Loop> TrialRunner<L> {
             self.tripped |= il.update(r.cab_accel);
         }
         self.exposure.add(r.cab_accel);
+        if r.cancellation_tripped {
+            self.cancellation_off = Some(self.k);
+        }
         self.k += 1;
         Sample {
             t,
@@ -240,6 +246,11 @@ impl<L: Loop> TrialRunner<L> {
 
     pub fn metrics(&self) -> Metrics {
         self.metrics.metrics()
+    }
+
+    /// When (s into the trial) cancellation's guard turned it off, if it did.
+    pub fn cancellation_off_at_s(&self) -> Option<f64> {
+        self.cancellation_off.map(|k| k as f64 * self.dt)
     }
 
     pub fn loop_mut(&mut self) -> &mut L {

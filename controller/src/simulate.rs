@@ -70,7 +70,9 @@ pub struct SimConfig {
 pub struct SimSummary {
     pub compensator: String,
     pub signal: String,
-    pub station: String,
+    /// The seat (`on`/`off`; the output's key: `station`).
+    #[serde(rename = "station")]
+    pub seat: String,
     pub kbf: f64,
     pub duration_s: f64,
     pub ticks: u64,
@@ -105,7 +107,7 @@ pub fn simulate(
     let dt = cfg.setup.loop_params.dt;
     check("duration_s", cfg.duration_s, dt, 3600.0)?;
     let bench = cfg.signal != SignalKind::Steps;
-    if bench && cfg.setup.station == Seat::On {
+    if bench && cfg.setup.seat == Seat::On {
         return Err(ParamError::Invalid {
             name: "station",
             message: format!(
@@ -157,7 +159,7 @@ pub fn simulate(
     Ok(SimSummary {
         compensator: cfg.setup.compensator.kind().name().to_string(),
         signal: cfg.signal.name().to_string(),
-        station: cfg.setup.station.as_str().to_string(),
+        seat: cfg.setup.seat.as_str().to_string(),
         kbf: cfg.setup.loop_params.k_bf,
         duration_s: metrics.ticks as f64 * dt,
         ticks: metrics.ticks,

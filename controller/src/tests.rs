@@ -10,7 +10,7 @@ use crate::params::{BodyModel, LoopParams, PlantParams, Seat};
 use crate::signals::StepParams;
 use crate::simulate::{SignalKind, SimConfig, simulate};
 
-fn setup(kind: CompensatorKind, station: Seat, k_bf: f64) -> LoopSetup {
+fn setup(kind: CompensatorKind, seat: Seat, k_bf: f64) -> LoopSetup {
     let plant = PlantParams::default();
     LoopSetup {
         compensator: default_spec(kind, &plant),
@@ -20,7 +20,7 @@ fn setup(kind: CompensatorKind, station: Seat, k_bf: f64) -> LoopSetup {
             k_bf,
             ..LoopParams::default()
         },
-        station,
+        seat,
     }
 }
 
@@ -56,8 +56,8 @@ fn closed_loop_poles_match_the_continuous_reference() {
             0.6,
         ),
     ];
-    for (key, kind, station, k_bf) in cases {
-        let k = if station == Seat::Off { 0.0 } else { k_bf };
+    for (key, kind, seat, k_bf) in cases {
+        let k = if seat == Seat::Off { 0.0 } else { k_bf };
         let lin = LinearizedLoop::new(&setup(kind, Seat::On, k_bf)).unwrap();
         let got = lin.poles(k).unwrap();
         let want = poles(&fx[key]);
@@ -141,6 +141,7 @@ fn stability_verdict_agrees_with_a_long_simulation_of_the_shaper_loop() {
         let mut s = base.clone();
         s.loop_params.k_bf = k_bf;
         s.plant.accel_noise_std = 0.0;
+        s.plant.engine_vibration_rms = 0.0;
         let mut lp = crate::closed_loop::ClosedLoop::new(&s, 0).unwrap();
         // A 0.1 mm kick of the cab keeps everything far from saturation.
         use crate::state::LinearState;
@@ -165,11 +166,11 @@ fn stability_verdict_agrees_with_a_long_simulation_of_the_shaper_loop() {
 fn sim(
     kind: CompensatorKind,
     signal: SignalKind,
-    station: Seat,
+    seat: Seat,
     seed: u64,
 ) -> crate::simulate::SimSummary {
     let cfg = SimConfig {
-        setup: setup(kind, station, 0.6),
+        setup: setup(kind, seat, 0.6),
         signal,
         duration_s: signal.default_duration_s(),
         seed,

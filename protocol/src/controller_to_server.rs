@@ -104,6 +104,10 @@ pub struct TrialResult {
     /// that predates them).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub exposure: Option<TrialExposure>,
+    /// When (s into the trial) cancellation's guard turned it off for the rest of the test;
+    /// None when it never did or the test did not cancel (`docs/cancellation.md`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cancellation_off_at_s: Option<f64>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

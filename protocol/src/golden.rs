@@ -133,7 +133,7 @@ fn start_trial_with_defaults_filled_in() {
             notch: NotchParams::default()
         }
     );
-    assert_eq!(st.station, Seat::On);
+    assert_eq!(st.seat, Seat::On);
     assert_eq!(st.live_rate_hz, 100.0);
     assert_eq!(st.stale_input_ms, 100.0);
     assert_eq!(st.plant.k_vc, 22.0);
@@ -154,7 +154,7 @@ fn start_trial_validation_names_the_bad_field() {
                 n: 10.0,
             },
         },
-        station: Seat::Off,
+        seat: Seat::Off,
         k_bf: f64::NAN,
         target: TargetSpec::Steps {
             interval_s: 2.0,
@@ -172,6 +172,7 @@ fn start_trial_validation_names_the_bad_field() {
         stale_input_ms: 100.0,
         max_cab_rms_mm_s2: crate::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
         exposure_allowance: None,
+        cancellation: None,
     };
     assert!(st.validate().unwrap_err().to_string().contains("k_bf"));
     let st = StartTrial {
@@ -220,7 +221,7 @@ fn start_trial_validation_names_the_bad_field() {
     };
     assert_golden(
         &identification,
-        r#"{"kind":"identification","excitation":{"f_min_hz":0.5,"f_max_hz":8.0,"lines":20,"period_s":10.0,"periods":6,"transient_periods":1,"rms_mm":2.0,"seed":0},"task":"hold-still"}"#,
+        r#"{"kind":"identification","excitation":{"f_min_hz":0.5,"f_max_hz":8.0,"lines":20,"period_s":10.0,"periods":6,"transient_periods":1,"rms_mm":6.0,"seed":0},"task":"hold-still"}"#,
     );
     assert_eq!(identification.kind(), "identification");
     // The trial lasts the multisine's periods; a bad multisine names its field.
@@ -254,6 +255,63 @@ fn start_trial_validation_names_the_bad_field() {
     assert!(err.contains("multisine.lines"), "{err}");
 }
 
+/// Cancellation on the wire: left out when there is none (older messages unchanged), its
+/// defaults filled in, and refused naming it out of range, at the desk and in the
+/// identification test.
+#[test]
+fn cancellation_on_the_wire_and_where_it_is_refused() {
+    use crate::cancellation::CancellationModel;
+    let model: CancellationModel = serde_json::from_str(
+        r#"{"k_h":0.5,"torso_f_hz":1.1,"torso_zeta":0.4,"arm_f_hz":2.0,"arm_zeta":0.35}"#,
+    )
+    .unwrap();
+    assert_golden(
+        &model,
+        r#"{"k_h":0.5,"torso_f_hz":1.1,"torso_zeta":0.4,"arm_f_hz":2.0,"arm_zeta":0.35,"gain":1.0,"phase_lag_deg":0.0,"phase_ref_hz":2.0,"limit_mm":100.0}"#,
+    );
+    let ServerToController::StartTrial(st) = serde_json::from_str::<ServerToController>(
+        r#"{"type":"start_trial","trial_id":7,"compensator":{"kind":"pid","pid":{"kp":0.5,"ti":0.15,"td":0.04,"n":10.0}},"station":"on","k_bf":0.78,"target":{"kind":"steps","interval_s":2.0,"levels_mm":[1.0]},"duration_s":10.0,"input":{"kind":"server"}}"#,
+    )
+    .unwrap() else {
+        panic!("not a start_trial")
+    };
+    assert_eq!(st.cancellation, None);
+    assert!(!serde_json::to_string(&st).unwrap().contains("cancellation"));
+    let on = StartTrial {
+        cancellation: Some(model),
+        ..*st
+    };
+    on.validate().unwrap();
+    let err = |st: StartTrial| st.validate().unwrap_err().to_string();
+    assert!(
+        err(StartTrial {
+            cancellation: Some(CancellationModel { gain: 5.0, ..model }),
+            ..on.clone()
+        })
+        .starts_with("cancellation.gain = 5 is out of range"),
+    );
+    assert_eq!(
+        err(StartTrial {
+            seat: Seat::Off,
+            ..on.clone()
+        }),
+        "cancellation: at the desk no body rides: cancellation is for tests on the machine"
+    );
+    let e = err(StartTrial {
+        target: TargetSpec::Identification {
+            excitation: crate::identification::MultisineSpec::default(),
+            task: crate::identification::IdentificationTask::HoldStill,
+        },
+        duration_s: 70.0,
+        ..on
+    });
+    assert!(
+        e.starts_with("cancellation: the identification test"),
+        "{e}"
+    );
+    assert!(serde_json::from_str::<CancellationModel>(r#"{"k_h":0.5}"#).is_err());
+}
+
 #[test]
 fn trial_result_and_record_chunk() {
     let result = ControllerToServer::TrialResult(Box::new(TrialResult {
@@ -284,6 +342,7 @@ fn trial_result_and_record_chunk() {
         dt: 0.001,
         record_chunks: 1,
         exposure: None,
+        cancellation_off_at_s: None,
     }));
     assert_golden(
         &result,

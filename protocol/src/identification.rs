@@ -80,7 +80,7 @@ impl Default for MultisineSpec {
             period_s: 10.0,
             periods: 6,
             transient_periods: 1,
-            rms_mm: 2.0,
+            rms_mm: 6.0,
             seed: 0,
         }
     }

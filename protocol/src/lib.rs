@@ -30,7 +30,8 @@
 //! `max_frame_gap_ms`, and the station's texts — consent form, instructions — with their
 //! placeholders and the one renderer that fills them in from the parameters. `consent`: the consent
 //! form and its `{procedure}`: what the study does, generated from the parameters, appended when a
-//! lab's text leaves it out. `link_auth`: the link key, key files, and the HMAC-SHA256 proofs of
+//! lab's text leaves it out. `cancellation`: the model a test's model-based cancellation
+//! predicts the body's feedthrough with. `link_auth`: the link key, key files, and the HMAC-SHA256 proofs of
 //! the challenge–response both ends run before anything else. `hex`: the one text form of every
 //! hash, key, token and signature: encode, decode, SHA-256 in hex. `PROTOCOL_VERSION` is exchanged
 //! in the handshake. Golden tests pin the wire text (`golden.rs`, `golden_browser.rs`). The
@@ -41,6 +42,7 @@
 //! empty struct variants, so they refuse unknown fields too.
 
 pub mod browser_to_server;
+pub mod cancellation;
 pub mod consent;
 pub mod controller_to_server;
 pub mod exposure;

@@ -2,6 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::cancellation::CancellationModel;
 use crate::exposure::ExposureAllowance;
 use crate::link_auth::{Bytes32, LinkRole};
 use crate::params::{BodyModel, CompensatorSpec, MAX_KBF, ParamError, PlantParams, Seat, check};
@@ -97,7 +98,9 @@ impl LslStation {
 pub struct StartTrial {
     pub trial_id: TrialId,
     pub compensator: CompensatorSpec,
-    pub station: Seat,
+    /// The seat, on the wire under its old name `station`.
+    #[serde(rename = "station")]
+    pub seat: Seat,
     pub k_bf: f64,
     pub target: TargetSpec,
     pub duration_s: f64,
@@ -125,6 +128,11 @@ pub struct StartTrial {
     /// used up. None: no guard (a desk test, a bench run, the planner).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub exposure_allowance: Option<ExposureAllowance>,
+    /// Model-based cancellation of the feedthrough (`docs/cancellation.md`): the device's
+    /// reading less what this model predicts the cab adds to it. On the machine only, in a
+    /// tracking test. None: no cancellation.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cancellation: Option<CancellationModel>,
 }
 
 /// 6 m/s² RMS (why: the controller's `interlock::DEFAULT_LIMIT_MM_S2`).
@@ -158,6 +166,26 @@ impl StartTrial {
         }
         if let InputSource::Synthetic { operator, .. } = &self.input {
             operator.validate()?;
+        }
+        if let Some(model) = &self.cancellation {
+            model.validate()?;
+            // At the desk no body rides; in the identification test the device never reaches
+            // the cylinder.
+            let refused = match (&self.seat, &self.target) {
+                (Seat::Off, _) => {
+                    Some("at the desk no body rides: cancellation is for tests on the machine")
+                }
+                (_, TargetSpec::Identification { .. }) => Some(
+                    "the identification test's device never reaches the cylinder: nothing to cancel",
+                ),
+                _ => None,
+            };
+            if let Some(message) = refused {
+                return Err(ParamError::Invalid {
+                    name: "cancellation",
+                    message: message.into(),
+                });
+            }
         }
         // An identification test runs whole periods: the trial is exactly its transient and
         // recorded periods, so the estimator finds every period it expects.

@@ -55,6 +55,7 @@ fn main() {
             dt: record.dt,
             record_chunks: 0,
             exposure: None,
+            cancellation_off_at_s: None,
         };
         let (mut without, mut with, mut compute) = (Vec::new(), Vec::new(), Vec::new());
         for _ in 0..runs {

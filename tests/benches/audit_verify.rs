@@ -11,14 +11,13 @@
 //! `cargo build --workspace --bins && ENTRIES=1000000 RUNS=3 cargo bench --profile dev -p bdft-tests --bench audit_verify`
 //! (`KEEP=DIR` keeps the database and its key file in DIR; `RUNS=0` only makes them).
 
-use std::process::Command;
 use std::time::{Duration, Instant};
 
 use sha2::Digest;
 
 use bdft_tests::audit_chain as chain;
 use bdft_tests::server::{Server, Stop, with_db};
-use bdft_tests::{binary, setting};
+use bdft_tests::{server_cmd, setting, succeeded};
 
 fn main() {
     let entries: i64 = setting("ENTRIES", 1_000_000);
@@ -41,19 +40,11 @@ fn main() {
     for _ in 0..runs {
         let cpu_before = children_cpu_s();
         let t = Instant::now();
-        let out = Command::new(binary("bdft-server"))
-            .args(["audit", "verify", "--db"])
-            .arg(&server.db)
-            .output()
-            .unwrap();
+        let out = succeeded(server_cmd(["audit", "verify", "--db"]).arg(&server.db));
         times.push(t.elapsed().as_secs_f64());
         cpu.push(children_cpu_s() - cpu_before);
         let said = String::from_utf8_lossy(&out.stdout);
-        assert!(
-            out.status.success() && said.contains("intact: "),
-            "{said}{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        assert!(said.contains("intact: "), "{said}");
         assert!(
             keyed || said.contains(&format!("({entries} entries chained late")),
             "{said}"

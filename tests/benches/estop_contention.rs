@@ -10,13 +10,13 @@
 //! -p bdft-tests --bench estop_contention` (env PRESSES=50, SCENARIOS=idle,held,pilot,export,
 //! calibration).
 
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Stdio};
 use std::time::{Duration, Instant};
 
 use bdft_tests::server::{
     Api, HeldWrite, Server, pilot_copy, replace_controller, short_study, wait_latched,
 };
-use bdft_tests::{binary, setting, setting_list};
+use bdft_tests::{server_cmd, setting, setting_list};
 use serde_json::{Value, json};
 
 fn main() {
@@ -136,8 +136,7 @@ impl Load {
 /// `bdft-server ARGS --db` on the server's store, as a user runs it beside the server.
 fn tool(server: &Server, args: &[&str]) -> Child {
     let store = server.store();
-    Command::new(binary("bdft-server"))
-        .args(args)
+    server_cmd(args)
         .args(["--db", &store])
         .stdout(Stdio::null())
         .stderr(Stdio::null())

@@ -9,12 +9,12 @@
 //! HMAC written out here), which so also checks the formats against an independent reading.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use bdft_tests::audit_chain as chain;
 use bdft_tests::postgres::PgDatabase;
 use bdft_tests::server::{Server, Stop, eventually, short_study, with_url};
-use bdft_tests::{TempDir, binary};
+use bdft_tests::{TempDir, server_cmd};
 
 /// A store to tamper with and verify: a SQLite file (its audit key beside it), or a
 /// PostgreSQL database (the key in the server's keys directory), kept while this lives.
@@ -68,8 +68,7 @@ impl Store {
 
     /// `bdft-server audit verify` on this store: its outcome and everything it printed.
     fn verify(&self) -> (Output, String) {
-        let mut cmd = Command::new(binary("bdft-server"));
-        cmd.args(["audit", "verify", "--db"]);
+        let mut cmd = server_cmd(["audit", "verify", "--db"]);
         match self {
             Store::File(db) => cmd.arg(db),
             Store::Postgres { url, keys, .. } => cmd.arg(url).arg("--keys-dir").arg(keys),
@@ -566,8 +565,7 @@ fn on_postgresql_entries_written_without_the_key_are_signed_by_the_server() {
     let api = server.experimenter();
     short_study(&api, 3.0, 1.0);
     let url = server.store();
-    let mut pilot = Command::new(binary("bdft-server"))
-        .args(["pilot", "--subjects", "1", "--db", &url])
+    let mut pilot = server_cmd(["pilot", "--subjects", "1", "--db", &url])
         .env_remove("BDFT_KEYS_DIR")
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())

@@ -3,7 +3,8 @@
 //! `bdft-server backup` from another process),
 //! each restored into a new path, whose exports equal the original's up to the backup's
 //! moment; the schedule and how many it keeps; who may see backups; and every refusal of a
-//! restore (a running server, a damaged file, a newer program's file, no manifest).
+//! restore (a running server, a damaged file, a newer program's file, no manifest), and a
+//! restore right after a server stopped the moment it was up.
 //!
 //! *The backup's moment*, precisely: the audit log is append-only and every change commits
 //! with its audit row, so the moment is the backup's last audit row, N = its manifest's
@@ -17,30 +18,19 @@
 
 use std::collections::BTreeSet;
 use std::path::Path;
-use std::process::{Command, Output, Stdio};
+use std::process::{Output, Stdio};
 use std::time::Duration;
 
 use bdft_tests::controller_link::Proc;
 use bdft_tests::exports::parse_csv;
-use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, eventually, short_study, with_db};
+use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, Stop, eventually, short_study, with_db};
 use bdft_tests::webdriver::{Driver, artifacts_dir};
-use bdft_tests::{TempDir, binary};
+use bdft_tests::{TempDir, server_cmd, server_command, server_output, succeeded};
 use serde_json::{Value, json};
 use sha2::{Digest, Sha256};
 
-fn bdft(args: &[&str]) -> Output {
-    Command::new(binary("bdft-server"))
-        .args(args)
-        .output()
-        .expect("spawn bdft-server")
-}
-
-fn ok(out: Output, what: &str) -> String {
-    assert!(
-        out.status.success(),
-        "{what}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+/// What a command printed on its standard output.
+fn stdout_of(out: Output) -> String {
     String::from_utf8(out.stdout).unwrap()
 }
 
@@ -60,7 +50,7 @@ fn export(db: &Path, args: &[&str]) -> String {
     let out = dir.path().join("x.csv");
     let mut all = vec!["export", "--db", path(db), "--out", path(&out)];
     all.extend_from_slice(args);
-    ok(bdft(&all), &format!("export {args:?}"));
+    server_command(all);
     std::fs::read_to_string(&out).unwrap()
 }
 
@@ -223,10 +213,13 @@ fn backups_taken_while_a_pilot_runs_restore_to_the_exports_of_their_moment() {
     let by_dashboard = api.ok("/api/backups", json!({}));
     assert_eq!(by_dashboard["made_by"], "admin");
     let by_hand = dir.path().join("by-hand.db");
-    let printed: Value = serde_json::from_str(&ok(
-        bdft(&["backup", "--db", path(&server.db), "--out", path(&by_hand)]),
+    let printed: Value = serde_json::from_str(&stdout_of(server_command([
         "backup",
-    ))
+        "--db",
+        path(&server.db),
+        "--out",
+        path(&by_hand),
+    ])))
     .unwrap();
     let beside: Value = serde_json::from_str(
         &std::fs::read_to_string(dir.path().join("by-hand.db.manifest.json")).unwrap(),
@@ -311,10 +304,13 @@ fn backups_taken_while_a_pilot_runs_restore_to_the_exports_of_their_moment() {
     for (backup, manifest) in [(dir.path().join(file), &by_dashboard), (by_hand, &beside)] {
         let into = TempDir::new("restored");
         let db = into.path().join("bdft-lab.db");
-        let report: Value = serde_json::from_str(&ok(
-            bdft(&["restore", "--from", path(&backup), "--db", path(&db)]),
+        let report: Value = serde_json::from_str(&stdout_of(server_command([
             "restore",
-        ))
+            "--from",
+            path(&backup),
+            "--db",
+            path(&db),
+        ])))
         .unwrap();
         assert_eq!(report["sha256"], manifest["sha256"]);
         assert_eq!(report["replaced_kept_as"], Value::Null);
@@ -365,7 +361,7 @@ fn change_bytes(file: &Path, f: impl FnOnce(&mut Vec<u8>)) {
 
 fn restore_refused(from: &Path, db: &Path, what: &str) -> String {
     let e = refused(
-        bdft(&["restore", "--from", path(from), "--db", path(db)]),
+        server_output(["restore", "--from", path(from), "--db", path(db)]),
         what,
     );
     let mut staging = db.as_os_str().to_os_string();
@@ -382,12 +378,9 @@ fn a_restore_refuses_a_running_server_a_damaged_file_and_a_newer_programs() {
     let server = Server::start("restore-refusals");
     let dir = TempDir::new("restore-refusals-files");
     let good = dir.path().join("good.db");
-    ok(
-        bdft(&["backup", "--db", path(&server.db), "--out", path(&good)]),
-        "backup",
-    );
+    server_command(["backup", "--db", path(&server.db), "--out", path(&good)]);
     let e = refused(
-        bdft(&["backup", "--db", path(&server.db), "--out", path(&good)]),
+        server_output(["backup", "--db", path(&server.db), "--out", path(&good)]),
         "a backup over an existing file",
     );
     assert!(
@@ -395,7 +388,7 @@ fn a_restore_refuses_a_running_server_a_damaged_file_and_a_newer_programs() {
         "{e}"
     );
     let e = refused(
-        bdft(&[
+        server_output([
             "backup",
             "--db",
             path(&dir.path().join("none.db")),
@@ -488,14 +481,14 @@ fn a_restore_refuses_a_running_server_a_damaged_file_and_a_newer_programs() {
     assert!(!target.exists(), "no refused restore wrote the database");
 
     // The good one restores, twice: the second keeps the database it replaces.
-    ok(
-        bdft(&["restore", "--from", path(&good), "--db", path(&target)]),
+    server_command(["restore", "--from", path(&good), "--db", path(&target)]);
+    let again: Value = serde_json::from_str(&stdout_of(server_command([
         "restore",
-    );
-    let again: Value = serde_json::from_str(&ok(
-        bdft(&["restore", "--from", path(&good), "--db", path(&target)]),
-        "restore again",
-    ))
+        "--from",
+        path(&good),
+        "--db",
+        path(&target),
+    ])))
     .unwrap();
     let kept = again["replaced_kept_as"]
         .as_str()
@@ -505,6 +498,22 @@ fn a_restore_refuses_a_running_server_a_damaged_file_and_a_newer_programs() {
         audit.contains("backup.restore"),
         "the replaced one had the first restore"
     );
+}
+
+/// A server signalled the moment its address line is out (as a supervisor or a test that
+/// reads that line may) stops by its own shutdown, which ends its heartbeat: a restore right
+/// after is not refused for the 5 s a killed server's last beat holds the database.
+#[test]
+fn a_server_stopped_as_soon_as_it_is_up_ends_cleanly_and_a_restore_may_follow_at_once() {
+    let mut server = Server::start("prompt-stop");
+    let dir = TempDir::new("prompt-stop-files");
+    let backup = dir.path().join("backup.db");
+    server_command(["backup", "--db", path(&server.db), "--out", path(&backup)]);
+    for _ in 0..3 {
+        server.restart(Stop::Term, Duration::from_secs(30)).unwrap();
+    }
+    server.stop(Stop::Term, Duration::from_secs(30)).unwrap();
+    server_command(["restore", "--from", path(&backup), "--db", path(&server.db)]);
 }
 
 /// Records in the database file `db` a migration it never ran (what a newer program's
@@ -597,7 +606,7 @@ fn scheduled_backups_keep_the_newest_and_only_admins_see_them() {
     ] {
         let mut all = vec!["serve", "--db", path(&flags_db), "--listen", "127.0.0.1:0"];
         all.extend(args.iter());
-        let e = refused(bdft(&all), &format!("serve {args:?}"));
+        let e = refused(server_output(all), &format!("serve {args:?}"));
         assert!(e.contains(says), "{args:?}: {e}");
     }
 
@@ -627,19 +636,19 @@ fn on_postgresql_backups_and_restores_are_refused_naming_its_own_tools() {
     let out = dir.path().join("copy.db");
     let tools = "pg_dump and pg_restore, or continuous archiving";
     let e = refused(
-        bdft(&["backup", "--db", &url, "--out", path(&out)]),
+        server_output(["backup", "--db", &url, "--out", path(&out)]),
         "a backup of a PostgreSQL store",
     );
     assert!(e.contains(tools), "{e}");
     assert!(!out.exists(), "nothing written");
     std::fs::write(&out, "a file").unwrap();
     let e = refused(
-        bdft(&["restore", "--from", path(&out), "--db", &url]),
+        server_output(["restore", "--from", path(&out), "--db", &url]),
         "a restore onto a PostgreSQL store",
     );
     assert!(e.contains(tools), "{e}");
     let e = refused(
-        bdft(&[
+        server_output([
             "serve",
             "--listen",
             "127.0.0.1:0",
@@ -724,27 +733,19 @@ fn relative_backup_paths_two_levels_up_work() {
     drop(proc);
 
     // `bdft-server backup --out ../../x/by-hand.db`, and its restore from there.
-    let out = Command::new(binary("bdft-server"))
-        .current_dir(&cwd)
-        .args(["backup", "--db", path(&db), "--out", "../../x/by-hand.db"])
-        .output()
-        .unwrap();
-    ok(out, "backup --out ../../x/by-hand.db");
+    succeeded(
+        server_cmd(["backup", "--db", path(&db), "--out", "../../x/by-hand.db"]).current_dir(&cwd),
+    );
     assert!(root.path().join("x").join("by-hand.db").is_file());
-    let out = Command::new(binary("bdft-server"))
-        .current_dir(&cwd)
-        .args([
+    succeeded(
+        server_cmd([
             "restore",
             "--from",
             "../../x/by-hand.db",
             "--db",
             "../../restored.db",
         ])
-        .output()
-        .unwrap();
-    ok(
-        out,
-        "restore --from ../../x/by-hand.db --db ../../restored.db",
+        .current_dir(&cwd),
     );
     assert!(root.path().join("restored.db").is_file());
 }

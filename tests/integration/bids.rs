@@ -8,13 +8,13 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
 use bdft_tests::exports::parse_csv;
 
 use crate::exports_audit::column;
 use bdft_tests::server::{Server, pilot_copy, short_study};
-use bdft_tests::{TempDir, binary, unshare_network, venv_tool};
+use bdft_tests::{TempDir, server_command, server_output, unshare_network, venv_tool};
 use serde_json::{Value, json};
 
 fn validator() -> PathBuf {
@@ -57,13 +57,6 @@ fn validation_errors(dataset: &Path) -> Vec<String> {
     errors
 }
 
-fn run(args: &[&str]) -> Output {
-    Command::new(binary("bdft-server"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
 fn tsv(path: &Path) -> Vec<Vec<String>> {
     std::fs::read_to_string(path)
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
@@ -103,8 +96,8 @@ fn a_pilots_bids_export_passes_the_validator_and_holds_every_run() {
     let dataset = dir.path().join("dataset");
     let db = server.store();
     let copy_arg = copy.to_string();
-    let export = |out: &Path| {
-        run(&[
+    let export_args = |out: &Path| {
+        let args: [&str; 9] = [
             "export",
             "--db",
             &db,
@@ -114,14 +107,10 @@ fn a_pilots_bids_export_passes_the_validator_and_holds_every_run() {
             "bids",
             "--out",
             out.to_str().unwrap(),
-        ])
+        ];
+        args.map(String::from)
     };
-    let out = export(&dataset);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = server_command(export_args(&dataset));
     let written: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(written["subjects"], 2, "{written}");
     assert!(!dir.path().join("dataset.partial").exists());
@@ -273,11 +262,11 @@ fn a_pilots_bids_export_passes_the_validator_and_holds_every_run() {
     );
 
     // Bad requests: an existing directory, a study without a recorded test.
-    let again = export(&dataset);
+    let again = server_output(export_args(&dataset));
     assert!(!again.status.success());
     assert!(String::from_utf8_lossy(&again.stderr).contains("never overwrites"));
     let empty = short_study(&api, 3.0, 1.0).to_string();
-    let none = run(&[
+    let none = server_output([
         "export",
         "--db",
         &db,

@@ -2,12 +2,11 @@
 //! bad tables refused with a 422 naming the row, a fit stored as the study's next population
 //! version with its audit row, cancel, and the model card's validation table command.
 
-use std::process::Command;
 use std::time::Duration;
 
 use bdft_tests::exports::parse_csv;
 use bdft_tests::server::{Server, eventually, pilot_copy, short_study};
-use bdft_tests::{TempDir, binary};
+use bdft_tests::{TempDir, server_command, server_output};
 use serde_json::{Value, json};
 
 /// A 10-cell table of tracking error (sd and n) a paper might print.
@@ -215,24 +214,16 @@ fn a_calibration_to_a_studys_own_tests_predicts_the_ratings_beside_the_subjects_
 
 #[test]
 fn the_validation_table_is_one_command() {
-    let out = Command::new(binary("bdft-server"))
-        .args([
-            "findings",
-            "--subjects",
-            "8",
-            "--seed",
-            "1",
-            "--trial-s",
-            "10",
-        ])
-        .output()
-        .unwrap();
+    let out = server_command([
+        "findings",
+        "--subjects",
+        "8",
+        "--seed",
+        "1",
+        "--trial-s",
+        "10",
+    ]);
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{text}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     assert!(text.starts_with("8 subjects, seed 1, 10 s tests"), "{text}");
     for controller in ["pid", "pid-notch", "pid-shaper", "lqr", "lqr-cabvel"] {
         for station in ["on", "off"] {
@@ -266,7 +257,8 @@ fn the_calibrate_command_holds_rows_out_and_refuses_bad_ones_naming_them() {
     let dir = TempDir::new("calibrate-hold-out");
     let db = server.store();
     let study_arg = study.to_string();
-    let calibrate = |table: &str, hold_out: Option<&str>| {
+    // The command's arguments, with `table` written to the file it reads.
+    let calibrate = |table: &str, hold_out: Option<&str>| -> Vec<String> {
         let path = dir.path().join("table.csv");
         std::fs::write(&path, table).unwrap();
         let mut args = vec![
@@ -285,10 +277,7 @@ fn the_calibrate_command_holds_rows_out_and_refuses_bad_ones_naming_them() {
         if let Some(h) = hold_out {
             args.extend(["--hold-out", h]);
         }
-        Command::new(binary("bdft-server"))
-            .args(args)
-            .output()
-            .unwrap()
+        args.into_iter().map(String::from).collect()
     };
     let head = "controller,station,metric,mean,sd,n,unit,use\n";
     let fit_rows: String = TABLE
@@ -326,7 +315,7 @@ fn the_calibrate_command_holds_rows_out_and_refuses_bad_ones_naming_them() {
         ),
     ];
     for (table, hold_out, said) in &bad {
-        let out = calibrate(table, *hold_out);
+        let out = server_output(calibrate(table, *hold_out));
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success() && err.contains(said), "{said}: {err}");
         let (code, e) = api.post(
@@ -343,9 +332,8 @@ fn the_calibrate_command_holds_rows_out_and_refuses_bad_ones_naming_them() {
     assert_eq!(st["population_version"], 0, "nothing stored: {st}");
 
     // Fitted on 8 of the 10 rows; the two held out are predicted beside their targets.
-    let out = calibrate(TABLE, Some("lqr:on, pid:off:mse_tracking_mm2"));
+    let out = server_command(calibrate(TABLE, Some("lqr:on, pid:off:mse_tracking_mm2")));
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
     let fit = &report["fit"];
     assert_eq!(fit["cells"].as_array().unwrap().len(), 8, "{fit}");

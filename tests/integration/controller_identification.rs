@@ -29,7 +29,7 @@ const EVERY: u32 = 10;
 /// batch of ticks; returns the record.
 fn run(link: &mut Link, trial_id: u64, hand: impl Fn(u64) -> f64) -> Vec<Vec<f32>> {
     let st = bdft_protocol::server_to_controller::StartTrial {
-        station: Seat::On,
+        seat: Seat::On,
         target: TargetSpec::Identification {
             excitation: SPEC,
             task: IdentificationTask::HoldStill,

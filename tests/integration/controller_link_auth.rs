@@ -36,7 +36,16 @@ fn a_client_without_the_key_runs_nothing() {
     );
     assert!(wrong.try_recv().is_none(), "closed after the refusal");
 
-    // No hello at all: a start_trial first is refused, the connection closed.
+    // No hello at all: any other first message is refused, the connection closed.
+    let mut rude = Link::raw(ctl.addr);
+    rude.challenge();
+    rude.send(&ServerToController::Heartbeat { seq: 1 });
+    let why = refusal(rude.recv());
+    assert!(why.contains("first message"), "{why}");
+    assert!(rude.try_recv().is_none());
+    // A start_trial first, which would drive the machine, is larger than anything an
+    // unauthenticated peer may send (a whole study's rig and design): refused by its size
+    // before it is read, the connection closed.
     let mut rude = Link::raw(ctl.addr);
     rude.challenge();
     rude.send(&ServerToController::StartTrial(Box::new(synthetic_trial(
@@ -47,7 +56,8 @@ fn a_client_without_the_key_runs_nothing() {
         1.0,
         1,
     ))));
-    assert!(refusal(rude.recv()).contains("first message"));
+    let why = refusal(rude.recv());
+    assert!(why.contains("before authentication"), "{why}");
     assert!(rude.try_recv().is_none());
 
     // A proof made for one connection's challenge does not open another (a recorded
@@ -342,8 +352,7 @@ fn a_remote_controller_serves_only_the_server_with_its_key_file() {
     });
     assert_eq!(status["rig"], "sim");
     // Without --controller-key-file the server refuses to start against a remote one.
-    let out = std::process::Command::new(bdft_tests::binary("bdft-server"))
-        .args(["serve", "--db", dir.path().join("x.db").to_str().unwrap()])
+    let out = bdft_tests::server_cmd(["serve", "--db", dir.path().join("x.db").to_str().unwrap()])
         .args(["--listen", "127.0.0.1:0", "--controller", &addr])
         .env_remove("BDFT_CONTROLLER_KEY_FILE")
         .output()

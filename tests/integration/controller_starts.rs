@@ -29,7 +29,7 @@ pub(crate) fn synthetic_trial(
     StartTrial {
         trial_id,
         compensator: default_spec(kind, &plant),
-        station: seat,
+        seat,
         k_bf,
         target: TargetSpec::Steps {
             interval_s: target.interval_s,
@@ -47,6 +47,7 @@ pub(crate) fn synthetic_trial(
         stale_input_ms: 100.0,
         max_cab_rms_mm_s2: bdft_protocol::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
         exposure_allowance: None,
+        cancellation: None,
     }
 }
 

@@ -4,20 +4,13 @@
 //! sample mentions is the one the help states (a server unit test ties that to the
 //! controller's own constant).
 
+use bdft_tests::{server_cmd, succeeded};
 use std::collections::BTreeMap;
-use std::process::Command;
-
-use bdft_tests::binary;
 
 /// Each environment variable of `serve --help` with its default, if it has one.
 fn serve_help() -> (BTreeMap<String, Option<String>>, String) {
     // No BDFT_* of the test's environment may show through as a value.
-    let out = Command::new(binary("bdft-server"))
-        .args(["serve", "--help"])
-        .env_clear()
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{out:?}");
+    let out = succeeded(server_cmd(["serve", "--help"]).env_clear());
     let help = String::from_utf8(out.stdout).unwrap();
     // One flag's block starts at its `--flag` line (its description is indented further,
     // and may hold a `--flag` of its own) and runs to the next one.

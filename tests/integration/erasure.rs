@@ -20,7 +20,7 @@ use bdft_tests::server::{
     person_at_a_station, run_trial, short_study, with_db, with_store,
 };
 use bdft_tests::webdriver::{Session, artifacts_dir};
-use bdft_tests::{TempDir, binary};
+use bdft_tests::{TempDir, server_cmd, succeeded};
 use serde_json::{Value, json};
 use sqlx::AnyPool;
 
@@ -618,16 +618,13 @@ fn an_erased_subject_leaves_only_the_erasure_in_every_table_and_no_count() {
     let restored = TempDir::new("erasure-restored");
     let db = restored.path().join("bdft-lab.db");
     let restore = |backup: &Value| {
-        let out = std::process::Command::new(binary("bdft-server"))
-            .arg("restore")
-            .arg("--from")
-            .arg(backups.path().join(backup.as_str().unwrap()))
-            .arg("--db")
-            .arg(&db)
-            .output()
-            .unwrap();
+        let out = succeeded(
+            server_cmd(["restore", "--from"])
+                .arg(backups.path().join(backup.as_str().unwrap()))
+                .arg("--db")
+                .arg(&db),
+        );
         let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-        assert!(out.status.success(), "{stderr}");
         (
             serde_json::from_slice::<Value>(&out.stdout).unwrap(),
             stderr,

@@ -6,14 +6,14 @@
 //! kinds, formats and cuts (HTTP and command line).
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use arrow_array::cast::AsArray;
 use arrow_array::types::{Float64Type, Int64Type};
 use arrow_array::{Array, RecordBatch};
 use arrow_schema::DataType;
 use bdft_tests::server::{Server, pilot_copy, short_study, with_store};
-use bdft_tests::{TempDir, binary, controller};
+use bdft_tests::{TempDir, controller, server_command, server_output};
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use serde_json::{Value, json};
 
@@ -395,10 +395,6 @@ fn a_pilots_analyst_exports_are_tidy_and_parquet_equals_csv() {
     );
 }
 
-fn run(bin: &str, args: &[&str]) -> Output {
-    Command::new(binary(bin)).args(args).output().unwrap()
-}
-
 fn stderr(out: &Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
@@ -408,17 +404,12 @@ fn the_command_line_cuts_samples_and_simulate_writes_the_same_record_layout() {
     let dir = TempDir::new("exports-cli");
     let db = dir.path().join("pilot.db");
     let db = db.to_str().unwrap();
-    let out = run(
-        "bdft-server",
-        &["pilot", "--db", db, "--subjects", "1", "--seed", "5"],
-    );
-    assert!(out.status.success(), "{}", stderr(&out));
+    server_command(["pilot", "--db", db, "--subjects", "1", "--seed", "5"]);
     let export = |args: &[&str], file: &str| {
         let path = dir.path().join(file);
         let mut all = vec!["export", "--db", db, "--out", path.to_str().unwrap()];
         all.extend(args);
-        let out = run("bdft-server", &all);
-        assert!(out.status.success(), "{args:?}: {}", stderr(&out));
+        server_command(&all);
         std::fs::read(path).unwrap()
     };
     let trials =
@@ -452,22 +443,33 @@ fn the_command_line_cuts_samples_and_simulate_writes_the_same_record_layout() {
         "s01.csv",
     ))
     .unwrap();
-    let planned: f64 = trials[1..]
-        .iter()
-        .map(|r| r[c("duration_s")].parse::<f64>().unwrap())
-        .sum();
     let mut lines = mine.lines();
     assert_eq!(lines.next(), Some(samples[0].join(",").as_str()));
-    let mut n = 0;
+    let at = column(&samples, "trial_id");
+    let mut per_trial = std::collections::BTreeMap::<String, usize>::new();
     for l in lines {
         assert_eq!(l.split(',').nth(1), Some("S01"), "{l}");
-        n += 1;
+        let id = l.split(',').nth(at).unwrap_or_default().to_string();
+        *per_trial.entry(id).or_default() += 1;
     }
-    assert_eq!(
-        n,
-        (planned * 1000.0).round() as usize,
-        "the practice and tests of S01"
-    );
+    // Every attempt of S01 is there: a completed one with its whole length at 1 kHz, one the
+    // interlock stopped with what it recorded before (the pilot's riders can shake the LQR
+    // into it, as the thesis lost 2 of its 80 tests).
+    assert_eq!(per_trial.len(), trials.len() - 1, "{per_trial:?}");
+    for r in &trials[1..] {
+        let planned = (r[c("duration_s")].parse::<f64>().unwrap() * 1000.0).round() as usize;
+        let n = per_trial[&r[c("trial_id")]];
+        if r[c("status")] == "complete" {
+            assert_eq!(n, planned, "trial {}", r[c("trial_id")]);
+        } else {
+            assert!(
+                0 < n && n < planned,
+                "trial {} ({}): {n}",
+                r[c("trial_id")],
+                r[c("status")]
+            );
+        }
+    }
 
     // `simulate --out` of the same compensator, seat and seed: the samples export's record
     // columns (same names, units, order) in the same number format.
@@ -536,7 +538,7 @@ fn the_command_line_cuts_samples_and_simulate_writes_the_same_record_layout() {
     ] {
         let mut all = vec!["export", "--db", db, "--out", out_arg];
         all.extend(&args);
-        let out = run("bdft-server", &all);
+        let out = server_output(&all);
         assert_eq!(out.status.code(), Some(2), "{args:?}");
         assert!(
             stderr(&out).contains(expected),

@@ -2,11 +2,11 @@
 //! as CSV (HTTP and `bdft-server export --kind audit`), formula cells neutralized behind
 //! leading whitespace, PNG plots of awkward names, and a killed pilot's trials filed.
 
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::Duration;
 
 use bdft_tests::server::{Api, Server, assigned_station, eventually};
-use bdft_tests::{TempDir, binary};
+use bdft_tests::{TempDir, server_cmd, succeeded};
 use serde_json::{Value, json};
 
 pub(crate) use bdft_tests::exports::parse_csv;
@@ -100,8 +100,8 @@ fn notes_and_reasons_are_exported_and_the_audit_log_too() {
     assert_eq!(code, 422, "{body}");
     let dir = TempDir::new("exports-audit-cli");
     let out = dir.path().join("audit.csv");
-    let status = Command::new(binary("bdft-server"))
-        .args([
+    succeeded(
+        server_cmd([
             "export",
             "--kind",
             "audit",
@@ -109,10 +109,8 @@ fn notes_and_reasons_are_exported_and_the_audit_log_too() {
             &server.store(),
             "--out",
         ])
-        .arg(&out)
-        .status()
-        .unwrap();
-    assert!(status.success());
+        .arg(&out),
+    );
     let cli = parse_csv(&std::fs::read_to_string(&out).unwrap());
     assert!(cli.len() >= audit.len() - 1 && cli[0] == audit[0]);
 
@@ -149,8 +147,7 @@ fn trials_of(api: &Api, study: i64) -> Vec<(i64, String, String)> {
 fn a_killed_pilot_process_leaves_no_trial_running() {
     let server = Server::start("exports-killed-pilot");
     let api = server.experimenter();
-    let mut pilot = Command::new(binary("bdft-server"))
-        .args(["pilot", "--subjects", "2", "--db", &server.store()])
+    let mut pilot = server_cmd(["pilot", "--subjects", "2", "--db", &server.store()])
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()

@@ -12,7 +12,7 @@ use std::process::Command;
 use std::time::Duration;
 
 use bdft_tests::server::{Server, Stop, eventually};
-use bdft_tests::{TempDir, binary};
+use bdft_tests::{TempDir, server_cmd, succeeded};
 
 fn mode(path: &Path) -> u32 {
     std::fs::metadata(path)
@@ -120,14 +120,12 @@ fn a_servers_keys_and_data_are_its_own_and_ignored_by_git() {
     // database and the kept copy of the replaced one are private.
     server.stop(Stop::Term, Duration::from_secs(30)).unwrap();
     set_mode(&server.db, 0o644);
-    let out = Command::new(binary("bdft-server"))
-        .args(["restore", "--from"])
-        .arg(&backup)
-        .arg("--db")
-        .arg(&server.db)
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{out:?}");
+    let out = succeeded(
+        server_cmd(["restore", "--from"])
+            .arg(&backup)
+            .arg("--db")
+            .arg(&server.db),
+    );
     let restored: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let kept = PathBuf::from(restored["replaced_kept_as"].as_str().unwrap());
     assert_eq!(mode(&server.db), 0o600, "the restored database");

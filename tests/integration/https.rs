@@ -223,17 +223,16 @@ fn tls_settings_that_cannot_work_are_refused_at_start() {
     std::fs::write(&junk, "not a certificate").unwrap();
     let db = dir.path().join("x.db");
     let run = |args: &[&str]| {
-        let out = Command::new(bdft_tests::binary("bdft-server"))
-            .args([
-                "serve",
-                "--db",
-                db.to_str().unwrap(),
-                "--listen",
-                "127.0.0.1:0",
-            ])
-            .args(args)
-            .output()
-            .unwrap();
+        let out = bdft_tests::server_cmd([
+            "serve",
+            "--db",
+            db.to_str().unwrap(),
+            "--listen",
+            "127.0.0.1:0",
+        ])
+        .args(args)
+        .output()
+        .unwrap();
         assert!(!out.status.success(), "{args:?} started");
         String::from_utf8(out.stderr).unwrap()
     };

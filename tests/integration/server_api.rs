@@ -8,7 +8,7 @@ use bdft_tests::server::{
     Api, Server, assigned_station, dry_run, eventually, pair_station, run_trial, short_study,
     wait_latched,
 };
-use bdft_tests::{TempDir, binary};
+use bdft_tests::{TempDir, server_command, server_output};
 use serde_json::{Value, json};
 
 fn csv(text: &str) -> (Vec<String>, Vec<Vec<String>>) {
@@ -589,36 +589,20 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
     let dir = TempDir::new("pilot");
     let db = dir.path().join("pilot.db");
     let db = db.to_str().unwrap();
-    let out = std::process::Command::new(binary("bdft-server"))
-        .args(["pilot", "--db", db, "--subjects", "2", "--seed", "7"])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = server_command(["pilot", "--db", db, "--subjects", "2", "--seed", "7"]);
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(report["trials"], 22);
     assert_eq!(report["complete"], 22);
     let csv_path = dir.path().join("trials.csv");
-    let out = std::process::Command::new(binary("bdft-server"))
-        .args([
-            "export",
-            "--db",
-            db,
-            "--kind",
-            "trials",
-            "--out",
-            csv_path.to_str().unwrap(),
-        ])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    server_command([
+        "export",
+        "--db",
+        db,
+        "--kind",
+        "trials",
+        "--out",
+        csv_path.to_str().unwrap(),
+    ]);
     let (h, rows) = csv(&std::fs::read_to_string(&csv_path).unwrap());
     for c in [
         "subject_code",
@@ -648,6 +632,11 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
     ] {
         col(&h, c);
     }
+    assert_eq!(
+        h[h.len() - 3..],
+        ["starting_seat", "seat", "compensator"],
+        "the clear names come last"
+    );
     assert_eq!(rows.len(), 22);
     let params = bdft_server::engine::study::schedule::default_params();
     let hash = bdft_server::engine::study::schedule::protocol_hash(&params);
@@ -669,6 +658,14 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
             // Practice has no compensator, block or position: no row reads as a PID test.
             let test_only = |v: String| if t.phase.scored() { v } else { String::new() };
             assert_eq!(get(r, "controller"), test_only(t.compensator.name().into()));
+            // The clear names, last, beside the old ones kept for a release: the same values.
+            for (clear, old) in [
+                ("starting_seat", "starting_station"),
+                ("seat", "station"),
+                ("compensator", "controller"),
+            ] {
+                assert_eq!(get(r, clear), get(r, old), "{clear}");
+            }
             assert_eq!(get(r, "blinded_label"), test_only(t.blinded_label.clone()));
             assert_eq!(get(r, "block"), test_only(t.block.to_string()));
             assert_eq!(get(r, "position"), test_only(t.position.to_string()));
@@ -714,19 +711,15 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
     }
     // The summary has one line per controller × station × variable with n = 2.
     let sum_path = dir.path().join("summary.csv");
-    let out = std::process::Command::new(binary("bdft-server"))
-        .args([
-            "export",
-            "--db",
-            db,
-            "--kind",
-            "summary",
-            "--out",
-            sum_path.to_str().unwrap(),
-        ])
-        .output()
-        .unwrap();
-    assert!(out.status.success());
+    server_command([
+        "export",
+        "--db",
+        db,
+        "--kind",
+        "summary",
+        "--out",
+        sum_path.to_str().unwrap(),
+    ]);
     let (sh, srows) = csv(&std::fs::read_to_string(&sum_path).unwrap());
     let metric_rows: Vec<_> = srows
         .iter()
@@ -734,19 +727,22 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
         .collect();
     assert_eq!(metric_rows.len(), 10);
     assert!(metric_rows.iter().all(|r| r[col(&sh, "n")] == "2"));
+    assert!(
+        srows
+            .iter()
+            .all(|r| r[col(&sh, "compensator")] == r[col(&sh, "controller")]
+                && r[col(&sh, "seat")] == r[col(&sh, "station")])
+    );
     // A bad export kind is refused with the valid ones named.
-    let out = std::process::Command::new(binary("bdft-server"))
-        .args([
-            "export",
-            "--db",
-            db,
-            "--kind",
-            "everything",
-            "--out",
-            "/dev/null",
-        ])
-        .output()
-        .unwrap();
+    let out = server_output([
+        "export",
+        "--db",
+        db,
+        "--kind",
+        "everything",
+        "--out",
+        "/dev/null",
+    ]);
     assert!(!out.status.success());
     assert!(
         String::from_utf8_lossy(&out.stderr)

@@ -268,8 +268,7 @@ fn site_arguments_that_cannot_work_are_refused_at_start() {
             "--controller",
         ),
     ] {
-        let out = std::process::Command::new(bdft_tests::binary("bdft-server"))
-            .args(["serve", "--listen", "127.0.0.1:0", "--db"])
+        let out = bdft_tests::server_cmd(["serve", "--listen", "127.0.0.1:0", "--db"])
             .arg(&db)
             .args(&args)
             .output()

@@ -223,41 +223,33 @@ fn the_population_planner_runs_whole_simulated_studies_in_the_background_with_pr
     // Seeded: the same plan again — and from the command line, in another process on
     // another thread split — is the same plan.
     assert_eq!(run()["report"], *report);
-    let out = std::process::Command::new(bdft_tests::binary("bdft-server"))
-        .args(["plan", "--db", &server.store(), "--study"])
-        .arg(study.to_string())
-        .args([
-            "--subjects",
-            "8,12",
-            "--draws",
-            "20",
-            "--seed",
-            "3",
-            "--station",
-            "on",
-        ])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = bdft_tests::server_command([
+        "plan",
+        "--db",
+        &server.store(),
+        "--study",
+        &study.to_string(),
+        "--subjects",
+        "8,12",
+        "--draws",
+        "20",
+        "--seed",
+        "3",
+        "--station",
+        "on",
+    ]);
     let cli: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(cli, *report);
     // A bad argument is refused with the allowed values.
-    let out = std::process::Command::new(bdft_tests::binary("bdft-server"))
-        .args([
-            "plan",
-            "--db",
-            &server.store(),
-            "--subjects",
-            "8",
-            "--source",
-            "guess",
-        ])
-        .output()
-        .unwrap();
+    let out = bdft_tests::server_output([
+        "plan",
+        "--db",
+        &server.store(),
+        "--subjects",
+        "8",
+        "--source",
+        "guess",
+    ]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("population") && err.contains("pilot"), "{err}");

@@ -6,11 +6,10 @@
 //! `accepted-changes.txt`). README, "Upgrades", says how a release adds its own fixture.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use bdft_tests::exports::compare;
 use bdft_tests::server::{Api, Server, with_db};
-use bdft_tests::{TempDir, binary};
+use bdft_tests::{TempDir, server_cmd};
 use serde_json::Value;
 
 fn fixtures() -> Vec<PathBuf> {
@@ -64,9 +63,7 @@ fn differences(fixture: &Path) -> Vec<String> {
     // The command line's exports first: the log-in below adds to the audit log.
     for (file, args) in lines.iter().filter(|(_, a)| a.first() != Some(&"GET")) {
         let path = out.path().join(file);
-        let made = Command::new(binary("bdft-server"))
-            .arg("export")
-            .arg("--db")
+        let made = server_cmd(["export", "--db"])
             .arg(&server.db)
             .args(args)
             .arg("--out")
@@ -131,8 +128,7 @@ fn audit_chained_late(fixture: &Path, server: &Server) -> Option<String> {
             .await
             .unwrap()
     });
-    let verified = Command::new(binary("bdft-server"))
-        .args(["audit", "verify", "--db"])
+    let verified = server_cmd(["audit", "verify", "--db"])
         .arg(&server.db)
         .output()
         .unwrap();

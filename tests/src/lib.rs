@@ -4,7 +4,9 @@
 //! processes. One integration binary (`integration/main.rs`), one module per area; unit tests of
 //! the maths live next to the code.
 //!
-//! - The root: `binary`, `controller` (runs `bdft-controller`), `TempDir`, `send_signal`,
+//! - The root: `binary`, `controller` (runs `bdft-controller`), `server_command` (runs
+//!   `bdft-server` and checks it succeeded; `server_output` whatever its status, `server_cmd` and
+//!   `succeeded` for a run with a path, a directory or an environment), `TempDir`, `send_signal`,
 //!   `read_timed_out`; `controller_link`: `Proc` spawns a process on port 0 and reads its address,
 //!   `Link` speaks the protocol as the server does.
 //! - `server`: `Server` starts `bdft-server` on a fresh database — and restarts it on its port
@@ -47,6 +49,7 @@
 //! the server's layers, the engine's rooms and their one direction, and no import cycle between two
 //! modules.
 
+use std::ffi::OsStr;
 use std::path::PathBuf;
 use std::process::{Command, Output};
 
@@ -103,6 +106,53 @@ pub fn controller(args: &[&str]) -> Output {
         .args(args)
         .output()
         .expect("spawn bdft-controller")
+}
+
+/// `bdft-server` with `args`, not yet run: for a run that spawns, sets a directory or an
+/// environment, or adds a path (then [`succeeded`] runs it).
+pub fn server_cmd<I, S>(args: I) -> Command
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<OsStr>,
+{
+    let mut cmd = Command::new(binary("bdft-server"));
+    cmd.args(args);
+    cmd
+}
+
+/// Runs `bdft-server` with `args` to its end and returns its output, whatever its status
+/// (for a test that expects a refusal).
+pub fn server_output<I, S>(args: I) -> Output
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<OsStr>,
+{
+    server_cmd(args).output().expect("spawn bdft-server")
+}
+
+/// Runs `bdft-server` with `args` and returns its output; panics, with the command and its
+/// standard error, when it fails.
+pub fn server_command<I, S>(args: I) -> Output
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<OsStr>,
+{
+    succeeded(&mut server_cmd(args))
+}
+
+/// Runs `cmd` to its end and returns its output; panics, with the command and its standard
+/// error, when it fails.
+pub fn succeeded(cmd: &mut Command) -> Output {
+    let out = cmd
+        .output()
+        .unwrap_or_else(|e| panic!("spawn {cmd:?}: {e}"));
+    assert!(
+        out.status.success(),
+        "{cmd:?}: {}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
 }
 
 /// A benchmark's setting: environment variable `name` read as a `T`, or `default` when it

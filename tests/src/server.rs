@@ -205,7 +205,7 @@ impl Server {
     }
 
     /// Stops the server `how` and waits for it to exit; an error when SIGTERM did not stop
-    /// it within `limit` (it is killed then).
+    /// it within `limit` (it is killed then) or stopped it without its own shutdown.
     pub fn stop(&mut self, how: Stop, limit: Duration) -> Result<(), String> {
         if how == Stop::Kill {
             self.proc.kill();
@@ -214,8 +214,16 @@ impl Server {
         crate::send_signal(self.proc.child.id(), "TERM")?;
         let start = Instant::now();
         while start.elapsed() < limit {
-            if let Ok(Some(_)) = self.proc.child.try_wait() {
-                return Ok(());
+            if let Ok(Some(status)) = self.proc.child.try_wait() {
+                // Its own shutdown exits; the signal's default action (no handler yet)
+                // would skip the clean-up a restore or a restart depends on.
+                use std::os::unix::process::ExitStatusExt;
+                return match status.signal() {
+                    None => Ok(()),
+                    Some(s) => Err(format!(
+                        "the server was ended by signal {s}, not by its own shutdown"
+                    )),
+                };
             }
             std::thread::sleep(Duration::from_millis(20));
         }

@@ -18,7 +18,7 @@ subject held on average over the recorded periods: holding still, 1 + grip_stiff
 felt RMS cab acceleration (m/s^2) over those periods (the operator's grip is 1 +
 grip_stiffening x its running 1-s RMS of the true cab acceleration, `SyntheticOperator::hold`;
 the record's channel is the accelerometer's, so the accelerometer's white noise, the plant's
-accel_noise_std, is taken out of its mean square); relaxed, the grip stays 1. The seated
+accel_noise_std, and the engine's tone, engine_vibration_rms, are taken out of its mean square); relaxed, the grip stays 1. The seated
 body's feedthrough k_h(1 - T·A) is symmetric in torso and arm, and the fit names the lower
 resonance the torso: so does the truth (a subject whose gripped arm is below their torso is
 compared resonance for resonance).
@@ -30,7 +30,7 @@ Usage (from the repo root, after `cargo build -p bdft-server --bins`):
     python3 tools/bench/identification_coverage.py --seeds 1-10 --subjects 12
     python3 tools/bench/identification_coverage.py --seeds 101-117 --subjects 12 --task relax
 Options: --bin PATH (default target/debug/bdft-server), --keep DIR (keep the databases and
-exports), --jobs N (pilots run side by side; default 1).
+exports: about 650 MB a pilot), --jobs N (pilots run side by side; default 1), --rms-mm X (the multisine's RMS).
 """
 
 import argparse
@@ -88,8 +88,10 @@ def felt_rms_m_s2(path, noise_mm_s2, skip_s):
     return math.sqrt(max(0.0, sq / n - noise_mm_s2**2)) * 1e-3
 
 
-def pilot(binary, params, seed, subjects, work):
-    """One pilot's subjects: [(code, truth{param}, identified{param: (value, lo, hi) | why})]."""
+def pilot(binary, params, seed, subjects, work, keep):
+    """One pilot's subjects: [(code, truth{param}, identified{param: (value, lo, hi) | why})].
+    Its database (about 650 MB: every test's 1 kHz record) is removed once read unless
+    `keep`, so a run of many seeds holds only the pilots in progress on disk."""
     os.makedirs(work, exist_ok=True)
     pfile = os.path.join(work, "params.json")
     with open(pfile, "w") as f:
@@ -105,7 +107,8 @@ def pilot(binary, params, seed, subjects, work):
     spec = ident.get("excitation") or {}
     skip_s = spec.get("transient_periods", 1) * spec.get("period_s", 10.0)
     holding = ident.get("task", "hold-still") == "hold-still"
-    noise = params["plant"]["accel_noise_std"]
+    # The accelerometer's white noise and the engine's tone: neither is felt in the hand.
+    noise = math.hypot(params["plant"]["accel_noise_std"], params["plant"].get("engine_vibration_rms", 0.0))
     trial_of = {}
     for r in read_csv(trials_csv):
         if r["phase"] == "identification" and r["status"] == "complete" and r["latest"] == "1":
@@ -136,6 +139,8 @@ def pilot(binary, params, seed, subjects, work):
             else:
                 fit[p] = status
         out.append((code, truth, fit))
+    if not keep:
+        shutil.rmtree(work, ignore_errors=True)
     return out
 
 
@@ -151,6 +156,7 @@ def main():
     ap.add_argument("--subjects", type=int, default=12)
     ap.add_argument("--task", choices=["hold-still", "relax"], default="hold-still")
     ap.add_argument("--kh-cv", type=float, default=0.45)
+    ap.add_argument("--rms-mm", type=float, help="the multisine's RMS (default: the study's default)")
     ap.add_argument("--bin", default=os.path.join(ROOT, "target", "debug", "bdft-server"))
     ap.add_argument("--keep")
     ap.add_argument("--jobs", type=int, default=1)
@@ -163,15 +169,21 @@ def main():
     os.makedirs(tmp, exist_ok=True)
     params = default_params(a.bin, tmp)
     params["identification"] = {"task": a.task}
+    if a.rms_mm is not None:
+        params["identification"]["excitation"] = {"rms_mm": a.rms_mm}
     params["population"]["body_k_h"]["cv"] = a.kh_cv
     held = {p: 0 for p in PARAMETERS}
     judged = {p: 0 for p in PARAMETERS}
     unidentified = {p: 0 for p in PARAMETERS}
     far = {p: 0 for p in PARAMETERS}
     subjects_all = 0
-    print(f"task {a.task}, body_k_h cv {a.kh_cv}, {a.subjects} subjects a pilot, seeds {a.seeds}")
+    rms = "" if a.rms_mm is None else f", multisine {a.rms_mm} mm RMS"
+    print(f"task {a.task}, body_k_h cv {a.kh_cv}{rms}, {a.subjects} subjects a pilot, seeds {a.seeds}")
     with concurrent.futures.ThreadPoolExecutor(max_workers=a.jobs) as ex:
-        futures = {s: ex.submit(pilot, a.bin, params, s, a.subjects, os.path.join(tmp, f"seed{s}")) for s in seeds}
+        futures = {
+            s: ex.submit(pilot, a.bin, params, s, a.subjects, os.path.join(tmp, f"seed{s}"), bool(a.keep))
+            for s in seeds
+        }
         for seed in seeds:
             rows = futures[seed].result()
             xs, ys, misses = [], [], []

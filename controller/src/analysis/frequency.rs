@@ -171,7 +171,7 @@ pub fn compensator_map(setup: &LoopSetup) -> Result<StateSpace, DesignError> {
 /// reference drives it directly.
 pub fn closed_loop_map(setup: &LoopSetup, seat: Seat) -> Result<StateSpace, DesignError> {
     let mut s = linear_setup(setup);
-    s.station = seat;
+    s.seat = seat;
     let k_bf = s.loop_params.k_bf;
     let mut lp = ClosedLoop::new(&s, 0)?;
     Ok(probe(&mut lp, 1, 1, |lp, u, y| {

@@ -225,7 +225,7 @@ impl LinearizedLoop {
 /// accelerometer noise, no dead-band.
 pub fn linear_setup(setup: &LoopSetup) -> LoopSetup {
     let mut setup = setup.clone();
-    setup.station = Seat::On;
+    setup.seat = Seat::On;
     setup.plant = linear_rig(setup.plant);
     setup
 }
@@ -233,6 +233,7 @@ pub fn linear_setup(setup: &LoopSetup) -> LoopSetup {
 /// A rig without its nonlinear and random parts.
 pub fn linear_rig(mut rig: crate::params::PlantParams) -> crate::params::PlantParams {
     rig.accel_noise_std = 0.0;
+    rig.engine_vibration_rms = 0.0;
     rig.dead_band = 0.0;
     rig
 }

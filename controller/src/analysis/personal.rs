@@ -43,7 +43,9 @@ pub enum Weight {
 /// One of a study's designs tuned to one person's body.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PersonalDesign {
-    pub controller: CompensatorKind,
+    /// The compensator (its key in the stored JSON: `controller`).
+    #[serde(rename = "controller")]
+    pub compensator: CompensatorKind,
     pub weight: Weight,
     /// The weight in the study's design.
     pub generic: f64,
@@ -146,7 +148,7 @@ pub fn personalize(
         }));
     }
     Ok(Some(PersonalDesign {
-        controller: setup.compensator.kind(),
+        compensator: setup.compensator.kind(),
         weight,
         generic,
         value: Some(safe),
@@ -164,7 +166,7 @@ impl PersonalDesign {
             .map(|(w, lqr)| (w, w.of(lqr)))
             .unwrap_or((Weight::Alpha, f64::NAN));
         Self {
-            controller: spec.kind(),
+            compensator: spec.kind(),
             weight,
             generic,
             value: None,
@@ -229,7 +231,7 @@ mod tests {
                 k_bf,
                 ..LoopParams::default()
             },
-            station: Seat::On,
+            seat: Seat::On,
             compensator: study_spec(kind, &plant),
         }
     }

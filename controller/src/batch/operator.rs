@@ -1,7 +1,7 @@
 //! `SyntheticOperator` for every lane: each lane its own subject (delay, gains, lags,
 //! remnant), stepped with the scalar operator's operations in its order.
 
-use crate::operator::{GRIP_EVERY, SyntheticOperator, neuromuscular_lag};
+use crate::operator::{GRIP_EVERY, SyntheticOperator, added_delay, neuromuscular_lag};
 
 use super::rig::{BiquadLanes, FirstOrderLanes};
 use super::{LANES, Lanes, ZERO};
@@ -15,6 +15,7 @@ pub(crate) struct OperatorLanes {
     vibration_remnant: Lanes,
     vibration_slowing: Lanes,
     vibration_regression: Lanes,
+    vibration_delay: Lanes,
     neuromuscular_w: Lanes,
     neuromuscular_zeta: Lanes,
     remnant_in_std: Lanes,
@@ -24,11 +25,14 @@ pub(crate) struct OperatorLanes {
     dt: f64,
     impression_a: f64,
     /// One ring of what the display showed for all lanes, as long as the longest delay
-    /// needs.
-    /// Where each lane reads in the ring this tick: `delay[l]` entries behind the head,
+    /// (with what felt vibration can add) needs.
+    /// Where each lane reads in the ring this tick: `lag[l]` entries behind the head,
     /// kept incrementally (an integer division per lane per tick costs more than the rest
-    /// of the operator).
+    /// of the operator); `lag` is the lane's delay plus what felt vibration adds,
+    /// re-evaluated with the grip.
     read: [usize; LANES],
+    delay: [usize; LANES],
+    lag: [usize; LANES],
     seen_target: Vec<Lanes>,
     seen_y: Vec<Lanes>,
     head: usize,
@@ -49,8 +53,8 @@ impl OperatorLanes {
     pub(crate) fn new(ops: &[&SyntheticOperator; LANES]) -> Self {
         let lanes =
             |f: fn(&SyntheticOperator) -> f64| -> Lanes { std::array::from_fn(|l| f(ops[l])) };
-        let delay: [usize; LANES] = std::array::from_fn(|l| ops[l].seen_target.len() - 1);
-        let ring = delay.iter().max().copied().unwrap_or(0) + 1;
+        let delay: [usize; LANES] = std::array::from_fn(|l| ops[l].delay);
+        let ring = ops.iter().map(|o| o.seen_target.len()).max().unwrap_or(1);
         Self {
             error_gain: lanes(|o| o.params.error_gain),
             shake_aversion: lanes(|o| o.params.shake_aversion_per_mm),
@@ -59,6 +63,7 @@ impl OperatorLanes {
             vibration_remnant: lanes(|o| o.params.vibration_remnant_per_m_s2),
             vibration_slowing: lanes(|o| o.params.vibration_slowing_per_m_s2),
             vibration_regression: lanes(|o| o.params.vibration_regression_per_m_s2),
+            vibration_delay: lanes(|o| o.params.vibration_delay_s_per_m_s2),
             neuromuscular_w: lanes(|o| o.params.neuromuscular_w),
             neuromuscular_zeta: lanes(|o| o.params.neuromuscular_zeta),
             remnant_in_std: lanes(|o| o.remnant_in_std),
@@ -68,6 +73,8 @@ impl OperatorLanes {
             dt: ops[0].dt,
             impression_a: ops[0].impression_a,
             read: std::array::from_fn(|l| (ring - delay[l]) % ring),
+            delay,
+            lag: delay,
             seen_target: vec![ZERO; ring],
             seen_y: vec![ZERO; ring],
             head: 0,
@@ -126,6 +133,12 @@ impl OperatorLanes {
                 self.shaken[l] = 1.0 + self.vibration_remnant[l] * felt;
                 let regression = self.vibration_regression[l] * felt;
                 self.withheld[l] = regression / (1.0 + regression);
+                let lag = self.delay[l] + added_delay(self.vibration_delay[l], felt, self.dt);
+                if lag != self.lag[l] {
+                    // The head is where the next tick writes; it reads `lag` behind.
+                    self.lag[l] = lag;
+                    self.read[l] = (self.head + ring - lag) % ring;
+                }
                 let slowed = 1.0 + self.vibration_slowing[l] * felt;
                 if slowed != self.slowed[l] {
                     self.slowed[l] = slowed;

@@ -6,8 +6,9 @@
 use crate::compensator::{CabSignal, Compensator, Lqr, Pid, Prefilter};
 use crate::filters::{Biquad, FirstOrder};
 use crate::interlock::VibrationInterlock;
-use crate::model::{Body, Plant, idx, transmissibility};
+use crate::model::{Body, Plant, engine, engine_advance, idx, transmissibility};
 use crate::params::BodyModel;
+use crate::params::PlantParams;
 use crate::shaper::Shaper;
 use crate::state::LinearState;
 
@@ -109,6 +110,11 @@ pub(crate) struct PlantLanes {
     dead_band: f64,
     stroke_mm: f64,
     pub(crate) accel_noise_std: f64,
+    /// The rig's parameters (the engine tone's), and the tone's phase: one for every lane,
+    /// as every lane's trial starts at the same tick.
+    params: PlantParams,
+    dt: f64,
+    engine_phase: f64,
 }
 
 impl PlantLanes {
@@ -133,6 +139,9 @@ impl PlantLanes {
             dead_band: p.dead_band,
             stroke_mm: p.stroke_mm,
             accel_noise_std: p.accel_noise_std,
+            params: *p,
+            dt: plants[0].dt(),
+            engine_phase: plants[0].engine_phase,
         })
     }
 
@@ -140,8 +149,9 @@ impl PlantLanes {
     #[inline(always)]
     pub(crate) fn cab_accel(&self, deviates: &Lanes) -> Lanes {
         let mut a = ZERO;
+        let engine = engine(&self.params, self.engine_phase);
         for l in 0..LANES {
-            a[l] = self.x[idx::XC_DD][l] + self.accel_noise_std * deviates[l];
+            a[l] = self.x[idx::XC_DD][l] + self.accel_noise_std * deviates[l] + engine;
         }
         a
     }
@@ -150,6 +160,7 @@ impl PlantLanes {
     /// arithmetic inside it: the form the loop vectorizer takes reliably.
     #[inline(always)]
     pub(crate) fn step(&mut self, v: &Lanes) {
+        self.engine_phase = engine_advance(&self.params, self.engine_phase, self.dt);
         let s = self.stroke_mm;
         for l in 0..LANES {
             let v = saturate_lane(v[l], self.v_max);

@@ -12,8 +12,8 @@ use crate::runtime::local;
 const DT: f64 = 1e-3;
 
 /// Lane `l`'s subject: delays from 0.15 to 0.36 s (rings of different lengths), gains,
-/// remnant (none in lane 2), motor noise (none in lane 3), shake aversion and grip all
-/// different.
+/// remnant (none in lane 2), motor noise (none in lane 3), delay added by felt vibration
+/// (none in lane 4), shake aversion and grip all different.
 fn operator(l: usize) -> OperatorParams {
     let x = l as f64 / (LANES - 1) as f64;
     OperatorParams {
@@ -28,6 +28,8 @@ fn operator(l: usize) -> OperatorParams {
         vibration_remnant_per_m_s2: 1.0 - x,
         vibration_slowing_per_m_s2: 2.0 * x,
         vibration_regression_per_m_s2: 4.0 * (1.0 - x),
+        // None in lane 4 (a ring without room for it); 0.3 s per m/s² reaches the cap.
+        vibration_delay_s_per_m_s2: if l == 4 { 0.0 } else { 0.3 * x + 0.05 },
         motor_noise_mm: if l == 3 { 0.0 } else { 0.1 + 0.4 * x },
     }
 }
@@ -63,7 +65,7 @@ fn start(l: usize, comp: CompensatorKind, seat: Seat, body: BodyModel, secs: f64
     StartTrial {
         trial_id: l as u64,
         compensator: study_spec(comp, &plant),
-        station: seat,
+        seat,
         k_bf: 0.78,
         target: TargetSpec::Steps {
             interval_s: 2.0,
@@ -81,6 +83,7 @@ fn start(l: usize, comp: CompensatorKind, seat: Seat, body: BodyModel, secs: f64
         stale_input_ms: 100.0,
         max_cab_rms_mm_s2: DEFAULT_MAX_CAB_RMS_MM_S2,
         exposure_allowance: None,
+        cancellation: None,
     }
 }
 
@@ -276,10 +279,10 @@ fn a_batch_of_trials_that_differ_in_a_shared_setting_is_refused_by_name() {
     let mut starts: Vec<StartTrial> = (0..LANES)
         .map(|l| start(l, CompensatorKind::Pid, Seat::On, body(2, l, 1.0), 5.0))
         .collect();
-    starts[3].station = Seat::Off;
+    starts[3].seat = Seat::Off;
     let err = metrics(&starts, DT).unwrap_err();
     assert!(err.contains("station") && err.contains("trial 3"), "{err}");
-    starts[3].station = Seat::On;
+    starts[3].seat = Seat::On;
     starts[5].body = body(0, 5, 1.0);
     let err = metrics(&starts, DT).unwrap_err();
     assert!(err.contains("body model kind"), "{err}");

@@ -167,7 +167,7 @@ fn shared_difference(a: &StartTrial, b: &StartTrial) -> Option<&'static str> {
     [
         ("compensator", a.compensator != b.compensator),
         ("plant", a.plant != b.plant),
-        ("station", a.station != b.station),
+        ("station", a.seat != b.seat),
         ("k_bf", a.k_bf != b.k_bf),
         ("duration_s", a.duration_s != b.duration_s),
         (
@@ -237,7 +237,7 @@ impl BatchTrial {
             operator: OperatorLanes::new(&std::array::from_fn(|l| each(l).operator)),
             interlock: InterlockLanes::new(interlock),
             k_bf: std::array::from_fn(|l| each(l).rig.k_bf),
-            seat_on: lanes[0].rig.station == Seat::On,
+            seat_on: lanes[0].rig.seat == Seat::On,
             dt: lanes[0].runner.dt,
             total: lanes[0].runner.total,
             displayed_y: ZERO,

@@ -32,10 +32,10 @@ pub(super) struct SimulateArgs {
     /// Length in seconds [default: 30 for bench signals, 140 for steps].
     #[arg(long, value_parser = parse_duration)]
     duration: Option<f64>,
-    /// Operator station: on (feedthrough loop closed) or off [default: on for steps,
+    /// The operator's seat: on (feedthrough loop closed) or off [default: on for steps,
     /// off for bench signals, which have no operator].
-    #[arg(long)]
-    station: Option<Seat>,
+    #[arg(long = "station", visible_alias = "seat", value_name = "STATION")]
+    seat: Option<Seat>,
     /// Device-to-cylinder gain K_BF.
     #[arg(long, default_value_t = NOMINAL_KBF, value_parser = parse_kbf_positive)]
     kbf: f64,
@@ -60,21 +60,21 @@ pub(super) fn run(args: SimulateArgs, out: &mut impl Write) -> anyhow::Result<()
         compensator,
         signal,
         duration,
-        station,
+        seat,
         kbf,
         seed,
         max_cab_rms,
         json,
         out: record,
     } = args;
-    let station = station.unwrap_or(if signal == SignalKind::Steps {
+    let seat = seat.unwrap_or(if signal == SignalKind::Steps {
         Seat::On
     } else {
         Seat::Off
     });
     let params = load_params(params.as_ref())?;
     let cfg = SimConfig {
-        setup: params.setup(compensator, station, kbf),
+        setup: params.setup(compensator, seat, kbf),
         signal,
         duration_s: duration.unwrap_or(signal.default_duration_s()),
         seed,
@@ -96,7 +96,7 @@ pub(super) fn run(args: SimulateArgs, out: &mut impl Write) -> anyhow::Result<()
         writeln!(
             out,
             "station           {} (K_BF {})",
-            summary.station, summary.kbf
+            summary.seat, summary.kbf
         )?;
         writeln!(out, "tracking MSE      {:.3} mm²", summary.mse_tracking_mm2)?;
         writeln!(

@@ -378,7 +378,7 @@ mod tests {
                 plant,
                 body: BodyModel::default(),
                 loop_params: LoopParams::default(),
-                station: Seat::On,
+                seat: Seat::On,
             };
             let mut lp = ClosedLoop::new(&setup, 7).unwrap();
             let mut state = vec![0.0; lp.state_len()];

@@ -22,13 +22,14 @@
 //! T·A is symmetric in torso and arm, so the fit names the lower resonance the torso.
 //!
 //! **Intervals.** From a jackknife over the test's periods when the record is at hand
-//! (`identify`): θ̂ ± t(P − 1)·σ_J; from points alone (`fit_body`), the information matrix's
+//! (`identify`, `fit_record` — the server's filing): θ̂ ± t(P − 1)·σ_J; from points alone (`fit_body`), the information matrix's
 //! θ̂ ± t(2(P − 1))·√diag((JᵀJ)⁻¹), scaled by any misfit beyond the points' variance. Mapped
 //! back by exp; another local minimum the data cannot tell from the best widens them to hold
 //! it. A parameter is named in `unidentified` with why when its interval spans more than a
 //! factor of 10, the information matrix is singular along it, the fit ends at the plausible
 //! box's edge, its resonance is damped below any body's (`BODY_ZETA_MIN`: a machine's mode),
-//! or the seated body does not describe the record (`MAX_LACK_OF_FIT`); the API and the
+//! k_h when a resonance is so placed where no body has one, or the seated body does not
+//! describe the record (`MAX_LACK_OF_FIT`); the API and the
 //! exports report such a parameter with no value or interval (`BodyFit::report`).
 
 use std::collections::BTreeMap;
@@ -425,6 +426,9 @@ fn fit_with(
     };
     let (lo_box, hi_box) = box_bounds();
     let mut unidentified = BTreeMap::new();
+    // Parameters the fit put where no body has them: at the plausible box's edge, or a
+    // resonance lighter than any body's.
+    let mut implausible = [false; 5];
     let mut est = [Estimate {
         value: 0.0,
         lo: 0.0,
@@ -450,6 +454,7 @@ fn fit_with(
             hi: hi.exp(),
         };
         let at_edge = (theta[p] - lo_box[p]).abs() < 1e-3 || (hi_box[p] - theta[p]).abs() < 1e-3;
+        implausible[p] = at_edge;
         let why = if singular[p] || !half.is_finite() {
             Some("the data carry no information on it (the fit's information matrix is singular along it)".to_string())
         } else if at_edge {
@@ -473,6 +478,7 @@ fn fit_with(
     for (f, z, which) in [(1, 2, "torso"), (3, 4, "arm")] {
         let zeta = theta[z].exp();
         if zeta < BODY_ZETA_MIN {
+            implausible[z] = true;
             let why = format!(
                 "the {which} resonance fitted at {:.2} Hz has damping {zeta:.3}, below any body's ({BODY_ZETA_MIN}): a mode of the machine, not the person",
                 theta[f].exp()
@@ -490,6 +496,25 @@ fn fit_with(
                 let why = format!("its resonance's {name_a} was not identified");
                 unidentified.insert(name_b.to_string(), why);
             }
+        }
+    }
+    // k_h is the gain of the whole shape, pinned by the band's top where both resonances
+    // still shape the response. A resonance the fit put where no body has one (on a machine
+    // mode, at the box's edge) carries k_h with it — by up to half its value, with a narrow
+    // interval —, so k_h is not known then. A resonance merely imprecise (a damping the data
+    // pin to no better than a factor of 10) is a body's, and its spread is in k_h's
+    // jackknife interval already.
+    if !unidentified.contains_key("k_h") {
+        if let Some(which) = [(1, 2, "torso"), (3, 4, "arm")]
+            .into_iter()
+            .find_map(|(f, z, which)| (implausible[f] || implausible[z]).then_some(which))
+        {
+            unidentified.insert(
+                "k_h".to_string(),
+                format!(
+                    "it depends on the {which} resonance, which the fit put where no body has one"
+                ),
+            );
         }
     }
     if lack_of_fit > MAX_LACK_OF_FIT {
@@ -593,10 +618,24 @@ pub fn identify(
     device_mm: &[f32],
 ) -> Result<(Vec<FrfPoint>, BodyFit), IdentificationError> {
     let points = estimate(spec, dt, cab_accel_mm_s2, device_mm)?;
+    let fit = fit_record(&points, spec, dt, cab_accel_mm_s2, device_mm)?;
+    Ok((points, fit))
+}
+
+/// Fits the seated body to `points`, estimated from the record (`cab_accel_mm_s2`,
+/// `device_mm`) of a test of `spec`, with the intervals of the jackknife over its periods,
+/// which needs the record (module doc).
+pub fn fit_record(
+    points: &[FrfPoint],
+    spec: &MultisineSpec,
+    dt: f64,
+    cab_accel_mm_s2: &[f32],
+    device_mm: &[f32],
+) -> Result<BodyFit, IdentificationError> {
     let n = super::multisine::ticks_per_period(spec, dt)?;
     let start = spec.transient_periods as usize * n;
     let periods = spec.periods as usize;
-    let fit = fit_with(&points, |theta| {
+    fit_with(points, |theta| {
         if periods < 3 {
             return Vec::new();
         }
@@ -622,8 +661,7 @@ pub fn identify(
                 cost.is_finite().then(|| ordered(t))
             })
             .collect()
-    })?;
-    Ok((points, fit))
+    })
 }
 
 #[cfg(test)]

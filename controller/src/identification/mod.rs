@@ -9,7 +9,7 @@ pub mod multisine;
 use thiserror::Error;
 
 pub use estimate::estimate;
-pub use fit::{fit_body, identify};
+pub use fit::{fit_body, fit_record, identify};
 pub use multisine::Multisine;
 
 /// Why a multisine cannot be built, or a record cannot be estimated or fitted.

@@ -27,7 +27,7 @@ pub(crate) fn start_trial(
     StartTrial {
         trial_id: 1,
         compensator: variants::variant("pid", &plant, DT).unwrap(),
-        station: Seat::On,
+        seat: Seat::On,
         k_bf: 0.6,
         target: TargetSpec::Identification {
             excitation: spec,
@@ -42,6 +42,7 @@ pub(crate) fn start_trial(
         stale_input_ms: 100.0,
         max_cab_rms_mm_s2: DEFAULT_MAX_CAB_RMS_MM_S2,
         exposure_allowance: None,
+        cancellation: None,
     }
 }
 
@@ -186,6 +187,7 @@ fn without_noise_the_estimate_is_the_seated_bodys_analytic_feedthrough() {
         1,
     );
     st.plant.accel_noise_std = 0.0;
+    st.plant.engine_vibration_rms = 0.0;
     let rec = run(&st, |_| 0.0);
     let points = estimate(&spec, DT, &rec.cab_accel, &rec.device).unwrap();
     assert_eq!(points.len(), 20);
@@ -422,8 +424,12 @@ fn correlation(xs: &[f64], ys: &[f64]) -> f64 {
 /// average over the recorded periods, resonances named as the fit names them) for 88–100 %
 /// of the subjects it identifies (the intervals' 95 % less 2.7 binomial standard errors of
 /// 48), at most one truth of each task's 240 lies more than one interval width outside its
-/// interval (issue 42 asks for none: the known gap), k_h is identified for everyone, at most
-/// 25 % (holding still) or 45 % (relaxed) of the subjects have a resonance not identified,
+/// interval (issue 42 asks for none: the known gap), k_h is identified for everyone whose
+/// resonances both are (it goes with them: `fit::fit_with`), at most
+/// 35 % (holding still) or 45 % (relaxed) of the subjects have a resonance not identified
+/// (holding still it was 25 % while the arm slowed under felt vibration and filtered the
+/// remnant; since the operator no longer slows, the default excitation is 6 mm, not 2, and
+/// 12 of 48 have one not identified),
 /// and in every group of 12 (a pilot's
 /// size) identified ln k_h correlates with the drawn at 0.9 or more. About a minute in the
 /// dev profile.
@@ -434,7 +440,7 @@ fn in_the_studys_setting_the_intervals_hold_the_body_as_it_was_during_the_test()
     // as much as under the fast PID: relaxed, the resonances of many subjects cannot be told
     // (named not identified; k_h always is).
     for (task, seed_base, unidentified_limit) in [
-        (IdentificationTask::HoldStill, 20_000, 0.25),
+        (IdentificationTask::HoldStill, 20_000, 0.35),
         (IdentificationTask::Relax, 30_000, 0.45),
     ] {
         let setting = Setting::study(task, 0.45, seed_base);
@@ -481,10 +487,16 @@ fn in_the_studys_setting_the_intervals_hold_the_body_as_it_was_during_the_test()
             with_unidentified as f64 <= unidentified_limit * SUBJECTS as f64,
             "{with_unidentified}"
         );
-        assert!(
-            judged[0] == SUBJECTS as u32,
-            "k_h is identified for every subject"
-        );
+        // k_h goes with its resonances: not identified only when one of them is not.
+        for s in &subjects {
+            let u = &s.fit.unidentified;
+            assert!(
+                !u.contains_key("k_h")
+                    || u.contains_key("torso_f_hz")
+                    || u.contains_key("arm_f_hz"),
+                "{u:?}"
+            );
+        }
         for p in 0..5 {
             let share = f64::from(held[p]) / f64::from(judged[p]);
             assert!(

@@ -20,3 +20,4 @@ pub(crate) use body::transmissibility;
 pub use plant::{
     Measurement, Plant, continuous_plant, design_model, idx, saturate, structure_polynomials,
 };
+pub(crate) use plant::{engine, engine_advance};

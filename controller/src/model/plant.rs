@@ -108,6 +108,27 @@ pub struct Plant {
     params: PlantParams,
     dt: f64,
     pub(crate) noise: Rng,
+    /// The engine tone's phase (rad), advanced once per step.
+    pub(crate) engine_phase: f64,
+}
+
+/// The engine's vibration in the accelerometer's reading at `phase`: a tone of
+/// `engine_vibration_rms` (mm/s² RMS).
+#[inline]
+pub(crate) fn engine(p: &PlantParams, phase: f64) -> f64 {
+    p.engine_vibration_rms * std::f64::consts::SQRT_2 * phase.sin()
+}
+
+/// The engine tone's phase one step of `dt` after `phase`, kept in [0, 2π) so its sine stays
+/// exact over hours.
+#[inline]
+pub(crate) fn engine_advance(p: &PlantParams, phase: f64, dt: f64) -> f64 {
+    let next = phase + std::f64::consts::TAU * p.engine_hz * dt;
+    if next >= std::f64::consts::TAU {
+        next - std::f64::consts::TAU
+    } else {
+        next
+    }
 }
 
 impl Plant {
@@ -126,6 +147,7 @@ impl Plant {
             params,
             dt,
             noise: Rng::new(noise_seed),
+            engine_phase: 0.0,
         })
     }
 
@@ -152,7 +174,7 @@ impl Plant {
         };
         Measurement {
             y: self.x[idx::Y],
-            cab_accel: self.x[idx::XC_DD] + noise,
+            cab_accel: self.x[idx::XC_DD] + noise + engine(&self.params, self.engine_phase),
         }
     }
 
@@ -175,6 +197,7 @@ impl Plant {
             v -= p.dead_band.copysign(v);
         }
         self.x = self.ad * self.x + self.bd * v;
+        self.engine_phase = engine_advance(&self.params, self.engine_phase, self.dt);
         // Hard end stops: the piston stops dead; motion away from the stop is still allowed.
         let s = p.stroke_mm;
         let y = self.x[idx::Y];

@@ -36,6 +36,7 @@ pub fn run(start: &StartTrial, dt: f64) -> Result<(TrialResult, Vec<Vec<f32>>), 
         dt,
         record_chunks: 0,
         exposure: Some(slot.runner.exposure().0),
+        cancellation_off_at_s: slot.runner.cancellation_off_at_s(),
     };
     Ok((result, slot.record_channels(0, slot.record.len())))
 }

@@ -274,6 +274,8 @@ pub fn serve(
             ),
             None => None,
         };
+        // Before the ready line: whoever reads it may signal at once.
+        let signalled = shutdown_signal();
         ready(
             listener.local_addr()?,
             input.as_ref().map(|s| s.local_addr()).transpose()?,
@@ -290,7 +292,7 @@ pub fn serve(
         };
         let stop = async move {
             tokio::select! {
-                _ = shutdown_signal() => {}
+                _ = signalled => {}
                 _ = stdin_closed => {}
             }
         };
@@ -310,12 +312,30 @@ fn lsl_publisher(scope: Scope) -> anyhow::Result<(tap::SampleTap, Publisher)> {
     Ok((tap, publisher))
 }
 
-/// Resolves on SIGINT or SIGTERM.
-pub async fn shutdown_signal() {
-    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
-    tokio::select! {
-        _ = tokio::signal::ctrl_c() => {}
-        _ = async { match &mut term { Some(t) => { t.recv().await; } None => std::future::pending().await } } => {}
+/// Resolves on SIGINT or SIGTERM. The handlers are installed by this call, not when the
+/// future is first polled: a signal that comes between a process's ready line and its first
+/// wait must still stop it cleanly, not by the default action, which skips the clean-up (a
+/// server's heartbeat left to go silent, a restore refused meanwhile). Call it in a runtime,
+/// before the ready line.
+pub fn shutdown_signal() -> impl std::future::Future<Output = ()> + Send + 'static {
+    use tokio::signal::unix::{SignalKind, signal};
+    let int = signal(SignalKind::interrupt()).ok();
+    let term = signal(SignalKind::terminate()).ok();
+    async move {
+        tokio::select! {
+            _ = received(int) => {}
+            _ = received(term) => {}
+        }
+    }
+}
+
+/// Waits for `signal`; forever when its handler could not be installed.
+async fn received(signal: Option<tokio::signal::unix::Signal>) {
+    match signal {
+        Some(mut s) => {
+            s.recv().await;
+        }
+        None => std::future::pending().await,
     }
 }
 
@@ -343,7 +363,7 @@ pub fn bench_trial(i: usize, duration_s: f64) -> anyhow::Result<StartTrial> {
     Ok(StartTrial {
         trial_id: i as u64 + 1,
         compensator: study_spec(kind, &plant),
-        station: Seat::On,
+        seat: Seat::On,
         k_bf: 0.6,
         target: TargetSpec::Steps {
             interval_s: target.interval_s,
@@ -361,6 +381,7 @@ pub fn bench_trial(i: usize, duration_s: f64) -> anyhow::Result<StartTrial> {
         stale_input_ms: 100.0,
         max_cab_rms_mm_s2: bdft_protocol::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
         exposure_allowance: None,
+        cancellation: None,
     })
 }
 

@@ -421,7 +421,7 @@ mod tests {
         StartTrial {
             trial_id: id,
             compensator: default_spec(kind, &plant),
-            station: Seat::On,
+            seat: Seat::On,
             k_bf: 0.6,
             target: TargetSpec::Steps {
                 interval_s: 0.5,
@@ -436,6 +436,7 @@ mod tests {
             stale_input_ms: 100.0,
             max_cab_rms_mm_s2: bdft_protocol::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
             exposure_allowance: None,
+            cancellation: None,
         }
     }
 

@@ -1,5 +1,5 @@
 //! Turns a `StartTrial` message into a ready slot: validates it, designs the compensator,
-//! builds the rig loop and the operator, and reserves the record. Runs on the I/O side,
+//! builds the rig loop (with its canceller, if the test cancels) and the operator, and reserves the record. Runs on the I/O side,
 //! where allocating and taking milliseconds is fine.
 
 use std::sync::Arc;
@@ -10,6 +10,7 @@ use bdft_protocol::trial::{InputSource, TargetSpec};
 
 use super::handoff::InputCell;
 use super::slot::{ExternalLoop, SlotLoop, TrialSlot};
+use crate::cancellation::Canceller;
 use crate::closed_loop::{ClosedLoop, LoopSetup};
 use crate::compensator::Compensator;
 use crate::operator::SyntheticOperator;
@@ -50,14 +51,24 @@ pub fn build_runner(
         plant: st.plant,
         body: st.body,
         loop_params: LoopParams { dt, k_bf: st.k_bf },
-        station: st.station,
+        seat: st.seat,
         compensator: st.compensator.clone(),
     };
+    // The same cancellation on either rig (`closed_loop::reference_from_device`).
+    let canceller = st
+        .cancellation
+        .map(|m| Canceller::new(&m, dt))
+        .transpose()
+        .map_err(|e| e.to_string())?;
     let lp = if real_rig {
         let comp = Compensator::build(&st.compensator, &st.plant, dt).map_err(|e| e.to_string())?;
-        SlotLoop::Rig(ExternalLoop::new(comp, st.k_bf, st.plant.v_max))
+        let mut rig = ExternalLoop::new(comp, st.k_bf, st.plant.v_max);
+        rig.canceller = canceller;
+        SlotLoop::Rig(rig)
     } else {
-        SlotLoop::Sim(ClosedLoop::new(&setup, st.noise_seed).map_err(|e| e.to_string())?)
+        let mut sim = ClosedLoop::new(&setup, st.noise_seed).map_err(|e| e.to_string())?;
+        sim.set_canceller(canceller);
+        SlotLoop::Sim(sim)
     };
     let (hand, input) = match st.input {
         InputSource::Server | InputSource::Udp { .. } => {

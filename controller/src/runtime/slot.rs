@@ -9,7 +9,8 @@ use bdft_protocol::trial::{FaultKind, Outcome, RECORD_CHANNELS, TrialId};
 use super::handoff::InputCell;
 use super::histogram::Histogram;
 use super::rig_udp::Implausible;
-use crate::closed_loop::{ClosedLoop, Drive, TickRecord};
+use crate::cancellation::{Cancelled, Canceller};
+use crate::closed_loop::{ClosedLoop, Drive, TickRecord, reference_from_device};
 use crate::compensator::Compensator;
 use crate::interlock::WINDOW_S;
 use crate::model::{Measurement, saturate};
@@ -23,6 +24,8 @@ pub struct ExternalLoop {
     compensator: Compensator,
     k_bf: f64,
     v_max: f64,
+    /// Model-based cancellation, when the test has it (`StartTrial::cancellation`).
+    pub canceller: Option<Canceller>,
     pub measurement: Measurement,
     pub command: f64,
 }
@@ -33,6 +36,7 @@ impl ExternalLoop {
             compensator,
             k_bf,
             v_max,
+            canceller: None,
             measurement: Measurement::default(),
             command: 0.0,
         }
@@ -43,10 +47,15 @@ impl Loop for ExternalLoop {
     #[inline]
     fn tick(&mut self, drive: Drive) -> TickRecord {
         let m = self.measurement;
-        let (hand, r_c) = match drive {
-            Drive::Hand(p) => (p, self.k_bf * p),
-            Drive::Reference(r) => (0.0, r),
-            Drive::Excited { hand, r_c } => (hand, r_c),
+        // The device is the person's hand, feedthrough and all.
+        let (hand, r_c, cancelled) = match drive {
+            Drive::Hand(p) => {
+                let (r_c, c) =
+                    reference_from_device(self.k_bf, p, m.cab_accel, &mut self.canceller);
+                (p, r_c, c)
+            }
+            Drive::Reference(r) => (0.0, r, Cancelled::default()),
+            Drive::Excited { hand, r_c } => (hand, r_c, Cancelled::default()),
         };
         self.command = saturate(self.compensator.step(r_c, m), self.v_max);
         TickRecord {
@@ -56,6 +65,8 @@ impl Loop for ExternalLoop {
             valve: self.command,
             y: m.y,
             cab_accel: m.cab_accel,
+            cancellation: cancelled.output_mm,
+            cancellation_tripped: cancelled.tripped_now,
         }
     }
     fn displayed_y(&self) -> f64 {

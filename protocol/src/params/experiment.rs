@@ -40,6 +40,14 @@ pub struct OperatorParams {
     /// 1/(1 + x·felt). McRuer: in a disturbing task people lower their crossover; unlike
     /// the slowing it leaves the arm's filtering of its own 4–6 Hz output as it was.
     pub vibration_regression_per_m_s2: f64,
+    /// Added reaction delay per m/s² RMS of cab acceleration felt (s per m/s²), at most
+    /// `MAX_VIBRATION_DELAY_S`: a shaken person sees and acts later (Levison 1976: motion
+    /// as +0.05 s of pilot delay; McLeod: vibration's cost is phase lag in the linear,
+    /// target-correlated part). Unlike the regression and the slowing it leaves the size and
+    /// the spectrum of the commands as they were, so riding costs accuracy without calming
+    /// the machine.
+    #[serde(default)]
+    pub vibration_delay_s_per_m_s2: f64,
     /// Motor noise of active tracking at the hand (mm, standard deviation): white noise
     /// through a first-order lag at `MOTOR_NOISE_CORNER_HZ`, added after the arm's
     /// neuromuscular lag, so its spectrum stays flat up to the tremor band where the
@@ -52,6 +60,10 @@ pub struct OperatorParams {
 /// Corner of the motor noise's first-order lag (Hz): physiological tremor and the edges of
 /// submovements reach 6–12 Hz (shared/docs/person-model-evidence.md §2–3).
 pub const MOTOR_NOISE_CORNER_HZ: f64 = 8.0;
+
+/// The most delay felt vibration adds to an operator's reaction (s): the delay's ring is
+/// sized for it when the operator is built, so the tick never allocates.
+pub const MAX_VIBRATION_DELAY_S: f64 = 0.3;
 
 impl Default for OperatorParams {
     fn default() -> Self {
@@ -67,6 +79,7 @@ impl Default for OperatorParams {
             vibration_remnant_per_m_s2: 0.5,
             vibration_slowing_per_m_s2: 0.0,
             vibration_regression_per_m_s2: 0.0,
+            vibration_delay_s_per_m_s2: 0.0,
             motor_noise_mm: 0.0,
         }
     }
@@ -121,6 +134,11 @@ impl OperatorParams {
                 "operator.vibration_regression_per_m_s2",
                 self.vibration_regression_per_m_s2,
                 VIBRATION_REGRESSION_PER_M_S2,
+            ),
+            (
+                "operator.vibration_delay_s_per_m_s2",
+                self.vibration_delay_s_per_m_s2,
+                VIBRATION_DELAY_S_PER_M_S2,
             ),
             ("operator.error_gain", self.error_gain, ERROR_GAIN),
             (

@@ -20,12 +20,16 @@ pub struct IdentificationParams {
     #[serde(default)]
     pub excitation: MultisineSpec,
     /// The compensator that closes the cylinder's position loop while the multisine drives
-    /// it: one of the study's controllers (default the practice controller, which must then
-    /// be one), so that the stability gate has analysed the loop the test runs — that
-    /// design without feedthrough, its verdict `stable_off`. The person's input never
-    /// reaches it.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub controller: Option<CompensatorKind>,
+    /// it: one of the study's compensators (default the practice's, which must then be one),
+    /// so that the stability gate has analysed the loop the test runs — that design without
+    /// feedthrough, its verdict `stable_off`. The person's input never reaches it. Its key in
+    /// the study's parameters is `controller`.
+    #[serde(
+        rename = "controller",
+        default,
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub compensator: Option<CompensatorKind>,
     /// What the station tells the subject before the test; empty: the task's default text
     /// (`IdentificationParams::instructions_for`).
     #[serde(default, skip_serializing_if = "String::is_empty")]
@@ -40,8 +44,8 @@ pub struct IdentificationParams {
 
 impl IdentificationParams {
     /// The compensator the test runs with in a study whose practice runs `practice`.
-    pub fn controller_or(&self, practice: CompensatorKind) -> CompensatorKind {
-        self.controller.unwrap_or(practice)
+    pub fn compensator_or(&self, practice: CompensatorKind) -> CompensatorKind {
+        self.compensator.unwrap_or(practice)
     }
 
     /// The instructions the station shows: the study's own, or the task's default.
@@ -77,7 +81,7 @@ impl IdentificationParams {
                     .into(),
             });
         }
-        let kind = self.controller_or(practice);
+        let kind = self.compensator_or(practice);
         if !controllers.iter().any(|c| c.kind() == kind) {
             return Err(ParamError::Invalid {
                 name: "identification.controller",

@@ -51,12 +51,17 @@ pub enum RigKind {
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(deny_unknown_fields)]
 pub struct StudyParams {
-    /// The controllers compared, each with its design (default: the five of the study).
-    pub controllers: Vec<CompensatorSpec>,
-    /// Controller used for the practice run.
-    pub practice_controller: CompensatorKind,
-    /// The two operator stations, both used by every subject.
-    pub stations: Vec<Seat>,
+    /// The compensators compared, each with its design (default: the five of the study).
+    /// Its key stays `controllers`, the published parameter name.
+    #[serde(rename = "controllers")]
+    pub compensators: Vec<CompensatorSpec>,
+    /// Compensator used for the practice run (key `practice_controller`).
+    #[serde(rename = "practice_controller")]
+    pub practice_compensator: CompensatorKind,
+    /// The two seats (on the machine, at the desk), both used by every subject (key
+    /// `stations`).
+    #[serde(rename = "stations")]
+    pub seats: Vec<Seat>,
     pub trial_s: f64,
     pub practice_s: f64,
     pub step_interval_s: f64,
@@ -167,22 +172,22 @@ fn default_max_cab_rms() -> f64 {
 impl StudyParams {
     pub fn validate(&self) -> Result<(), ParamError> {
         let invalid = |name, message: String| Err(ParamError::Invalid { name, message });
-        if self.controllers.is_empty() || self.controllers.len() > 12 {
+        if self.compensators.is_empty() || self.compensators.len() > 12 {
             return invalid(
                 "controllers",
                 format!(
                     "{} controllers given; allowed: 1 to 12",
-                    self.controllers.len()
+                    self.compensators.len()
                 ),
             );
         }
-        for (i, c) in self.controllers.iter().enumerate() {
+        for (i, c) in self.compensators.iter().enumerate() {
             c.validate()?;
-            if self.controllers[..i].iter().any(|o| o.kind() == c.kind()) {
+            if self.compensators[..i].iter().any(|o| o.kind() == c.kind()) {
                 return invalid("controllers", format!("{} is listed twice", c.kind()));
             }
         }
-        let mut stations = self.stations.clone();
+        let mut stations = self.seats.clone();
         stations.sort_by_key(|s| s.as_str());
         if stations != [Seat::Off, Seat::On] {
             return invalid(
@@ -273,7 +278,7 @@ impl StudyParams {
         }
         self.check_texts()?;
         if let Some(id) = &self.identification {
-            id.validate(&self.controllers, self.practice_controller)?;
+            id.validate(&self.compensators, self.practice_compensator)?;
         }
         self.plant.validate()?;
         self.body.validate()?;
@@ -282,8 +287,8 @@ impl StudyParams {
 
     /// The values of the texts' placeholders for this study, as `render` takes them.
     pub fn text_values(&self) -> Vec<(&'static str, String)> {
-        let per_station = self.controllers.len();
-        let tests = per_station * self.stations.len();
+        let per_station = self.compensators.len();
+        let tests = per_station * self.seats.len();
         let values = [
             tests.to_string(),
             per_station.to_string(),
@@ -300,8 +305,8 @@ impl StudyParams {
         consent::Procedure {
             practice_s: self.practice_s,
             trial_s: self.trial_s,
-            tests_per_seat: self.controllers.len(),
-            seats: self.stations.len(),
+            tests_per_seat: self.compensators.len(),
+            seats: self.seats.len(),
             identification: self
                 .identification
                 .as_ref()

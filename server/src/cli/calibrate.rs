@@ -97,8 +97,8 @@ fn summary(fit: &FitReport) -> String {
     for c in &fit.held_out {
         out += &format!(
             "held out {} {} {}: predicted {:.4} [{}, {}], target {}: {}\n",
-            c.controller,
-            c.station,
+            c.compensator,
+            c.seat,
             c.metric,
             c.prediction,
             num(c.low),

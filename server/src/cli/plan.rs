@@ -14,9 +14,14 @@ pub struct Args {
     /// Candidate numbers of subjects, comma-separated (2 to 200 each).
     #[arg(long, value_delimiter = ',', required = true)]
     subjects: Vec<usize>,
-    /// `on` or `off`.
-    #[arg(long, default_value = "on")]
-    station: String,
+    /// The seat: `on` or `off`.
+    #[arg(
+        long = "station",
+        visible_alias = "seat",
+        value_name = "STATION",
+        default_value = "on"
+    )]
+    seat: String,
     /// `mse_tracking_mm2` or `ms_cab_accel`.
     #[arg(long, default_value = "mse_tracking_mm2")]
     metric: String,
@@ -45,7 +50,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         db,
         study,
         subjects,
-        station,
+        seat,
         metric,
         source,
         draws,
@@ -61,7 +66,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         },
         subjects,
         metric,
-        station,
+        seat,
         draws,
         alpha,
         seed,

@@ -109,6 +109,8 @@ pub async fn run(config: ServeConfig) -> anyhow::Result<()> {
         sites.clone(),
     ));
     tokio::spawn(backups.clone().run_schedule(pool.clone()));
+    // Before the heartbeat and the address line: a signal from now on ends the heartbeat.
+    let signalled = shutdown_signal();
     // A restore refuses to replace the database while this beats.
     let presence = presence::announce(&pool, &addr.to_string()).await?;
     let mut state = crate::state::AppState::new(pool, sites);
@@ -139,7 +141,7 @@ pub async fn run(config: ServeConfig) -> anyhow::Result<()> {
     println!("bdft-lab server on {scheme}://{addr}");
     use std::io::Write;
     let _ = std::io::stdout().flush();
-    crate::run(state, listener, &config.connections, tls, shutdown_signal()).await?;
+    crate::run(state, listener, &config.connections, tls, signalled).await?;
     presence.end().await?;
     Ok(())
 }
@@ -251,7 +253,11 @@ fn site_links(config: &ServeConfig) -> anyhow::Result<Vec<controller_link::LinkC
     Ok(links)
 }
 
-async fn shutdown_signal() {
-    bdft_controller::runtime::shutdown_signal().await;
-    tracing::info!("shutting down");
+/// SIGINT or SIGTERM, its handlers installed now; logged when it comes.
+fn shutdown_signal() -> impl std::future::Future<Output = ()> + Send + 'static {
+    let signalled = bdft_controller::runtime::shutdown_signal();
+    async move {
+        signalled.await;
+        tracing::info!("shutting down");
+    }
 }

@@ -108,8 +108,10 @@ pub async fn trial_rows<'c>(
 pub struct RecordedTrial {
     pub trial_id: i64,
     pub code: String,
-    pub station: String,
-    pub controller: String,
+    #[sqlx(rename = "station")]
+    pub seat: String,
+    #[sqlx(rename = "controller")]
+    pub compensator: String,
     pub attempt: i64,
     #[sqlx(try_from = "String")]
     pub phase: TestPhase,
@@ -147,7 +149,8 @@ pub struct SubjectExportRow {
     pub enrol_index: i64,
     #[sqlx(try_from = "crate::store::db::Flag")]
     pub synthetic: bool,
-    pub starting_station: String,
+    #[sqlx(rename = "starting_station")]
+    pub starting_seat: String,
     pub consent_version: Option<String>,
     pub consent_decision: Option<String>,
     pub consent_sha256: Option<String>,

@@ -18,7 +18,9 @@ pub struct Subject {
     pub code: String,
     pub enrol_index: i64,
     pub synthetic: bool,
-    pub starting_station: Seat,
+    /// The seat of the subject's first tests (the API's key: `starting_station`).
+    #[serde(rename = "starting_station")]
+    pub starting_seat: Seat,
     pub consent_version: Option<String>,
     pub consent_decision: Option<ConsentDecision>,
     pub consent_at: Option<i64>,
@@ -62,7 +64,7 @@ impl TryFrom<SubjectRow> for Subject {
         let corrupt =
             |e: String| AppError::Internal(anyhow::anyhow!("stored subject {}: {e}", r.id));
         Ok(Subject {
-            starting_station: r
+            starting_seat: r
                 .starting_station
                 .parse::<Seat>()
                 .map_err(|e| corrupt(e.to_string()))?,
@@ -142,7 +144,7 @@ pub struct NewSubject<'a> {
     pub enrol_index: u32,
     pub synthetic: bool,
     pub token: &'a str,
-    pub starting_station: Seat,
+    pub starting_seat: Seat,
     pub drawn: Option<&'a SubjectDraw>,
 }
 
@@ -155,7 +157,7 @@ pub async fn insert(db: &mut AnyConnection, s: &NewSubject<'_>) -> Result<i64> {
     .bind(i64::from(s.enrol_index))
     .bind(i64::from(s.synthetic))
     .bind(token_hash(s.token))
-    .bind(s.starting_station.as_str())
+    .bind(s.starting_seat.as_str())
     .bind(now_ms())
     .bind(
         s.drawn

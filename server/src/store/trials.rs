@@ -7,7 +7,7 @@
 use bdft_protocol::params::{CompensatorKind, Seat};
 use bdft_protocol::records::{TestPhase, TrialStatus};
 use bdft_protocol::study::SurveyAnswer;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use sqlx::{AnyConnection, AnyExecutor};
 
 use super::db::now_ms;
@@ -153,22 +153,37 @@ pub async fn pending_survey<'c>(
     .await?)
 }
 
-/// A scheduled test as enrolment stores it.
-#[derive(Debug)]
-pub struct NewTrial<'a> {
-    pub subject_id: i64,
+/// One entry of a subject's schedule, as `engine::study::schedule` draws it (a function of
+/// the study's parameters and seeds only) and enrolment stores it (`NewTrial`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ScheduledTest {
+    /// 0 = practice, then 1.. for the scored tests in order; an identification test comes
+    /// after them (its place in the queue is `queue_order`).
     pub slot: u32,
     pub phase: TestPhase,
     pub seat: Seat,
+    /// 0 for the practice, 1 for the starting seat, 2 for the other.
     pub block: u32,
+    /// Position within the block, from 1 (0 for the practice and an identification test).
     pub position: u32,
+    /// Where the test stands in its block's queue: its slot, but an identification test
+    /// goes first in the block on the machine.
     pub queue_order: u32,
     pub compensator: CompensatorKind,
-    pub blinded_label: &'a str,
-    pub compensator_json: String,
-    pub k_bf: f64,
+    /// What the subject sees ("Controller 3", "Practice").
+    pub blinded_label: String,
     pub duration_s: f64,
     pub target_seed: u64,
+}
+
+/// A scheduled test as enrolment stores it: the schedule's entry, and what the study and
+/// its target add to it.
+#[derive(Debug)]
+pub struct NewTrial<'a> {
+    pub subject_id: i64,
+    pub test: &'a ScheduledTest,
+    pub compensator_json: String,
+    pub k_bf: f64,
     pub target_levels_json: String,
     pub target_mean_mm: f64,
     pub target_std_mm: f64,
@@ -177,28 +192,29 @@ pub struct NewTrial<'a> {
 }
 
 /// Stores a scheduled test; it is queued in schedule order.
-pub async fn insert(db: &mut AnyConnection, t: &NewTrial<'_>) -> Result<i64> {
+pub async fn insert(db: &mut AnyConnection, new: &NewTrial<'_>) -> Result<i64> {
+    let t = new.test;
     Ok(sqlx::query_scalar::<_, i64>(
         "INSERT INTO trials (subject_id, slot, phase, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order) \
          VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15, $16, $17, $18) RETURNING id",
     )
-    .bind(t.subject_id)
+    .bind(new.subject_id)
     .bind(i64::from(t.slot))
     .bind(t.phase.as_str())
     .bind(t.seat.as_str())
     .bind(i64::from(t.block))
     .bind(i64::from(t.position))
     .bind(t.compensator.name())
-    .bind(t.blinded_label)
-    .bind(&t.compensator_json)
-    .bind(t.k_bf)
+    .bind(&t.blinded_label)
+    .bind(&new.compensator_json)
+    .bind(new.k_bf)
     .bind(t.duration_s)
     .bind(t.target_seed as i64)
-    .bind(&t.target_levels_json)
-    .bind(t.target_mean_mm)
-    .bind(t.target_std_mm)
-    .bind(t.target_ms_step_mm2)
-    .bind(t.protocol_hash)
+    .bind(&new.target_levels_json)
+    .bind(new.target_mean_mm)
+    .bind(new.target_std_mm)
+    .bind(new.target_ms_step_mm2)
+    .bind(new.protocol_hash)
     .bind(i64::from(t.queue_order))
     .fetch_one(db)
     .await?)

@@ -5,14 +5,12 @@
 
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use serde_json::{Value, json};
 
 use super::journal::Journal;
 use super::plan::FaultKind;
 use super::{Soak, disk};
-use crate::binary;
 use crate::exports::parse_csv;
 
 /// What the soak's end says: every broken rule, and the run's figures.
@@ -118,8 +116,7 @@ fn finish(soak: Soak, violations: Vec<String>, figures: Value) -> Verdict {
 fn export(db: &Path, dir: &Path, study: i64, kind: &str, extra: &[&str]) -> Result<Rows, String> {
     let name = format!("{kind}{}.csv", extra.join("-"));
     let out = dir.join(&name);
-    let run = Command::new(binary("bdft-server"))
-        .args(["export", "--db"])
+    let run = crate::server_cmd(["export", "--db"])
         .arg(db)
         .args(["--study", &study.to_string(), "--kind", kind, "--out"])
         .arg(&out)

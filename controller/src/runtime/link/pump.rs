@@ -116,6 +116,7 @@ impl Io {
             dt: self.cfg.dt,
             record_chunks: n_chunks as u32,
             exposure: Some(slot.runner.exposure().0),
+            cancellation_off_at_s: slot.runner.cancellation_off_at_s(),
         };
         msgs.push(ControllerToServer::TrialResult(Box::new(result)));
         (entry.map(|e| e.conn), msgs)

@@ -195,7 +195,7 @@ impl Io {
                 uses_rig,
             },
         );
-        tracing::info!(trial = id, compensator = %st.compensator.kind(), seat = st.station.as_str(), k_bf = st.k_bf, "trial starting");
+        tracing::info!(trial = id, compensator = %st.compensator.kind(), seat = st.seat.as_str(), k_bf = st.k_bf, "trial starting");
         vec![]
     }
 }

@@ -48,8 +48,9 @@ pub struct PlanRequest {
     pub subjects: Vec<usize>,
     /// `mse_tracking_mm2` or `ms_cab_accel` (the continuous metrics).
     pub metric: String,
-    /// `on` or `off`.
-    pub station: String,
+    /// The seat: `on` or `off` (the API's key is `station`).
+    #[serde(rename = "station")]
+    pub seat: String,
     /// Simulated studies per candidate: 100 to 100000 with a pilot's model (default 1000),
     /// 10 to 10000 with the population.
     #[serde(default = "default_draws")]
@@ -118,8 +119,8 @@ impl PlanRequest {
         if !(self.alpha > 0.0 && self.alpha < 1.0) {
             return bad("alpha: a level between 0 and 1".into());
         }
-        if !["on", "off"].contains(&self.station.as_str()) {
-            return bad(format!("station: {:?}; valid: on, off", self.station));
+        if !["on", "off"].contains(&self.seat.as_str()) {
+            return bad(format!("station: {:?}; valid: on, off", self.seat));
         }
         match SUMMARY_VARIABLES[..2]
             .iter()
@@ -166,7 +167,7 @@ pub async fn plan_study(
     if req.source == PlanSource::Population {
         let study = store::studies::get(pool, study_id).await?;
         let seat: Seat = req
-            .station
+            .seat
             .parse()
             .map_err(|e: bdft_protocol::params::ParamError| AppError::BadRequest(e.to_string()))?;
         let max_n = check_population_work(&study.params, &req)?;
@@ -186,7 +187,7 @@ pub async fn plan_study(
             )?;
             let names: Vec<String> = study
                 .params
-                .controllers
+                .compensators
                 .iter()
                 .map(|c| c.kind().name().to_string())
                 .collect();
@@ -220,17 +221,14 @@ pub async fn plan_study(
         .map_err(|e| AppError::Internal(anyhow::anyhow!("planner task: {e}")))?;
     }
     let data = StudyData::load(pool, study_id).await?;
-    let model = estimate(
-        &data.compensators,
-        &data.complete_rows(metric, &req.station),
-    )
-    .ok_or_else(|| {
-        AppError::Conflict(format!(
-            "the study has fewer than 2 subjects with every compensator complete at the {} \
+    let model =
+        estimate(&data.compensators, &data.complete_rows(metric, &req.seat)).ok_or_else(|| {
+            AppError::Conflict(format!(
+                "the study has fewer than 2 subjects with every compensator complete at the {} \
                  seat: run a pilot (its dry-run copy) first, or plan with the population",
-            req.station
-        ))
-    })?;
+                req.seat
+            ))
+        })?;
     let _turn = crate::engine::COMPUTE
         .acquire()
         .await

@@ -20,7 +20,7 @@ use crate::error::Result;
 /// Loop ticks a plan of `studies` simulated studies of `max_n` subjects takes at `params`'
 /// trial length: what bounds a request.
 pub fn ticks(params: &StudyParams, studies: usize, max_n: usize) -> f64 {
-    (studies * max_n * params.controllers.len()) as f64 * (params.trial_s / DT).round()
+    (studies * max_n * params.compensators.len()) as f64 * (params.trial_s / DT).round()
 }
 
 /// The seed of simulated study `study` of a plan seeded `seed` (its subjects' draws,
@@ -30,7 +30,7 @@ fn study_seed(seed: u64, study: usize) -> u64 {
 }
 
 /// `studies` simulated studies of `max_n` subjects each, subject by subject
-/// (`rows[study·max_n + i]`, one metric per compensator in `params.controllers` order; None
+/// (`rows[study·max_n + i]`, one metric per compensator in `params.compensators` order; None
 /// for a subject with a trial the interlock stopped), on every core
 /// (`calibration::sim::simulate`); `progress` counts trials.
 pub fn simulate(
@@ -48,8 +48,8 @@ pub fn simulate(
             index: (j % max_n) as u32,
         })
         .collect();
-    let cells: Vec<Cell> = (0..params.controllers.len())
-        .map(|controller| Cell { controller, seat })
+    let cells: Vec<Cell> = (0..params.compensators.len())
+        .map(|compensator| Cell { compensator, seat })
         .collect();
     let rows = sim::simulate(params, &subjects, &cells, progress, &AtomicBool::new(false))?;
     Ok(rows

@@ -146,7 +146,7 @@ fn design_error(name: &str) -> impl Fn(DesignError) -> AppError + '_ {
 /// The study's designs by name (its compensators' names).
 fn designs(params: &StudyParams) -> Vec<(String, CompensatorSpec)> {
     params
-        .controllers
+        .compensators
         .iter()
         .map(|c| (c.kind().name().to_string(), c.clone()))
         .collect()
@@ -255,7 +255,7 @@ pub async fn robustness_report(
     let designs = designs(&params);
     let Some((name, design)) = designs.into_iter().find(|(n, _)| *n == q.design) else {
         let names: Vec<String> = params
-            .controllers
+            .compensators
             .iter()
             .map(|c| c.kind().name().to_string())
             .collect();

@@ -270,8 +270,8 @@ fn instructions(d: &mut Doc, p: &StudyParams) {
 }
 
 fn schedule_design(d: &mut Doc, p: &StudyParams) {
-    let k = p.controllers.len();
-    let tests = k * p.stations.len();
+    let k = p.compensators.len();
+    let tests = k * p.seats.len();
     let minutes = (p.practice_s + tests as f64 * p.trial_s) / 60.0;
     d.h2("schedule", "Schedule design");
     let mut items = Vec::new();
@@ -279,7 +279,7 @@ fn schedule_design(d: &mut Doc, p: &StudyParams) {
         items.push(format!(
             "A practice of {} s at the desk with the {} compensator, not scored.",
             num(p.practice_s),
-            p.practice_controller
+            p.practice_compensator
         ));
     } else {
         items.push("No practice.".into());
@@ -306,7 +306,7 @@ fn schedule_design(d: &mut Doc, p: &StudyParams) {
             num(m.f_min_hz),
             num(m.f_max_hz),
             num(m.rms_mm),
-            id.controller_or(p.practice_controller),
+            id.compensator_or(p.practice_compensator),
             id.instructions_for()
         ));
         if id.personalized {
@@ -326,7 +326,7 @@ fn schedule_design(d: &mut Doc, p: &StudyParams) {
 
 fn randomization(d: &mut Doc, study: &Study) {
     let p = &study.params;
-    let k = p.controllers.len();
+    let k = p.compensators.len();
     d.h2("randomization", "Randomization");
     d.list([
         format!("Seed: {} (chosen when the study was created).", study.seed),
@@ -343,7 +343,11 @@ fn randomization(d: &mut Doc, study: &Study) {
     ]);
     if p.order_design == OrderDesign::Williams {
         d.h3("The Williams design's rows");
-        let kinds: Vec<String> = p.controllers.iter().map(|c| c.kind().to_string()).collect();
+        let kinds: Vec<String> = p
+            .compensators
+            .iter()
+            .map(|c| c.kind().to_string())
+            .collect();
         d.table(
             &["Row", "Order"],
             williams::rows(k).into_iter().enumerate().map(|(r, row)| {
@@ -461,9 +465,9 @@ fn compensators(d: &mut Doc, p: &StudyParams) {
     d.p(&format!(
         "The compensators compared, each with every parameter of its design as the controller builds it. The feedthrough gain K_BF is {}; the practice uses the {} compensator.",
         num(p.k_bf),
-        p.practice_controller
+        p.practice_compensator
     ));
-    for c in &p.controllers {
+    for c in &p.compensators {
         d.h3(c.kind().name());
         d.table(
             &["Parameter", "Value"],

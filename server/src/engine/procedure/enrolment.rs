@@ -7,7 +7,7 @@ use serde::Serialize;
 use sqlx::AnyPool;
 
 use super::stations::consent_form;
-use crate::engine::study::schedule::{protocol_hash, schedule, starting_station, target};
+use crate::engine::study::schedule::{protocol_hash, schedule, starting_seat, target};
 use crate::engine::study::stability::{StabilityCache, check_lockable};
 use crate::error::{AppError, Result};
 use crate::store::subjects::{NewSubject, Subject};
@@ -72,7 +72,7 @@ pub async fn enrol(
             enrol_index: index,
             synthetic,
             token: &token,
-            starting_station: starting_station(index),
+            starting_seat: starting_seat(index),
             drawn: drawn.as_ref(),
         },
     )
@@ -91,7 +91,7 @@ pub async fn enrol(
         // compensator when the study has one, else that compensator's design for people.
         let spec = study
             .params
-            .controllers
+            .compensators
             .iter()
             .find(|c| c.kind() == t.compensator)
             .cloned()
@@ -110,18 +110,9 @@ pub async fn enrol(
             change.db(),
             &NewTrial {
                 subject_id,
-                slot: t.slot,
-                phase: t.phase,
-                queue_order: t.queue_order,
-                seat: t.seat,
-                block: t.block,
-                position: t.position,
-                compensator: t.compensator,
-                blinded_label: &t.blinded_label,
+                test: &t,
                 compensator_json: serde_json::to_string(&spec).expect("specs serialize"),
                 k_bf: study.params.k_bf,
-                duration_s: t.duration_s,
-                target_seed: t.target_seed,
                 target_levels_json: serde_json::to_string(&levels).expect("levels serialize"),
                 target_mean_mm: mean_mm,
                 target_std_mm: std_mm,

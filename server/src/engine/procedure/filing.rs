@@ -41,14 +41,17 @@ pub fn filing(outcome: &Outcome) -> (TrialStatus, Option<String>) {
     }
 }
 
-/// What `trial.finish` records: how the trial was filed, its metrics, and the attempt that
-/// re-queued it (if it failed).
+/// What `trial.finish` records: how the trial was filed, its metrics, the attempt that
+/// re-queued it (if it failed), and when cancellation's guard turned it off (if it did).
 #[derive(Debug, Serialize)]
 struct Finished<'a> {
     status: TrialStatus,
     reason: Option<String>,
     metrics: &'a Metrics,
     requeued: Option<i64>,
+    /// When cancellation's guard turned it off for the rest of the test (s into it).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    cancellation_off_at_s: Option<f64>,
 }
 
 /// Files a finished trial's result and record with its audit row. `false` when the trial
@@ -75,6 +78,13 @@ pub async fn file_result(
     if let (TrialStatus::Complete, Some((trial, m))) = (status, &measured) {
         identification::store(&mut change, trial, m).await?;
     }
+    if let Some(t) = result.cancellation_off_at_s {
+        tracing::warn!(
+            trial_id = result.trial_id,
+            at_s = t,
+            "cancellation's guard turned it off; the test went on uncancelled"
+        );
+    }
     let requeued = requeue_failed(change.db(), result.trial_id as i64).await?;
     audit_action_values(&mut change, result).await?;
     change
@@ -86,6 +96,7 @@ pub async fn file_result(
                 reason,
                 metrics: &result.metrics,
                 requeued,
+                cancellation_off_at_s: result.cancellation_off_at_s,
             },
         )
         .await?;

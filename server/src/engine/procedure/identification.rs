@@ -52,7 +52,7 @@ pub fn design_body(fit: &BodyFit) -> BodyModel {
 pub fn personal_designs(params: &StudyParams, fit: &BodyFit) -> Vec<PersonalDesign> {
     let body = design_body(fit);
     params
-        .controllers
+        .compensators
         .iter()
         .filter(|spec| spec.kind().is_lqr())
         .map(|spec| {
@@ -101,14 +101,15 @@ pub async fn measure(params: &StudyParams, trial: &Trial, record: &Record) -> Op
         .then(|| params.clone());
     // The estimate, fit and tuning take up to a few seconds: not on the async threads.
     let measured = tokio::task::spawn_blocking(move || {
-        use bdft_controller::identification::{estimate, fit_body};
+        use bdft_controller::identification::{estimate, fit_record};
         let (points, fit) = match estimate(&excitation, dt, &cab, &device) {
             Err(e) => (
                 Vec::new(),
                 Err(format!("the record could not be estimated: {e}")),
             ),
             Ok(points) => {
-                let fit = fit_body(&points)
+                // With the record: the intervals are the jackknife's over its periods.
+                let fit = fit_record(&points, &excitation, dt, &cab, &device)
                     .map(BodyFit::checked)
                     .map_err(|e| format!("the body fit failed: {e}"));
                 (points, fit)
@@ -203,7 +204,7 @@ async fn personalize_tests(
             tests += store::trials::personalize_scheduled(
                 change.db(),
                 trial.subject_id,
-                d.controller,
+                d.compensator,
                 &json,
             )
             .await?;

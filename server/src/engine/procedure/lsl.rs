@@ -344,6 +344,7 @@ mod tests {
             dt: 1e-3,
             record_chunks: 0,
             exposure: None,
+            cancellation_off_at_s: None,
         }
     }
 

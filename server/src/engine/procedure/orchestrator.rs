@@ -111,7 +111,7 @@ pub fn start(params: &StudyParams, run: TestRun, operator: Operator) -> StartTri
     StartTrial {
         trial_id: run.trial_id,
         compensator: run.compensator,
-        station: run.seat,
+        seat: run.seat,
         k_bf: run.k_bf,
         target: run.target,
         duration_s: run.duration_s,
@@ -124,5 +124,6 @@ pub fn start(params: &StudyParams, run: TestRun, operator: Operator) -> StartTri
         max_cab_rms_mm_s2: params.max_cab_rms_mm_s2,
         // Set by the start policy from the subject's day (`procedure::exposure`).
         exposure_allowance: None,
+        cancellation: None,
     }
 }

@@ -290,7 +290,9 @@ pub async fn detail(pool: &AnyPool, subject_id: i64) -> Result<SubjectDetail> {
 #[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct OwnTest {
     pub label: String,
-    pub station: bdft_protocol::params::Seat,
+    /// The seat (the page's key: `station`).
+    #[serde(rename = "station")]
+    pub seat: bdft_protocol::params::Seat,
     pub status: TrialStatus,
     pub phase: TestPhase,
 }
@@ -319,7 +321,7 @@ pub async fn own_progress(pool: &AnyPool, subject: Subject) -> Result<OwnProgres
         tests: latest_attempts(&trials)
             .map(|t| OwnTest {
                 label: t.blinded_label.clone(),
-                station: t.seat,
+                seat: t.seat,
                 status: t.status,
                 phase: t.phase,
             })

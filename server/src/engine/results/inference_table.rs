@@ -29,8 +29,10 @@ const BOOTSTRAP_SEED: u64 = 0x5354_4154;
 pub struct StatsRow {
     pub test: String,
     pub metric: String,
-    /// `on`, `off`, `on-off` (a seat comparison) or `both` (the ANOVA).
-    pub station: String,
+    /// `on`, `off`, `on-off` (a seat comparison) or `both` (the ANOVA); the API's key:
+    /// `station`.
+    #[serde(rename = "station")]
+    pub seat: String,
     pub a: String,
     pub b: String,
     /// Subjects in the analysis.
@@ -130,7 +132,7 @@ pub fn table(data: &StudyData) -> Vec<StatsRow> {
                         .filter_map(|s| Some((value(s, c, &seats[0])?, value(s, c, &seats[1])?)))
                         .unzip();
                     let mut r = pair_row("wilcoxon_on_off", metric, "", c, c, &a, &b)?;
-                    r.station = format!("{}-{}", seats[0], seats[1]);
+                    r.seat = format!("{}-{}", seats[0], seats[1]);
                     Some(r)
                 })
                 .collect();
@@ -170,7 +172,7 @@ pub fn table(data: &StudyData) -> Vec<StatsRow> {
 fn row(
     test: &str,
     metric: &str,
-    station: &str,
+    seat: &str,
     a: &str,
     b: &str,
     n: usize,
@@ -182,7 +184,7 @@ fn row(
     StatsRow {
         test: test.into(),
         metric: metric.into(),
-        station: station.into(),
+        seat: seat.into(),
         a: a.into(),
         b: b.into(),
         n,
@@ -322,7 +324,7 @@ mod tests {
         });
         let pairs: Vec<&StatsRow> = t
             .iter()
-            .filter(|r| r.test == "wilcoxon" && r.metric == "mse_tracking_mm2" && r.station == "on")
+            .filter(|r| r.test == "wilcoxon" && r.metric == "mse_tracking_mm2" && r.seat == "on")
             .collect();
         assert_eq!(pairs.len(), 10);
         for r in &pairs {

@@ -21,9 +21,12 @@ pub const SLOPE_UNIT: &str = "ln(mm²) per test position";
 pub struct CurvePoint {
     /// 1 … 2k: the scored test's place in the subject's session, both seats counted.
     pub position: u32,
-    /// `on` or `off`.
-    pub station: String,
-    pub controller: String,
+    /// `on` or `off` (the API's key: `station`).
+    #[serde(rename = "station")]
+    pub seat: String,
+    /// The API's key: `controller`.
+    #[serde(rename = "controller")]
+    pub compensator: String,
     pub mse_tracking_mm2: f64,
 }
 
@@ -41,7 +44,9 @@ pub struct SubjectCurve {
 /// The median over subjects at one seat and position.
 #[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct MedianPoint {
-    pub station: String,
+    /// The API's key: `station`.
+    #[serde(rename = "station")]
+    pub seat: String,
     pub position: u32,
     pub mse_tracking_mm2: f64,
     /// Subjects with a value here.
@@ -103,14 +108,14 @@ impl LearningCurve {
         let mut cells: BTreeMap<(String, u32), Vec<f64>> = BTreeMap::new();
         for p in subjects.iter().flat_map(|s| &s.points) {
             cells
-                .entry((p.station.clone(), p.position))
+                .entry((p.seat.clone(), p.position))
                 .or_default()
                 .push(p.mse_tracking_mm2);
         }
         let median_points = cells
             .into_iter()
-            .map(|((station, position), xs)| MedianPoint {
-                station,
+            .map(|((seat, position), xs)| MedianPoint {
+                seat,
                 position,
                 n: xs.len(),
                 mse_tracking_mm2: median(xs),
@@ -133,7 +138,7 @@ impl LearningCurve {
 /// The study's learning curve from its trials.
 pub async fn learning_curve(pool: &AnyPool, study_id: i64) -> Result<LearningCurve> {
     let study = store::studies::get(pool, study_id).await?;
-    let k = study.params.controllers.len() as u32;
+    let k = study.params.compensators.len() as u32;
     let rows =
         store::exports::trial_rows(pool, study_id, store::exports::Withdrawn::LeftOut).await?;
     let mut by_subject: BTreeMap<i64, (String, Vec<CurvePoint>)> = BTreeMap::new();
@@ -147,8 +152,8 @@ pub async fn learning_curve(pool: &AnyPool, study_id: i64) -> Result<LearningCur
             .1
             .push(CurvePoint {
                 position: (r.block as u32 - 1) * k + r.position as u32,
-                station: r.station.as_str().into(),
-                controller: r.controller.name().into(),
+                seat: r.station.as_str().into(),
+                compensator: r.controller.name().into(),
                 mse_tracking_mm2: mse,
             });
     }
@@ -162,11 +167,11 @@ pub async fn learning_curve(pool: &AnyPool, study_id: i64) -> Result<LearningCur
 mod tests {
     use super::*;
 
-    fn point(position: u32, station: &str, mse: f64) -> CurvePoint {
+    fn point(position: u32, seat: &str, mse: f64) -> CurvePoint {
         CurvePoint {
             position,
-            station: station.into(),
-            controller: "pid".into(),
+            seat: seat.into(),
+            compensator: "pid".into(),
             mse_tracking_mm2: mse,
         }
     }
@@ -218,10 +223,10 @@ mod tests {
                 .collect::<Vec<_>>(),
             [1, 2, 3, 4]
         );
-        let at = |station: &str, position| {
+        let at = |seat: &str, position| {
             c.median
                 .iter()
-                .find(|m| m.station == station && m.position == position)
+                .find(|m| m.seat == seat && m.position == position)
                 .map(|m| (m.mse_tracking_mm2, m.n))
         };
         // Position 1: S01 at the machine (40), S02 off (100), S03 on (7).

@@ -118,7 +118,7 @@ async fn box_plot(pool: &AnyPool, study_id: i64, index: usize) -> Result<String>
         .collect();
     let compensators: Vec<String> = study
         .params
-        .controllers
+        .compensators
         .iter()
         .map(|c| c.kind().name().to_string())
         .collect();

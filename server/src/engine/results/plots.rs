@@ -255,8 +255,8 @@ pub fn box_plot_svg(
             TOP + ph + 24.0,
             esc(c)
         );
-        for (station, colour, dx) in [("off", OFF, -0.55), ("on", ON, 0.55)] {
-            let Some((_, _, vals)) = groups.iter().find(|g| &g.0 == c && g.1 == station) else {
+        for (seat, colour, dx) in [("off", OFF, -0.55), ("on", ON, 0.55)] {
+            let Some((_, _, vals)) = groups.iter().find(|g| &g.0 == c && g.1 == seat) else {
                 continue;
             };
             let mut v: Vec<f64> = vals.iter().copied().filter(|x| x.is_finite()).collect();
@@ -336,7 +336,7 @@ pub fn learning_curve_svg(title: &str, curve: &LearningCurve) -> String {
             coords.join(" ")
         );
     };
-    for (i, (station, colour, label)) in [
+    for (i, (seat, colour, label)) in [
         ("off", OFF, "off the machine (desk)"),
         ("on", ON, "on the machine"),
     ]
@@ -364,7 +364,7 @@ pub fn learning_curve_svg(title: &str, curve: &LearningCurve) -> String {
             let pts: Vec<(f64, f64)> = subject
                 .points
                 .iter()
-                .filter(|p| p.station == station && p.mse_tracking_mm2.is_finite())
+                .filter(|p| p.seat == seat && p.mse_tracking_mm2.is_finite())
                 .map(|p| (x(p.position), axis.y(p.mse_tracking_mm2)))
                 .collect();
             polyline(&mut svg, &pts, colour, 1.2, 0.45);
@@ -378,7 +378,7 @@ pub fn learning_curve_svg(title: &str, curve: &LearningCurve) -> String {
         let med: Vec<(f64, f64)> = curve
             .median
             .iter()
-            .filter(|m| m.station == station)
+            .filter(|m| m.seat == seat)
             .map(|m| (x(m.position), axis.y(m.mse_tracking_mm2)))
             .collect();
         polyline(&mut svg, &med, "#111", 3.0, 1.0);
@@ -496,10 +496,10 @@ mod tests {
     #[test]
     fn the_learning_curve_draws_a_line_per_subject_and_seat_and_the_medians() {
         use super::super::learning::CurvePoint;
-        let point = |position, station: &str, mse| CurvePoint {
+        let point = |position, seat: &str, mse| CurvePoint {
             position,
-            station: station.into(),
-            controller: "pid".into(),
+            seat: seat.into(),
+            compensator: "pid".into(),
             mse_tracking_mm2: mse,
         };
         // Two subjects, each two tests at each seat; a third with a single test.

@@ -11,10 +11,12 @@ use crate::error::Result;
 /// Statistics of one variable for one compensator × seat.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, utoipa::ToSchema)]
 pub struct Stats {
-    /// The compensator's name.
-    pub controller: String,
-    /// The seat: on or off the machine.
-    pub station: String,
+    /// The compensator's name (the API's key: `controller`).
+    #[serde(rename = "controller")]
+    pub compensator: String,
+    /// The seat: on or off the machine (the API's key: `station`).
+    #[serde(rename = "station")]
+    pub seat: String,
     pub variable: String,
     pub n: usize,
     pub mean: f64,
@@ -44,7 +46,7 @@ pub async fn group_values(pool: &AnyPool, study_id: i64) -> Result<GroupValues> 
 /// averages.
 pub async fn summary_stats(pool: &AnyPool, study_id: i64) -> Result<Vec<Stats>> {
     let mut out = Vec::new();
-    for ((controller, station), values) in group_values(pool, study_id).await? {
+    for ((controller, seat), values) in group_values(pool, study_id).await? {
         for (i, variable) in SUMMARY_VARIABLES.iter().enumerate() {
             let mut xs: Vec<f64> = values.iter().filter_map(|v| v[i]).collect();
             if xs.is_empty() {
@@ -52,8 +54,8 @@ pub async fn summary_stats(pool: &AnyPool, study_id: i64) -> Result<Vec<Stats>> 
             }
             xs.sort_by(f64::total_cmp);
             out.push(Stats {
-                controller: controller.clone(),
-                station: station.clone(),
+                compensator: controller.clone(),
+                seat: seat.clone(),
                 variable: (*variable).into(),
                 n: xs.len(),
                 mean: xs.iter().sum::<f64>() / xs.len() as f64,

@@ -75,13 +75,13 @@ impl StudyData {
         Ok(Self {
             compensators: study
                 .params
-                .controllers
+                .compensators
                 .iter()
                 .map(|c| c.kind().name().to_string())
                 .collect(),
             seats: study
                 .params
-                .stations
+                .seats
                 .iter()
                 .map(|s| s.as_str().to_string())
                 .collect(),

@@ -96,7 +96,7 @@ pub async fn pick(pool: &AnyPool, actor: &str, study_id: i64, config_ids: &[i64]
                 v.kind
             )));
         }
-        let Some(slot) = params.controllers.iter_mut().find(|c| c.kind() == v.kind) else {
+        let Some(slot) = params.compensators.iter_mut().find(|c| c.kind() == v.kind) else {
             return Err(AppError::BadRequest(format!(
                 "config_ids: the study compares no {} design, so version {} of {:?} has no place in it",
                 v.kind, v.version, v.name

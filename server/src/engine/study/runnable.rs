@@ -27,10 +27,14 @@ pub fn check(params: &StudyParams) -> Result<()> {
 /// The designs a study's trials run: its compensators, and the practice's (the study's own
 /// design of it, else that compensator's design for people, as enrolment chooses).
 fn designs(params: &StudyParams) -> Vec<CompensatorSpec> {
-    let mut specs = params.controllers.clone();
-    if params.practice_s > 0.0 && !specs.iter().any(|c| c.kind() == params.practice_controller) {
+    let mut specs = params.compensators.clone();
+    if params.practice_s > 0.0
+        && !specs
+            .iter()
+            .any(|c| c.kind() == params.practice_compensator)
+    {
         specs.push(bdft_controller::compensator::study_spec(
-            params.practice_controller,
+            params.practice_compensator,
             &params.plant,
         ));
     }
@@ -97,7 +101,7 @@ mod tests {
     #[test]
     fn an_lqr_design_without_a_riccati_solution_is_refused() {
         let mut p = default_params();
-        for c in &mut p.controllers {
+        for c in &mut p.compensators {
             if let CompensatorSpec::Lqr { lqr } = c {
                 lqr.alpha = 1e-3;
             }
@@ -113,7 +117,7 @@ mod tests {
     #[test]
     fn the_practice_design_is_built_too() {
         let mut p = default_params();
-        p.controllers
+        p.compensators
             .retain(|c| c.kind() != bdft_protocol::params::CompensatorKind::Pid);
         let kinds: Vec<_> = designs(&p).iter().map(|c| c.kind()).collect();
         assert!(kinds.contains(&bdft_protocol::params::CompensatorKind::Pid));

@@ -12,7 +12,6 @@ use bdft_protocol::study::{
     ConsentForm, OrderDesign, RigKind, StudyParams, StudyTexts, SurveyParams,
 };
 use bdft_protocol::trial::TargetSpec;
-use serde::{Deserialize, Serialize};
 
 use super::williams;
 
@@ -25,12 +24,12 @@ pub const STUDY_KBF: f64 = 0.78;
 pub fn default_params() -> StudyParams {
     let plant = PlantParams::default();
     StudyParams {
-        controllers: CompensatorKind::STUDY
+        compensators: CompensatorKind::STUDY
             .iter()
             .map(|&k| study_spec(k, &plant))
             .collect(),
-        practice_controller: CompensatorKind::Pid,
-        stations: vec![Seat::On, Seat::Off],
+        practice_compensator: CompensatorKind::Pid,
+        seats: vec![Seat::On, Seat::Off],
         trial_s: 140.0,
         practice_s: 120.0,
         step_interval_s: 2.0,
@@ -72,30 +71,12 @@ pub fn protocol_hash(params: &StudyParams) -> String {
     bdft_protocol::hex::sha256(canonical_json(params).as_bytes())
 }
 
-/// One entry of a subject's schedule.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ScheduledTest {
-    /// 0 = practice, then 1.. for the scored tests in order; an identification test comes
-    /// after them (its place in the queue is `queue_order`).
-    pub slot: u32,
-    pub phase: TestPhase,
-    pub seat: Seat,
-    /// 0 for the practice, 1 for the starting seat, 2 for the other.
-    pub block: u32,
-    /// Position within the block, from 1 (0 for the practice and an identification test).
-    pub position: u32,
-    /// Where the test stands in its block's queue: its slot, but an identification test
-    /// goes first in the block on the machine.
-    pub queue_order: u32,
-    pub compensator: CompensatorKind,
-    /// What the subject sees ("Controller 3", "Practice").
-    pub blinded_label: String,
-    pub duration_s: f64,
-    pub target_seed: u64,
-}
+/// One entry of a subject's schedule: defined beside the store's `NewTrial`, which stores
+/// it as it is.
+pub use crate::store::trials::ScheduledTest;
 
 /// Starting seat by enrolment order: on, off, on, … to balance learning effects.
-pub fn starting_station(enrol_index: u32) -> Seat {
+pub fn starting_seat(enrol_index: u32) -> Seat {
     if enrol_index % 2 == 0 {
         Seat::On
     } else {
@@ -131,10 +112,10 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
         Rng::derive(study_seed, SCHEDULE_STREAM).next_u64(),
         u64::from(enrol_index),
     );
-    let kinds: Vec<CompensatorKind> = params.controllers.iter().map(|c| c.kind()).collect();
+    let kinds: Vec<CompensatorKind> = params.compensators.iter().map(|c| c.kind()).collect();
     let mut labels: Vec<usize> = (1..=kinds.len()).collect();
     shuffle(&mut labels, &mut rng);
-    let start = starting_station(enrol_index);
+    let start = starting_seat(enrol_index);
     let (first, second) = match params.order_design {
         OrderDesign::Random => {
             let mut first = kinds.clone();
@@ -174,7 +155,7 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
             block: 0,
             position: 0,
             queue_order: 0,
-            compensator: params.practice_controller,
+            compensator: params.practice_compensator,
             blinded_label: "Practice".into(),
             duration_s: params.practice_s,
             target_seed: rng.next_u64() >> 11,
@@ -226,7 +207,7 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
             position: 0,
             // Before the block's first test: the queue orders by block, then this.
             queue_order: first_slot - 1,
-            compensator: id.controller_or(params.practice_controller),
+            compensator: id.compensator_or(params.practice_compensator),
             blinded_label: "Identification".into(),
             duration_s: id.excitation.duration_s(),
             target_seed: seed,
@@ -334,7 +315,7 @@ mod tests {
                 .starts_with("The test lasts 120 seconds.")
         );
         p.trial_s = 90.0;
-        p.controllers.truncate(3);
+        p.compensators.truncate(3);
         let (consent, _) = p.rendered_texts().unwrap();
         assert!(
             consent
@@ -507,9 +488,9 @@ mod tests {
     fn williams_schedules_follow_the_rows_at_each_seat() {
         for k in 2..=5 {
             let mut p = default_params();
-            p.controllers.truncate(k);
+            p.compensators.truncate(k);
             p.order_design = OrderDesign::Williams;
-            let kinds: Vec<CompensatorKind> = p.controllers.iter().map(|c| c.kind()).collect();
+            let kinds: Vec<CompensatorKind> = p.compensators.iter().map(|c| c.kind()).collect();
             let rows = williams::rows(k);
             let n = rows.len() as u32;
             for idx in 0..2 * n {
@@ -527,7 +508,7 @@ mod tests {
                     rows[((idx + n / 2) % n) as usize],
                     "k {k}, {idx}"
                 );
-                assert_eq!(s[1].seat, starting_station(idx));
+                assert_eq!(s[1].seat, starting_seat(idx));
                 assert_ne!(order(Seat::On), order(Seat::Off));
             }
         }

@@ -76,7 +76,7 @@ pub fn study_loop(
             k_bf: params.k_bf,
             ..LoopParams::default()
         },
-        station: Seat::On,
+        seat: Seat::On,
         compensator: spec.clone(),
     }
 }
@@ -102,7 +102,7 @@ fn verdict(params: &StudyParams, spec: &bdft_protocol::params::CompensatorSpec) 
 fn analyse(params: &StudyParams) -> Result<StabilityReport> {
     let verdicts = std::thread::scope(|s| {
         let handles: Vec<_> = params
-            .controllers
+            .compensators
             .iter()
             .map(|spec| s.spawn(move || verdict(params, spec)))
             .collect();
@@ -138,7 +138,7 @@ pub fn analysis_key(params: &StudyParams, k_bf: f64) -> String {
         plant: &params.plant,
         body: &params.body,
         k_bf,
-        controllers: &params.controllers,
+        controllers: &params.compensators,
     })
     .expect("study parameters serialize")
 }
@@ -242,7 +242,7 @@ mod tests {
         // The bench tuning on the machine at 0.78: the analysis of the original designs
         // says plain PID is stable only up to K_BF 0.35 (docs/system-model.md §6).
         let mut bench = params.clone();
-        bench.controllers = CompensatorKind::STUDY
+        bench.compensators = CompensatorKind::STUDY
             .iter()
             .map(|&k| bdft_controller::compensator::default_spec(k, &bench.plant))
             .collect();

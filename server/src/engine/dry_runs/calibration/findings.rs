@@ -13,8 +13,12 @@ use super::sim::Cell;
 
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct CellSummary {
-    pub controller: String,
-    pub station: String,
+    /// The compensator (key `controller`, as the report has always named it).
+    #[serde(rename = "controller")]
+    pub compensator: String,
+    /// The seat (key `station`).
+    #[serde(rename = "station")]
+    pub seat: String,
     /// Subjects whose test completed.
     pub n: usize,
     /// Tests the cab-vibration interlock stopped.
@@ -74,12 +78,12 @@ pub fn table(
     for c in &f.cells {
         let thesis = THESIS_DESK_MS_CAB_ACCEL_E5
             .iter()
-            .find(|(k, _)| *k == c.controller && c.station == Seat::Off.as_str())
+            .find(|(k, _)| *k == c.compensator && c.seat == Seat::Off.as_str())
             .map_or("".to_string(), |(_, v)| format!("{v:.2}"));
         out += &format!(
             "| {} | {} | {:.0} | {:.2} | {:.2} | {thesis} | {} |\n",
-            c.controller,
-            c.station,
+            c.compensator,
+            c.seat,
             c.median_mse_tracking_mm2,
             c.median_rms_cab_accel_m_s2,
             c.mean_ms_cab_accel * 1e-5,
@@ -87,7 +91,7 @@ pub fn table(
         );
     }
     out += "\n| controller | on/off tracking error (geometric mean) |\n|---|---:|\n";
-    for (c, r) in params.controllers.iter().zip(&f.on_off_ratio) {
+    for (c, r) in params.compensators.iter().zip(&f.on_off_ratio) {
         out += &format!(
             "| {} | {} |\n",
             c.kind().name(),
@@ -98,7 +102,7 @@ pub fn table(
         "\nICC(3,1) of log tracking error: {}\n",
         f.icc_log_mse.map_or("—".into(), |v| format!("{v:.2}"))
     );
-    if params.stations.contains(&Seat::On) {
+    if params.seats.contains(&Seat::On) {
         out += &feedthrough_share(params, &cells, &f, rows.len(), seed, progress)?;
     }
     Ok(out)
@@ -125,11 +129,11 @@ fn feedthrough_share(
     )?;
     let without = summarize(&uncoupled, cells, &rows);
     let mut out = "\nThe body's coupling set to zero (the same subjects; a body that passes nothing to the device): the feedthrough loop's share\n\n| controller | on-machine mean MS cab accel, coupled → uncoupled (10⁵ (mm/s²)²) | its share | riding effect coupled → uncoupled | its share (of the log) |\n|---|---:|---:|---:|---:|\n".to_string();
-    for (k, spec) in params.controllers.iter().enumerate() {
+    for (k, spec) in params.compensators.iter().enumerate() {
         let on = |f: &Findings| {
             cells
                 .iter()
-                .position(|c| c.controller == k && c.seat == Seat::On)
+                .position(|c| c.compensator == k && c.seat == Seat::On)
                 .map(|j| f.cells[j].mean_ms_cab_accel)
         };
         let (Some(a), Some(b)) = (on(with), on(&without)) else {
@@ -204,15 +208,15 @@ pub fn icc_consistency(table: &[Vec<f64>]) -> Option<f64> {
 
 /// The findings of `rows[subject][cell]` (`sim::simulate`).
 pub fn summarize(params: &StudyParams, cells: &[Cell], rows: &[Vec<Option<Metrics>>]) -> Findings {
-    let name = |c: &Cell| params.controllers[c.controller].kind().name().to_string();
+    let name = |c: &Cell| params.compensators[c.compensator].kind().name().to_string();
     let summaries = cells
         .iter()
         .enumerate()
         .map(|(j, c)| {
             let done: Vec<Metrics> = rows.iter().filter_map(|r| r[j]).collect();
             CellSummary {
-                controller: name(c),
-                station: c.seat.as_str().to_string(),
+                compensator: name(c),
+                seat: c.seat.as_str().to_string(),
                 n: done.len(),
                 stopped: rows.len() - done.len(),
                 median_mse_tracking_mm2: median(done.iter().map(|m| m.mse_tracking_mm2).collect()),
@@ -227,9 +231,9 @@ pub fn summarize(params: &StudyParams, cells: &[Cell], rows: &[Vec<Option<Metric
     let at = |controller: usize, seat: Seat| {
         cells
             .iter()
-            .position(|c| c.controller == controller && c.seat == seat)
+            .position(|c| c.compensator == controller && c.seat == seat)
     };
-    let on_off_ratio = (0..params.controllers.len())
+    let on_off_ratio = (0..params.compensators.len())
         .map(|k| {
             let (on, off) = (at(k, Seat::On)?, at(k, Seat::Off)?);
             let logs: Vec<f64> = rows

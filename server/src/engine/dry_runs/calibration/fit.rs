@@ -40,7 +40,7 @@ pub(super) struct Knob {
 }
 
 /// The medians a target of tracking error and cab acceleration moves: the delay (the error
-/// level), the operator's error gain (how fast they correct), the slowing under vibration
+/// level), the operator's error gain (how fast they correct), the delay felt vibration adds
 /// (the riding effect) and the body's feedthrough gain (vibration on the machine). Adding a
 /// knob is one entry here: the fit, its intervals, the predictions' Jacobian and prior
 /// ranges and the coverage test's true populations all follow this table.
@@ -58,10 +58,10 @@ pub(super) const MEDIANS: [Knob; 4] = [
         bounds: (0.02, bounds::ERROR_GAIN.1),
     },
     Knob {
-        name: "vibration_slowing_per_m_s2",
-        get: |p| p.vibration_slowing_per_m_s2.median,
-        set: |p, v| p.vibration_slowing_per_m_s2.median = v,
-        bounds: (0.05, bounds::VIBRATION_SLOWING_PER_M_S2.1),
+        name: "vibration_delay_s_per_m_s2",
+        get: |p| p.vibration_delay_s_per_m_s2.median,
+        set: |p, v| p.vibration_delay_s_per_m_s2.median = v,
+        bounds: (0.01, bounds::VIBRATION_DELAY_S_PER_M_S2.1),
     },
     Knob {
         name: "body_k_h",
@@ -73,19 +73,18 @@ pub(super) const MEDIANS: [Knob; 4] = [
 
 /// Every spread of the people's operators, scaled together: what a target with spreads over
 /// subjects moves.
-fn operator_spreads(p: &mut PopulationParams) -> [&mut Spread; 6] {
+fn operator_spreads(p: &mut PopulationParams) -> [&mut Spread; 5] {
     [
         &mut p.reaction_delay_s,
         &mut p.error_gain,
         &mut p.remnant_std_mm,
         &mut p.neuromuscular_w,
-        &mut p.vibration_slowing_per_m_s2,
-        &mut p.vibration_regression_per_m_s2,
+        &mut p.vibration_delay_s_per_m_s2,
     ]
 }
 
 const SPREAD: Knob = Knob {
-    name: "operator_spread (cv of the operator's delay, gain, remnant, corner, slowing, regression)",
+    name: "operator_spread (cv of the operator's delay, gain, remnant, corner, vibration delay)",
     get: |p| p.reaction_delay_s.cv,
     set: |p, v| {
         let scale = v / p.reaction_delay_s.cv.max(1e-9);
@@ -108,8 +107,12 @@ pub struct FittedParameter {
 
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct CellFit {
-    pub controller: String,
-    pub station: String,
+    /// The compensator (key `controller`, as the report has always named it).
+    #[serde(rename = "controller")]
+    pub compensator: String,
+    /// The seat (key `station`).
+    #[serde(rename = "station")]
+    pub seat: String,
     pub metric: String,
     /// The target's mean (None for a prediction of a metric the target did not hold).
     pub target: Option<f64>,
@@ -577,12 +580,13 @@ pub fn check_enough(target: &Target) -> Result<()> {
 /// Forward-difference step of the Jacobian (log units: 16 %).
 const JACOBIAN_STEP: f64 = 0.15;
 
-/// The knobs (`MEDIANS`) whose intervals are carried onto their profiles: the delay (a
-/// slower person or a less correcting one: the delay–gain ridge is curved) and the body's
-/// feedthrough gain (more feedthrough or more slowing under the vibration it lets through:
-/// both raise the riding cost, most with the LQR). Each profile costs about as many
-/// evaluations as the fit, so the others keep the linearized bootstrap's interval.
-const PROFILED: [&str; 2] = ["reaction_delay_s", "body_k_h"];
+/// The knobs (`MEDIANS`) whose intervals are carried onto their profiles: the delay and the
+/// error gain (a slower person or a less correcting one: the delay–gain ridge is curved, so
+/// the linearized interval of either end can miss it) and the body's feedthrough gain (more
+/// feedthrough or more delay under the vibration it lets through: both raise the riding
+/// cost, most with the LQR). Each profile costs about as many evaluations as the fit, so the
+/// vibration delay keeps the linearized bootstrap's interval.
+const PROFILED: [&str; 3] = ["reaction_delay_s", "error_gain", "body_k_h"];
 
 /// Damped Gauss–Newton steps of a profile point's refit.
 const PROFILE_STEPS: usize = 2;
@@ -842,7 +846,7 @@ pub(super) fn fit_with(
                         criterion2,
                     )?;
                     ci[i] = (ends[0].exp(), ends[1].exp());
-                    profiled = "; the delay's and the feedthrough gain's ends then carried onto their profiles (the other identified parameters refitted at each value, each end where the criterion rises above the fit's as far as the linear model's does at the bootstrap's end: the bootstrap's interval where the model is linear, bending with the delay–gain and the feedthrough–slowing ridges where it is not)";
+                    profiled = "; the delay's, the error gain's and the feedthrough gain's ends then carried onto their profiles (the other identified parameters refitted at each value, each end where the criterion rises above the fit's as far as the linear model's does at the bootstrap's end: the bootstrap's interval where the model is linear, bending with the delay–gain and the feedthrough–delay ridges where it is not)";
                 }
             }
             let data = if target.subjects.is_some() {
@@ -910,7 +914,7 @@ pub(super) fn fit_with(
             }
         })
         .collect();
-    let name = |c: Cell| params.controllers[c.controller].kind().name().to_string();
+    let name = |c: Cell| params.compensators[c.compensator].kind().name().to_string();
     // The goodness of fit: the misfit against χ² with moments − identified parameters.
     let label = |i: usize| match target.cells.get(i) {
         Some(c) => format!(
@@ -963,8 +967,8 @@ pub(super) fn fit_with(
         };
         let range = interval(mean, parts.total());
         CellFit {
-            controller: name(cell),
-            station: cell.seat.as_str().to_string(),
+            compensator: name(cell),
+            seat: cell.seat.as_str().to_string(),
             metric: metric.name().to_string(),
             target: t.map(|t| t.mean),
             target_sd: t.and_then(|t| t.sd),

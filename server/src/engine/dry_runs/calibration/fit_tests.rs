@@ -32,7 +32,7 @@ mod calibrate {
     fn truth() -> StudyParams {
         let mut p = study();
         p.population.reaction_delay_s.median = 0.32;
-        p.population.vibration_slowing_per_m_s2.median = 2.5;
+        p.population.vibration_delay_s_per_m_s2.median = 0.45;
         p
     }
 
@@ -65,7 +65,7 @@ mod calibrate {
             .iter()
             .filter(|t| t.metric == Metric::MseTrackingMm2)
         {
-            let kind = study().controllers[t.cell.controller].kind();
+            let kind = study().compensators[t.cell.compensator].kind();
             csv += &format!(
                 "{},{},mse_tracking_mm2,{:.1},{:.1},{}\n",
                 kind.name(),
@@ -83,7 +83,7 @@ mod calibrate {
         for p in &report.parameters {
             let want = match p.name.as_str() {
                 "reaction_delay_s" => truth.reaction_delay_s.median,
-                "vibration_slowing_per_m_s2" => truth.vibration_slowing_per_m_s2.median,
+                "vibration_delay_s_per_m_s2" => truth.vibration_delay_s_per_m_s2.median,
                 "error_gain" => truth.error_gain.median,
                 "body_k_h" => truth.body_k_h.median,
                 _ => continue,
@@ -208,8 +208,8 @@ mod calibrate {
             assert!(
                 (c.prediction - t).abs() <= stated,
                 "{} {}: {} vs {t} ± {stated}",
-                c.controller,
-                c.station,
+                c.compensator,
+                c.seat,
                 c.prediction
             );
         }
@@ -226,7 +226,7 @@ mod calibrate {
 
     /// The calibration benchmark's scenario (docs/benchmarks.md, issue 21) with the 20 s
     /// tests a dev-profile test affords: the table of an 8-subject pilot (seed 11) of the
-    /// population with the medians delay 0.30 s, error gain 0.36, slowing 3.0 per m/s² and
+    /// population with the medians delay 0.30 s, error gain 0.36, vibration delay 0.45 s per m/s² and
     /// k_h 0.50. The pilot's eight people are slower and more correcting than their
     /// population's medians, and the table cannot tell a slower person from a less
     /// correcting one: the fit lands up the curved delay–gain ridge (0.396 s). The
@@ -242,7 +242,7 @@ mod calibrate {
         let mut truth = study();
         truth.population.reaction_delay_s.median = 0.30;
         truth.population.error_gain.median = 0.36;
-        truth.population.vibration_slowing_per_m_s2.median = 3.0;
+        truth.population.vibration_delay_s_per_m_s2.median = 0.45;
         truth.population.body_k_h.median = 0.50;
         let report = run(&table_of(&pilot_of(&truth, 11, 8)), "table");
         assert!(
@@ -264,9 +264,9 @@ mod calibrate {
             practice_s: 10.0,
             ..study()
         };
-        p.controllers
+        p.compensators
             .retain(|c| ["pid", "pid-shaper", "lqr"].contains(&c.kind().name()));
-        assert_eq!(p.controllers.len(), 3);
+        assert_eq!(p.compensators.len(), 3);
         p
     }
 
@@ -277,7 +277,7 @@ mod calibrate {
         for (i, t) in pilot.cells.iter().enumerate() {
             csv += &format!(
                 "{},{},{},{},{},{},{},{}\n",
-                p.controllers[t.cell.controller].kind().name(),
+                p.compensators[t.cell.compensator].kind().name(),
                 t.cell.seat.as_str(),
                 t.metric.name(),
                 t.mean,
@@ -337,7 +337,7 @@ mod calibrate {
                 } else {
                     misses.push(format!(
                         "population {k}: {} {} {} {t:.4e} outside [{low:.4e}, {high:.4e}]",
-                        c.controller, c.station, c.metric
+                        c.compensator, c.seat, c.metric
                     ));
                 }
             }
@@ -391,10 +391,10 @@ mod calibrate {
                 (0.02, bdft_protocol::params::bounds::ERROR_GAIN.1),
             ),
             (
-                "vibration_slowing_per_m_s2",
+                "vibration_delay_s_per_m_s2",
                 (
-                    0.05,
-                    bdft_protocol::params::bounds::VIBRATION_SLOWING_PER_M_S2.1,
+                    0.01,
+                    bdft_protocol::params::bounds::VIBRATION_DELAY_S_PER_M_S2.1,
                 ),
             ),
             ("body_k_h", bdft_protocol::params::bounds::BODY_K_H),
@@ -516,7 +516,7 @@ mod calibrate {
 
     fn refused(csv: &str) -> String {
         let mut p = study();
-        p.controllers.truncate(3);
+        p.compensators.truncate(3);
         match parse_table(&p, csv).and_then(|t| {
             crate::engine::dry_runs::calibration::fit::check_enough(&t)?;
             Ok(t)

@@ -60,8 +60,8 @@ pub fn predicted(
         for (i, item) in ITEMS.iter().enumerate() {
             let observed = theirs.and_then(|p| p.items[i]);
             out.push(CellFit {
-                controller: a.controller.clone(),
-                station: a.station.clone(),
+                compensator: a.compensator.clone(),
+                seat: a.seat.clone(),
                 metric: item.to_string(),
                 target: None,
                 target_sd: None,

@@ -69,7 +69,7 @@ async fn study_target(
             continue;
         }
         let Some(j) = cells.iter().position(|c| {
-            c.seat == r.station && params.controllers[c.controller].kind() == r.controller
+            c.seat == r.station && params.compensators[c.compensator].kind() == r.controller
         }) else {
             continue;
         };

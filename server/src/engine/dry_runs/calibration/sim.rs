@@ -35,11 +35,11 @@ pub struct SubjectRef {
     pub index: u32,
 }
 
-/// A cell of the design: one of the study's controllers (its index in
-/// `params.controllers`) at one seat.
+/// A cell of the design: one of the study's compensators (its index in
+/// `params.compensators`) at one seat.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Cell {
-    pub controller: usize,
+    pub compensator: usize,
     pub seat: Seat,
 }
 
@@ -108,10 +108,10 @@ pub fn simulate(
     let batch = |item: usize| -> Part {
         let (chunk, c) = (item / k, item % k);
         let cell = cells[c];
-        let spec = params.controllers.get(cell.controller).ok_or_else(|| {
+        let spec = params.compensators.get(cell.compensator).ok_or_else(|| {
             AppError::BadRequest(format!(
                 "controller: the study has {} controllers",
-                params.controllers.len()
+                params.compensators.len()
             ))
         })?;
         let range = chunk * LANES..(chunk * LANES + LANES).min(total);
@@ -175,10 +175,10 @@ pub(super) fn on_every_core<T: Send>(
 /// Every cell of the study: each controller at each station, in `params` order.
 pub fn all_cells(params: &StudyParams) -> Vec<Cell> {
     params
-        .stations
+        .seats
         .iter()
         .flat_map(|&seat| {
-            (0..params.controllers.len()).map(move |controller| Cell { controller, seat })
+            (0..params.compensators.len()).map(move |compensator| Cell { compensator, seat })
         })
         .collect()
 }

@@ -19,8 +19,12 @@ use crate::error::{AppError, Result};
 
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct SurveyCell {
-    pub controller: String,
-    pub station: String,
+    /// The compensator (key `controller`, as the report has always named it).
+    #[serde(rename = "controller")]
+    pub compensator: String,
+    /// The seat (key `station`).
+    #[serde(rename = "station")]
+    pub seat: String,
     /// Subjects whose test completed (and who answered).
     pub n: usize,
     /// Mean over subjects of accuracy, speed, smoothness and controllability (the scale's
@@ -59,7 +63,7 @@ pub fn surveys(
             params,
             subject,
             cell.seat,
-            &params.controllers[cell.controller],
+            &params.compensators[cell.compensator],
         )?;
         let (result, channels) = bdft_controller::runtime::local::run(&start, DT)
             .map_err(|e| AppError::BadRequest(format!("a simulated trial: {e}")))?;
@@ -93,11 +97,11 @@ pub fn surveys(
             };
             let items = [mean_sd(0), mean_sd(1), mean_sd(2), mean_sd(3)];
             SurveyCell {
-                controller: params.controllers[cell.controller]
+                compensator: params.compensators[cell.compensator]
                     .kind()
                     .name()
                     .to_string(),
-                station: cell.seat.as_str().to_string(),
+                seat: cell.seat.as_str().to_string(),
                 n,
                 mean_ratings: items.map(|m| m.0),
                 sd_ratings: items.map(|m| m.1),
@@ -129,8 +133,8 @@ pub fn table(params: &StudyParams, subjects: u32, seed: u64) -> Result<String> {
         let [a, sp, sm, co] = c.mean_ratings;
         out += &format!(
             "| {} | {} | {a:.2} | {sp:.2} | {sm:.2} | {co:.2} | {:.1} | {:.2} | {:.2} | {:.2} |\n",
-            c.controller,
-            c.station,
+            c.compensator,
+            c.seat,
             c.median_error_mm,
             c.median_response_s,
             c.median_felt_m_s2,

@@ -311,11 +311,11 @@ fn cell_of(
     let seat: Seat = station
         .parse()
         .map_err(|_| format!("station {station:?}: allowed on, off"))?;
-    let controller = params
-        .controllers
+    let compensator = params
+        .compensators
         .iter()
         .position(|c| c.kind() == kind)
-        .filter(|_| params.stations.contains(&seat))
+        .filter(|_| params.seats.contains(&seat))
         .ok_or_else(|| {
             format!(
                 "the study runs no {} test at the {} station",
@@ -323,7 +323,7 @@ fn cell_of(
                 seat.as_str()
             )
         })?;
-    Ok((kind, Cell { controller, seat }))
+    Ok((kind, Cell { compensator, seat }))
 }
 
 /// The table's header, as messages give it.

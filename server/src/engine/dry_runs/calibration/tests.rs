@@ -69,7 +69,7 @@ fn both() -> [&'static Findings; 2] {
 fn cell<'a>(f: &'a Findings, controller: &str, seat: Seat) -> &'a super::findings::CellSummary {
     f.cells
         .iter()
-        .find(|c| c.controller == controller && c.station == seat.as_str())
+        .find(|c| c.compensator == controller && c.seat == seat.as_str())
         .expect("cell")
 }
 
@@ -77,7 +77,7 @@ const PID_FAMILY: [&str; 3] = ["pid", "pid-notch", "pid-shaper"];
 const CONTROLLERS: [&str; 5] = ["pid", "pid-notch", "pid-shaper", "lqr", "lqr-cabvel"];
 
 #[test]
-fn riding_costs_accuracy_with_every_controller() {
+fn riding_costs_accuracy_with_every_compensator() {
     for f in both() {
         let r: Vec<f64> = f.on_off_ratio.iter().map(|r| r.unwrap()).collect();
         // "The operator performs better off the tractor with every controller", by roughly
@@ -129,7 +129,7 @@ fn on_the_machine_the_lqr_tracks_worst_or_near_worst() {
         let better = CONTROLLERS.iter().filter(|&&k| on(k) > on("lqr")).count();
         assert!(better <= 1, "lqr {} on, {better} designs worse", on("lqr"));
         let at = default_params()
-            .controllers
+            .compensators
             .iter()
             .position(|c| c.kind().name() == "lqr")
             .expect("the default study runs the lqr");
@@ -159,13 +159,39 @@ fn vibration_reductions_are_modest_and_the_lqr_shakes_most() {
 }
 
 #[test]
-fn people_rarely_trip_the_interlock() {
+fn people_lose_tests_to_the_interlock_about_as_often_as_the_thesiss() {
+    // The thesis ran "80 tests (minus two incomplete tests)" (§6.2, reason not given): the
+    // pilot loses at most two of its 80, the population at most 3 % of its tests (2 of 80
+    // is 2.5 %; its 95 % binomial interval reaches 8.7 %).
     let stopped = |f: &Findings| f.cells.iter().map(|c| c.stopped).sum::<usize>();
-    assert_eq!(stopped(pilot(140.0)), 0);
-    // At most 1 % of the population's tests on the machine.
-    let tests_on = 1000 * 5;
+    let pilot = stopped(pilot(140.0));
+    assert!(pilot <= 2, "{pilot} of the pilot's 80 tests stopped");
+    let tests = 1000 * 10;
     let population = stopped(population(140.0));
-    assert!(population * 100 <= tests_on, "{population} stopped");
+    assert!(population * 100 <= 3 * tests, "{population} stopped");
+}
+
+#[test]
+fn riding_shakes_the_cab_more_with_every_compensator_and_the_desk_is_table_8s() {
+    // §6.2: the thesis's people shook the cab more on the machine with every controller;
+    // at the desk they shook it as Table 8's off-tractor column says (mean over subjects of
+    // the mean-squared cab acceleration), here within 1.5× in every cell.
+    for f in both() {
+        for (k, thesis) in super::findings::THESIS_DESK_MS_CAB_ACCEL_E5 {
+            let ms = |seat| cell(f, k, seat).mean_ms_cab_accel;
+            assert!(
+                ms(Seat::On) > ms(Seat::Off),
+                "{k}: on {} off {}",
+                ms(Seat::On),
+                ms(Seat::Off)
+            );
+            let ratio = ms(Seat::Off) / (thesis * 1e5);
+            assert!(
+                (1.0 / 1.5..=1.5).contains(&ratio),
+                "{k}: desk/Table 8 {ratio}"
+            );
+        }
+    }
 }
 
 #[test]
@@ -179,7 +205,7 @@ fn the_feedthrough_loop_shakes_the_lqr_most_and_the_compensators_cut_it() {
     // Every cell on the machine, and the PID's at the desk.
     let cells: Vec<_> = all_cells(&params)
         .into_iter()
-        .filter(|c| c.seat == Seat::On || c.controller == 0)
+        .filter(|c| c.seat == Seat::On || c.compensator == 0)
         .collect();
     let run = |p: &StudyParams| {
         let rows = simulate(
@@ -257,7 +283,7 @@ fn population_answers() -> &'static [SurveyCell] {
 fn rated(answers: &[SurveyCell], controller: &str, seat: Seat, item: usize) -> f64 {
     answers
         .iter()
-        .find(|c| c.controller == controller && c.station == seat.as_str())
+        .find(|c| c.compensator == controller && c.seat == seat.as_str())
         .expect("cell")
         .mean_ratings[item]
 }

@@ -157,7 +157,7 @@ impl BenchJob {
                 trial_id: BENCH_TRIAL_IDS + i as u64,
                 compensator: c.spec.clone(),
                 // The reference drives the cylinder directly: no operator, no feedthrough.
-                station: Seat::Off,
+                seat: Seat::Off,
                 k_bf: params.k_bf,
                 target: target.clone(),
                 duration_s,
@@ -174,6 +174,7 @@ impl BenchJob {
                 },
                 // No person rides a bench run.
                 exposure_allowance: None,
+                cancellation: None,
             })
             .collect();
         for s in &starts {

@@ -118,11 +118,17 @@ const SYNTHETIC: Column = col(
     FLAG,
     "1 for a synthetic subject (pilot), 0 for a person",
 );
+const STARTING_SEAT: Column = col(
+    "starting_seat",
+    "",
+    TEXT,
+    "the seat the subject's tests began at (on/off); starting_station is its old name",
+);
 const STARTING_STATION: Column = col(
     "starting_station",
     "",
     TEXT,
-    "the seat the subject's tests began at (on/off)",
+    "old name of starting_seat (the same values), kept beside it for a release: the seat the subject's tests began at (on/off)",
 );
 const TRIAL_ID: Column = col(
     "trial_id",
@@ -136,6 +142,8 @@ const PHASE: Column = col(
     TEXT,
     "practice (the unscored warm-up: no compensator, block or position of its own), test, or identification (the cab moved by a multisine while the subject held the device: unscored, no compensator of its own)",
 );
+/// The samples export's seat and compensator, under their old names only (a clear name
+/// beside them would add two cells to every sample).
 const STATION: Column = col(
     "station",
     "",
@@ -147,6 +155,33 @@ const CONTROLLER: Column = col(
     "",
     TEXT,
     "the compensator (pid, pid-notch, pid-shaper, lqr, lqr-cabvel, lqr-cabacc); empty for practice",
+);
+/// The seat and compensator under their clear names, and their old names kept beside them
+/// for a release (the old column first, the clear one last in the export, so no column
+/// moves): the codebook says which is which.
+const SEAT: Column = col(
+    "seat",
+    "",
+    TEXT,
+    "the seat: on (on the machine, with feedthrough) or off (at the desk); station is its old name",
+);
+const STATION_ALIAS: Column = col(
+    "station",
+    "",
+    TEXT,
+    "old name of seat (the same values), kept beside it for a release: on (on the machine) or off (at the desk)",
+);
+const COMPENSATOR: Column = col(
+    "compensator",
+    "",
+    TEXT,
+    "the compensator (pid, pid-notch, pid-shaper, lqr, lqr-cabvel, lqr-cabacc); empty for practice; controller is its old name",
+);
+const CONTROLLER_ALIAS: Column = col(
+    "controller",
+    "",
+    TEXT,
+    "old name of compensator (the same values), kept beside it for a release",
 );
 const ATTEMPT: Column = col(
     "attempt",
@@ -165,7 +200,7 @@ pub fn trials(survey: &SurveyParams) -> Vec<Column> {
         SYNTHETIC,
         STARTING_STATION,
         PHASE,
-        STATION,
+        STATION_ALIAS,
         col(
             "block",
             "",
@@ -197,7 +232,7 @@ pub fn trials(survey: &SurveyParams) -> Vec<Column> {
             FLAG,
             "1 when this attempt counts as a measurement: a test (not practice) that ran complete; the statistics use the rows with valid = 1 and latest = 1",
         ),
-        CONTROLLER,
+        CONTROLLER_ALIAS,
         col(
             "blinded_label",
             "",
@@ -389,6 +424,8 @@ pub fn trials(survey: &SurveyParams) -> Vec<Column> {
             "the site whose machine ran the test (serve --site; empty: not started, a dry run's own controller, or started before sites)",
         ),
     ]);
+    // The clear names, last: no column of an earlier release moves.
+    c.extend([STARTING_SEAT, SEAT, COMPENSATOR]);
     c
 }
 
@@ -517,6 +554,8 @@ pub fn subjects(drawn_keys: &[String]) -> Vec<Column> {
         num(6),
         "RMS of that fit's residual, |ln(model / measured)| over its points",
     ));
+    // The clear name after the fixed columns, before the study's own drawn ones.
+    c.push(STARTING_SEAT);
     c.extend(drawn_keys.iter().map(|k| drawn_column(k)));
     c
 }
@@ -586,8 +625,13 @@ fn drawn_column(key: &str) -> Column {
 pub fn summary() -> Vec<Column> {
     let stat = |name, meaning| col(name, "of the variable", MM, meaning);
     vec![
-        col("controller", "", TEXT, "the compensator"),
-        STATION,
+        col(
+            "controller",
+            "",
+            TEXT,
+            "old name of compensator (the same values), kept beside it for a release",
+        ),
+        STATION_ALIAS,
         col(
             "variable",
             "",
@@ -601,6 +645,13 @@ pub fn summary() -> Vec<Column> {
         stat("q3", "third quartile (linear interpolation)"),
         stat("min", "smallest value"),
         stat("max", "largest value"),
+        col(
+            "compensator",
+            "",
+            TEXT,
+            "the compensator; controller is its old name",
+        ),
+        SEAT,
     ]
 }
 
@@ -622,7 +673,7 @@ pub fn stats() -> Vec<Column> {
             "station",
             "",
             TEXT,
-            "on, off, on-off (a seat comparison) or both (the ANOVA)",
+            "old name of seat (the same values), kept beside it for a release",
         ),
         col(
             "a",
@@ -694,6 +745,12 @@ pub fn stats() -> Vec<Column> {
             "",
             TEXT,
             "why a comparison cannot reach significance, or other remarks",
+        ),
+        col(
+            "seat",
+            "",
+            TEXT,
+            "on, off, on-off (a seat comparison) or both (the ANOVA); station is its old name",
         ),
     ]
 }

@@ -184,6 +184,12 @@ pub fn trial_cells(r: &TrialExportRow) -> Vec<Cell<'_>> {
     cells.push(opt_text(&r.config_version));
     cells.extend(design_cells(r));
     cells.push(opt_text(&r.site));
+    // The clear names of starting_station, station and controller (`columns::trials`).
+    cells.extend([
+        Cell::text(r.starting_station.as_str()),
+        Cell::text(r.station.as_str()),
+        test_only(p, Cell::text(r.controller.name())),
+    ]);
     cells
 }
 
@@ -255,8 +261,8 @@ async fn samples<W: AsyncWrite + Unpin>(
             Cell::text(r.code.as_str()),
             Cell::Int(Some(r.trial_id)),
             phase(p),
-            Cell::text(r.station.as_str()),
-            test_only(p, Cell::text(r.controller.as_str())),
+            Cell::text(r.seat.as_str()),
+            test_only(p, Cell::text(r.compensator.as_str())),
             Cell::Int(Some(r.attempt)),
         ];
         cells.resize(width, Cell::Num(None));
@@ -291,7 +297,7 @@ async fn subjects<W: AsyncWrite + Unpin>(
             Cell::text(s.code.as_str()),
             Cell::Int(Some(s.enrol_index + 1)),
             Cell::flag(s.synthetic),
-            Cell::text(s.starting_station.as_str()),
+            Cell::text(s.starting_seat.as_str()),
             opt_text(&s.consent_version),
             opt_text(&s.consent_decision),
             time(s.consent_at),
@@ -342,6 +348,8 @@ async fn subjects<W: AsyncWrite + Unpin>(
             })),
         }
         cells.push(Cell::Num(fit.as_ref().map(|f| f.residual_rms)));
+        // starting_station's clear name.
+        cells.push(Cell::text(s.starting_seat.as_str()));
         cells.extend(
             drawn_columns
                 .iter()
@@ -430,8 +438,8 @@ async fn summary<W: AsyncWrite + Unpin>(
 ) -> Result<(), ExportError> {
     for s in summary_stats(pool, study_id).await? {
         t.row(&[
-            Cell::text(s.controller),
-            Cell::text(s.station),
+            Cell::text(s.compensator.clone()),
+            Cell::text(s.seat.clone()),
             Cell::text(columns::variable_column(&s.variable, survey)),
             Cell::Int(Some(s.n as i64)),
             Cell::Num(Some(s.mean)),
@@ -440,6 +448,9 @@ async fn summary<W: AsyncWrite + Unpin>(
             Cell::Num(Some(s.q3)),
             Cell::Num(Some(s.min)),
             Cell::Num(Some(s.max)),
+            // controller's and station's clear names.
+            Cell::text(s.compensator),
+            Cell::text(s.seat),
         ])
         .await?;
     }
@@ -456,7 +467,7 @@ async fn stats<W: AsyncWrite + Unpin>(
         t.row(&[
             Cell::text(r.test),
             Cell::text(columns::variable_column(&r.metric, survey)),
-            Cell::text(r.station),
+            Cell::text(r.seat.clone()),
             Cell::text(r.a),
             Cell::text(r.b),
             Cell::Int(Some(r.n as i64)),
@@ -473,6 +484,8 @@ async fn stats<W: AsyncWrite + Unpin>(
             Cell::Num(r.eps),
             Cell::flag(r.reachable),
             Cell::text(r.note),
+            // station's clear name.
+            Cell::text(r.seat),
         ])
         .await?;
     }

@@ -239,7 +239,7 @@ pub fn participants_tsv(
             "sub-{label}\t{}\t{}\t{}\t{}\n",
             one_line(&s.code),
             u8::from(s.synthetic),
-            s.starting_station,
+            s.starting_seat,
             s.consent_version.as_deref().map_or("n/a".into(), one_line),
         ));
     }
