@@ -47,9 +47,12 @@ fn plural(n: usize, one: &str, many: &str) -> String {
 pub struct Procedure<'a> {
     pub practice_s: f64,
     pub trial_s: f64,
-    /// Scored tests at each seat (one per compensator), and the seats.
-    pub tests_per_seat: usize,
-    pub seats: usize,
+    /// Scored tests on the machine (each compensator once per cancellation arm) and at the
+    /// desk (each compensator once).
+    pub tests_on_machine: usize,
+    pub tests_at_desk: usize,
+    /// Some tests on the machine cancel the feedthrough, the subject not told which.
+    pub cancelling: bool,
     /// The identification test, when the study has one.
     pub identification: Option<IdentificationTest<'a>>,
     pub budget_a8_m_s2: f64,
@@ -71,8 +74,8 @@ impl Procedure<'_> {
     /// the same parameters: practice at the desk, then one block per seat, the
     /// identification test on the machine).
     pub fn text(&self) -> String {
-        let per_seat = self.tests_per_seat;
-        let tests = per_seat * self.seats;
+        let (on, desk) = (self.tests_on_machine, self.tests_at_desk);
+        let tests = on + desk;
         let mut s = Vec::new();
         if self.practice_s > 0.0 {
             s.push(format!(
@@ -82,8 +85,8 @@ impl Procedure<'_> {
             ));
         }
         s.push(format!(
-            "{} {} of {} seconds each: {per_seat} while seated on the machine, which vibrates \
-             as you control it, and {per_seat} at a desk beside it, one seat after the other. \
+            "{} {} of {} seconds each: {on} while seated on the machine, which vibrates \
+             as you control it, and {desk} at a desk beside it, one seat after the other. \
              After each test you answer a few questions about it.",
             if self.practice_s > 0.0 {
                 "Then"
@@ -100,12 +103,16 @@ impl Procedure<'_> {
                     "hold the input device lightly and let your arm go with the motion"
                 }
             };
-            let when = if id.personalized {
-                " It comes before your first scored test: what it measures of your arm is used \
-                 to tune some of the controllers to you."
-            } else {
-                ""
-            };
+            let mut when = String::new();
+            if id.personalized {
+                when += " It comes before your first scored test: what it measures of your arm \
+                          is used to tune some of the controllers to you.";
+            }
+            if self.cancelling {
+                when += " What it measures of your arm is used in some of the tests on the \
+                          machine to take out of your input the part the machine's vibration \
+                          puts into it; you are not told which tests these are.";
+            }
             s.push(format!(
                 "On the machine there is one more test, of {} seconds, that is not scored: the \
                  machine shakes the seat by itself, with vibrations between {} and {} Hz, while \
@@ -140,7 +147,7 @@ impl Procedure<'_> {
 
     /// Minutes of tests in all (practice, scored and identification tests), rounded up.
     pub fn minutes(&self) -> f64 {
-        let tests = (self.tests_per_seat * self.seats) as f64;
+        let tests = (self.tests_on_machine + self.tests_at_desk) as f64;
         let identification = self
             .identification
             .map_or(0.0, |id| id.excitation.duration_s());

@@ -11,10 +11,12 @@ use crate::params::{
     check,
 };
 
+mod cancellation;
 mod identification;
 mod survey;
 mod texts;
 
+pub use cancellation::{CancellationArm, CancellationParams, ModelError};
 pub use identification::IdentificationParams;
 pub use survey::*;
 pub use texts::*;
@@ -135,6 +137,11 @@ pub struct StudyParams {
     /// protocol hash of a study that predates it is unchanged.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub identification: Option<IdentificationParams>,
+    /// Model-based cancellation as a second factor on the machine (`CancellationParams`):
+    /// every compensator there runs once per arm, off included; none when absent, and left
+    /// out of the JSON then, so the protocol hash of a study that predates it is unchanged.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cancellation: Option<CancellationParams>,
 }
 
 fn default_budget_a8() -> f64 {
@@ -280,15 +287,31 @@ impl StudyParams {
         if let Some(id) = &self.identification {
             id.validate(&self.compensators, self.practice_compensator)?;
         }
+        if let Some(c) = &self.cancellation {
+            c.validate(self.identification.is_some())?;
+        }
         self.plant.validate()?;
         self.body.validate()?;
         self.population.validate()
     }
 
+    /// The cancellation arms each compensator runs on the machine: off alone without the
+    /// factor.
+    pub fn machine_arms(&self) -> Vec<CancellationArm> {
+        self.cancellation
+            .as_ref()
+            .map_or(vec![CancellationArm::Off], CancellationParams::machine_arms)
+    }
+
+    /// Scored tests on the machine: each compensator once per cancellation arm.
+    pub fn tests_on_machine(&self) -> usize {
+        self.compensators.len() * self.machine_arms().len()
+    }
+
     /// The values of the texts' placeholders for this study, as `render` takes them.
     pub fn text_values(&self) -> Vec<(&'static str, String)> {
         let per_station = self.compensators.len();
-        let tests = per_station * self.seats.len();
+        let tests = self.tests_on_machine() + per_station;
         let values = [
             tests.to_string(),
             per_station.to_string(),
@@ -305,8 +328,9 @@ impl StudyParams {
         consent::Procedure {
             practice_s: self.practice_s,
             trial_s: self.trial_s,
-            tests_per_seat: self.compensators.len(),
-            seats: self.seats.len(),
+            tests_on_machine: self.tests_on_machine(),
+            tests_at_desk: self.compensators.len(),
+            cancelling: self.cancellation.is_some(),
             identification: self
                 .identification
                 .as_ref()

@@ -6,7 +6,7 @@
 
 use bdft_protocol::params::{CompensatorKind, Seat};
 use bdft_protocol::records::{TestPhase, TrialStatus};
-use bdft_protocol::study::SurveyAnswer;
+use bdft_protocol::study::{CancellationArm, SurveyAnswer};
 use serde::{Deserialize, Serialize};
 use sqlx::{AnyConnection, AnyExecutor};
 
@@ -36,6 +36,13 @@ pub struct Trial {
     /// The full design (`CompensatorSpec`) as recorded at enrolment, or the subject's own
     /// (`personalized`).
     pub compensator_json: String,
+    /// What the test cancels with on the machine (`off` at the desk and without the factor).
+    #[sqlx(try_from = "String")]
+    pub cancellation: CancellationArm,
+    /// The model a cancelling test runs (`CancellationModel`), set once the subject's
+    /// identification is filed and the model passed the check against their body; none
+    /// until then, and for an uncancelled test.
+    pub cancellation_json: Option<String>,
     /// The design is the one tuned to the subject's identified body (a personalized study's
     /// LQR designs, once their identification test is filed).
     #[sqlx(try_from = "crate::store::db::Flag")]
@@ -170,6 +177,8 @@ pub struct ScheduledTest {
     /// goes first in the block on the machine.
     pub queue_order: u32,
     pub compensator: CompensatorKind,
+    /// What it cancels with (`off` but on the machine in a study with the factor).
+    pub cancellation: CancellationArm,
     /// What the subject sees ("Controller 3", "Practice").
     pub blinded_label: String,
     pub duration_s: f64,
@@ -195,8 +204,8 @@ pub struct NewTrial<'a> {
 pub async fn insert(db: &mut AnyConnection, new: &NewTrial<'_>) -> Result<i64> {
     let t = new.test;
     Ok(sqlx::query_scalar::<_, i64>(
-        "INSERT INTO trials (subject_id, slot, phase, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order) \
-         VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15, $16, $17, $18) RETURNING id",
+        "INSERT INTO trials (subject_id, slot, phase, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order, cancellation) \
+         VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15, $16, $17, $18, $19) RETURNING id",
     )
     .bind(new.subject_id)
     .bind(i64::from(t.slot))
@@ -216,6 +225,7 @@ pub async fn insert(db: &mut AnyConnection, new: &NewTrial<'_>) -> Result<i64> {
     .bind(new.target_ms_step_mm2)
     .bind(new.protocol_hash)
     .bind(i64::from(t.queue_order))
+    .bind(t.cancellation.as_str())
     .fetch_one(db)
     .await?)
 }
@@ -236,8 +246,8 @@ pub async fn latest_attempt<'c>(db: impl AnyExecutor<'c>, trial: &Trial) -> Resu
 /// second re-queue fail.)
 pub async fn insert_next_attempt(db: &mut AnyConnection, trial_id: i64) -> Result<i64> {
     Ok(sqlx::query_scalar::<_, i64>(
-        "INSERT INTO trials (subject_id, slot, attempt, phase, station, block, position, controller, blinded_label, compensator_json, personalized, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order) \
-         SELECT subject_id, slot, attempt + 1, phase, station, block, position, controller, blinded_label, compensator_json, personalized, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, \
+        "INSERT INTO trials (subject_id, slot, attempt, phase, station, block, position, controller, blinded_label, compensator_json, personalized, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, cancellation, cancellation_json, queue_order) \
+         SELECT subject_id, slot, attempt + 1, phase, station, block, position, controller, blinded_label, compensator_json, personalized, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, cancellation, cancellation_json, \
          (SELECT MAX(queue_order) + 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.block = t.block) FROM trials t WHERE id = $1 RETURNING id",
     )
     .bind(trial_id)
@@ -263,6 +273,47 @@ pub async fn personalize_scheduled(
     .execute(db)
     .await?
     .rows_affected())
+}
+
+/// Sets `model_json` as the model of the subject's scheduled tests of `kind` cancelling
+/// with `arm`; returns their ids.
+pub async fn set_cancellation_scheduled(
+    db: &mut AnyConnection,
+    subject_id: i64,
+    kind: CompensatorKind,
+    arm: CancellationArm,
+    model_json: &str,
+) -> Result<Vec<i64>> {
+    let ids: Vec<(i64,)> = sqlx::query_as(
+        "UPDATE trials SET cancellation_json = $1 \
+         WHERE subject_id = $2 AND controller = $3 AND cancellation = $4 AND phase = 'test' AND status = 'scheduled' RETURNING id",
+    )
+    .bind(model_json)
+    .bind(subject_id)
+    .bind(kind.name())
+    .bind(arm.as_str())
+    .fetch_all(db)
+    .await?;
+    Ok(ids.into_iter().map(|r| r.0).collect())
+}
+
+/// The subject's scheduled tests of `kind` cancelling with `arm`.
+pub async fn scheduled_cancelling<'c>(
+    db: impl AnyExecutor<'c>,
+    subject_id: i64,
+    kind: CompensatorKind,
+    arm: CancellationArm,
+) -> Result<Vec<i64>> {
+    let ids: Vec<(i64,)> = sqlx::query_as(
+        "SELECT id FROM trials WHERE subject_id = $1 AND controller = $2 AND cancellation = $3 \
+         AND phase = 'test' AND status = 'scheduled' ORDER BY id",
+    )
+    .bind(subject_id)
+    .bind(kind.name())
+    .bind(arm.as_str())
+    .fetch_all(db)
+    .await?;
+    Ok(ids.into_iter().map(|r| r.0).collect())
 }
 
 /// Marks a scheduled trial running at `site` (none: a dry run's own controller); fails if

@@ -15,6 +15,7 @@ use bdft_protocol::study::StudyParams;
 use bdft_protocol::trial::{TargetSpec, record_channel};
 use serde::Serialize;
 
+use super::cancellation::{self, Planned};
 use crate::engine::study::schedule::identification_target;
 use crate::engine::study::stability::{MARGIN, study_loop};
 use crate::error::Result;
@@ -31,6 +32,8 @@ pub struct Measured {
     /// The study's LQR designs tuned to the fit, in a personalized study (none otherwise;
     /// empty when there is no fit to tune to).
     pub designs: Option<Vec<PersonalDesign>>,
+    /// The subject's cancelling cells, in a study with cancellation (`cancellation::plan`).
+    pub cancellation: Vec<Planned>,
 }
 
 /// The body a subject's designs are tuned to: the fitted one with its gain at the upper
@@ -85,6 +88,7 @@ pub async fn measure(params: &StudyParams, trial: &Trial, record: &Record) -> Op
             points: Vec::new(),
             fit: Err("the study has no identification test".into()),
             designs: None,
+            cancellation: Vec::new(),
         });
     };
     let channel = |name| {
@@ -94,11 +98,7 @@ pub async fn measure(params: &StudyParams, trial: &Trial, record: &Record) -> Op
             .unwrap_or_default()
     };
     let (cab, device, dt) = (channel("cab_accel_mm_s2"), channel("device_mm"), record.dt);
-    let personalized = params
-        .identification
-        .as_ref()
-        .is_some_and(|id| id.personalized)
-        .then(|| params.clone());
+    let params = params.clone();
     // The estimate, fit and tuning take up to a few seconds: not on the async threads.
     let measured = tokio::task::spawn_blocking(move || {
         use bdft_controller::identification::{estimate, fit_record};
@@ -116,14 +116,25 @@ pub async fn measure(params: &StudyParams, trial: &Trial, record: &Record) -> Op
             }
         };
         // Only a body the data identified whole is tuned to (`BodyFit::identified_body`).
-        let designs = personalized.map(|params| match &fit {
+        let personalized = params
+            .identification
+            .as_ref()
+            .is_some_and(|id| id.personalized);
+        let designs = personalized.then(|| match &fit {
             Ok(fit) if fit.identified_body().is_ok() => personal_designs(&params, fit),
             _ => Vec::new(),
         });
+        // Each cancelling cell checked with the design its tests run.
+        let cancellation = cancellation::plan(
+            &params,
+            fit.as_ref().map_err(String::as_str),
+            designs.as_deref(),
+        );
         Measured {
             points,
             fit,
             designs,
+            cancellation,
         }
     })
     .await;
@@ -131,6 +142,7 @@ pub async fn measure(params: &StudyParams, trial: &Trial, record: &Record) -> Op
         points: Vec::new(),
         fit: Err(format!("the estimation stopped: {e}")),
         designs: None,
+        cancellation: Vec::new(),
     }))
 }
 
@@ -161,6 +173,7 @@ pub async fn store(change: &mut Change, trial: &Trial, measured: &Measured) -> R
     if let Some(designs) = &measured.designs {
         personalize_tests(change, trial, designs).await?;
     }
+    cancellation::store(change, trial, &measured.cancellation).await?;
     let fit = measured.fit.as_ref().ok();
     change
         .audit_also(

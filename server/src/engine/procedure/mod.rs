@@ -51,6 +51,7 @@
 //! *Invariant:* what a station sends costs the server at most its read budget, whatever its
 //! sockets, rate, sizes or frames (`tests/benches/isolation.rs`).
 
+pub mod cancellation;
 pub mod enrolment;
 pub mod filing;
 pub mod identification;

@@ -2,6 +2,7 @@
 //! path that live tests, pilot runs and the power planner's simulated studies share.
 
 use bdft_controller::rng::Rng;
+use bdft_protocol::cancellation::CancellationModel;
 use bdft_protocol::params::{CompensatorSpec, Seat, SubjectDraw};
 use bdft_protocol::records::TestPhase;
 use bdft_protocol::server_to_controller::StartTrial;
@@ -40,6 +41,8 @@ pub struct TestRun {
     pub target: TargetSpec,
     pub duration_s: f64,
     pub target_seed: u64,
+    /// The model the test cancels with (none: uncancelled).
+    pub cancellation: Option<CancellationModel>,
 }
 
 /// The controller message that runs `trial` of `study`.
@@ -77,6 +80,7 @@ pub fn start_message(study: &Study, trial: &Trial, operator: Operator) -> Result
         },
         duration_s: trial.duration_s,
         target_seed: trial.target_seed as u64,
+        cancellation: super::cancellation::model_of(trial)?,
     };
     Ok(start(&study.params, run, operator))
 }
@@ -124,6 +128,6 @@ pub fn start(params: &StudyParams, run: TestRun, operator: Operator) -> StartTri
         max_cab_rms_mm_s2: params.max_cab_rms_mm_s2,
         // Set by the start policy from the subject's day (`procedure::exposure`).
         exposure_allowance: None,
-        cancellation: None,
+        cancellation: run.cancellation,
     }
 }

@@ -2,7 +2,8 @@
 //! --kind stats`): per seat and metric, Friedman across the compensators and every pair by
 //! exact Wilcoxon with Holm's adjustment; per compensator and metric, on against off the
 //! machine; for the continuous metrics, the two-way RM-ANOVA (compensator × seat) on their
-//! logarithm. Each test's data are the latest attempt of every test when it is complete;
+//! logarithm; in a study with cancellation, per arm on the machine, each compensator
+//! uncancelled against cancelled and the RM-ANOVA compensator × cancellation. Each test's data are the latest attempt of every test when it is complete;
 //! subjects missing a cell are left out of that analysis (n says how many remain). Ratings
 //! are ordinal: rank tests only.
 
@@ -12,8 +13,10 @@ use sqlx::AnyPool;
 use super::inference::bootstrap::median_interval;
 use super::inference::nonparametric::{friedman, holm, wilcoxon, wilcoxon_floor};
 use super::inference::rm_anova::{Effect, rm_anova2};
-use super::study_data::{Cells, SUMMARY_VARIABLES, StudyData};
+use super::study_data::{Cells, SUMMARY_VARIABLES, StudyData, cancelled_key};
 use crate::error::Result;
+use bdft_protocol::params::Seat;
+use bdft_protocol::study::CancellationArm;
 
 /// The significance level the table's reachability statements use.
 pub const ALPHA: f64 = 0.05;
@@ -138,6 +141,9 @@ pub fn table(data: &StudyData) -> Vec<StatsRow> {
                 .collect();
             out.extend(adjusted(family));
         }
+        for &arm in &data.arms {
+            out.extend(cancellation_rows(data, m, metric, arm));
+        }
         // The continuous metrics: their logarithm is closer to normal (errors are ratios).
         if m < 2 && seats.len() >= 2 {
             let y: Vec<Vec<Vec<f64>>> = subjects
@@ -162,6 +168,64 @@ pub fn table(data: &StudyData) -> Vec<StatsRow> {
                 ] {
                     out.push(anova_row(metric, name, aov.n, e));
                 }
+            }
+        }
+    }
+    out
+}
+
+/// The cancellation factor's rows for one metric and arm, on the machine (the desk has no
+/// such factor): per compensator, uncancelled against cancelled by exact Wilcoxon, Holm
+/// within the family of compensators; for the continuous metrics, the two-way RM-ANOVA
+/// (compensator × cancellation) on their logarithm — its interaction says whether
+/// cancellation helps some compensators more than others.
+fn cancellation_rows(
+    data: &StudyData,
+    m: usize,
+    metric: &str,
+    arm: CancellationArm,
+) -> Vec<StatsRow> {
+    let on = Seat::On.as_str();
+    let value = |s: &Cells, key: &str| s.get(&(key.into(), on.into()))?[m];
+    let family: Vec<StatsRow> = data
+        .compensators
+        .iter()
+        .filter_map(|c| {
+            let cancelled = cancelled_key(c, arm);
+            let (a, b): (Vec<f64>, Vec<f64>) = data
+                .subjects
+                .iter()
+                .filter_map(|s| Some((value(s, c)?, value(s, &cancelled)?)))
+                .unzip();
+            pair_row("wilcoxon_cancellation", metric, on, c, &cancelled, &a, &b)
+        })
+        .collect();
+    let mut out = adjusted(family);
+    if m < 2 {
+        let y: Vec<Vec<Vec<f64>>> = data
+            .subjects
+            .iter()
+            .filter_map(|s| {
+                data.compensators
+                    .iter()
+                    .map(|c| {
+                        [c.clone(), cancelled_key(c, arm)]
+                            .iter()
+                            .map(|k| value(s, k).filter(|v| *v > 0.0).map(f64::ln))
+                            .collect()
+                    })
+                    .collect()
+            })
+            .collect();
+        if let Some(aov) = rm_anova2(&y) {
+            for (name, e) in [
+                ("controller".to_string(), aov.a),
+                (format!("cancellation:{arm}"), aov.b),
+                (format!("controller:cancellation:{arm}"), aov.ab),
+            ] {
+                let mut r = anova_row(metric, &name, aov.n, e);
+                r.seat = on.into();
+                out.push(r);
             }
         }
     }
@@ -319,6 +383,7 @@ mod tests {
             .collect();
         let t = table(&StudyData {
             compensators: comps,
+            arms: vec![],
             seats,
             subjects,
         });
@@ -352,5 +417,77 @@ mod tests {
                 .count(),
             5
         );
+    }
+
+    #[test]
+    fn cancellation_compares_each_compensator_on_the_machine_with_itself_cancelled() {
+        let comps: Vec<String> = ["pid", "lqr"].map(String::from).to_vec();
+        let seats = vec!["on".to_string(), "off".to_string()];
+        // Six subjects; cancelling lowers every subject's error by a fifth, with a
+        // subject-dependent error so the ANOVA has a residual.
+        let subjects: Vec<Cells> = (0..6)
+            .map(|s| {
+                let mut v = Vec::new();
+                for (i, c) in ["pid", "lqr"].iter().enumerate() {
+                    let off = 100.0 + 20.0 * i as f64 + 7.0 * s as f64;
+                    v.push((c.to_string(), "on", off));
+                    v.push((c.to_string(), "off", off * 0.6));
+                    v.push((
+                        format!("{c}+personal"),
+                        "on",
+                        off * (0.8 + 0.01 * ((s * (i + 2)) % 5) as f64),
+                    ));
+                }
+                let v: Vec<(&str, &str, f64)> =
+                    v.iter().map(|(c, s, x)| (c.as_str(), *s, *x)).collect();
+                cells(&v)
+            })
+            .collect();
+        let t = table(&StudyData {
+            compensators: comps,
+            arms: vec![CancellationArm::Personal],
+            seats,
+            subjects,
+        });
+        let rows: Vec<&StatsRow> = t
+            .iter()
+            .filter(|r| r.test == "wilcoxon_cancellation" && r.metric == "mse_tracking_mm2")
+            .collect();
+        assert_eq!(rows.len(), 2);
+        for r in &rows {
+            // All six differences (off − cancelled) positive: the exact two-sided p is
+            // 2/2^6, Holm over the two compensators doubles it.
+            assert_eq!((r.seat.as_str(), r.n), ("on", 6));
+            assert_eq!(r.b, format!("{}+personal", r.a));
+            assert_eq!(r.p_value, 2.0 / 64.0);
+            assert_eq!(r.p_adjusted, Some(4.0 / 64.0));
+            assert_eq!(r.effect_size, 1.0, "a > b for every subject");
+        }
+        // The compensators' own comparisons read the uncancelled tests alone: on the
+        // machine pid < lqr for every subject, as without the factor.
+        let pair = t
+            .iter()
+            .find(|r| r.test == "wilcoxon" && r.seat == "on" && r.metric == "mse_tracking_mm2")
+            .unwrap();
+        assert_eq!((pair.n, pair.effect_size), (6, -1.0));
+        let effects: Vec<&str> = t
+            .iter()
+            .filter(|r| r.test == "rm_anova" && r.seat == "on")
+            .map(|r| r.a.as_str())
+            .collect();
+        assert_eq!(
+            effects,
+            [
+                "controller",
+                "cancellation:personal",
+                "controller:cancellation:personal"
+            ]
+            .repeat(2)
+        );
+        let cancel = t
+            .iter()
+            .find(|r| r.a == "cancellation:personal" && r.metric == "log_mse_tracking_mm2")
+            .unwrap();
+        assert!(cancel.p_value < 1e-4, "{cancel:?}");
     }
 }

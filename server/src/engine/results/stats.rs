@@ -5,7 +5,7 @@
 use sqlx::AnyPool;
 
 use super::inference::quantile::quantile;
-use super::study_data::{SUMMARY_VARIABLES, StudyData};
+use super::study_data::{SUMMARY_VARIABLES, StudyData, split_key};
 use crate::error::Result;
 
 /// Statistics of one variable for one compensator × seat.
@@ -17,6 +17,9 @@ pub struct Stats {
     /// The seat: on or off the machine (the API's key: `station`).
     #[serde(rename = "station")]
     pub seat: String,
+    /// What the tests cancelled the feedthrough with (`off` at the desk and without the
+    /// factor).
+    pub cancellation: String,
     pub variable: String,
     pub n: usize,
     pub mean: f64,
@@ -46,7 +49,8 @@ pub async fn group_values(pool: &AnyPool, study_id: i64) -> Result<GroupValues> 
 /// averages.
 pub async fn summary_stats(pool: &AnyPool, study_id: i64) -> Result<Vec<Stats>> {
     let mut out = Vec::new();
-    for ((controller, seat), values) in group_values(pool, study_id).await? {
+    for ((key, seat), values) in group_values(pool, study_id).await? {
+        let (controller, cancellation) = split_key(&key);
         for (i, variable) in SUMMARY_VARIABLES.iter().enumerate() {
             let mut xs: Vec<f64> = values.iter().filter_map(|v| v[i]).collect();
             if xs.is_empty() {
@@ -54,8 +58,9 @@ pub async fn summary_stats(pool: &AnyPool, study_id: i64) -> Result<Vec<Stats>> 
             }
             xs.sort_by(f64::total_cmp);
             out.push(Stats {
-                compensator: controller.clone(),
+                compensator: controller.to_string(),
                 seat: seat.clone(),
+                cancellation: cancellation.to_string(),
                 variable: (*variable).into(),
                 n: xs.len(),
                 mean: xs.iter().sum::<f64>() / xs.len() as f64,

@@ -7,6 +7,7 @@
 use std::collections::BTreeMap;
 
 use bdft_protocol::records::TrialStatus;
+use bdft_protocol::study::CancellationArm;
 use sqlx::AnyPool;
 
 use crate::error::Result;
@@ -23,6 +24,19 @@ pub const SUMMARY_VARIABLES: [&str; 6] = [
     "rating_controllability",
 ];
 
+/// The key of a compensator's cell in `Cells`: its name, with `+arm` when it cancelled.
+pub fn cancelled_key(compensator: &str, arm: CancellationArm) -> String {
+    match arm {
+        CancellationArm::Off => compensator.to_string(),
+        arm => format!("{compensator}+{arm}"),
+    }
+}
+
+/// A key of `Cells` split into the compensator and what it cancelled with.
+pub fn split_key(key: &str) -> (&str, &str) {
+    key.split_once('+').unwrap_or((key, "off"))
+}
+
 /// Whether an attempt is a valid measurement: a test, not the practice, that ran complete.
 /// (The trials export's `valid` flag.)
 pub fn valid(r: &TrialExportRow) -> bool {
@@ -35,7 +49,9 @@ pub fn counts(r: &TrialExportRow) -> bool {
     valid(r) && r.latest
 }
 
-/// One subject's values of the summary variables per (compensator, seat).
+/// One subject's values of the summary variables per (compensator, seat); a cancelled
+/// test's compensator is keyed with its arm (`cancelled_key`: "pid+personal", seat "on"),
+/// so an analysis of the compensators by name reads the uncancelled tests alone.
 pub type Cells = BTreeMap<(String, String), [Option<f64>; 6]>;
 
 /// A study's analysable data: its compensators and seats (names, in the study's order) and
@@ -43,6 +59,8 @@ pub type Cells = BTreeMap<(String, String), [Option<f64>; 6]>;
 #[derive(Debug)]
 pub struct StudyData {
     pub compensators: Vec<String>,
+    /// The study's cancelling arms (none without the factor).
+    pub arms: Vec<CancellationArm>,
     pub seats: Vec<String>,
     pub subjects: Vec<Cells>,
 }
@@ -61,7 +79,10 @@ impl StudyData {
         for r in analysable(&rows) {
             let f = |v: Option<i64>| v.map(|x| x as f64);
             subjects.entry(r.enrol_index).or_default().insert(
-                (r.controller.name().into(), r.station.as_str().into()),
+                (
+                    cancelled_key(r.controller.name(), r.cancellation),
+                    r.station.as_str().into(),
+                ),
                 [
                     r.mse_tracking_mm2,
                     r.ms_cab_accel,
@@ -79,6 +100,11 @@ impl StudyData {
                 .iter()
                 .map(|c| c.kind().name().to_string())
                 .collect(),
+            arms: study
+                .params
+                .cancellation
+                .as_ref()
+                .map_or_else(Vec::new, |c| c.arms.clone()),
             seats: study
                 .params
                 .seats

@@ -9,7 +9,7 @@ use bdft_protocol::identification::MultisineSpec;
 use bdft_protocol::params::{CompensatorKind, ParamError, PlantParams, Seat, StepParams};
 use bdft_protocol::records::TestPhase;
 use bdft_protocol::study::{
-    ConsentForm, OrderDesign, RigKind, StudyParams, StudyTexts, SurveyParams,
+    CancellationArm, ConsentForm, OrderDesign, RigKind, StudyParams, StudyTexts, SurveyParams,
 };
 use bdft_protocol::trial::TargetSpec;
 
@@ -53,6 +53,7 @@ pub fn default_params() -> StudyParams {
         exposure_budget_a8_m_s2: bdft_protocol::exposure::ACTION_A8_M_S2,
         exposure_budget_vdv_m_s175: bdft_protocol::exposure::ACTION_VDV_M_S175,
         identification: None,
+        cancellation: None,
     }
 }
 
@@ -100,53 +101,72 @@ fn shuffle<T>(items: &mut [T], rng: &mut Rng) {
     }
 }
 
+/// One cell of a seat's block: a compensator and what it cancels with.
+type Cell = (CompensatorKind, CancellationArm);
+
 /// The schedule of the subject enrolled `enrol_index`-th (from 0): practice off the machine,
-/// then every compensator once at the starting seat, then every compensator once at the
-/// other seat in a different order. The orders are random (`OrderDesign::Random`, the
-/// original) or rows of the Williams design in the study's order of compensators
-/// (`OrderDesign::Williams`, `williams::seat_rows` says which). Blinded labels ("Controller k", as
-/// the approved protocol words it for the subject) are a random numbering of the
-/// compensators, fixed for the subject across both seats.
+/// then every cell once at the starting seat, then every cell once at the other seat in a
+/// different order. A cell is a compensator at the desk, and a compensator with each of the
+/// study's cancellation arms on the machine (off alone without the factor). The orders are
+/// random (`OrderDesign::Random`, the original) or rows of the Williams design over the
+/// seat's cells in the study's order (`OrderDesign::Williams`, `williams::seat_rows` says
+/// which). Blinded labels ("Controller k", as the approved protocol words it for the
+/// subject) are a random numbering of the machine's cells, fixed for the subject: a
+/// compensator at the desk has its uncancelled label, and nothing tells the subject which
+/// tests cancel.
 pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<ScheduledTest> {
     let mut rng = Rng::derive(
         Rng::derive(study_seed, SCHEDULE_STREAM).next_u64(),
         u64::from(enrol_index),
     );
     let kinds: Vec<CompensatorKind> = params.compensators.iter().map(|c| c.kind()).collect();
-    let mut labels: Vec<usize> = (1..=kinds.len()).collect();
+    let arms = params.machine_arms();
+    let machine: Vec<Cell> = kinds
+        .iter()
+        .flat_map(|&k| arms.iter().map(move |&a| (k, a)))
+        .collect();
+    let desk: Vec<Cell> = kinds.iter().map(|&k| (k, CancellationArm::Off)).collect();
+    let cells_at = |seat: Seat| match seat {
+        Seat::On => &machine,
+        Seat::Off => &desk,
+    };
+    let mut labels: Vec<usize> = (1..=machine.len()).collect();
     shuffle(&mut labels, &mut rng);
     let start = starting_seat(enrol_index);
     let (first, second) = match params.order_design {
         OrderDesign::Random => {
-            let mut first = kinds.clone();
+            let mut first = cells_at(start).clone();
             shuffle(&mut first, &mut rng);
-            let mut second = kinds.clone();
+            let mut second = cells_at(other(start)).clone();
             loop {
                 shuffle(&mut second, &mut rng);
-                if second != first || kinds.len() < 2 {
+                if second != first || second.len() < 2 {
                     break;
                 }
             }
             (first, second)
         }
         OrderDesign::Williams => {
-            let rows = williams::rows(kinds.len());
-            let (on, off) = williams::seat_rows(kinds.len(), enrol_index);
-            let order = |row: usize| rows[row].iter().map(|&c| kinds[c]).collect::<Vec<_>>();
-            match start {
-                Seat::On => (order(on), order(off)),
-                Seat::Off => (order(off), order(on)),
-            }
+            let order = |seat: Seat| {
+                let cells = cells_at(seat);
+                let (on, off) = williams::seat_rows(cells.len(), enrol_index);
+                let row = if seat == Seat::On { on } else { off };
+                williams::rows(cells.len())[row]
+                    .iter()
+                    .map(|&c| cells[c])
+                    .collect::<Vec<_>>()
+            };
+            (order(start), order(other(start)))
         }
     };
-    let label_of = |k: CompensatorKind| {
-        let i = kinds
+    let label_of = |k: CompensatorKind, arm: CancellationArm| {
+        let i = machine
             .iter()
-            .position(|&x| x == k)
-            .expect("compensator of the study");
+            .position(|&c| c == (k, arm))
+            .expect("a cell of the study");
         format!("Controller {}", labels[i])
     };
-    let mut out = Vec::with_capacity(2 * kinds.len() + 1);
+    let mut out = Vec::with_capacity(machine.len() + desk.len() + 2);
     if params.practice_s > 0.0 {
         out.push(ScheduledTest {
             slot: 0,
@@ -156,17 +176,19 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
             position: 0,
             queue_order: 0,
             compensator: params.practice_compensator,
+            cancellation: CancellationArm::Off,
             blinded_label: "Practice".into(),
             duration_s: params.practice_s,
             target_seed: rng.next_u64() >> 11,
         });
     }
+    let mut slot = 0;
     for (block, (seat, order)) in [(start, &first), (other(start), &second)]
         .into_iter()
         .enumerate()
     {
-        for (i, &k) in order.iter().enumerate() {
-            let slot = (block * kinds.len() + i + 1) as u32;
+        for (i, &(k, arm)) in order.iter().enumerate() {
+            slot += 1;
             out.push(ScheduledTest {
                 slot,
                 phase: TestPhase::Test,
@@ -175,7 +197,8 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
                 position: i as u32 + 1,
                 queue_order: slot,
                 compensator: k,
-                blinded_label: label_of(k),
+                cancellation: arm,
+                blinded_label: label_of(k, arm),
                 duration_s: params.trial_s,
                 target_seed: rng.next_u64() >> 11,
             });
@@ -185,10 +208,10 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
         // Drawn after every other test's seed, so adding identification to a study leaves
         // its orders, labels and targets as they were.
         let seed = rng.next_u64() >> 11;
-        // First in the block on the machine; in a personalized study first of all the
-        // scored tests, wherever the subject starts, so every test of an LQR design runs
-        // the subject's own (desk tests too: the designs compared must be the same on
-        // both seats).
+        // First in the block on the machine (so before every cancelling test); in a
+        // personalized study first of all the scored tests, wherever the subject starts, so
+        // every test of an LQR design runs the subject's own (desk tests too: the designs
+        // compared must be the same on both seats).
         let block = if start == Seat::On || id.personalized {
             1
         } else {
@@ -197,10 +220,10 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
         let first_slot = if block == 1 {
             1
         } else {
-            kinds.len() as u32 + 1
+            first.len() as u32 + 1
         };
         out.push(ScheduledTest {
-            slot: 2 * kinds.len() as u32 + 1,
+            slot: slot + 1,
             phase: TestPhase::Identification,
             seat: Seat::On,
             block,
@@ -208,6 +231,7 @@ pub fn schedule(params: &StudyParams, study_seed: u64, enrol_index: u32) -> Vec<
             // Before the block's first test: the queue orders by block, then this.
             queue_order: first_slot - 1,
             compensator: id.compensator_or(params.practice_compensator),
+            cancellation: CancellationArm::Off,
             blinded_label: "Identification".into(),
             duration_s: id.excitation.duration_s(),
             target_seed: seed,

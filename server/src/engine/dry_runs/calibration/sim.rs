@@ -81,6 +81,8 @@ pub(super) fn trial(
         target,
         duration_s: t.duration_s,
         target_seed: t.target_seed,
+        // Calibration fits the uncancelled cells the published study ran.
+        cancellation: None,
     };
     Ok((
         start(params, run, Operator::Synthetic(Some(draw))),

@@ -426,6 +426,12 @@ pub fn trials(survey: &SurveyParams) -> Vec<Column> {
     ]);
     // The clear names, last: no column of an earlier release moves.
     c.extend([STARTING_SEAT, SEAT, COMPENSATOR]);
+    c.push(col(
+        "cancellation",
+        "",
+        TEXT,
+        "what the test cancelled the feedthrough with (off, personal: the subject's identified body, generic: the population's median body, wrong: the subject's with the study's stated error; always off at the desk); a test whose cancellation the guard turned off says when in the audit log's trial.finish",
+    ));
     c
 }
 
@@ -652,6 +658,12 @@ pub fn summary() -> Vec<Column> {
             "the compensator; controller is its old name",
         ),
         SEAT,
+        col(
+            "cancellation",
+            "",
+            TEXT,
+            "what the tests cancelled the feedthrough with (off, personal, generic, wrong: as the trials export's column)",
+        ),
     ]
 }
 
@@ -661,7 +673,7 @@ pub fn stats() -> Vec<Column> {
             "test",
             "",
             TEXT,
-            "friedman, wilcoxon, wilcoxon_on_off or rm_anova",
+            "friedman, wilcoxon, wilcoxon_on_off, wilcoxon_cancellation (a compensator on the machine uncancelled, a, against cancelled, b: pid+personal) or rm_anova",
         ),
         col(
             "metric",

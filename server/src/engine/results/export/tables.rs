@@ -190,6 +190,7 @@ pub fn trial_cells(r: &TrialExportRow) -> Vec<Cell<'_>> {
         Cell::text(r.station.as_str()),
         test_only(p, Cell::text(r.controller.name())),
     ]);
+    cells.push(test_only(p, Cell::text(r.cancellation.as_str())));
     cells
 }
 
@@ -451,6 +452,7 @@ async fn summary<W: AsyncWrite + Unpin>(
             // controller's and station's clear names.
             Cell::text(s.compensator),
             Cell::text(s.seat),
+            Cell::text(s.cancellation),
         ])
         .await?;
     }

@@ -1,0 +1,7 @@
+-- Model-based cancellation as a factor on the machine (issue 38): each test's arm (off,
+-- personal, generic, wrong) and the model it cancels with, set when the subject's
+-- identification test is filed and the model has passed the check against their body.
+-- Tests scheduled before this migration are uncancelled.
+ALTER TABLE trials ADD COLUMN cancellation TEXT NOT NULL DEFAULT 'off'
+    CHECK (cancellation IN ('off', 'personal', 'generic', 'wrong'));
+ALTER TABLE trials ADD COLUMN cancellation_json TEXT;
