@@ -460,6 +460,93 @@ mod tests {
     }
 
     #[test]
+    fn cancellation_is_crossed_with_the_compensators_on_the_machine_alone_and_blinded() {
+        use bdft_protocol::study::{CancellationParams, IdentificationParams};
+        use std::collections::{BTreeMap, BTreeSet};
+        let mut p = default_params();
+        p.identification = Some(IdentificationParams::default());
+        p.cancellation = Some(CancellationParams {
+            arms: vec![CancellationArm::Personal, CancellationArm::Generic],
+            ..Default::default()
+        });
+        p.validate().unwrap();
+        let (consent, _) = p.rendered_texts().unwrap();
+        assert!(
+            consent
+                .text
+                .contains("20 tests of 140 seconds each: 15 while seated on the machine"),
+            "{}",
+            consent.text
+        );
+        assert!(
+            consent
+                .text
+                .contains("you are not told which tests these are")
+        );
+        for design in [OrderDesign::Random, OrderDesign::Williams] {
+            p.order_design = design;
+            // Over 15 subjects (the Williams rows for 15 cells) every cell is in every
+            // position on the machine equally often.
+            let mut positions: BTreeMap<(CompensatorKind, CancellationArm), BTreeSet<u32>> =
+                BTreeMap::new();
+            for idx in 0..15 {
+                let s = schedule(&p, 3, idx);
+                assert_eq!(s, schedule(&p, 3, idx), "reproducible");
+                let scored: Vec<&ScheduledTest> =
+                    s.iter().filter(|t| t.phase == TestPhase::Test).collect();
+                let on: Vec<_> = scored.iter().filter(|t| t.seat == Seat::On).collect();
+                let off: Vec<_> = scored.iter().filter(|t| t.seat == Seat::Off).collect();
+                assert_eq!((on.len(), off.len()), (15, 5));
+                let cells: BTreeSet<_> =
+                    on.iter().map(|t| (t.compensator, t.cancellation)).collect();
+                assert_eq!(cells.len(), 15, "each compensator once per arm");
+                assert!(off.iter().all(|t| t.cancellation == CancellationArm::Off));
+                // Slots unique and in order; the identification before every cancelling test.
+                let slots: BTreeSet<u32> = s.iter().map(|t| t.slot).collect();
+                assert_eq!(slots.len(), s.len());
+                let id = s
+                    .iter()
+                    .find(|t| t.phase == TestPhase::Identification)
+                    .unwrap();
+                for t in &on {
+                    assert!((id.block, id.queue_order) < (t.block, t.queue_order));
+                }
+                // Blind: a label per cell on the machine, none naming the arm; at the desk a
+                // compensator has its uncancelled label.
+                let labels: BTreeSet<&str> = on.iter().map(|t| t.blinded_label.as_str()).collect();
+                assert_eq!(labels.len(), 15);
+                assert!(labels.iter().all(|l| l.starts_with("Controller ")));
+                for d in &off {
+                    let twin = on
+                        .iter()
+                        .find(|t| {
+                            t.compensator == d.compensator && t.cancellation == CancellationArm::Off
+                        })
+                        .unwrap();
+                    assert_eq!(d.blinded_label, twin.blinded_label);
+                }
+                for t in &on {
+                    positions
+                        .entry((t.compensator, t.cancellation))
+                        .or_default()
+                        .insert(t.position);
+                }
+            }
+            if design == OrderDesign::Williams {
+                assert!(positions.values().all(|p| p.len() == 15), "{positions:?}");
+            }
+        }
+        // Without identification the factor is refused, naming it.
+        p.identification = None;
+        assert!(
+            p.validate()
+                .unwrap_err()
+                .to_string()
+                .starts_with("cancellation: a cancelling arm needs the study's identification")
+        );
+    }
+
+    #[test]
     fn studies_without_the_design_aids_keep_their_hash_orders_and_targets() {
         // A study stored before the design aids existed (its JSON without them) parses, and
         // hashes as its stored JSON did: at their defaults they are left out of the hashed
