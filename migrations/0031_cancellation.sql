@@ -5,3 +5,7 @@
 ALTER TABLE trials ADD COLUMN cancellation TEXT NOT NULL DEFAULT 'off'
     CHECK (cancellation IN ('off', 'personal', 'generic', 'wrong'));
 ALTER TABLE trials ADD COLUMN cancellation_json TEXT;
+
+-- The record's channel of what cancellation subtracted from the device reading (f32 blob,
+-- as the others); NULL in a record filed before it, read as zeros (nothing was cancelled).
+ALTER TABLE trial_records ADD COLUMN cancellation_mm BLOB;

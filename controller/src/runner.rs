@@ -67,6 +67,9 @@ pub struct Sample {
     pub valve: f64,
     pub y: f64,
     pub cab_accel: f64,
+    /// What cancellation subtracted from the device's reading (mm; 0 without it): the
+    /// cancelled signal is `device() − cancellation`.
+    pub cancellation: f64,
 }
 
 impl Sample {
@@ -83,6 +86,7 @@ impl Sample {
             self.cab_accel,
             self.device(),
             tick_latency_us,
+            self.cancellation,
         ]
     }
 
@@ -232,6 +236,7 @@ impl<L: Loop> TrialRunner<L> {
             valve: r.valve,
             y: r.y,
             cab_accel: r.cab_accel,
+            cancellation: r.cancellation,
         }
     }
 

@@ -3,3 +3,5 @@
 ALTER TABLE trials ADD COLUMN cancellation TEXT NOT NULL DEFAULT 'off'
     CHECK (cancellation IN ('off', 'personal', 'generic', 'wrong'));
 ALTER TABLE trials ADD COLUMN cancellation_json TEXT;
+
+ALTER TABLE trial_records ADD COLUMN cancellation_mm BYTEA;

@@ -239,7 +239,7 @@ pub const RECORD_TIME: RecordColumn = RecordColumn {
 const MM_DECIMALS: u8 = 4;
 
 /// Channels of the full-rate record, in the order of `RecordChunk::channels`.
-pub const RECORD_CHANNELS: [RecordColumn; 9] = [
+pub const RECORD_CHANNELS: [RecordColumn; 10] = [
     RecordColumn {
         name: "target_mm",
         unit: "mm",
@@ -293,6 +293,13 @@ pub const RECORD_CHANNELS: [RecordColumn; 9] = [
         unit: "µs",
         meaning: "wake-up latency of the real-time tick (0 in an offline simulation)",
         decimals: 1,
+    },
+    // Last: the columns of an earlier release keep their places.
+    RecordColumn {
+        name: "cancellation_mm",
+        unit: "mm",
+        meaning: "what model-based cancellation subtracted from the device reading (0: none); the cancelled signal is device_mm − cancellation_mm, and cyl_ref_mm is K_BF times it",
+        decimals: MM_DECIMALS,
     },
 ];
 

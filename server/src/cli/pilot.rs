@@ -3,6 +3,8 @@
 use std::path::PathBuf;
 
 use super::{newest_study, open_store, read_params};
+use bdft_protocol::study::{CancellationArm, CancellationParams, ModelError, StudyParams};
+
 use crate::config::DbConfig;
 use crate::engine::dry_runs::pilot;
 use crate::store;
@@ -34,6 +36,25 @@ pub struct Args {
     /// body (`identification.personalized`).
     #[arg(long)]
     personalized: bool,
+    /// As --identification, with model-based cancellation crossed with the compensators on
+    /// the machine: the cancelling arms, comma-separated (personal, generic, wrong).
+    #[arg(long, value_delimiter = ',', value_parser = parse_arm)]
+    cancellation: Vec<CancellationArm>,
+    /// The wrong arm's gain over the subject's body [default: 1.3].
+    #[arg(long)]
+    wrong_gain: Option<f64>,
+    /// The wrong arm's phase lag at 2 Hz (degrees) [default: 0].
+    #[arg(long)]
+    wrong_phase_lag_deg: Option<f64>,
+}
+
+fn parse_arm(s: &str) -> Result<CancellationArm, String> {
+    match CancellationArm::parse(s) {
+        Some(CancellationArm::Off) | None => Err(format!(
+            "{s:?} is not a cancelling arm; allowed: personal, generic, wrong"
+        )),
+        Some(arm) => Ok(arm),
+    }
 }
 
 pub async fn run(args: Args) -> anyhow::Result<()> {
@@ -45,15 +66,35 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         params,
         identification,
         personalized,
+        cancellation,
+        wrong_gain,
+        wrong_phase_lag_deg,
     } = args;
     let pool = open_store(&db).await?;
-    let identification = identification || personalized;
-    let with_identification = |mut p: bdft_protocol::study::StudyParams| {
+    let identification = identification || personalized || !cancellation.is_empty();
+    let wrong = cancellation
+        .contains(&CancellationArm::Wrong)
+        .then(|| ModelError {
+            gain: wrong_gain.unwrap_or(1.3),
+            phase_lag_deg: wrong_phase_lag_deg.unwrap_or(0.0),
+            phase_ref_hz: 2.0,
+        });
+    if wrong.is_none() && (wrong_gain.is_some() || wrong_phase_lag_deg.is_some()) {
+        anyhow::bail!("--wrong-gain and --wrong-phase-lag-deg go with --cancellation ...,wrong");
+    }
+    let with_identification = |mut p: StudyParams| {
         if identification && p.identification.is_none() {
             p.identification = Some(Default::default());
         }
         if let Some(id) = p.identification.as_mut() {
             id.personalized |= personalized;
+        }
+        if !cancellation.is_empty() {
+            p.cancellation = Some(CancellationParams {
+                arms: cancellation.clone(),
+                wrong,
+                ..Default::default()
+            });
         }
         p
     };
@@ -76,6 +117,11 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
                 if params.identification.is_none() {
                     anyhow::bail!(
                         "--identification: study {s} has no identification test; add \"identification\" to its parameters"
+                    );
+                }
+                if !cancellation.is_empty() && params.cancellation.is_none() {
+                    anyhow::bail!(
+                        "--cancellation: study {s} has no cancellation factor; add \"cancellation\" to its parameters"
                     );
                 }
                 if personalized && !params.identification.is_some_and(|id| id.personalized) {

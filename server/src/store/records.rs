@@ -65,12 +65,12 @@ pub async fn file_result(
         .map_err(|e: String| crate::error::AppError::Internal(anyhow::anyhow!(e)))?;
     if record.channels.len() == RECORD_CHANNELS.len() && !record.channels[0].is_empty() {
         let mut q = sqlx::query(
-            "INSERT INTO trial_records (trial_id, dt, samples, target_mm, hand_mm, feedthrough_mm, cyl_ref_mm, valve_cmd, cyl_pos_mm, cab_accel_mm_s2, device_mm, tick_latency_us) \
-             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12) \
+            "INSERT INTO trial_records (trial_id, dt, samples, target_mm, hand_mm, feedthrough_mm, cyl_ref_mm, valve_cmd, cyl_pos_mm, cab_accel_mm_s2, device_mm, tick_latency_us, cancellation_mm) \
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13) \
              ON CONFLICT (trial_id) DO UPDATE SET dt = excluded.dt, samples = excluded.samples, target_mm = excluded.target_mm, \
              hand_mm = excluded.hand_mm, feedthrough_mm = excluded.feedthrough_mm, cyl_ref_mm = excluded.cyl_ref_mm, \
              valve_cmd = excluded.valve_cmd, cyl_pos_mm = excluded.cyl_pos_mm, cab_accel_mm_s2 = excluded.cab_accel_mm_s2, \
-             device_mm = excluded.device_mm, tick_latency_us = excluded.tick_latency_us",
+             device_mm = excluded.device_mm, tick_latency_us = excluded.tick_latency_us, cancellation_mm = excluded.cancellation_mm",
         )
         .bind(result.trial_id as i64)
         .bind(record.dt)
@@ -83,20 +83,26 @@ pub async fn file_result(
     Ok(Some((status, reason)))
 }
 
-/// The record of one trial (about 5 MB for 140 s), channels in `RECORD_CHANNELS` order.
+/// The record of one trial (about 5 MB for 140 s), channels in `RECORD_CHANNELS` order. A
+/// record filed before a channel existed (`cancellation_mm`, migration 0031) reads it as
+/// zeros: nothing was cancelled then.
 pub async fn get<'c>(db: impl AnyExecutor<'c>, trial_id: i64) -> Result<Record> {
     use sqlx::Row;
     let channels = RECORD_CHANNELS.map(|c| c.name).join(", ");
     let row = sqlx::query(&format!(
-        "SELECT dt, {channels} FROM trial_records WHERE trial_id = $1"
+        "SELECT dt, samples, {channels} FROM trial_records WHERE trial_id = $1"
     ))
     .bind(trial_id)
     .fetch_one(db)
     .await?;
+    let samples = usize::try_from(row.try_get::<i64, _>(1)?).unwrap_or(0);
     Ok(Record {
         dt: row.try_get(0)?,
         channels: (0..RECORD_CHANNELS.len())
-            .map(|i| row.try_get::<Vec<u8>, _>(i + 1).map(|b| unblob(&b)))
+            .map(|i| {
+                row.try_get::<Option<Vec<u8>>, _>(i + 2)
+                    .map(|b| b.map_or_else(|| vec![0.0; samples], |b| unblob(&b)))
+            })
             .collect::<Result<_, _>>()?,
     })
 }

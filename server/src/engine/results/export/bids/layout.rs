@@ -256,7 +256,7 @@ fn motion_channel(c: &RecordColumn) -> [&'static str; 4] {
         "target_mm" => ["POS", "x", "target", "mm"],
         "hand_mm" | "feedthrough_mm" => ["POS", "x", "hand", "mm"],
         "cyl_ref_mm" | "cyl_pos_mm" => ["POS", "x", "cylinder", "mm"],
-        "device_mm" => ["POS", "x", "device", "mm"],
+        "device_mm" | "cancellation_mm" => ["POS", "x", "device", "mm"],
         "cab_accel_mm_s2" => ["ACCEL", "x", "cab", "mm/s^2"],
         "tick_latency_us" => ["LATENCY", "n/a", "n/a", "us"],
         // A channel this list does not know yet is still exported, as a miscellaneous one.
