@@ -7,6 +7,7 @@ mod bids;
 mod bounded_clients;
 mod browser;
 mod calibration;
+mod cancellation_study;
 mod contention;
 mod controller_cli;
 mod controller_estop;

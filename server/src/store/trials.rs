@@ -242,13 +242,16 @@ pub async fn latest_attempt<'c>(db: impl AnyExecutor<'c>, trial: &Trial) -> Resu
 }
 
 /// A new scheduled attempt of `trial_id`'s test, with the same design and target, queued at
-/// the end of its block; returns its id. (The unique (subject, slot, attempt) makes a racing
+/// the end of its block — but an identification test keeps its place first in its block:
+/// what follows it depends on what it measures (a personalized study's designs, every
+/// cancelling test's model); returns its id. (The unique (subject, slot, attempt) makes a racing
 /// second re-queue fail.)
 pub async fn insert_next_attempt(db: &mut AnyConnection, trial_id: i64) -> Result<i64> {
     Ok(sqlx::query_scalar::<_, i64>(
         "INSERT INTO trials (subject_id, slot, attempt, phase, station, block, position, controller, blinded_label, compensator_json, personalized, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, cancellation, cancellation_json, queue_order) \
          SELECT subject_id, slot, attempt + 1, phase, station, block, position, controller, blinded_label, compensator_json, personalized, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, cancellation, cancellation_json, \
-         (SELECT MAX(queue_order) + 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.block = t.block) FROM trials t WHERE id = $1 RETURNING id",
+         CASE WHEN phase = 'identification' THEN queue_order ELSE (SELECT MAX(queue_order) + 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.block = t.block) END \
+         FROM trials t WHERE id = $1 RETURNING id",
     )
     .bind(trial_id)
     .fetch_one(db)

@@ -44,7 +44,9 @@ pub fn plan(
         return Vec::new();
     };
     let bodies = fit.map_err(str::to_string).and_then(bodies_of);
-    let own = fit.ok().and_then(|f| f.identified_body().ok());
+    let own = fit
+        .map_err(str::to_string)
+        .and_then(BodyFit::identified_body);
     let mut out = Vec::new();
     for spec in &params.compensators {
         let spec = designs
@@ -55,7 +57,12 @@ pub fn plan(
         setup.loop_params.k_bf = MARGIN * params.k_bf;
         for &arm in &factor.arms {
             let decided = factor
-                .model(arm, own.as_ref(), &params.population)
+                .model(arm, own.as_ref().ok(), &params.population)
+                .map_err(|e| match &own {
+                    // Say which parameter and why.
+                    Err(why) => format!("{e}: {why}"),
+                    Ok(_) => e,
+                })
                 .and_then(|model| {
                     let bodies = bodies
                         .as_ref()

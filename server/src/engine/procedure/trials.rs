@@ -3,7 +3,7 @@
 //! aborted or accepted as incomplete, and the E-stop. Every change is committed with its audit row.
 
 use bdft_protocol::params::{CompensatorKind, Seat};
-use bdft_protocol::records::{ConsentDecision, TrialStatus};
+use bdft_protocol::records::{ConsentDecision, TestPhase, TrialStatus};
 use bdft_protocol::server_to_controller::ServerToController;
 use bdft_protocol::study::RigKind;
 use serde::Serialize;
@@ -280,6 +280,17 @@ pub async fn accept_incomplete(
         .map_or(trial_id, |t| t.id);
     store::trials::accept_incomplete(change.db(), trial_id, reason).await?;
     let t = store::trials::get(change.db(), trial_id).await?;
+    if t.phase == TestPhase::Identification {
+        // No body will be measured: the cancelling tests that needed it are not run, said
+        // now rather than refused one by one at their start.
+        let subject = store::subjects::get(change.db(), t.subject_id).await?;
+        let params = store::studies::get(change.db(), subject.study_id)
+            .await?
+            .params;
+        let why = "the identification test was accepted as incomplete";
+        let planned = super::cancellation::plan(&params, Err(why), None);
+        super::cancellation::store(&mut change, &t, &planned).await?;
+    }
     change
         .commit(
             "trial.accept_incomplete",

@@ -165,8 +165,7 @@ fn the_identification_test_comes_first_on_the_machine_or_first_of_all_when_perso
                 .filter(|t| t.phase == TestPhase::Test && t.seat == Seat::On)
                 .min_by_key(|t| (t.block, t.queue_order))
                 .unwrap();
-            let before =
-                |t: &ScheduledTest| (id.block, id.queue_order) < (t.block, t.queue_order);
+            let before = |t: &ScheduledTest| (id.block, id.queue_order) < (t.block, t.queue_order);
             assert!(before(first_on), "{idx}");
             assert_eq!(
                 before(first_scored),
@@ -214,8 +213,7 @@ fn cancellation_is_crossed_with_the_compensators_on_the_machine_alone_and_blinde
             let on: Vec<_> = scored.iter().filter(|t| t.seat == Seat::On).collect();
             let off: Vec<_> = scored.iter().filter(|t| t.seat == Seat::Off).collect();
             assert_eq!((on.len(), off.len()), (15, 5));
-            let cells: BTreeSet<_> =
-                on.iter().map(|t| (t.compensator, t.cancellation)).collect();
+            let cells: BTreeSet<_> = on.iter().map(|t| (t.compensator, t.cancellation)).collect();
             assert_eq!(cells.len(), 15, "each compensator once per arm");
             assert!(off.iter().all(|t| t.cancellation == CancellationArm::Off));
             // Slots unique and in order; the identification before every cancelling test.

@@ -1,0 +1,285 @@
+//! Model-based cancellation as a study factor, end to end through the real server and
+//! controller (issue 38): a bad factor refused naming the field; a pilot whose every
+//! compensator on the machine runs uncancelled and with the subject's own model (set from
+//! their identification test and checked against it), the cancelled tests' records carrying
+//! what was subtracted, the exports and the inferential table carrying the factor; and an
+//! identification accepted as incomplete taking its cancelling tests with it, with the
+//! reason, before any of them runs.
+
+use std::collections::BTreeSet;
+
+use bdft_tests::exports::parse_csv;
+use bdft_tests::server::{Api, Server, pilot_copy, trial_rows};
+use serde_json::{Value, json};
+
+/// The default study with short tests, the default identification test and cancellation
+/// with the subject's own model.
+fn cancelling_params(api: &Api) -> Value {
+    let (_, mut params) = api.get("/api/defaults");
+    params["trial_s"] = json!(6.0);
+    params["practice_s"] = json!(0.0);
+    params["step_interval_s"] = json!(0.5);
+    params["identification"] = json!({});
+    params["cancellation"] = json!({ "arms": ["personal"] });
+    params
+}
+
+fn create(api: &Api, params: &Value) -> (u16, Value) {
+    api.post(
+        "/api/studies",
+        json!({ "name": "cancellation", "params": params, "seed": 42 }),
+    )
+}
+
+fn csv(api: &Api, path: &str) -> (Vec<String>, Vec<Vec<String>>) {
+    let (code, text) = api.get_text(path);
+    assert_eq!(code, 200, "{path}: {text}");
+    let mut rows = parse_csv(&text);
+    let header = rows.remove(0);
+    (header, rows)
+}
+
+#[test]
+fn a_bad_cancellation_factor_is_refused_naming_the_field_and_nothing_is_stored() {
+    let server = Server::start("cancel-refused");
+    let api = server.experimenter();
+    let good = cancelling_params(&api);
+    let mut cases: Vec<(Value, &str)> = Vec::new();
+    let mut p = good.clone();
+    p["identification"] = Value::Null;
+    cases.push((
+        p,
+        "cancellation: a cancelling arm needs the study's identification",
+    ));
+    for (factor, named) in [
+        (json!({ "arms": [] }), "cancellation.arms"),
+        (json!({ "arms": ["off"] }), "cancellation.arms"),
+        (
+            json!({ "arms": ["personal", "personal"] }),
+            "cancellation.arms",
+        ),
+        (json!({ "arms": ["wrong"] }), "cancellation.wrong"),
+        (
+            json!({ "arms": ["wrong"], "wrong": { "gain": 2.5 } }),
+            "cancellation.wrong.gain",
+        ),
+        (
+            json!({ "arms": ["wrong"], "wrong": { "gain": 1.0, "phase_lag_deg": 120.0 } }),
+            "cancellation.wrong.phase_lag_deg",
+        ),
+        (
+            json!({ "arms": ["personal"], "limit_mm": 0.0 }),
+            "cancellation.limit_mm",
+        ),
+    ] {
+        let mut p = good.clone();
+        p["cancellation"] = factor;
+        cases.push((p, named));
+    }
+    for (p, named) in cases {
+        let (code, body) = create(&api, &p);
+        assert_eq!(code, 422, "{named}: {body}");
+        assert!(body.to_string().contains(named), "{named}: {body}");
+    }
+    // An arm that does not exist is refused too, never a 500.
+    let mut p = good.clone();
+    p["cancellation"] = json!({ "arms": ["magic"] });
+    let (code, body) = create(&api, &p);
+    assert!(code == 400 || code == 422, "{code}: {body}");
+    assert!(body.to_string().contains("magic"), "{body}");
+    let (_, studies) = api.get("/api/studies");
+    assert_eq!(studies.as_array().unwrap().len(), 0, "nothing half-stored");
+    assert_eq!(create(&api, &good).0, 200);
+}
+
+#[test]
+fn a_pilot_runs_each_compensator_on_the_machine_with_and_without_the_subjects_own_cancellation() {
+    let server = Server::start("cancel-pilot");
+    let api = server.experimenter();
+    let (code, study) = create(&api, &cancelling_params(&api));
+    assert_eq!(code, 200, "{study}");
+    let copy = pilot_copy(&api, study["id"].as_i64().unwrap(), 3);
+    let (_, subjects) = api.get(&format!("/api/studies/{copy}/subjects"));
+    let subjects = subjects.as_array().unwrap();
+    assert_eq!(subjects.len(), 3);
+    let mut cancelled_complete = Vec::new();
+    let mut uncancelled_complete = Vec::new();
+    let mut not_run = Vec::new();
+    for s in subjects {
+        let id = s["subject"]["id"].as_i64().unwrap();
+        let trials = trial_rows(&api, id);
+        let scored: Vec<&Value> = trials.iter().filter(|t| t["phase"] == "test").collect();
+        let on: Vec<&Value> = scored
+            .iter()
+            .copied()
+            .filter(|t| t["station"] == "on")
+            .collect();
+        let off: Vec<&Value> = scored
+            .iter()
+            .copied()
+            .filter(|t| t["station"] == "off")
+            .collect();
+        // Every compensator once per arm on the machine, once uncancelled at the desk.
+        let cells: BTreeSet<(String, String)> = on
+            .iter()
+            .map(|t| (t["controller"].to_string(), t["cancellation"].to_string()))
+            .collect();
+        assert_eq!(
+            (on.len(), cells.len(), off.len()),
+            (10, 10, 5),
+            "{trials:?}"
+        );
+        assert!(off.iter().all(|t| t["cancellation"] == "off"));
+        // The body the identification fitted is what the personal tests cancel with.
+        let (_, view) = api.get(&format!("/api/subjects/{id}/identification"));
+        let fit = &view["tests"][0]["fit"];
+        for t in &on {
+            match (t["cancellation"].as_str().unwrap(), t["status"].as_str()) {
+                ("off", Some("complete")) => {
+                    assert!(t["cancellation_json"].is_null(), "{t}");
+                    uncancelled_complete.push(t["id"].as_i64().unwrap());
+                }
+                ("personal", Some("complete")) => {
+                    let model: Value =
+                        serde_json::from_str(t["cancellation_json"].as_str().unwrap()).unwrap();
+                    assert_eq!(model["k_h"], fit["k_h"]["value"], "{model} {fit}");
+                    assert_eq!(model["torso_f_hz"], fit["torso_f_hz"]["value"]);
+                    assert_eq!(model["gain"], 1.0);
+                    cancelled_complete.push(t["id"].as_i64().unwrap());
+                }
+                // A cell the check refused, or a body not identified: filed with why.
+                ("personal", Some("incomplete")) => {
+                    let why = t["status_reason"].as_str().unwrap();
+                    assert!(
+                        why.starts_with("not run: no personal cancellation")
+                            && why.contains("was not identified ("),
+                        "{t}"
+                    );
+                    not_run.push(why.to_string());
+                }
+                _ => {}
+            }
+        }
+    }
+    // Seeded: of these three subjects, one body is identified whole (each of its five
+    // cells cancels) and two are not (a resonance the test could not pin down).
+    assert_eq!(
+        (cancelled_complete.len(), not_run.len()),
+        (5, 10),
+        "{cancelled_complete:?}, {not_run:?}"
+    );
+    // A cancelled test's record carries what was subtracted; an uncancelled one's is zero.
+    let subtracted = |trial: i64| -> f64 {
+        let (header, rows) = csv(
+            &api,
+            &format!("/api/studies/{copy}/export/samples?trial={trial}"),
+        );
+        let c = header.iter().position(|h| h == "cancellation_mm").unwrap();
+        let values: Vec<f64> = rows.iter().map(|r| r[c].parse().unwrap()).collect();
+        assert!(values.len() > 5000, "{trial}: a whole record");
+        (values.iter().map(|v| v * v).sum::<f64>() / values.len() as f64).sqrt()
+    };
+    assert!(subtracted(cancelled_complete[0]) > 0.05);
+    assert_eq!(subtracted(uncancelled_complete[0]), 0.0);
+    // The trials export names the arm of every test; the summary keeps the cells apart.
+    let (header, rows) = csv(&api, &format!("/api/studies/{copy}/export/trials"));
+    let col = |n: &str| header.iter().position(|h| h == n).unwrap();
+    let arms: BTreeSet<&str> = rows
+        .iter()
+        .map(|r| r[col("cancellation")].as_str())
+        .collect();
+    assert!(
+        arms.contains("off")
+            && arms.contains("personal")
+            && arms.is_subset(&BTreeSet::from(["", "off", "personal"])),
+        "{arms:?}"
+    );
+    let (header, rows) = csv(&api, &format!("/api/studies/{copy}/export/summary"));
+    let (c, a, v) = (
+        header.iter().position(|h| h == "compensator").unwrap(),
+        header.iter().position(|h| h == "cancellation").unwrap(),
+        header.iter().position(|h| h == "variable").unwrap(),
+    );
+    let pid_on: Vec<&str> = rows
+        .iter()
+        .filter(|r| r[c] == "pid" && r[v] == "mse_tracking_mm2" && r[c + 1] == "on")
+        .map(|r| r[a].as_str())
+        .collect();
+    assert_eq!(pid_on, ["off", "personal"], "{rows:?}");
+    // The inferential table compares each compensator with itself cancelled.
+    let (code, table) = api.get(&format!("/api/studies/{copy}/stats"));
+    assert_eq!(code, 200, "{table}");
+    let rows = table.as_array().unwrap();
+    let cancellation: Vec<&Value> = rows
+        .iter()
+        .filter(|r| r["test"] == "wilcoxon_cancellation" && r["metric"] == "mse_tracking_mm2")
+        .collect();
+    assert!(!cancellation.is_empty(), "{table}");
+    for r in &cancellation {
+        assert_eq!(r["station"], "on");
+        assert_eq!(r["b"], format!("{}+personal", r["a"].as_str().unwrap()));
+        assert!(r["p_adjusted"].as_f64().unwrap() >= r["p_value"].as_f64().unwrap());
+    }
+    // One subject has both arms: no RM-ANOVA of the factor is invented from one (the
+    // unit test of the table checks its rows with six).
+    assert!(
+        !rows
+            .iter()
+            .any(|r| r["test"] == "rm_anova" && r["a"] == "controller:cancellation:personal"),
+        "{table}"
+    );
+    // Each subject's cells decided in the audit log, with the identification's filing.
+    let (_, audit) = api.get_text("/api/audit/export");
+    assert_eq!(audit.matches("cancellation.plan").count(), 3);
+}
+
+#[test]
+fn an_identification_accepted_as_incomplete_takes_its_cancelling_tests_with_it() {
+    let server = Server::start("cancel-accepted");
+    let api = server.experimenter();
+    let (code, study) = create(&api, &cancelling_params(&api));
+    assert_eq!(code, 200, "{study}");
+    let study = study["id"].as_i64().unwrap();
+    let enrolled = api.ok(&format!("/api/studies/{study}/subjects"), json!({}));
+    let subject = enrolled["subject"]["id"].as_i64().unwrap();
+    let trials = trial_rows(&api, subject);
+    let ident = trials
+        .iter()
+        .find(|t| t["phase"] == "identification")
+        .unwrap();
+    // Before the identification is filed, no cancelling test has a model.
+    assert!(
+        trials
+            .iter()
+            .filter(|t| t["cancellation"] == "personal")
+            .all(|t| t["cancellation_json"].is_null() && t["status"] == "scheduled")
+    );
+    api.ok(
+        &format!("/api/trials/{}/incomplete", ident["id"]),
+        json!({ "reason": "the subject could not hold still" }),
+    );
+    let trials = trial_rows(&api, subject);
+    let personal: Vec<&Value> = trials
+        .iter()
+        .filter(|t| t["cancellation"] == "personal")
+        .collect();
+    assert_eq!(personal.len(), 5);
+    for t in &personal {
+        assert_eq!(t["status"], "incomplete", "{t}");
+        let why = t["status_reason"].as_str().unwrap();
+        assert!(
+            why.starts_with("not run: no personal cancellation") && why.contains("not identified"),
+            "{why}"
+        );
+    }
+    // The uncancelled tests still run.
+    assert_eq!(
+        trials
+            .iter()
+            .filter(|t| t["phase"] == "test" && t["status"] == "scheduled")
+            .count(),
+        10
+    );
+    let (_, audit) = api.get_text("/api/audit/export");
+    assert_eq!(audit.matches("cancellation.plan").count(), 1);
+}
