@@ -4,8 +4,9 @@
 //! live sockets in `station_sockets`), when a test may start, be redone or aborted
 //! (`trials`), a trial row turned into the controller's start message (`orchestrator`), how
 //! a test's end is filed (`filing`) and re-queued (`queue`), what an identification test
-//! measured of its subject (`identification`), the stations' LSL streams (`lsl`), and the
-//! display watch that makes a test invalid (`validity`).
+//! measured of its subject (`identification`) and what their cancelling tests cancel with
+//! (`cancellation`), the stations' LSL streams (`lsl`), and the display watch that makes a
+//! test invalid (`validity`).
 //!
 //! *May use:* `study`, `machine`.
 //!
@@ -22,7 +23,10 @@
 //! completed identification test's record estimated and its body fitted off the async threads
 //! before the filing's transaction, stored in it with an `identification.file` audit row; in a
 //! personalized study the study's LQR designs tuned to that body there too, put in place of the
-//! designs of the subject's scheduled tests, `design.personalize`), `queue` (nothing skipped: a
+//! designs of the subject's scheduled tests, `design.personalize`), `cancellation` (in the same
+//! filing, each cancelling cell's model checked against the fitted body and its interval's ends,
+//! stored on the cell's tests or the cell filed not run with why, `cancellation.plan`; the model a
+//! test starts with, 409 without one), `queue` (nothing skipped: a
 //! person's failed test — aborted, incomplete, invalid — comes back as a new attempt at the end of
 //! its block, at most 3 attempts, unless the experimenter accepts it as incomplete; the station
 //! holds, never "done", while a test is missing; what the subject is told about a stopped test),
