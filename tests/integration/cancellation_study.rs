@@ -8,7 +8,6 @@
 
 use std::collections::BTreeSet;
 
-use bdft_tests::exports::parse_csv;
 use bdft_tests::server::{Api, Server, pilot_copy, trial_rows};
 use serde_json::{Value, json};
 
@@ -25,18 +24,7 @@ fn cancelling_params(api: &Api) -> Value {
 }
 
 fn create(api: &Api, params: &Value) -> (u16, Value) {
-    api.post(
-        "/api/studies",
-        json!({ "name": "cancellation", "params": params, "seed": 42 }),
-    )
-}
-
-fn csv(api: &Api, path: &str) -> (Vec<String>, Vec<Vec<String>>) {
-    let (code, text) = api.get_text(path);
-    assert_eq!(code, 200, "{path}: {text}");
-    let mut rows = parse_csv(&text);
-    let header = rows.remove(0);
-    (header, rows)
+    api.create_study("cancellation", params)
 }
 
 #[test]
@@ -170,10 +158,8 @@ fn a_pilot_runs_each_compensator_on_the_machine_with_and_without_the_subjects_ow
     );
     // A cancelled test's record carries what was subtracted; an uncancelled one's is zero.
     let subtracted = |trial: i64| -> f64 {
-        let (header, rows) = csv(
-            &api,
-            &format!("/api/studies/{copy}/export/samples?trial={trial}"),
-        );
+        let (header, rows) =
+            api.get_csv(&format!("/api/studies/{copy}/export/samples?trial={trial}"));
         let c = header.iter().position(|h| h == "cancellation_mm").unwrap();
         let values: Vec<f64> = rows.iter().map(|r| r[c].parse().unwrap()).collect();
         assert!(values.len() > 5000, "{trial}: a whole record");
@@ -182,7 +168,7 @@ fn a_pilot_runs_each_compensator_on_the_machine_with_and_without_the_subjects_ow
     assert!(subtracted(cancelled_complete[0]) > 0.05);
     assert_eq!(subtracted(uncancelled_complete[0]), 0.0);
     // The trials export names the arm of every test; the summary keeps the cells apart.
-    let (header, rows) = csv(&api, &format!("/api/studies/{copy}/export/trials"));
+    let (header, rows) = api.get_csv(&format!("/api/studies/{copy}/export/trials"));
     let col = |n: &str| header.iter().position(|h| h == n).unwrap();
     let arms: BTreeSet<&str> = rows
         .iter()
@@ -194,7 +180,7 @@ fn a_pilot_runs_each_compensator_on_the_machine_with_and_without_the_subjects_ow
             && arms.is_subset(&BTreeSet::from(["", "off", "personal"])),
         "{arms:?}"
     );
-    let (header, rows) = csv(&api, &format!("/api/studies/{copy}/export/summary"));
+    let (header, rows) = api.get_csv(&format!("/api/studies/{copy}/export/summary"));
     let (c, a, v) = (
         header.iter().position(|h| h == "compensator").unwrap(),
         header.iter().position(|h| h == "cancellation").unwrap(),

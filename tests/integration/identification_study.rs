@@ -5,7 +5,6 @@
 //! station's instructions for the test.
 
 use bdft_tests::TempDir;
-use bdft_tests::exports::parse_csv;
 use bdft_tests::server::{Api, Server, assigned_station, pilot_copy, trial_rows, with_store};
 use bdft_tests::webdriver::{Driver, artifacts_dir};
 use serde_json::{Value, json};
@@ -21,18 +20,11 @@ fn params_with_identification(api: &Api, practice_s: f64) -> Value {
 }
 
 fn create(api: &Api, params: &Value) -> (u16, Value) {
-    api.post(
-        "/api/studies",
-        json!({ "name": "identification", "params": params, "seed": 42 }),
-    )
+    api.create_study("identification", params)
 }
 
 fn csv(api: &Api, study: i64, kind: &str) -> (Vec<String>, Vec<Vec<String>>) {
-    let (code, text) = api.get_text(&format!("/api/studies/{study}/export/{kind}"));
-    assert_eq!(code, 200, "{kind}: {text}");
-    let mut rows = parse_csv(&text);
-    let header = rows.remove(0);
-    (header, rows)
+    api.get_csv(&format!("/api/studies/{study}/export/{kind}"))
 }
 
 #[test]

@@ -408,6 +408,23 @@ impl Api {
         }
     }
 
+    /// A CSV download (an export) as its header and rows; it must answer 200.
+    pub fn get_csv(&self, path: &str) -> (Vec<String>, Vec<Vec<String>>) {
+        let (code, text) = self.get_text(path);
+        assert_eq!(code, 200, "{path}: {text}");
+        let mut rows = crate::exports::parse_csv(&text);
+        let header = rows.remove(0);
+        (header, rows)
+    }
+
+    /// Creates a study named `name` with `params` and study seed 42: the status and body.
+    pub fn create_study(&self, name: &str, params: &Value) -> (u16, Value) {
+        self.post(
+            "/api/studies",
+            json!({ "name": name, "params": params, "seed": 42 }),
+        )
+    }
+
     /// Status, headers (lower-case names) and text of a GET (a page with its security
     /// headers).
     pub fn get_page(&self, path: &str) -> (u16, BTreeMap<String, String>, String) {

@@ -279,25 +279,25 @@ pub async fn personalize_scheduled(
 }
 
 /// Sets `model_json` as the model of the subject's scheduled tests of `kind` cancelling
-/// with `arm`; returns their ids.
+/// with `arm`; returns how many.
 pub async fn set_cancellation_scheduled(
     db: &mut AnyConnection,
     subject_id: i64,
     kind: CompensatorKind,
     arm: CancellationArm,
     model_json: &str,
-) -> Result<Vec<i64>> {
-    let ids: Vec<(i64,)> = sqlx::query_as(
+) -> Result<u64> {
+    Ok(sqlx::query(
         "UPDATE trials SET cancellation_json = $1 \
-         WHERE subject_id = $2 AND controller = $3 AND cancellation = $4 AND phase = 'test' AND status = 'scheduled' RETURNING id",
+         WHERE subject_id = $2 AND controller = $3 AND cancellation = $4 AND phase = 'test' AND status = 'scheduled'",
     )
     .bind(model_json)
     .bind(subject_id)
     .bind(kind.name())
     .bind(arm.as_str())
-    .fetch_all(db)
-    .await?;
-    Ok(ids.into_iter().map(|r| r.0).collect())
+    .execute(db)
+    .await?
+    .rows_affected())
 }
 
 /// The subject's scheduled tests of `kind` cancelling with `arm`.

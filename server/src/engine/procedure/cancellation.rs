@@ -98,8 +98,8 @@ pub fn plan(
 struct Recorded<'a> {
     subject_id: i64,
     cells: &'a [Planned],
-    tests_cancelling: usize,
-    tests_not_run: usize,
+    tests_cancelling: u64,
+    tests_not_run: u64,
 }
 
 /// Puts each planned model on the subject's scheduled tests of its cell, and files each
@@ -121,8 +121,7 @@ pub async fn store(change: &mut Change, trial: &Trial, planned: &[Planned]) -> R
                     p.arm,
                     &json,
                 )
-                .await?
-                .len();
+                .await?;
             }
             (None, reason) => {
                 let why = format!(
