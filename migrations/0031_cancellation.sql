@@ -9,3 +9,7 @@ ALTER TABLE trials ADD COLUMN cancellation_json TEXT;
 -- The record's channel of what cancellation subtracted from the device reading (f32 blob,
 -- as the others); NULL in a record filed before it, read as zeros (nothing was cancelled).
 ALTER TABLE trial_records ADD COLUMN cancellation_mm BLOB;
+
+-- When (s into the test) cancellation's guard turned it off for the rest of the test, which
+-- went on uncancelled; NULL when it never did.
+ALTER TABLE trials ADD COLUMN cancellation_off_at_s REAL;

@@ -269,3 +269,34 @@ fn an_identification_accepted_as_incomplete_takes_its_cancelling_tests_with_it()
     let (_, audit) = api.get_text("/api/audit/export");
     assert_eq!(audit.matches("cancellation.plan").count(), 1);
 }
+
+#[test]
+fn a_cancelling_test_whose_guard_trips_goes_on_uncancelled_and_the_export_says_when() {
+    let server = Server::start("cancel-guard");
+    let api = server.experimenter();
+    let mut params = cancelling_params(&api);
+    // The smallest bound allowed: every cancelled test's output passes it within a second.
+    params["cancellation"]["limit_mm"] = json!(0.1);
+    let (code, study) = create(&api, &params);
+    assert_eq!(code, 200, "{study}");
+    let copy = pilot_copy(&api, study["id"].as_i64().unwrap(), 3);
+    let (header, rows) = api.get_csv(&format!("/api/studies/{copy}/export/trials"));
+    let col = |n: &str| header.iter().position(|h| h == n).unwrap();
+    let mut tripped = 0;
+    for r in &rows {
+        let at = &r[col("cancellation_off_at_s")];
+        match (r[col("cancellation")].as_str(), r[col("status")].as_str()) {
+            ("personal", "complete") => {
+                // Turned off early, and the test ran to its end uncancelled.
+                let at: f64 = at.parse().unwrap_or_else(|_| panic!("{r:?}"));
+                assert!(at > 0.0 && at < 6.0, "{r:?}");
+                assert!(r[col("mse_tracking_mm2")].parse::<f64>().is_ok(), "{r:?}");
+                tripped += 1;
+            }
+            _ => assert!(at.is_empty(), "{r:?}"),
+        }
+    }
+    assert_eq!(tripped, 5, "the identified subject's five cancelled tests");
+    let (_, audit) = api.get_text("/api/audit/export");
+    assert_eq!(audit.matches("cancellation_off_at_s").count(), 5);
+}

@@ -633,9 +633,15 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
         col(&h, c);
     }
     assert_eq!(
-        h[h.len() - 3..],
-        ["starting_seat", "seat", "compensator"],
-        "the clear names come last"
+        h[h.len() - 5..],
+        [
+            "starting_seat",
+            "seat",
+            "compensator",
+            "cancellation",
+            "cancellation_off_at_s"
+        ],
+        "the clear names come last, then the columns added after them"
     );
     assert_eq!(rows.len(), 22);
     let params = bdft_server::engine::study::schedule::default_params();

@@ -43,6 +43,8 @@ pub struct Trial {
     /// identification is filed and the model passed the check against their body; none
     /// until then, and for an uncancelled test.
     pub cancellation_json: Option<String>,
+    /// When cancellation's guard turned it off for the rest of the test (s into it).
+    pub cancellation_off_at_s: Option<f64>,
     /// The design is the one tuned to the subject's identified body (a personalized study's
     /// LQR designs, once their identification test is filed).
     #[sqlx(try_from = "crate::store::db::Flag")]

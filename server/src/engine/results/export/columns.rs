@@ -430,7 +430,13 @@ pub fn trials(survey: &SurveyParams) -> Vec<Column> {
         "cancellation",
         "",
         TEXT,
-        "what the test cancelled the feedthrough with (off, personal: the subject's identified body, generic: the population's median body, wrong: the subject's with the study's stated error; always off at the desk); a test whose cancellation the guard turned off says when in the audit log's trial.finish",
+        "what the test cancelled the feedthrough with (off, personal: the subject's identified body, generic: the population's median body, wrong: the subject's with the study's stated error; always off at the desk); a test whose cancellation the guard turned off has cancellation_off_at_s",
+    ));
+    c.push(col(
+        "cancellation_off_at_s",
+        "s",
+        num(3),
+        "when cancellation's guard turned it off for the rest of the test, which went on uncancelled (its output past the model's limit_mm); empty when it never did",
     ));
     c
 }

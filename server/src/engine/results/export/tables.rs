@@ -191,6 +191,7 @@ pub fn trial_cells(r: &TrialExportRow) -> Vec<Cell<'_>> {
         test_only(p, Cell::text(r.controller.name())),
     ]);
     cells.push(test_only(p, Cell::text(r.cancellation.as_str())));
+    cells.push(Cell::Num(r.cancellation_off_at_s));
     cells
 }
 
