@@ -265,6 +265,7 @@ function fillForm(params) {
   }
   const rest = structuredClone(params);
   for (const f of FIELDS) deletePath(rest, f.path);
+  fillCancellation(params, rest);
   $('p-json').value = JSON.stringify(rest, null, 2);
   setStatus($('p-json-error'), 'err', '');
   const ctl = Array.isArray(params.controllers) ? params.controllers.map((c) => compensatorName(c.kind)) : [];
@@ -281,6 +282,9 @@ function setReadOnly(ro) {
   }
   $('p-json').readOnly = ro;
   $('p-seed').readOnly = ro;
+  $('p-cancellation').disabled = ro;
+  $('p-wrong-gain').readOnly = ro;
+  $('p-wrong-lag').readOnly = ro;
   $('study-form').classList.toggle('locked', ro);
 }
 
@@ -394,6 +398,55 @@ function copyToDraft() {
   setStatus($('study-status'), 'info', `The form holds a copy of study #${S.study.id}'s parameters.`);
 }
 
+/** The choices of the cancellation select (its arms, comma-separated). */
+const CANCELLATION_CHOICES = ['', 'personal', 'personal,generic', 'personal,generic,wrong'];
+
+/**
+ * Fills the cancellation fields from `params`, taking what they show out of `rest` (the
+ * advanced JSON): the arms and the wrong model's error; a `limit_mm` stays in the JSON. Arms
+ * the select does not offer stay in the JSON, the select saying so.
+ */
+function fillCancellation(params, rest) {
+  const c = params.cancellation;
+  const arms = c && Array.isArray(c.arms) ? c.arms.join(',') : '';
+  const offered = CANCELLATION_CHOICES.includes(arms);
+  $('p-cancellation').value = offered ? arms : 'json';
+  $('p-wrong-gain').value = c && c.wrong ? String(c.wrong.gain) : '';
+  $('p-wrong-lag').value = c && c.wrong ? String(c.wrong.phase_lag_deg ?? 0) : '';
+  if (c && offered) {
+    delete rest.cancellation.arms;
+    delete rest.cancellation.wrong;
+    if (Object.keys(rest.cancellation).length === 0) delete rest.cancellation;
+  }
+}
+
+/**
+ * Puts the cancellation fields into `params` (and the identification test the factor needs,
+ * when the study has none); a field that is not a number goes into `bad`.
+ */
+function readCancellation(params, bad) {
+  const arms = $('p-cancellation').value;
+  if (arms === 'json') return;
+  if (!arms) {
+    delete params.cancellation;
+    return;
+  }
+  const c = { ...(params.cancellation || {}), arms: arms.split(',') };
+  delete c.wrong;
+  if (c.arms.includes('wrong')) {
+    const gain = Number($('p-wrong-gain').value.trim() || '1.3');
+    const lag = Number($('p-wrong-lag').value.trim() || '0');
+    if (!Number.isFinite(gain) || !Number.isFinite(lag)) {
+      $('p-wrong-gain').classList.add('invalid');
+      bad.push('cancellation.wrong: a number is required for the gain and the phase lag');
+      return;
+    }
+    c.wrong = { gain, phase_lag_deg: lag, phase_ref_hz: 2 };
+  }
+  params.cancellation = c;
+  if (!params.identification) params.identification = {};
+}
+
 /** The parameters in the form: the JSON, then the fields over it. Null (and errors shown) if invalid. */
 function readParams() {
   let params;
@@ -431,6 +484,9 @@ function readParams() {
     }
     setPath(params, f.path, v);
   }
+  $('p-wrong-gain').classList.remove('invalid');
+  $('p-cancellation').classList.remove('invalid');
+  readCancellation(params, bad);
   if (bad.length) {
     setStatus($('study-status'), 'err', bad.join('; '));
     return null;
@@ -449,6 +505,8 @@ function ignoredText() {
 
 /** Marks the field an error message names (e.g. "trial_s: …"). */
 function markField(message) {
+  if (message.includes('cancellation.wrong')) $('p-wrong-gain').classList.add('invalid');
+  else if (message.includes('cancellation')) $('p-cancellation').classList.add('invalid');
   for (const f of FIELDS) {
     const key = f.path.join('.');
     if (message.includes(key) || (!f.exact && message.includes(f.path[f.path.length - 1]))) {

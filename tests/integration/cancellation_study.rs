@@ -2,13 +2,16 @@
 //! controller (issue 38): a bad factor refused naming the field; a pilot whose every
 //! compensator on the machine runs uncancelled and with the subject's own model (set from
 //! their identification test and checked against it), the cancelled tests' records carrying
-//! what was subtracted, the exports and the inferential table carrying the factor; and an
-//! identification accepted as incomplete taking its cancelling tests with it, with the
-//! reason, before any of them runs.
+//! what was subtracted, the exports and the inferential table carrying the factor; a guard's
+//! trip in the export; an identification accepted as incomplete taking its cancelling tests
+//! with it, with the reason, before any of them runs; and the dashboard's study form.
 
 use std::collections::BTreeSet;
+use std::time::Duration;
 
-use bdft_tests::server::{Api, Server, pilot_copy, trial_rows};
+use bdft_tests::TempDir;
+use bdft_tests::server::{Api, Server, eventually, pilot_copy, trial_rows};
+use bdft_tests::webdriver::Driver;
 use serde_json::{Value, json};
 
 /// The default study with short tests, the default identification test and cancellation
@@ -299,4 +302,72 @@ fn a_cancelling_test_whose_guard_trips_goes_on_uncancelled_and_the_export_says_w
     assert_eq!(tripped, 5, "the identified subject's five cancelled tests");
     let (_, audit) = api.get_text("/api/audit/export");
     assert_eq!(audit.matches("cancellation_off_at_s").count(), 5);
+}
+
+#[test]
+fn in_chromium_the_study_form_offers_cancellation_and_names_a_bad_wrong_model() {
+    let server = Server::start("cancel-form");
+    let base = server.base.clone();
+    let api = server.experimenter();
+    let downloads = TempDir::new("downloads");
+    let driver = Driver::start();
+    let dash = driver.session(downloads.path());
+    dash.log_in_to_dashboard(&base);
+    dash.type_into("#study-name", "Cancelling");
+    dash.choose("#p-cancellation", "personal,generic,wrong");
+    // A gain outside its range: refused by the server, the field marked, nothing stored.
+    dash.type_into("#p-wrong-gain", "2.5");
+    dash.click("#study-create");
+    let said = dash.wait_until(
+        "const s = document.querySelector('#study-status'); return !s.hidden && s.textContent.includes('cancellation.wrong.gain') && s.textContent;",
+        json!([]),
+    );
+    assert!(said.as_str().unwrap().contains("[0.5, 2]"), "{said}");
+    assert_eq!(
+        dash.exec(
+            "return document.querySelector('#p-wrong-gain').classList.contains('invalid');",
+            json!([])
+        ),
+        true
+    );
+    assert_eq!(api.get("/api/studies").1, json!([]));
+    dash.type_into("#p-wrong-gain", "1.3");
+    dash.type_into("#p-wrong-lag", "30");
+    dash.click("#study-create");
+    let study = eventually(Duration::from_secs(20), || {
+        api.get("/api/studies").1.as_array()?.first()?["id"].as_i64()
+    });
+    let (_, st) = api.get(&format!("/api/studies/{study}"));
+    assert_eq!(
+        st["params"]["cancellation"],
+        json!({
+            "arms": ["personal", "generic", "wrong"],
+            "wrong": { "gain": 1.3, "phase_lag_deg": 30.0, "phase_ref_hz": 2.0 },
+            "limit_mm": 100.0
+        })
+    );
+    // The factor needs the identification test: the form added it.
+    assert!(st["params"]["identification"].is_object(), "{st}");
+    // The study shown again: the form says what it cancels with, and the advanced JSON
+    // keeps only what the fields do not show.
+    dash.goto(&format!("{base}/"));
+    dash.find("#estop");
+    dash.wait_until(
+        "return [...document.querySelectorAll('#study-select option')].some((o) => o.value === arguments[0]);",
+        json!([study.to_string()]),
+    );
+    dash.choose("#study-select", &study.to_string());
+    dash.wait_until(
+        "return document.querySelector('#p-cancellation').value === 'personal,generic,wrong' && document.querySelector('#p-wrong-lag').value === '30';",
+        json!([]),
+    );
+    let rest: Value = serde_json::from_str(
+        dash.exec("return document.querySelector('#p-json').value;", json!([]))
+            .as_str()
+            .unwrap(),
+    )
+    .unwrap();
+    let left = rest["cancellation"].as_object().unwrap();
+    assert_eq!(left.len(), 1, "{rest}");
+    assert_eq!(left["limit_mm"].as_f64(), Some(100.0));
 }
