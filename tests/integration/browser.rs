@@ -397,11 +397,7 @@ fn a_personalized_study_runs_end_to_end_in_a_real_browser() {
     let dash = driver.session(downloads.path());
     dash.log_in_to_dashboard(&base);
     dash.find("#estop");
-    dash.wait_until(
-        "return [...document.querySelectorAll('#study-select option')].some((o) => o.value === arguments[0]);",
-        json!([study.to_string()]),
-    );
-    dash.choose("#study-select", &study.to_string());
+    dash.select_study(study);
     dash.click("#enrol");
     dash.find("tr[data-subject-id]");
     let subject = api.get(&format!("/api/studies/{study}/subjects")).1[0]["subject"]["id"]

@@ -352,11 +352,7 @@ fn in_chromium_the_study_form_offers_cancellation_and_names_a_bad_wrong_model() 
     // keeps only what the fields do not show.
     dash.goto(&format!("{base}/"));
     dash.find("#estop");
-    dash.wait_until(
-        "return [...document.querySelectorAll('#study-select option')].some((o) => o.value === arguments[0]);",
-        json!([study.to_string()]),
-    );
-    dash.choose("#study-select", &study.to_string());
+    dash.select_study(study);
     dash.wait_until(
         "return document.querySelector('#p-cancellation').value === 'personal,generic,wrong' && document.querySelector('#p-wrong-lag').value === '30';",
         json!([]),

@@ -304,11 +304,7 @@ fn the_dashboard_sets_the_design_aids_and_shows_the_learning_curve() {
     let copy = pilot_copy(&api, study, 2);
     dash.goto(&format!("{base}/"));
     dash.find("#estop");
-    dash.wait_until(
-        "return [...document.querySelectorAll('#study-select option')].some((o) => o.value === arguments[0]);",
-        json!([copy.to_string()]),
-    );
-    dash.choose("#study-select", &copy.to_string());
+    dash.select_study(copy);
     dash.wait_until(
         "const i = document.querySelector('img[src*=\"learning_curve.svg\"]'); return i && i.complete && i.naturalWidth > 0;",
         json!([]),

@@ -19,16 +19,8 @@ fn dashboard_on(driver: &Driver, downloads: &TempDir, base: &str, study: i64) ->
     let dash = driver.session(downloads.path());
     dash.log_in_to_dashboard(base);
     dash.find("#estop");
-    select_study(&dash, study);
+    dash.select_study(study);
     dash
-}
-
-fn select_study(dash: &Session, study: i64) {
-    dash.wait_until(
-        "return [...document.querySelectorAll('#study-select option')].some((o) => o.value === arguments[0]);",
-        json!([study.to_string()]),
-    );
-    dash.choose("#study-select", &study.to_string());
 }
 
 #[test]
@@ -159,7 +151,7 @@ fn a_subjects_schedule_with_a_long_timing_line_fits_its_box_at_1400_px() {
     .unwrap();
     dash.log_in_to_dashboard(&server.base);
     dash.find("#estop");
-    select_study(&dash, study);
+    dash.select_study(study);
     let row = format!("#subjects tr[data-subject-id='{subject}']");
     dash.find(&row);
     dash.click(&row);
@@ -193,7 +185,7 @@ fn the_dashboard_has_no_two_elements_with_one_id_and_its_monitor_says_no_station
     let study = short_study(&api, 2.0, 1.0);
     dash.goto(&format!("{}/", server.base));
     dash.find("#estop");
-    select_study(&dash, study);
+    dash.select_study(study);
     // A study selected with no station paired: the monitor says so.
     let note = dash.wait_until(
         "const p = document.querySelector('#monitors .monitor-empty'); \

@@ -227,6 +227,15 @@ impl Session {
     }
 
     /// Sets a <select>'s value and fires `change`, as a person choosing an option does.
+    /// Selects `study` in the dashboard's study selector, once it is listed there.
+    pub fn select_study(&self, study: i64) {
+        self.wait_until(
+            "return [...document.querySelectorAll('#study-select option')].some((o) => o.value === arguments[0]);",
+            json!([study.to_string()]),
+        );
+        self.choose("#study-select", &study.to_string());
+    }
+
     pub fn choose(&self, css: &str, value: &str) {
         self.find(css);
         self.exec(
