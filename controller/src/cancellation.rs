@@ -151,5 +151,6 @@ impl LinearState for Canceller {
 }
 
 pub mod check;
+pub mod offline;
 #[cfg(test)]
 mod tests;

@@ -34,6 +34,7 @@ mod lab_pages;
 mod lsl;
 mod practice_and_consent;
 mod protocol_package;
+mod replay;
 mod server_api;
 mod server_layers;
 mod sites;

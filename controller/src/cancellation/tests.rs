@@ -108,23 +108,8 @@ fn on_the_machine(kind: CompensatorKind, b: [f64; 5], plant: PlantParams) -> Loo
     }
 }
 
-/// Power of `x` in [lo, hi] Hz: the sum of its DFT's squared magnitudes at the bins there.
 fn band_power(x: &[f64], lo: f64, hi: f64) -> f64 {
-    let n = x.len();
-    let df = 1.0 / (n as f64 * DT);
-    let (k_lo, k_hi) = ((lo / df).ceil() as usize, (hi / df).floor() as usize);
-    (k_lo..=k_hi)
-        .map(|k| {
-            let w = 2.0 * PI * k as f64 / n as f64;
-            let (mut re, mut im) = (0.0, 0.0);
-            for (i, v) in x.iter().enumerate() {
-                let a = w * i as f64;
-                re += v * a.cos();
-                im -= v * a.sin();
-            }
-            re * re + im * im
-        })
-        .sum()
+    super::offline::band_power(x, DT, lo, hi)
 }
 
 /// What a test with cancellation gives: the feedthrough in the device's reading (−h), what

@@ -1,6 +1,7 @@
 //! Running a trial to its end in the calling thread, as fast as the CPU allows: the same
 //! slot code as the real-time loop, without the clock. The server's pilot mode uses it to
-//! dry-run whole studies with synthetic subjects.
+//! dry-run whole studies with synthetic subjects, and `bdft-server replay` to run a stored
+//! test again (a person's from its recorded hand).
 
 use bdft_protocol::controller_to_server::TrialResult;
 use bdft_protocol::server_to_controller::StartTrial;
@@ -25,12 +26,46 @@ pub fn run(start: &StartTrial, dt: f64) -> Result<(TrialResult, Vec<Vec<f32>>), 
     while !matches!(slot.tick(tick, 0, 0.0), SlotTick::Ended) {
         tick += 1;
     }
+    Ok(finish(start, dt, &slot, tick + 1))
+}
+
+/// Replays a test of `start` whose input came from outside (a person's), tick by tick from
+/// its recorded `hand` channel, on the simulated rig: the record it gives is the stored one,
+/// bit for bit, but for the wake latencies (`latency_us`, the stored channel, copied: a
+/// replay has no clock). At most as many ticks as `hand` holds.
+pub fn replay(
+    start: &StartTrial,
+    dt: f64,
+    hand: &[f32],
+    latency_us: &[f32],
+) -> Result<(TrialResult, Vec<Vec<f32>>), String> {
+    if !matches!(start.input, InputSource::Server | InputSource::Udp { .. }) {
+        return Err("a replay from the hand is for a test whose input came from outside".into());
+    }
+    let mut slot = build_slot(start, dt, false)?.slot;
+    let mut ticks = 0;
+    for (h, l) in hand.iter().zip(latency_us) {
+        ticks += 1;
+        if matches!(slot.replay_tick(f64::from(*h), *l), SlotTick::Ended) {
+            break;
+        }
+    }
+    Ok(finish(start, dt, &slot, ticks))
+}
+
+/// The result and record of a slot run offline for `ticks` ticks.
+fn finish(
+    start: &StartTrial,
+    dt: f64,
+    slot: &super::slot::TrialSlot,
+    ticks: u64,
+) -> (TrialResult, Vec<Vec<f32>>) {
     let result = TrialResult {
         trial_id: start.trial_id,
         outcome: slot.outcome(dt, None),
         metrics: slot.runner.metrics(),
         timing: TimingSummary {
-            ticks: tick + 1,
+            ticks,
             ..TimingSummary::default()
         },
         dt,
@@ -38,7 +73,7 @@ pub fn run(start: &StartTrial, dt: f64) -> Result<(TrialResult, Vec<Vec<f32>>), 
         exposure: Some(slot.runner.exposure().0),
         cancellation_off_at_s: slot.runner.cancellation_off_at_s(),
     };
-    Ok((result, slot.record_channels(0, slot.record.len())))
+    (result, slot.record_channels(0, slot.record.len()))
 }
 
 /// Runs `start` like `run` but keeps no record: its metrics, if it ran to its end (None when

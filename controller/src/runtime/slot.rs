@@ -231,7 +231,9 @@ impl TrialSlot {
         if let Some(cell) = &self.input {
             match cell.read() {
                 Some(s) if now.saturating_sub(s.arrival_tick) <= self.stale_ticks => {
-                    hand = s.position_mm;
+                    // As the record stores it (f32: 0.01 µm at 100 mm), so a replay from
+                    // the record ticks with the very hand this tick used.
+                    hand = f64::from(s.position_mm as f32);
                     self.last_input_seq = s.seq;
                 }
                 None if now - start <= self.stale_ticks => {}
@@ -241,6 +243,18 @@ impl TrialSlot {
                 }
             }
         }
+        self.step(hand, wake_ns, latency_us)
+    }
+
+    /// One tick with `hand` as the outside input (the replay of a recorded test: the hand
+    /// channel tick by tick, no clock, no staleness).
+    pub fn replay_tick(&mut self, hand: f64, latency_us: f32) -> SlotTick {
+        self.step(hand, 0, latency_us)
+    }
+
+    /// The tick's work once its input is known.
+    #[inline]
+    fn step(&mut self, hand: f64, wake_ns: u64, latency_us: f32) -> SlotTick {
         let (k, _) = self.runner.progress();
         let s: Sample = self.runner.tick(hand);
         self.record

@@ -18,6 +18,7 @@ mod export;
 mod findings;
 mod pilot;
 mod plan;
+mod replay;
 mod restore;
 mod serve;
 
@@ -54,6 +55,12 @@ enum Command {
     /// (what its pilots and planner then use); the report (JSON) on standard output,
     /// progress on standard error.
     Calibrate(calibrate::Args),
+    /// Run a stored test again through the controller's code on the simulated rig (a
+    /// synthetic subject's from its seed, a person's from the recorded hand) and compare its
+    /// record with the stored one bit for bit; with the offline bound of cancellation (the
+    /// device's power in 0.5–5 Hz before and after the test's or the subject's model). The
+    /// report (JSON) on standard output; exit 1 when the records differ.
+    Replay(replay::Args),
     /// The default study's synthetic population against the thesis's findings: per cell the
     /// median tracking error and cab acceleration, tests the interlock stopped, the riding
     /// effect per controller and the ICC of log tracking error (a Markdown table; the model
@@ -168,6 +175,7 @@ async fn execute(command: Command) -> anyhow::Result<()> {
         Command::Pilot(args) => pilot::run(args).await,
         Command::Plan(args) => plan::run(args).await,
         Command::Calibrate(args) => calibrate::run(args).await,
+        Command::Replay(args) => replay::run(args).await,
         Command::Findings(args) => findings::run(args).await,
         Command::Audit { command } => audit::run(command).await,
         Command::Backup(args) => backup::run(args).await,

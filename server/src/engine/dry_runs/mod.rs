@@ -1,7 +1,8 @@
 //! Room **dry_runs**: whole studies run without people — the pilot (`pilot`: synthetic
 //! subjects through the procedure's own code, faster than real time), the power planner
 //! (`power`, with whole simulated studies of the study's population in `power_sim`), and the
-//! one background job of a kind the dashboard watches (`job`).
+//! one background job of a kind the dashboard watches (`job`), and a stored test run again
+//! (`replay`: bit for bit, with the offline bound of cancellation).
 //!
 //! *May use:* `study`, `machine`, `procedure`, `results` (only `operations` is above it).
 //!
@@ -36,3 +37,4 @@ pub mod job;
 pub mod pilot;
 pub mod power;
 pub mod power_sim;
+pub mod replay;
