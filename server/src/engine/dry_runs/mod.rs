@@ -6,7 +6,8 @@
 //!
 //! *May use:* `study`, `machine`, `procedure`, `results` (only `operations` is above it).
 //!
-//! Files: `pilot` (synthetic subjects through the same code, and the dashboard's one pilot job; a
+//! Files: `replay` (a stored test run again through the controller's slot code and compared
+//! bit for bit, with cancellation's offline bound), `pilot` (synthetic subjects through the same code, and the dashboard's one pilot job; a
 //! pilot process registers in `pilot_runs`, beats every second and claims each trial it starts),
 //! `power` (the power planner: whole studies simulated from a pilot's spread, or — `power_sim` —
 //! from the study's synthetic population, whose subjects are drawn, scheduled and given targets as
