@@ -6,8 +6,8 @@ use std::time::Duration;
 
 use bdft_tests::send_signal;
 use bdft_tests::server::{
-    HeldWrite, Server, consented_synthetic_subject, dry_run, eventually, replace_controller,
-    running_practice, short_study, wait_latched,
+    HeldWrite, Server, consented_synthetic_subject, controller_ready, dry_run, eventually,
+    replace_controller, running_practice, short_study, wait_latched,
 };
 use serde_json::{Value, json};
 
@@ -82,7 +82,9 @@ fn an_estop_is_answered_and_kept_while_the_store_is_held() {
 fn a_reset_waits_for_the_press_before_it_to_be_recorded() {
     let server = Server::start("contention-reset");
     let api = server.experimenter();
-    api.get("/api/controller");
+    // The press is confirmed by the controller: wait until it is connected (on a loaded
+    // machine it may not be yet when the server answers).
+    controller_ready(&api);
     let lock = HeldWrite::take(&server);
     let (code, body) = api.post("/api/estop", json!({}));
     assert_eq!(code, 200, "{body}");
