@@ -1,5 +1,6 @@
 // The power planner: for candidate numbers of subjects, the chance that each pair of
-// compensators differs significantly at one seat, from whole simulated studies — with the
+// compensators differs significantly at one seat (or, in a study with cancellation, each
+// compensator from itself cancelled with one arm), from whole simulated studies — with the
 // study's synthetic population (full trials, minutes) or a pilot's spread. Runs on the
 // server in the background (POST /api/studies/{id}/plan-job, progress at GET /api/plan-job).
 
@@ -26,16 +27,17 @@ function request() {
   if (!Number.isInteger(draws) || draws < lo || draws > hi) {
     return { error: `Simulated studies: a whole number from ${lo} to ${hi} with this model.` };
   }
-  return {
-    body: {
-      source,
-      subjects,
-      draws,
-      station: $('plan-station').value,
-      metric: $('plan-metric').value,
-      seed: Number($('plan-seed').value) || 0,
-    },
+  const body = {
+    source,
+    subjects,
+    draws,
+    station: $('plan-station').value,
+    metric: $('plan-metric').value,
+    seed: Number($('plan-seed').value) || 0,
   };
+  const arm = $('plan-cancellation').value;
+  if (arm) body.cancellation = arm;
+  return { body };
 }
 
 async function start() {

@@ -220,6 +220,43 @@ fn a_pilot_runs_each_compensator_on_the_machine_with_and_without_the_subjects_ow
     // Each subject's cells decided in the audit log, with the identification's filing.
     let (_, audit) = api.get_text("/api/audit/export");
     assert_eq!(audit.matches("cancellation.plan").count(), 3);
+    // The power planner plans the factor's comparisons from the pilot's spread: with one
+    // subject having both arms it says so (409) rather than plan from nothing; a request it
+    // cannot answer is refused naming the field.
+    let plan_at = |route: &str, extra: Value| {
+        let mut body = json!({ "subjects": [12], "metric": "mse_tracking_mm2", "station": "on",
+                               "draws": 200, "cancellation": "personal" });
+        body.as_object_mut()
+            .unwrap()
+            .extend(extra.as_object().unwrap().clone());
+        api.post(&format!("/api/studies/{copy}/{route}"), body)
+    };
+    let (code, e) = plan_at("plan", json!({}));
+    assert_eq!(code, 409, "{e}");
+    assert!(
+        e["error"]
+            .as_str()
+            .unwrap()
+            .contains("cancelled with the personal model"),
+        "{e}"
+    );
+    // (A plan with the population runs as the background job: refused before it starts.)
+    for (route, extra, field) in [
+        ("plan", json!({ "cancellation": "generic" }), "cancellation"),
+        (
+            "plan-job",
+            json!({ "source": "population", "draws": 10 }),
+            "cancellation",
+        ),
+        ("plan", json!({ "station": "off" }), "station"),
+    ] {
+        let (code, e) = plan_at(route, extra.clone());
+        assert_eq!(code, 422, "{extra}: {e}");
+        assert!(
+            e["error"].as_str().unwrap().starts_with(field),
+            "{extra}: {e}"
+        );
+    }
 }
 
 #[test]

@@ -8,16 +8,20 @@ acceleration a_w, uncancelled and with each arm, with the paired median change a
 subjects had both (only valid latest attempts count, as in the study's statistics), and the
 share of cancelling tests not run (body not identified, or the model failed its check).
 The numbers are computed here with Python's `statistics` from the trials export, not by the
-server.
+server. Then the power plan of the comparison from the pilot's spread: per arm and metric,
+`bdft-server plan --source pilot --cancellation ARM` (each compensator against itself
+cancelled, exact Wilcoxon, Holm across the five), at `--plan-subjects`.
 
 Usage (from the repo root, after `cargo build -p bdft-server`):
     python3 tools/bench/cancellation_table.py [--subjects 12] [--seed 11]
         [--arms personal,generic,wrong] [--wrong-gain 1.3] [--wrong-phase-lag-deg 0]
+        [--plan-subjects 12,24,48] [--plan-draws 2000]
 Only the standard library is needed.
 """
 
 import argparse
 import csv
+import json
 import statistics
 import subprocess
 import sys
@@ -42,6 +46,8 @@ def main():
     ap.add_argument("--arms", default="personal,generic,wrong")
     ap.add_argument("--wrong-gain", type=float)
     ap.add_argument("--wrong-phase-lag-deg", type=float)
+    ap.add_argument("--plan-subjects", default="12,24,48")
+    ap.add_argument("--plan-draws", type=int, default=2000)
     a = ap.parse_args()
     arms = a.arms.split(",")
     with tempfile.TemporaryDirectory() as d:
@@ -54,6 +60,17 @@ def main():
         run(pilot, d)
         run(["export", "--db", "p.db", "--kind", "trials", "--out", "t.csv"], d)
         rows = list(csv.DictReader(open(Path(d) / "t.csv")))
+        plans = {}
+        for arm in arms:
+            for metric in ["mse_tracking_mm2", "ms_cab_accel"]:
+                out = subprocess.run(
+                    [str(BIN), "plan", "--db", "p.db", "--source", "pilot", "--cancellation", arm,
+                     "--metric", metric, "--subjects", a.plan_subjects,
+                     "--draws", str(a.plan_draws)],
+                    cwd=d, capture_output=True, text=True)
+                # Too few subjects with every cell of an arm is the planner's honest 409.
+                plans[(arm, metric)] = (json.loads(out.stdout) if out.returncode == 0
+                                        else out.stderr.strip().splitlines()[-1])
     on = [r for r in rows if r["phase"] == "test" and r["seat"] == "on"]
     cancelling = [r for r in on if r["cancellation"] != "off" and r["latest"] == "1"]
     not_run = [r for r in cancelling if r["status_reason"].startswith("not run:")]
@@ -86,6 +103,28 @@ def main():
                 cell[(c, arm, s)][1] / cell[(c, "off", s)][1] - 1 for s in both)
             print(f"| {c} | {arm} | {len(have)} ({len(both)} paired) | {mse:.1f} | "
                   f"{100 * dm:+.1f} % | {aw:.3f} | {100 * da:+.1f} % |")
+    print_plans(plans, a.plan_subjects.split(","), a.plan_draws)
+
+
+def print_plans(plans, ns, draws):
+    """The power plan per arm and metric: a row per compensator, a column per n."""
+    print()
+    print(f"Power (pilot's spread, {draws} simulated studies each, alpha 0.05, Holm over the five):")
+    print()
+    print("| arm | metric | model's subjects | compensator | "
+          + " | ".join(f"n = {n}" for n in ns) + " |")
+    print("|---|---|---:|---|" + "---:|" * len(ns))
+    for (arm, metric), rep in plans.items():
+        if isinstance(rep, str):
+            print(f"| {arm} | {metric} | | not planned: {rep} |" + " |" * len(ns))
+            continue
+        for i, pair in enumerate(rep["plans"][0]["pairs"]):
+            cells = [f"{100 * p['pairs'][i]['power']:.0f} %" if p["pairs"][i]["possible"]
+                     else "impossible" for p in rep["plans"]]
+            print(f"| {arm} | {metric} | {rep['model']['pilot_n']} | {pair['a']} | "
+                  + " | ".join(cells) + " |")
+        print(f"| {arm} | {metric} | | any | "
+              + " | ".join(f"{100 * p['any']:.0f} %" for p in rep["plans"]) + " |")
 
 
 if __name__ == "__main__":

@@ -1,5 +1,7 @@
 //! `bdft-server plan`: the power planner's report for a study.
 
+use bdft_protocol::study::CancellationArm;
+
 use super::{newest_study, open_store, progress_ticker};
 use crate::config::DbConfig;
 use crate::engine::dry_runs::power::{self, PlanRequest, PlanSource};
@@ -36,6 +38,15 @@ pub struct Args {
     alpha: f64,
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Plan the cancellation factor's comparisons instead of the compensators' pairs: each
+    /// compensator on the machine against itself cancelled with this arm (`personal`,
+    /// `generic` or `wrong`), from a pilot's data (`--source pilot`).
+    #[arg(long, value_name = "ARM", value_parser = parse_arm)]
+    cancellation: Option<CancellationArm>,
+}
+
+fn parse_arm(s: &str) -> Result<CancellationArm, String> {
+    CancellationArm::parse(s).ok_or_else(|| format!("{s:?}; valid: personal, generic, wrong"))
 }
 
 /// `plan --source`.
@@ -56,6 +67,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         draws,
         alpha,
         seed,
+        cancellation,
     } = args;
     let pool = open_store(&db).await?;
     let study = newest_study(&pool, study).await?;
@@ -70,6 +82,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         draws,
         alpha,
         seed,
+        cancellation,
     };
     let progress = std::sync::Arc::new(crate::engine::dry_runs::job::Progress::default());
     let ticker = progress_ticker(progress.clone(), "planning");

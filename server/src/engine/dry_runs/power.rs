@@ -1,6 +1,8 @@
 //! The power planner: for candidate numbers of subjects, the probability that each planned
 //! comparison (every pair of compensators at one seat, exact Wilcoxon, Holm across the
-//! pairs) reaches significance, by simulating whole studies. The studies come from one of
+//! pairs; or, in a study with cancellation, each compensator on the machine against itself
+//! cancelled with one arm, Holm across the compensators, as the statistics test them)
+//! reaches significance, by simulating whole studies. The studies come from one of
 //! two models: the study's synthetic population, whose subjects run full trials
 //! (`power_sim`; slow, so it runs as a background job with progress), or a pilot's data: on
 //! the log scale, each compensator's mean and the residual spread of the subject ×
@@ -15,14 +17,13 @@ use sqlx::AnyPool;
 use std::sync::Arc;
 
 use bdft_protocol::params::Seat;
-use bdft_protocol::study::StudyParams;
+use bdft_protocol::study::{CancellationArm, StudyParams};
 
 use super::job::{Job, JobStatus, Progress};
 use crate::engine::results::inference::nonparametric::{
     EXACT_MAX_N, holm, wilcoxon, wilcoxon_floor,
 };
-use crate::engine::results::study_data::SUMMARY_VARIABLES;
-use crate::engine::results::study_data::StudyData;
+use crate::engine::results::study_data::{SUMMARY_VARIABLES, StudyData, cancelled_key};
 use crate::error::{AppError, Result};
 use crate::store;
 
@@ -59,6 +60,13 @@ pub struct PlanRequest {
     pub alpha: f64,
     #[serde(default)]
     pub seed: u64,
+    /// The comparisons to plan: absent, every pair of compensators at `station`; an arm of
+    /// the study's cancellation factor (`personal`, `generic`, `wrong`), each compensator on
+    /// the machine against itself cancelled with it (`wilcoxon_cancellation`, Holm across
+    /// the compensators). Planned from a pilot's data only: the population's simulated
+    /// subjects run no identification test to take a model from.
+    #[serde(default)]
+    pub cancellation: Option<CancellationArm>,
 }
 
 fn default_draws() -> usize {
@@ -85,8 +93,40 @@ pub struct PlanReport {
 const MAX_WORK: usize = 2_000_000;
 
 impl PlanRequest {
-    fn check(&self) -> Result<usize> {
+    /// Refuses a request `params` cannot answer (422 naming the field); the metric's index.
+    fn check(&self, params: &StudyParams) -> Result<usize> {
         let bad = |m: String| Err(AppError::BadRequest(m));
+        if let Some(arm) = self.cancellation {
+            let arms = params
+                .cancellation
+                .as_ref()
+                .map_or(&[][..], |c| &c.arms[..]);
+            if !arms.contains(&arm) {
+                let listed: Vec<&str> = arms.iter().map(|a| a.as_str()).collect();
+                return bad(format!(
+                    "cancellation: \"{arm}\" is not one of the study's cancelling arms ({})",
+                    if listed.is_empty() {
+                        "it has none".to_string()
+                    } else {
+                        listed.join(", ")
+                    }
+                ));
+            }
+            if self.source == PlanSource::Population {
+                return bad(
+                    "cancellation: planned from a pilot's data only (source pilot): the \
+                     population's simulated subjects run no identification test to cancel with; \
+                     run `bdft-server pilot --cancellation` and plan on its copy"
+                        .into(),
+                );
+            }
+            if self.seat != Seat::On.as_str() {
+                return bad(format!(
+                    "station: {:?}; cancellation runs on the machine only: on",
+                    self.seat
+                ));
+            }
+        }
         if self.subjects.is_empty() || self.subjects.len() > 20 {
             return bad("subjects: 1 to 20 candidate numbers of subjects".into());
         }
@@ -163,9 +203,9 @@ pub async fn plan_study(
     req: PlanRequest,
     progress: Arc<Progress>,
 ) -> Result<PlanReport> {
-    let metric = req.check()?;
+    let study = store::studies::get(pool, study_id).await?;
+    let metric = req.check(&study.params)?;
     if req.source == PlanSource::Population {
-        let study = store::studies::get(pool, study_id).await?;
         let seat: Seat = req
             .seat
             .parse()
@@ -191,6 +231,7 @@ pub async fn plan_study(
                 .iter()
                 .map(|c| c.kind().name().to_string())
                 .collect();
+            let pairs = every_pair(names.len());
             let all: Vec<Vec<f64>> = rows.iter().flatten().cloned().collect();
             let model = estimate(&names, &all).ok_or_else(|| {
                 AppError::Conflict("fewer than 2 simulated subjects completed every test".into())
@@ -203,7 +244,7 @@ pub async fn plan_study(
                     // Study d of every candidate is the first n subjects of simulated study
                     // d: common random numbers, so candidates differ only by n.
                     let mut study = 0;
-                    plan_with(&names, n, req.alpha, req.draws, &mut rng, |_, n| {
+                    plan_with(&names, &pairs, n, req.alpha, req.draws, &mut rng, |_, n| {
                         let first = study * max_n;
                         study += 1;
                         rows[first..first + n].iter().flatten().cloned().collect()
@@ -221,13 +262,22 @@ pub async fn plan_study(
         .map_err(|e| AppError::Internal(anyhow::anyhow!("planner task: {e}")))?;
     }
     let data = StudyData::load(pool, study_id).await?;
+    let (columns, pairs) = comparisons(&data.compensators, req.cancellation);
     let model =
-        estimate(&data.compensators, &data.complete_rows(metric, &req.seat)).ok_or_else(|| {
-            AppError::Conflict(format!(
-                "the study has fewer than 2 subjects with every compensator complete at the {} \
-                 seat: run a pilot (its dry-run copy) first, or plan with the population",
-                req.seat
-            ))
+        estimate(&columns, &data.complete_rows(&columns, metric, &req.seat)).ok_or_else(|| {
+            AppError::Conflict(match req.cancellation {
+                None => format!(
+                    "the study has fewer than 2 subjects with every compensator complete at \
+                     the {} seat: run a pilot (its dry-run copy) first, or plan with the \
+                     population",
+                    req.seat
+                ),
+                Some(arm) => format!(
+                    "the study has fewer than 2 subjects with every compensator complete on \
+                     the machine both uncancelled and cancelled with the {arm} model: run a \
+                     pilot with --cancellation (its dry-run copy) first"
+                ),
+            })
         })?;
     let _turn = crate::engine::COMPUTE
         .acquire()
@@ -238,7 +288,7 @@ pub async fn plan_study(
         plans: req
             .subjects
             .iter()
-            .map(|&n| plan(&model, n, req.alpha, req.draws, req.seed))
+            .map(|&n| plan(&model, &pairs, n, req.alpha, req.draws, req.seed))
             .collect(),
         seed: req.seed,
         model,
@@ -261,8 +311,8 @@ impl PlanJob {
     /// Checks `req` and starts planning `study_id` in the background; refused while another
     /// plan runs.
     pub async fn start(&self, pool: &AnyPool, study_id: i64, req: PlanRequest) -> Result<()> {
-        req.check()?;
         let study = store::studies::get(pool, study_id).await?;
+        req.check(&study.params)?;
         if req.source == PlanSource::Population {
             check_population_work(&study.params, &req)?;
         }
@@ -280,9 +330,40 @@ impl PlanJob {
     }
 }
 
-/// A study model on the log scale: compensator means and the residual standard deviation.
+/// Every pair of `k` columns, in the statistics' order.
+fn every_pair(k: usize) -> Vec<(usize, usize)> {
+    (0..k)
+        .flat_map(|i| (i + 1..k).map(move |j| (i, j)))
+        .collect()
+}
+
+/// The planned comparisons over the study's `compensators`: the model's columns (the cells'
+/// keys, `study_data::cancelled_key`) and the pairs of them compared. Without an arm, the
+/// compensators and every pair; with one, the compensators then each cancelled with it, and
+/// each against its own cancelled column.
+fn comparisons(
+    compensators: &[String],
+    arm: Option<CancellationArm>,
+) -> (Vec<String>, Vec<(usize, usize)>) {
+    let k = compensators.len();
+    match arm {
+        None => (compensators.to_vec(), every_pair(k)),
+        Some(arm) => (
+            compensators
+                .iter()
+                .cloned()
+                .chain(compensators.iter().map(|c| cancelled_key(c, arm)))
+                .collect(),
+            (0..k).map(|c| (c, k + c)).collect(),
+        ),
+    }
+}
+
+/// A study model on the log scale: each cell's mean and the residual standard deviation.
 #[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct Model {
+    /// The cells' keys: the compensators, and with a cancellation arm each also cancelled
+    /// ("pid+personal").
     pub compensators: Vec<String>,
     pub log_means: Vec<f64>,
     pub residual_sd: f64,
@@ -355,19 +436,17 @@ pub struct Plan {
 }
 
 /// The planner at `n` subjects: `draws` simulated studies, each drawn by `draw` (one
-/// row of k values per subject, n rows), analysed as the study would be.
+/// row of a value per column per subject, n rows), analysed as the study would be: each of
+/// `pairs` of columns by exact Wilcoxon, Holm across them.
 pub fn plan_with(
-    compensators: &[String],
+    columns: &[String],
+    pairs: &[(usize, usize)],
     n: usize,
     alpha: f64,
     draws: usize,
     rng: &mut Rng,
     mut draw: impl FnMut(&mut Rng, usize) -> Vec<Vec<f64>>,
 ) -> Plan {
-    let k = compensators.len();
-    let pairs: Vec<(usize, usize)> = (0..k)
-        .flat_map(|i| (i + 1..k).map(move |j| (i, j)))
-        .collect();
     let m = pairs.len();
     let best = (wilcoxon_floor(n) * m as f64).min(1.0);
     let possible = !(n <= EXACT_MAX_N && best >= alpha);
@@ -410,8 +489,8 @@ pub fn plan_with(
             .iter()
             .zip(&hits)
             .map(|(&(i, j), &h)| PairPower {
-                a: compensators[i].clone(),
-                b: compensators[j].clone(),
+                a: columns[i].clone(),
+                b: columns[j].clone(),
                 power: frac(h),
                 possible,
             })
@@ -429,20 +508,35 @@ pub fn plan_with(
     }
 }
 
-/// The planner at `n` subjects with a pilot's model.
-pub fn plan(model: &Model, n: usize, alpha: f64, draws: usize, seed: u64) -> Plan {
+/// The planner at `n` subjects with a pilot's model, for `pairs` of its columns.
+pub fn plan(
+    model: &Model,
+    pairs: &[(usize, usize)],
+    n: usize,
+    alpha: f64,
+    draws: usize,
+    seed: u64,
+) -> Plan {
     let mut rng = Rng::new(seed);
-    plan_with(&model.compensators, n, alpha, draws, &mut rng, |rng, n| {
-        (0..n)
-            .map(|_| {
-                model
-                    .log_means
-                    .iter()
-                    .map(|mu| (mu + model.residual_sd * rng.normal()).exp())
-                    .collect()
-            })
-            .collect()
-    })
+    plan_with(
+        &model.compensators,
+        pairs,
+        n,
+        alpha,
+        draws,
+        &mut rng,
+        |rng, n| {
+            (0..n)
+                .map(|_| {
+                    model
+                        .log_means
+                        .iter()
+                        .map(|mu| (mu + model.residual_sd * rng.normal()).exp())
+                        .collect()
+                })
+                .collect()
+        },
+    )
 }
 
 #[cfg(test)]
@@ -491,7 +585,7 @@ mod tests {
         let mut rng = Rng::new(11);
         // Two compensators: one comparison, Holm is the identity. Differences: size uniform,
         // sign positive with probability q, independent.
-        let got = plan_with(&names(2), n, alpha, draws, &mut rng, |rng, n| {
+        let got = plan_with(&names(2), &[(0, 1)], n, alpha, draws, &mut rng, |rng, n| {
             (0..n)
                 .map(|i| {
                     let size = 1.0 + rng.next_f64() + i as f64 * 1e-9;
@@ -520,15 +614,85 @@ mod tests {
             residual_sd: 0.01,
             pilot_n: 8,
         };
-        let p8 = plan(&model, 8, 0.05, 100, 1);
+        let pairs = every_pair(5);
+        assert_eq!(pairs.len(), 10);
+        let p8 = plan(&model, &pairs, 8, 0.05, 100, 1);
         assert!(p8.pairs.iter().all(|p| !p.possible && p.power == 0.0));
         assert!(p8.note.contains("0.078"), "{}", p8.note);
         // A huge effect with enough subjects: every pair found.
-        let p10 = plan(&model, 10, 0.05, 100, 1);
+        let p10 = plan(&model, &pairs, 10, 0.05, 100, 1);
         assert!(
             p10.pairs.iter().all(|p| p.possible && p.power == 1.0),
             "{p10:?}"
         );
+    }
+
+    #[test]
+    fn a_cancellation_plan_compares_each_compensator_with_itself_cancelled_from_complete_subjects()
+    {
+        use crate::engine::results::study_data::{Cells, StudyData};
+        let compensators = vec!["pid".to_string(), "lqr".to_string()];
+        let (columns, pairs) = comparisons(&compensators, Some(CancellationArm::Personal));
+        assert_eq!(columns, ["pid", "lqr", "pid+personal", "lqr+personal"]);
+        assert_eq!(pairs, [(0, 2), (1, 3)]);
+        // Three subjects: the third has no cancelled LQR test (its cell was not run) and is
+        // left out; the desk's cells never count.
+        let subject = |values: &[(&str, &str, f64)]| -> Cells {
+            values
+                .iter()
+                .map(|&(key, seat, v)| {
+                    let mut cell = [None; 6];
+                    cell[0] = Some(v);
+                    ((key.to_string(), seat.to_string()), cell)
+                })
+                .collect()
+        };
+        let data = StudyData {
+            compensators: compensators.clone(),
+            arms: vec![CancellationArm::Personal],
+            seats: vec!["on".into(), "off".into()],
+            subjects: vec![
+                subject(&[
+                    ("pid", "on", 100.0),
+                    ("lqr", "on", 80.0),
+                    ("pid+personal", "on", 90.0),
+                    ("lqr+personal", "on", 60.0),
+                    ("pid", "off", 1.0),
+                ]),
+                subject(&[
+                    ("pid", "on", 120.0),
+                    ("lqr", "on", 100.0),
+                    ("pid+personal", "on", 96.0),
+                    ("lqr+personal", "on", 90.0),
+                ]),
+                subject(&[
+                    ("pid", "on", 50.0),
+                    ("lqr", "on", 40.0),
+                    ("pid+personal", "on", 45.0),
+                ]),
+            ],
+        };
+        let rows = data.complete_rows(&columns, 0, "on");
+        assert_eq!(
+            rows,
+            [
+                vec![100.0, 80.0, 90.0, 60.0],
+                vec![120.0, 100.0, 96.0, 90.0]
+            ]
+        );
+        let model = estimate(&columns, &rows).unwrap();
+        // The model's effect of cancelling the PID is the mean log ratio of the complete
+        // subjects' cancelled over uncancelled values.
+        let effect = ((90.0f64 / 100.0).ln() + (96.0f64 / 120.0).ln()) / 2.0;
+        assert!((model.log_means[2] - model.log_means[0] - effect).abs() < 1e-12);
+        let p = plan(&model, &pairs, 12, 0.05, 200, 3);
+        let named: Vec<(&str, &str)> = p
+            .pairs
+            .iter()
+            .map(|q| (q.a.as_str(), q.b.as_str()))
+            .collect();
+        assert_eq!(named, [("pid", "pid+personal"), ("lqr", "lqr+personal")]);
+        assert!(p.pairs.iter().all(|q| q.possible));
     }
 
     #[test]

@@ -84,7 +84,7 @@ pub fn table(data: &StudyData) -> Vec<StatsRow> {
         let value = |s: &Cells, c: &str, seat: &str| s.get(&(c.into(), seat.into()))?[m];
         for seat in seats {
             // Subjects with every compensator at this seat.
-            if let Some(f) = friedman(&data.complete_rows(m, seat)) {
+            if let Some(f) = friedman(&data.complete_rows(&data.compensators, m, seat)) {
                 out.push(row(
                     "friedman",
                     metric,

@@ -115,14 +115,13 @@ impl StudyData {
         })
     }
 
-    /// One row per subject with every compensator at `seat`: the values of `metric` (an
-    /// index into `SUMMARY_VARIABLES`).
-    pub fn complete_rows(&self, metric: usize, seat: &str) -> Vec<Vec<f64>> {
+    /// One row per subject with every cell of `keys` (`cancelled_key`s) at `seat`: the
+    /// values of `metric` (an index into `SUMMARY_VARIABLES`).
+    pub fn complete_rows(&self, keys: &[String], metric: usize, seat: &str) -> Vec<Vec<f64>> {
         self.subjects
             .iter()
             .filter_map(|s| {
-                self.compensators
-                    .iter()
+                keys.iter()
                     .map(|c| s.get(&(c.clone(), seat.to_string()))?[metric])
                     .collect()
             })
