@@ -1,5 +1,6 @@
 //! The pages in a real browser (Debian's headless Chromium via chromedriver): a short study
-//! from the experimenter's login to the CSV download, with a subject at two stations.
+//! from the experimenter's login to the CSV download, with a subject at two stations; a
+//! personalized study whose tests on the machine also cancel the person's measured feedthrough.
 //! Screenshots of each page go to artifacts/screenshots/.
 
 use std::time::{Duration, Instant};
@@ -353,7 +354,7 @@ fn a_short_study_runs_end_to_end_in_a_real_browser() {
 /// first (the seat moved, the person holds still), then the machine's tests, which run the
 /// LQR designs tuned to the body the test measured; the dashboard shows those designs.
 #[test]
-fn a_personalized_study_runs_end_to_end_in_a_real_browser() {
+fn a_personalized_and_cancelling_study_runs_end_to_end_in_a_real_browser() {
     let server = Server::start("browser-personal");
     let base = server.base.clone();
     let api = server.experimenter();
@@ -383,6 +384,9 @@ fn a_personalized_study_runs_end_to_end_in_a_real_browser() {
     params["identification"] = json!({ "personalized": true, "excitation": {
         "f_min_hz": 0.5, "f_max_hz": 8.0, "lines": 10, "period_s": 4.0, "periods": 3,
         "transient_periods": 1, "rms_mm": 2.0 } });
+    // And cancellation with the person's own measured body: on the machine each design
+    // runs once uncancelled and once cancelled, in an order the subject is not told.
+    params["cancellation"] = json!({ "arms": ["personal"] });
     // Of the flow, not of the display limits or the stale-input stop (as above).
     params["max_hidden_ms"] = json!(60_000.0);
     params["max_frame_gap_ms"] = json!(60_000.0);
@@ -461,6 +465,12 @@ fn a_personalized_study_runs_end_to_end_in_a_real_browser() {
         alpha["value"].as_f64().unwrap() < alpha["generic"].as_f64().unwrap(),
         "{alpha}"
     );
+    // The fitted body passed the check before any cancelling test: none was filed "not run".
+    let not_run: Vec<Value> = bdft_tests::server::trial_rows(&api, subject)
+        .into_iter()
+        .filter(|t| t["status"] == "incomplete")
+        .collect();
+    assert!(not_run.is_empty(), "{not_run:?}");
 
     // Every scored test in the queue's order — the machine's block, then the desk's on the
     // same station (it serves both seats) —, tracked and rated, each with the subject's own
@@ -478,6 +488,9 @@ fn a_personalized_study_runs_end_to_end_in_a_real_browser() {
             &|| track(&seat, 1.0),
         );
         seat.wait_phase("survey");
+        // Blind: nothing the subject sees says whether this test cancelled.
+        let page = seat.text("body").to_lowercase();
+        assert!(!page.contains("cancel"), "{page}");
         for (item, v) in [
             ("accuracy", 5),
             ("speed", 4),
@@ -492,7 +505,28 @@ fn a_personalized_study_runs_end_to_end_in_a_real_browser() {
         .into_iter()
         .filter(|t| t["phase"] == "test" && t["status"] == "complete")
         .collect();
-    assert_eq!(ran.len(), 4, "{ran:?}");
+    assert_eq!(ran.len(), 6, "{ran:?}");
+    // Each design cancelled once on the machine, with the body the identification fitted,
+    // and the record carries what was subtracted.
+    let cancelled: Vec<&Value> = ran
+        .iter()
+        .filter(|t| t["cancellation"] == "personal")
+        .collect();
+    assert_eq!(cancelled.len(), 2, "{ran:?}");
+    for t in &cancelled {
+        assert_eq!(t["station"], "on", "{t}");
+        let model: Value = serde_json::from_str(t["cancellation_json"].as_str().unwrap()).unwrap();
+        assert_eq!(model["k_h"], k_h["value"], "{model} {fit}");
+        let (header, rows) = api.get_csv(&format!(
+            "/api/studies/{study}/export/samples?trial={}",
+            t["id"]
+        ));
+        let c = header.iter().position(|h| h == "cancellation_mm").unwrap();
+        assert!(
+            rows.iter().any(|r| r[c].parse::<f64>().unwrap() != 0.0),
+            "the cancelled test's record carries what was subtracted: {t}"
+        );
+    }
     for t in &ran {
         assert_eq!(t["personalized"], true, "{t}");
         let d = designs
@@ -507,12 +541,12 @@ fn a_personalized_study_runs_end_to_end_in_a_real_browser() {
         );
     }
 
-    // The dashboard's subject view: the schedule's rows as they now stand (five complete:
-    // the identification and the four tests — in the schedule's table, not in the exposure
+    // The dashboard's subject view: the schedule's rows as they now stand (seven complete:
+    // the identification and the six tests — in the schedule's table, not in the exposure
     // table above it), and the designs tuned to this person.
     dash.click(&format!("tr[data-subject-id='{subject}']"));
     dash.wait_until(
-        "return document.querySelectorAll('.schedule-table > tbody .badge.st-complete').length === 5 \
+        "return document.querySelectorAll('.schedule-table > tbody .badge.st-complete').length === 7 \
          && !document.querySelector('.exposure tbody [data-trial-row]') || null;",
         json!([]),
     );

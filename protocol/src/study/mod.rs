@@ -308,12 +308,16 @@ impl StudyParams {
         self.compensators.len() * self.machine_arms().len()
     }
 
+    /// Scored tests of a subject: those on the machine and one per compensator at the desk.
+    pub fn scored_tests(&self) -> usize {
+        self.tests_on_machine() + self.compensators.len()
+    }
+
     /// The values of the texts' placeholders for this study, as `render` takes them.
     pub fn text_values(&self) -> Vec<(&'static str, String)> {
         let per_station = self.compensators.len();
-        let tests = self.tests_on_machine() + per_station;
         let values = [
-            tests.to_string(),
+            self.scored_tests().to_string(),
             per_station.to_string(),
             shown(self.trial_s),
             shown(self.practice_s),

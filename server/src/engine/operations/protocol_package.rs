@@ -17,7 +17,9 @@ use std::fmt::Write;
 
 use bdft_protocol::params::{BodyModel, PlantParams, Seat};
 use bdft_protocol::records::TestPhase;
-use bdft_protocol::study::{MAX_COMMENT_CHARS, OrderDesign, RigKind, StudyParams};
+use bdft_protocol::study::{
+    CancellationArm, CancellationParams, MAX_COMMENT_CHARS, OrderDesign, RigKind, StudyParams,
+};
 use serde_json::Value;
 
 use crate::engine::procedure::queue::MAX_ATTEMPTS;
@@ -271,7 +273,7 @@ fn instructions(d: &mut Doc, p: &StudyParams) {
 
 fn schedule_design(d: &mut Doc, p: &StudyParams) {
     let k = p.compensators.len();
-    let tests = k * p.seats.len();
+    let tests = p.scored_tests();
     let minutes = (p.practice_s + tests as f64 * p.trial_s) / 60.0;
     d.h2("schedule", "Schedule design");
     let mut items = Vec::new();
@@ -286,7 +288,11 @@ fn schedule_design(d: &mut Doc, p: &StudyParams) {
     }
     items.extend([
         format!(
-            "Within subjects: every subject runs every one of the {k} compensators once at each of the two seats, on the machine (with feedthrough) and at the desk beside it: {tests} scored tests of {} s.",
+            "Within subjects: every subject runs every one of the {k} compensators {} on the machine (with feedthrough) and once at the desk beside it: {tests} scored tests of {} s.",
+            match p.machine_arms().len() {
+                1 => "once".to_string(),
+                n => format!("{n} times (once per cancellation arm, below)"),
+            },
             num(p.trial_s)
         ),
         "The first block of tests is at the starting seat, the second at the other seat; the starting seat alternates with the order of enrolment (on the machine, at the desk, on the machine, …) to balance learning effects.".into(),
@@ -316,12 +322,51 @@ fn schedule_design(d: &mut Doc, p: &StudyParams) {
             ));
         }
     }
+    if let Some(c) = &p.cancellation {
+        items.push(cancellation_design(p, c));
+    }
     items.extend([
         format!(
             "A test that fails (stopped, faulted, or invalid for its display) is run again at the end of its block, at most {MAX_ATTEMPTS} attempts in all, unless the experimenter accepts it as incomplete (with a reason); no test is skipped silently."
         ),
     ]);
     d.list(items);
+}
+
+/// The cancellation factor as the board reads it: what each arm cancels with, how it is
+/// balanced and hidden, the check before a cancelling test and the guard during one.
+fn cancellation_design(p: &StudyParams, c: &CancellationParams) -> String {
+    let arms: Vec<String> = c
+        .arms
+        .iter()
+        .map(|arm| match arm {
+            CancellationArm::Personal => {
+                "“personal”, the subject's own body as their identification test measured it"
+                    .to_string()
+            }
+            CancellationArm::Generic => {
+                "“generic”, the population's median body, one model for every subject".into()
+            }
+            CancellationArm::Wrong => match c.wrong {
+                Some(e) => format!(
+                    "“wrong”, the subject's own body deliberately misstated (gain × {}, a phase lag of {}° at {} Hz), to test how robust cancellation is to a poor model",
+                    num(e.gain),
+                    num(e.phase_lag_deg),
+                    num(e.phase_ref_hz)
+                ),
+                // (validation requires the error with the arm)
+                None => "“wrong”".into(),
+            },
+            CancellationArm::Off => "off".into(),
+        })
+        .collect();
+    format!(
+        "Cancellation, a second factor on the machine: every compensator runs there uncancelled and cancelled with each of {} — {} cells in all, ordered by the study's order design like the compensators, under labels that do not tell the subject which. Cancelling subtracts from the subject's input what their body is predicted to add from the cab's measured acceleration (u = device − Ĥ·a_cab), the model fixed during a test; at the desk nothing is cancelled. When the identification test is filed, each arm's model is checked against the body fitted to it and against each end of its 95 % intervals: it must nowhere between 0.5 and 5 Hz leave more feedthrough than no cancellation, and the cancelled loop must stay stable at {} × the study's feedthrough gain. A model that fails, or a body that could not be identified, leaves that cell not run, recorded with the reason before the subject's first test. During a test, a guard turns cancellation off for the rest of it when its output exceeds {} mm (recorded and audited; the test continues uncancelled and is marked so).",
+        arms.join("; "),
+        p.tests_on_machine(),
+        num(crate::engine::study::stability::MARGIN),
+        num(c.limit_mm)
+    )
 }
 
 fn randomization(d: &mut Doc, study: &Study) {
@@ -669,5 +714,42 @@ mod tests {
         assert_ne!(a, b);
         assert!(b.contains("above 4321.5 mm/s²") && !a.contains("4321.5"));
         assert!(b.contains("The Williams design's rows") && !a.contains("Williams design's rows"));
+    }
+
+    #[test]
+    fn a_cancelling_study_describes_its_factor_to_the_board() {
+        use bdft_protocol::study::{
+            CancellationArm, CancellationParams, IdentificationParams, ModelError,
+        };
+        let mut p = default_params();
+        p.identification = Some(IdentificationParams::default());
+        p.cancellation = Some(CancellationParams {
+            arms: vec![CancellationArm::Personal, CancellationArm::Wrong],
+            wrong: Some(ModelError {
+                gain: 1.3,
+                phase_lag_deg: 20.0,
+                phase_ref_hz: 2.0,
+            }),
+            limit_mm: 4.0,
+        });
+        p.validate().unwrap();
+        let doc = render(&study("s", p), 0, None);
+        for want in [
+            // 5 compensators × (off, personal, wrong) on the machine, 5 at the desk.
+            "5 compensators 3 times (once per cancellation arm, below)",
+            ": 20 scored tests",
+            "15 cells in all",
+            "gain × 1.3, a phase lag of 20° at 2 Hz",
+            "exceeds 4 mm",
+        ] {
+            assert!(doc.contains(want), "{want} missing");
+        }
+        assert!(!doc.contains("“generic”"));
+        let plain = render(&study("s", default_params()), 0, None);
+        assert!(
+            plain.contains("compensators once on the machine")
+                && plain.contains(": 10 scored tests")
+        );
+        assert!(!plain.contains("Cancellation, a second factor"));
     }
 }
