@@ -135,6 +135,12 @@ fn a_calibration_is_refused_naming_the_row_or_stored_as_the_next_population_vers
         .unwrap_or_else(|| panic!("no audit row: {audit}"));
     assert_eq!(row["target"], format!("study:{study}"));
     assert_eq!(row["detail"]["version"], 1, "{row}");
+    // The log alone says whether the stored population fits.
+    assert_eq!(
+        row["detail"]["verdict"], fit["goodness_of_fit"]["verdict"],
+        "{row}"
+    );
+    assert_eq!(row["detail"]["at_bound"], fit["at_bound"], "{row}");
 }
 
 /// A calibration to a study's own tests (here a pilot's synthetic subjects in its dry-run

@@ -238,6 +238,8 @@ async fn run_prepared(
                 objective: fitted.objective,
                 parameters: &fitted.parameters,
                 not_identified: &fitted.not_identified,
+                verdict: &fitted.goodness_of_fit.verdict,
+                at_bound: &fitted.at_bound,
             },
         )
         .await?;
@@ -295,7 +297,9 @@ impl CalibrationJob {
 }
 
 /// The audit detail of a calibration (`population.calibrate`): the version it stored and
-/// what the fit found (the whole report is the version's own row).
+/// what the fit found — its parameters, its goodness-of-fit verdict and the parameters that
+/// ended at a bound, so the log alone says whether the stored population fits (the whole
+/// report is the version's own row).
 #[derive(Debug, Serialize)]
 struct Calibrated<'a> {
     version: i64,
@@ -303,4 +307,6 @@ struct Calibrated<'a> {
     objective: f64,
     parameters: &'a [super::fit::FittedParameter],
     not_identified: &'a [String],
+    verdict: &'a str,
+    at_bound: &'a [String],
 }

@@ -555,7 +555,7 @@ pub fn subjects(drawn_keys: &[String]) -> Vec<Column> {
             unit: "".into(),
             ty: TEXT,
             meaning: format!(
-                "whether the data identified the {meaning}: `identified`, or `not identified: ` and why as the fit gave it (the fitted value's 95 % interval spans more than a factor of 10, or the data carry no information on it); then identified.{key} and its bounds are empty; empty without a fit"
+                "whether the data identified the {meaning}: `identified`, or `not identified: ` and why as the fit gave it — the data carry no information on it; the fit ends at the edge of the plausible range; its 95 % interval spans more than a factor of 10; its resonance fitted with a damping below any body's (a mode of the machine); its resonance's other parameter was not identified; (k_h) a resonance the fit put where no body has one; or the seated body does not describe the measured feedthrough (its misfit) —; then identified.{key} and its bounds are empty; empty without a fit"
             )
             .into(),
         });
