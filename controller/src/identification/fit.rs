@@ -21,9 +21,12 @@
 //! out, then Levenberg–Marquardt in the box from the best grid bodies (`global_minima`).
 //! T·A is symmetric in torso and arm, so the fit names the lower resonance the torso.
 //!
-//! **Intervals.** From a jackknife over the test's periods when the record is at hand
-//! (`identify`, `fit_record` — the server's filing): θ̂ ± t(P − 1)·σ_J; from points alone (`fit_body`), the information matrix's
-//! θ̂ ± t(2(P − 1))·√diag((JᵀJ)⁻¹), scaled by any misfit beyond the points' variance. Mapped
+//! **Intervals.** The information matrix's θ̂ ± t(2(P − 1))·√diag((JᵀJ)⁻¹), scaled by any
+//! misfit beyond the points' variance; when the record is at hand (`identify`, `fit_record`
+//! — the server's filing), the wider of that and a jackknife over the test's periods,
+//! θ̂ ± t(P − 1)·σ_J. Each can come out too narrow on its own: the jackknife's spread has
+//! only P − 1 degrees of freedom (a chance-narrow one left truths several widths outside),
+//! and the information matrix does not see the body changing from period to period. Mapped
 //! back by exp; another local minimum the data cannot tell from the best widens them to hold
 //! it. A parameter is named in `unidentified` with why when its interval spans more than a
 //! factor of 10, the information matrix is singular along it, the fit ends at the plausible
@@ -436,12 +439,14 @@ fn fit_with(
     }; 5];
     for p in 0..5 {
         let name = BodyFit::PARAMETERS[p];
-        // The jackknife's when there is one (it measured the spread the information matrix
-        // only assumes), the information matrix's otherwise.
+        // The wider of the jackknife's (it measured the spread the information matrix only
+        // assumes) and the information matrix's (the jackknife's own spread is a 5-degree-
+        // of-freedom estimate with the default test, sometimes far too small).
+        let info_half = t * cov[(p, p)].sqrt();
         let half = if jack.len() >= 3 {
-            jack_half[p]
+            jack_half[p].max(info_half)
         } else {
-            t * cov[(p, p)].sqrt()
+            info_half
         };
         let (mut lo, mut hi) = (theta[p] - half, theta[p] + half);
         for r in &rivals {
