@@ -1,11 +1,13 @@
 //! Calibration of a study's synthetic population through the real server and command line:
 //! bad tables refused with a 422 naming the row, a fit stored as the study's next population
-//! version with its audit row, cancel, and the model card's validation table command.
+//! version with its audit row, cancel, the model card's validation table command, and the
+//! dashboard's form in Chromium.
 
 use std::time::Duration;
 
 use bdft_tests::exports::parse_csv;
 use bdft_tests::server::{Server, eventually, pilot_copy, short_study};
+use bdft_tests::webdriver::Driver;
 use bdft_tests::{TempDir, server_command, server_output};
 use serde_json::{Value, json};
 
@@ -382,4 +384,70 @@ fn the_calibrate_command_holds_rows_out_and_refuses_bad_ones_naming_them() {
     let verdict = fit["goodness_of_fit"]["verdict"].as_str().unwrap();
     assert!(err.contains(&format!("verdict: {verdict}")), "{err}");
     assert!(fit["at_bound"].is_array(), "{fit}");
+}
+
+/// The dashboard's calibration form: a held-out row the target does not have is refused with
+/// the server's words and nothing runs; a good one calibrates on the rest and the result shows
+/// the held-out cell predicted beside its target, whether it fell inside its interval, and the
+/// fit's verdict — what the report says.
+#[test]
+fn in_chromium_the_calibration_form_holds_a_row_out_and_shows_it_predicted() {
+    let server = Server::start("calibration-form");
+    let api = server.experimenter();
+    let study = short_study(&api, 10.0, 1.0);
+    let downloads = TempDir::new("calibration-form");
+    let driver = Driver::start();
+    let dash = driver.session(downloads.path());
+    dash.log_in_to_dashboard(&server.base);
+    dash.select_study(study);
+    dash.choose("#cal-source", "table");
+    dash.type_into("#cal-table", TABLE);
+    dash.type_into("#cal-subjects", "8");
+    dash.type_into("#cal-seed", "2");
+    dash.type_into("#cal-hold-out", "lqr:on:ms_cab_accel");
+    dash.click("#cal-start");
+    let said = dash.wait_until(
+        "const s = document.querySelector('#cal-status'); return !s.hidden && s.classList.contains('err') && s.textContent || null;",
+        json!([]),
+    );
+    assert!(
+        said.as_str()
+            .unwrap()
+            .contains("the target has no lqr at on (ms_cab_accel) to hold out"),
+        "{said}"
+    );
+    let (_, st) = api.get(&format!("/api/studies/{study}"));
+    assert_eq!(st["population_version"], 0, "nothing stored: {st}");
+
+    dash.type_into("#cal-hold-out", "lqr:on");
+    dash.click("#cal-start");
+    let s = finished(&api);
+    let fit = &s["report"]["fit"];
+    let held = &fit["held_out"].as_array().unwrap()[..];
+    assert_eq!(held.len(), 1, "{fit}");
+    // The held-out rows are the result's second table body, after its heading row.
+    let rows = dash.wait_until(
+        "const b = document.querySelectorAll('#cal-result table')[1]?.tBodies[1]; \
+         return b && b.rows[0].textContent.startsWith('Held out of the fit') \
+           ? [...b.rows].slice(1).map((r) => [...r.cells].map((c) => c.textContent)) : null;",
+        json!([]),
+    );
+    let row: Vec<&str> = rows[0]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c.as_str().unwrap())
+        .collect();
+    assert_eq!(row[0], "lqr on", "{row:?}");
+    assert_eq!(row[1], "mse_tracking_mm2");
+    assert_eq!(row[2], "170.0", "the table's target beside the prediction");
+    let inside = if held[0]["inside"] == true {
+        "inside"
+    } else {
+        "OUTSIDE"
+    };
+    assert_eq!(row[6], inside, "{row:?} {}", held[0]);
+    let verdict = fit["goodness_of_fit"]["verdict"].as_str().unwrap();
+    let shown = dash.text("#cal-result");
+    assert!(shown.contains(&format!("Verdict: {verdict}.")), "{shown}");
 }
