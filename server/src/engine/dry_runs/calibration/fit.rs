@@ -191,6 +191,16 @@ impl Eval {
     }
 }
 
+/// A target row as the report names it: "lqr on mse_tracking_mm2".
+fn row_label(params: &StudyParams, t: &TargetCell) -> String {
+    format!(
+        "{} {} {}",
+        params.compensators[t.cell.compensator].kind().name(),
+        t.cell.seat.as_str(),
+        t.metric.name()
+    )
+}
+
 /// The fit's problem: the target's moments, their weights, the knobs fitted.
 struct Problem<'a> {
     params: &'a StudyParams,
@@ -494,8 +504,10 @@ impl Problem<'_> {
                 var.push(sd * sd / logs.len().max(1) as f64);
                 sds.push(sd);
             } else {
+                // Fewer than two simulated subjects completed the cell: no mean, as in the
+                // log branch (a made-up ln 1e-12 would be a finite, enormous misfit).
                 let (mean, se, _) = e.cell(j, t.metric);
-                m.push(mean.max(1e-12).ln());
+                m.push(if mean > 0.0 { mean.ln() } else { f64::NAN });
                 var.push((se / mean).powi(2));
             }
         }
@@ -662,6 +674,23 @@ pub(super) fn fit_with(
     let mut theta: Vec<f64> = before.iter().map(|v| v.ln()).collect();
     let mut eval = problem.run(&theta)?;
     let (mut m, mc) = problem.moments(&eval);
+    // A target cell the starting population cannot complete has no moment to fit to: say
+    // which, rather than fit to nothing (a step that loses a cell later is refused instead).
+    let empty: Vec<String> = target
+        .cells
+        .iter()
+        .zip(m.iter())
+        .filter(|(_, v)| !v.is_finite())
+        .map(|(c, _)| row_label(params, c))
+        .collect();
+    if !empty.is_empty() {
+        return Err(AppError::Conflict(format!(
+            "fewer than 2 of the {n_sim} simulated subjects completed {} (the vibration \
+             interlock stopped the rest): no mean to fit to; calibrate with more simulated \
+             subjects, or without that row",
+            empty.join(", ")
+        )));
+    }
     let mut p = problem.predicted(&eval).0;
     let w: DVector<f64> = (&t_var + &mc).map(|v| 1.0 / v.max(1e-12));
     let criterion = Criterion {
@@ -917,12 +946,7 @@ pub(super) fn fit_with(
     let name = |c: Cell| params.compensators[c.compensator].kind().name().to_string();
     // The goodness of fit: the misfit against χ² with moments − identified parameters.
     let label = |i: usize| match target.cells.get(i) {
-        Some(c) => format!(
-            "{} {} {}",
-            name(c.cell),
-            c.cell.seat.as_str(),
-            c.metric.name()
-        ),
+        Some(c) => row_label(params, c),
         None => "the mean log spread".to_string(),
     };
     let worst: Vec<(String, f64)> = (0..m.len())

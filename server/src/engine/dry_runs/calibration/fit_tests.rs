@@ -514,6 +514,40 @@ mod calibrate {
         );
     }
 
+    /// A row no simulated subject can complete (every test on the machine stopped by an
+    /// interlock set at its lowest) is refused naming it, before any fitting: there is no
+    /// mean to fit to (it once became ln 1e-12, an enormous finite misfit).
+    #[test]
+    fn a_row_the_population_cannot_complete_is_refused_naming_it() {
+        let mut p = small_study();
+        p.max_cab_rms_mm_s2 = 10.0;
+        p.validate().unwrap();
+        let csv = "controller,station,metric,mean\n\
+                   pid,on,mse_tracking_mm2,160\npid,off,mse_tracking_mm2,110\n\
+                   pid-shaper,on,mse_tracking_mm2,150\npid-shaper,off,mse_tracking_mm2,115\n\
+                   lqr,on,mse_tracking_mm2,170\nlqr,off,mse_tracking_mm2,90\n";
+        let target = parse_table(&p, csv).unwrap();
+        match fit(
+            &p,
+            &target,
+            "table",
+            8,
+            1,
+            &Progress::default(),
+            &AtomicBool::new(false),
+        ) {
+            Err(AppError::Conflict(m)) => {
+                assert!(
+                    m.starts_with("fewer than 2 of the 8 simulated subjects completed ")
+                        && m.contains("pid on mse_tracking_mm2")
+                        && m.contains("lqr on mse_tracking_mm2"),
+                    "{m}"
+                );
+            }
+            other => panic!("not refused: {other:?}"),
+        }
+    }
+
     fn refused(csv: &str) -> String {
         let mut p = study();
         p.compensators.truncate(3);
