@@ -397,9 +397,7 @@ fn in_chromium_the_calibration_form_holds_a_row_out_and_shows_it_predicted() {
     let study = short_study(&api, 10.0, 1.0);
     let downloads = TempDir::new("calibration-form");
     let driver = Driver::start();
-    let dash = driver.session(downloads.path());
-    dash.log_in_to_dashboard(&server.base);
-    dash.select_study(study);
+    let dash = driver.dashboard_on(downloads.path(), &server.base, study);
     dash.choose("#cal-source", "table");
     dash.type_into("#cal-table", TABLE);
     dash.type_into("#cal-subjects", "8");

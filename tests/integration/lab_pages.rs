@@ -11,17 +11,8 @@ use bdft_tests::TempDir;
 use bdft_tests::server::{
     Api, Server, eventually, person_at_a_station, run_trial, short_study, trial_rows, with_store,
 };
-use bdft_tests::webdriver::{Driver, Session};
+use bdft_tests::webdriver::Driver;
 use serde_json::{Value, json};
-
-/// The dashboard, logged in, with `study` selected.
-fn dashboard_on(driver: &Driver, downloads: &TempDir, base: &str, study: i64) -> Session {
-    let dash = driver.session(downloads.path());
-    dash.log_in_to_dashboard(base);
-    dash.find("#estop");
-    dash.select_study(study);
-    dash
-}
 
 #[test]
 fn a_pilots_dry_run_is_listed_marked_and_its_results_shown_apart_from_the_studys() {
@@ -30,7 +21,7 @@ fn a_pilots_dry_run_is_listed_marked_and_its_results_shown_apart_from_the_studys
     let study = short_study(&api, 2.0, 1.0);
     let downloads = TempDir::new("lab-dry-run");
     let driver = Driver::start();
-    let dash = dashboard_on(&driver, &downloads, &server.base, study);
+    let dash = driver.dashboard_on(downloads.path(), &server.base, study);
 
     // The pilot from the dashboard: when it ends, the study list has its dry run, marked.
     dash.type_into("#pilot-subjects", "2");
@@ -98,7 +89,7 @@ fn an_erased_subject_shows_erased_with_nothing_to_do_and_is_not_offered_to_a_sta
 
     let downloads = TempDir::new("lab-erased");
     let driver = Driver::start();
-    let dash = dashboard_on(&driver, &downloads, &server.base, study);
+    let dash = driver.dashboard_on(downloads.path(), &server.base, study);
     let row = format!("#subjects tr[data-subject-id='{erased}']");
     dash.find(&row);
     let text = dash.text(&row);

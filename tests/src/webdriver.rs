@@ -43,6 +43,14 @@ impl Driver {
         Self { child, base }
     }
 
+    /// A new browser logged in to the dashboard at `base`, with `study` selected.
+    pub fn dashboard_on(&self, downloads: &Path, base: &str, study: i64) -> Session {
+        let dash = self.session(downloads);
+        dash.log_in_to_dashboard(base);
+        dash.select_study(study);
+        dash
+    }
+
     /// A new browser (its own profile: cookies and storage are not shared between sessions).
     pub fn session(&self, downloads: &Path) -> Session {
         let agent = ureq::AgentBuilder::new()
@@ -226,7 +234,6 @@ impl Session {
         self.click(&row);
     }
 
-    /// Sets a <select>'s value and fires `change`, as a person choosing an option does.
     /// Selects `study` in the dashboard's study selector, once it is listed there.
     pub fn select_study(&self, study: i64) {
         self.wait_until(
@@ -236,6 +243,7 @@ impl Session {
         self.choose("#study-select", &study.to_string());
     }
 
+    /// Sets a <select>'s value and fires `change`, as a person choosing an option does.
     pub fn choose(&self, css: &str, value: &str) {
         self.find(css);
         self.exec(
