@@ -405,15 +405,27 @@ async fn connection<S>(
 {
     let service = hyper::service::service_fn(move |req: Request<Incoming>| {
         let late = Arc::new(AtomicBool::new(false));
-        let mut req = req.map(|incoming| axum::body::Body::new(Timed::new(incoming, body, &late)));
+        let ended = Arc::new(AtomicBool::new(req.body().is_end_stream()));
+        let mut req =
+            req.map(|incoming| axum::body::Body::new(Timed::new(incoming, body, &late, &ended)));
         req.extensions_mut().insert(ConnectInfo::<SocketAddr>(peer));
         let answer = app.clone().oneshot(req);
         async move {
-            let response = answer.await;
+            let mut response = answer.await;
             // The handler saw its body fail, whatever it answered: the client was too slow.
             if late.load(Ordering::Relaxed) {
                 tracing::debug!("the request body from {peer} was too slow");
                 return Ok(too_slow(body));
+            }
+            // An answer given before its request's body was read (a refusal from the head
+            // alone, a route that takes no body): hyper closes the connection after it
+            // rather than read the rest, so the answer says so. Without it a client keeps
+            // the connection for its next request and sends that into a closed socket.
+            if !ended.load(Ordering::Relaxed)
+                && let Ok(r) = response.as_mut()
+            {
+                r.headers_mut()
+                    .insert(header::CONNECTION, HeaderValue::from_static("close"));
             }
             response
         }
@@ -464,7 +476,7 @@ struct TooSlow;
 /// A request body with a deadline: it fails when it has not ended within `timeout` of its
 /// head, unless it has averaged at least `min_rate` bytes a second since the head, checked
 /// again whenever that average would fall below it. The failure is flagged in `late` for the
-/// answer.
+/// answer, and its end, once read, in `ended`.
 struct Timed {
     inner: Incoming,
     limits: BodyLimits,
@@ -473,10 +485,16 @@ struct Timed {
     /// Armed at the first wait for data.
     check: Option<Pin<Box<Sleep>>>,
     late: Arc<AtomicBool>,
+    ended: Arc<AtomicBool>,
 }
 
 impl Timed {
-    fn new(inner: Incoming, limits: BodyLimits, late: &Arc<AtomicBool>) -> Self {
+    fn new(
+        inner: Incoming,
+        limits: BodyLimits,
+        late: &Arc<AtomicBool>,
+        ended: &Arc<AtomicBool>,
+    ) -> Self {
         Self {
             inner,
             limits,
@@ -484,6 +502,7 @@ impl Timed {
             received: 0,
             check: None,
             late: Arc::clone(late),
+            ended: Arc::clone(ended),
         }
     }
 
@@ -516,9 +535,16 @@ impl Body for Timed {
                 if let Some(data) = frame.data_ref() {
                     this.received += data.len() as u64;
                 }
+                if this.inner.is_end_stream() {
+                    this.ended.store(true, Ordering::Relaxed);
+                }
                 return Poll::Ready(Some(Ok(frame)));
             }
-            Poll::Ready(other) => return Poll::Ready(other.map(|r| r.map_err(Into::into))),
+            Poll::Ready(None) => {
+                this.ended.store(true, Ordering::Relaxed);
+                return Poll::Ready(None);
+            }
+            Poll::Ready(Some(Err(e))) => return Poll::Ready(Some(Err(e.into()))),
             Poll::Pending => {}
         }
         loop {

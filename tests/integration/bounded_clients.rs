@@ -89,6 +89,50 @@ fn an_idle_keep_alive_connection_is_closed_at_the_header_timeout() {
     );
 }
 
+/// An answer given before its request's body was read says `connection: close`: the server
+/// closes the connection rather than read the rest, and a client that kept it would send its
+/// next request into a closed socket (a POST is not retried: the E-stop's reset once failed
+/// so). An answer whose body was read keeps the connection.
+#[test]
+fn an_answer_given_before_its_body_was_read_closes_the_connection_and_says_so() {
+    let server = Server::start_with(
+        "bounded-unread-body",
+        &[
+            "--admin-password",
+            ADMIN_PASSWORD,
+            "--header-timeout-ms",
+            "1000",
+        ],
+    );
+    // Refused from its head alone (no session): answered before the announced body comes.
+    let mut sock = connect_from(loopback(1), server.proc.addr).unwrap();
+    let head = raw::head(
+        "POST",
+        "/api/estop/reset",
+        &[("content-type", "application/json")],
+        Some(2),
+    );
+    sock.write_all(head.as_bytes()).unwrap();
+    let answer = raw::read_answer(&mut sock, Duration::from_secs(30)).expect("answered");
+    assert_eq!(answer.status, 401, "{answer:?}");
+    assert_eq!(answer.header("connection"), Some("close"), "{answer:?}");
+    // A login whose body the server read: kept alive (closed later, at the header timeout).
+    let mut sock = connect_from(loopback(1), server.proc.addr).unwrap();
+    let body = r#"{"username":"admin","password":"not it"}"#;
+    let mut bytes = raw::head(
+        "POST",
+        "/api/login",
+        &[("content-type", "application/json")],
+        Some(body.len()),
+    )
+    .into_bytes();
+    bytes.extend_from_slice(body.as_bytes());
+    sock.write_all(&bytes).unwrap();
+    let answer = raw::read_answer(&mut sock, Duration::from_secs(30)).expect("answered");
+    assert_eq!(answer.status, 403, "{answer:?}");
+    assert_eq!(answer.header("connection"), None, "{answer:?}");
+}
+
 /// `slow` connections from `from` sending a login body a byte at a time, then `idle` more
 /// that say nothing (opened at once: the server accepts them as fast as it can).
 fn occupy(from: std::net::IpAddr, server: &Server, slow: usize, idle: usize) -> Vec<TcpStream> {
