@@ -32,6 +32,10 @@
 //! - `state` — `LinearState`: every per-tick block exposes its state as a flat vector.
 //! - `closed_loop` — `ClosedLoop::tick`: measure → body → feedthrough → (cancellation) →
 //!   compensator → plant, the order the real-time loop uses.
+//! - `conditions` — the machine conditions' workbench table: each design, made for the study's
+//!   rig, on the rig under each condition (`params::MachineCondition`, the rules in the protocol
+//!   crate): bench cab-acceleration reduction against its twin, and stability margin with the
+//!   body; `twin`, the uncompensated design a reduction is measured against.
 //! - `cancellation` — model-based cancellation of the feedthrough (issue 38): the fitted
 //!   body's device-over-cab-acceleration as two biquads, a deliberately wrong model's gain
 //!   and phase lag, and the guard that turns it off.
@@ -95,6 +99,7 @@ pub mod batch;
 pub mod cancellation;
 pub mod closed_loop;
 pub mod compensator;
+pub mod conditions;
 pub mod error;
 pub mod exposure;
 pub mod filters;

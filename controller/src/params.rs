@@ -3,5 +3,6 @@
 //! ever typed in by hand. The types are wire data, so they live in the protocol crate.
 
 pub use bdft_protocol::params::{
-    BodyModel, LoopParams, MAX_KBF, NOMINAL_KBF, ParamError, PlantParams, Seat, check,
+    BodyModel, LoopParams, MAX_KBF, MachineCondition, NOMINAL_KBF, ParamError, PlantParams, Seat,
+    check,
 };

@@ -349,6 +349,7 @@ pub(crate) mod tests {
                 operator: operator(d, position, 0.0),
                 steps: StepParams::default(),
                 max_cab_rms_mm_s2: None,
+                condition: Default::default(),
             };
             total += simulate(&cfg, |_| {}).unwrap().mse_tracking_mm2;
         }

@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 use crate::closed_loop::{ClosedLoop, LoopSetup};
 use crate::error::{DesignError, ParamError};
 use crate::operator::{OperatorParams, SyntheticOperator};
-use crate::params::{Seat, check};
+use crate::params::{MachineCondition, Seat, check};
 use crate::rng::Rng;
 pub use crate::runner::Sample;
 use crate::runner::{HandSource, TrialRunner};
@@ -64,6 +64,9 @@ pub struct SimConfig {
     /// The cab-vibration interlock's limit (mm/s² RMS over 1 s), or none (bench signals
     /// have no person in the cab).
     pub max_cab_rms_mm_s2: Option<f64>,
+    /// The machine's condition: the compensator is designed for `setup.plant` and runs on
+    /// that rig under the condition (default: the thesis's rig).
+    pub condition: MachineCondition,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -125,10 +128,9 @@ pub fn simulate(
             (t.signal(), Some((t.mean_mm, t.std_mm)))
         }
     };
-    let lp = ClosedLoop::new(
-        &cfg.setup,
-        Rng::derive(cfg.seed, Rng::ACCEL_NOISE).next_u64(),
-    )?;
+    let noise_seed = Rng::derive(cfg.seed, Rng::ACCEL_NOISE).next_u64();
+    let lp = ClosedLoop::new(&cfg.setup, noise_seed)?
+        .with_rig(cfg.condition.apply(&cfg.setup.plant)?, noise_seed)?;
     let hand = if bench {
         HandSource::Reference
     } else {

@@ -177,6 +177,7 @@ fn sim(
         operator: OperatorParams::default(),
         steps: StepParams::default(),
         max_cab_rms_mm_s2: None,
+        condition: Default::default(),
     };
     simulate(&cfg, |_| {}).unwrap()
 }
@@ -235,6 +236,7 @@ fn bench_signals_are_tracked_and_reject_the_on_station() {
         operator: OperatorParams::default(),
         steps: StepParams::default(),
         max_cab_rms_mm_s2: None,
+        condition: Default::default(),
     };
     let err = simulate(&cfg, |_| {}).unwrap_err().to_string();
     assert!(err.contains("station"), "{err}");

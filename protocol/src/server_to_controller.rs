@@ -5,7 +5,9 @@ use serde::{Deserialize, Serialize};
 use crate::cancellation::CancellationModel;
 use crate::exposure::ExposureAllowance;
 use crate::link_auth::{Bytes32, LinkRole};
-use crate::params::{BodyModel, CompensatorSpec, MAX_KBF, ParamError, PlantParams, Seat, check};
+use crate::params::{
+    BodyModel, CompensatorSpec, MAX_KBF, MachineCondition, ParamError, PlantParams, Seat, check,
+};
 use crate::trial::{InputSource, MAX_TRIAL_S, TargetSpec, TrialId};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -133,6 +135,12 @@ pub struct StartTrial {
     /// tracking test. None: no cancellation.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cancellation: Option<CancellationModel>,
+    /// The machine's condition (`params::MachineCondition`): the simulated rig is `plant`
+    /// under it, while the compensator stays designed for `plant` — a fixed design meeting
+    /// the field. A real rig is what it is; there the condition is what the lab says it
+    /// stands on, recorded. Default (left out of the JSON): the thesis's rig.
+    #[serde(default, skip_serializing_if = "MachineCondition::is_default")]
+    pub condition: MachineCondition,
 }
 
 /// 6 m/s² RMS (why: the controller's `interlock::DEFAULT_LIMIT_MM_S2`).
@@ -157,6 +165,7 @@ impl StartTrial {
         self.target.validate()?;
         check("duration_s", self.duration_s, 0.001, MAX_TRIAL_S)?;
         self.plant.validate()?;
+        self.condition.apply(&self.plant)?;
         self.body.validate()?;
         check("live_rate_hz", self.live_rate_hz, 1.0, 1000.0)?;
         check("stale_input_ms", self.stale_input_ms, 5.0, 10_000.0)?;

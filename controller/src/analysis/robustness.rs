@@ -115,6 +115,47 @@ pub struct RobustnessReport {
     pub pass_rate: Option<f64>,
 }
 
+/// One design (`setup.compensator`, designed on `setup.plant`) judged on other rigs: the
+/// machine under a condition, or a perturbed one. The design is built once.
+#[derive(Debug)]
+pub struct OnRig {
+    base: ClosedLoop,
+    parts: LoopParts,
+    dt: f64,
+}
+
+impl OnRig {
+    pub fn new(setup: &LoopSetup) -> Result<Self, DesignError> {
+        Ok(Self {
+            base: ClosedLoop::new(&linear_setup(setup), 0)?,
+            parts: LoopParts::new(setup)?,
+            dt: setup.loop_params.dt,
+        })
+    }
+
+    /// The largest stable K_BF (up to `limit`; `None` = stable there) on `rig`, linearized
+    /// (`linear_rig`).
+    pub fn max_stable_kbf(&self, rig: PlantParams, limit: f64) -> Result<Option<f64>, DesignError> {
+        let rig = linear_rig(rig);
+        if self.base.compensator().has_delays() {
+            Ok(self.parts.on_rig(rig)?.max_stable_up_to(limit))
+        } else {
+            LinearizedLoop::read_off(&mut self.base.with_rig(rig, 0)?, self.dt)
+                .max_stable_up_to(limit)
+        }
+    }
+
+    /// Stable at loop gain `k_bf` on `rig`.
+    pub fn is_stable(&self, rig: PlantParams, k_bf: f64) -> Result<bool, DesignError> {
+        let rig = linear_rig(rig);
+        if self.base.compensator().has_delays() {
+            Ok(self.parts.on_rig(rig)?.is_stable(k_bf))
+        } else {
+            LinearizedLoop::read_off(&mut self.base.with_rig(rig, 0)?, self.dt).is_stable(k_bf)
+        }
+    }
+}
+
 /// The map and the pass rate of one design (`setup.compensator`, designed on `setup.plant`).
 pub fn robustness(
     design: &str,
@@ -122,24 +163,10 @@ pub fn robustness(
     spec: &RobustnessSpec,
 ) -> Result<RobustnessReport, DesignError> {
     spec.validate()?;
-    let base = ClosedLoop::new(&linear_setup(setup), 0)?;
-    let dt = setup.loop_params.dt;
+    let on = OnRig::new(setup)?;
     let nominal = linear_rig(setup.plant);
-    let parts = LoopParts::new(setup)?;
-    let margin = |rig: PlantParams, limit: f64| -> Result<Option<f64>, DesignError> {
-        if base.compensator().has_delays() {
-            Ok(parts.on_rig(rig)?.max_stable_up_to(limit))
-        } else {
-            LinearizedLoop::read_off(&mut base.with_rig(rig, 0)?, dt).max_stable_up_to(limit)
-        }
-    };
-    let stable = |rig: PlantParams, k: f64| -> Result<bool, DesignError> {
-        if base.compensator().has_delays() {
-            Ok(parts.on_rig(rig)?.is_stable(k))
-        } else {
-            LinearizedLoop::read_off(&mut base.with_rig(rig, 0)?, dt).is_stable(k)
-        }
-    };
+    let margin = |rig: PlantParams, limit: f64| on.max_stable_kbf(rig, limit);
+    let stable = |rig: PlantParams, k: f64| on.is_stable(rig, k);
     let n = spec.grid;
     let kh_scales: Vec<f64> = (0..n).map(|i| spec.kh.grid(i, n)).collect();
     let freq_scales: Vec<f64> = (0..n).map(|i| spec.freq.grid(i, n)).collect();

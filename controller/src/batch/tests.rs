@@ -84,6 +84,7 @@ fn start(l: usize, comp: CompensatorKind, seat: Seat, body: BodyModel, secs: f64
         max_cab_rms_mm_s2: DEFAULT_MAX_CAB_RMS_MM_S2,
         exposure_allowance: None,
         cancellation: None,
+        condition: Default::default(),
     }
 }
 

@@ -4,11 +4,12 @@
 //! Here: the command list (each command's help text), the dispatch, and `write_result`,
 //! how every command with `--json` prints its result. Each command's options, its run and
 //! what it prints are in a module of its own: `analyze`, `robustness`, `frequency`,
-//! `simulate`, and `realtime` for `keygen`, `rig-sim` and `bench-rt` (`serve`'s options are
+//! `simulate`, `conditions`, and `realtime` for `keygen`, `rig-sim` and `bench-rt` (`serve`'s options are
 //! `runtime::ServeArgs`, shared with the server). `values` parses the numbers among the
 //! options with their ranges; `params` reads a parameter file and design names.
 
 mod analyze;
+mod conditions;
 mod frequency;
 mod params;
 mod realtime;
@@ -48,6 +49,10 @@ enum Command {
     /// curve with the feedthrough loop opened (encirclements of −1, verdict, largest stable
     /// K_BF); the closed-loop pole table in both views.
     Frequency(frequency::FrequencyArgs),
+    /// Machine conditions: each design, made for the parameters' rig, on that rig on tires,
+    /// outriggers, with a loaded bucket, driving the stick, …: its bench cab-acceleration
+    /// reduction against its twin and its largest stable K_BF with the body.
+    Conditions(conditions::ConditionsArgs),
     /// Simulate one compensator on the validated rig model, faster than real time.
     Simulate(simulate::SimulateArgs),
     /// Print every parameter with its default value as JSON (edit it and pass it back with
@@ -111,6 +116,7 @@ fn execute(command: Command) -> anyhow::Result<()> {
         Command::Robustness(args) => robustness::run(args, &mut out)?,
         Command::Frequency(args) => frequency::run(args, &mut out)?,
         Command::Simulate(args) => simulate::run(args, &mut out)?,
+        Command::Conditions(args) => conditions::run(args, &mut out)?,
     }
     Ok(())
 }

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use bdft_controller::compensator::CompensatorKind;
 use bdft_controller::interlock::DEFAULT_LIMIT_MM_S2;
-use bdft_controller::params::{NOMINAL_KBF, Seat};
+use bdft_controller::params::{MachineCondition, NOMINAL_KBF, Seat};
 use bdft_controller::simulate::{SignalKind, SimConfig, SimSummary, simulate};
 use bdft_protocol::numbers::format_number;
 use bdft_protocol::trial::{RECORD_CHANNELS, RECORD_TIME};
@@ -46,6 +46,10 @@ pub(super) struct SimulateArgs {
     /// cab acceleration over 1 s exceeds this (mm/s²). Bench signals run without it.
     #[arg(long, default_value_t = DEFAULT_LIMIT_MM_S2)]
     max_cab_rms: f64,
+    /// The machine's condition (stilts, tires, outriggers, loaded[:FILL], stick, joined by
+    /// '+'): the design stays made for the parameters' rig, the run is on that rig under it.
+    #[arg(long, default_value = "stilts")]
+    condition: MachineCondition,
     /// Print JSON instead of a table.
     #[arg(long)]
     json: bool,
@@ -64,6 +68,7 @@ pub(super) fn run(args: SimulateArgs, out: &mut impl Write) -> anyhow::Result<()
         kbf,
         seed,
         max_cab_rms,
+        condition,
         json,
         out: record,
     } = args;
@@ -81,6 +86,7 @@ pub(super) fn run(args: SimulateArgs, out: &mut impl Write) -> anyhow::Result<()
         operator: params.operator,
         steps: params.steps,
         max_cab_rms_mm_s2: (signal == SignalKind::Steps).then_some(max_cab_rms),
+        condition,
     };
     let summary = match record {
         Some(path) => write_record(&cfg, &path)?,

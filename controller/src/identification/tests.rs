@@ -43,6 +43,7 @@ pub(crate) fn start_trial(
         max_cab_rms_mm_s2: DEFAULT_MAX_CAB_RMS_MM_S2,
         exposure_allowance: None,
         cancellation: None,
+        condition: Default::default(),
     }
 }
 

@@ -382,6 +382,7 @@ pub fn bench_trial(i: usize, duration_s: f64) -> anyhow::Result<StartTrial> {
         max_cab_rms_mm_s2: bdft_protocol::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
         exposure_allowance: None,
         cancellation: None,
+        condition: Default::default(),
     })
 }
 

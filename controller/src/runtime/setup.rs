@@ -66,7 +66,11 @@ pub fn build_runner(
         rig.canceller = canceller;
         SlotLoop::Rig(rig)
     } else {
-        let mut sim = ClosedLoop::new(&setup, st.noise_seed).map_err(|e| e.to_string())?;
+        // The compensator designed for the study's rig, run on the rig under its condition.
+        let rig = st.condition.apply(&st.plant).map_err(|e| e.to_string())?;
+        let mut sim = ClosedLoop::new(&setup, st.noise_seed)
+            .and_then(|lp| lp.with_rig(rig, st.noise_seed))
+            .map_err(|e| e.to_string())?;
         sim.set_canceller(canceller);
         SlotLoop::Sim(sim)
     };

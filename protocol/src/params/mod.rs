@@ -3,11 +3,13 @@
 //! names the parameter and its allowed range.
 
 mod compensator;
+mod condition;
 mod experiment;
 mod population;
 mod rig;
 
 pub use compensator::*;
+pub use condition::*;
 pub use experiment::*;
 pub use population::*;
 pub use rig::*;

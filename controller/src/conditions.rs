@@ -1,0 +1,191 @@
+//! The workbench's table of machine conditions (`docs/machine-conditions.md`): each design,
+//! made for the study's rig, run on the rig under each condition — its bench cab-acceleration
+//! reduction against its uncompensated twin on the same machine, and its stability margin
+//! with the body closed through the feedthrough.
+//!
+//! Why both: a compensator that keeps its reduction but loses its margin shakes a person
+//! on a machine that is no longer stable with them; one that keeps its margin but loses its
+//! reduction is a PID with a delay. The bench run has no operator (the signal drives the
+//! cylinder reference, as on the rig); the margin is the largest stable K_BF with the study's
+//! body, on the condition's rig linearized (`analysis::robustness::OnRig`).
+
+use serde::Serialize;
+
+use crate::analysis::robustness::OnRig;
+use crate::closed_loop::LoopSetup;
+use crate::compensator::{CompensatorKind, CompensatorSpec, default_spec};
+use crate::error::DesignError;
+use crate::operator::OperatorParams;
+use crate::params::{MAX_KBF, MachineCondition, Seat};
+use crate::signals::StepParams;
+use crate::simulate::{SignalKind, SimConfig, simulate};
+
+/// The uncompensated design a compensator's reduction is measured against: the PID for the
+/// prefilters, the LQR without cab feedback for the cab-feedback designs.
+pub fn twin(kind: CompensatorKind) -> Option<CompensatorKind> {
+    match kind {
+        CompensatorKind::PidNotch | CompensatorKind::PidShaper => Some(CompensatorKind::Pid),
+        CompensatorKind::LqrCabvel | CompensatorKind::LqrCabacc => Some(CompensatorKind::Lqr),
+        CompensatorKind::Pid | CompensatorKind::Lqr => None,
+    }
+}
+
+/// One design on one condition.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ConditionRow {
+    pub condition: String,
+    pub design: String,
+    /// First structure mode of the condition's rig (Hz), and the rule's relative
+    /// uncertainty on it.
+    pub f1_hz: f64,
+    pub f1_uncertainty: f64,
+    /// Mean-squared cab acceleration of the structure in the bench run ((mm/s²)²): the
+    /// measured less the noise floor.
+    pub ms_cab_accel: f64,
+    /// 100 · (1 − RMS / twin's RMS) on the same condition, in %; none without a twin.
+    pub cab_accel_reduction_pct: Option<f64>,
+    /// Largest stable K_BF with the body on this rig; `None` = stable up to `MAX_KBF`.
+    pub max_stable_kbf: Option<f64>,
+    /// Stable at the study's K_BF.
+    pub stable: bool,
+}
+
+/// The table and how it was made.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ConditionTable {
+    pub signal: &'static str,
+    pub duration_s: f64,
+    pub seed: u64,
+    pub k_bf: f64,
+    pub rows: Vec<ConditionRow>,
+}
+
+/// Every design of `designs` (name, spec made for `base.plant`) on every condition.
+/// `base` gives the design rig, the body and the study's K_BF; its compensator is ignored.
+pub fn condition_table(
+    designs: &[(String, CompensatorSpec)],
+    conditions: &[MachineCondition],
+    base: &LoopSetup,
+    seed: u64,
+) -> Result<ConditionTable, DesignError> {
+    let duration_s = SignalKind::SweptSine.default_duration_s();
+    let bench = |spec: &CompensatorSpec, condition: MachineCondition| {
+        let cfg = SimConfig {
+            setup: LoopSetup {
+                seat: Seat::Off,
+                compensator: spec.clone(),
+                ..base.clone()
+            },
+            signal: SignalKind::SweptSine,
+            duration_s,
+            seed,
+            operator: OperatorParams::default(),
+            steps: StepParams::default(),
+            max_cab_rms_mm_s2: None,
+            condition,
+        };
+        let floor = {
+            let rig = condition.apply(&base.plant)?;
+            rig.accel_noise_std.powi(2) + rig.engine_vibration_rms.powi(2)
+        };
+        simulate(&cfg, |_| {}).map(|s| (s.ms_cab_accel - floor).max(0.0))
+    };
+    let k_bf = base.loop_params.k_bf;
+    let mut rows = Vec::with_capacity(designs.len() * conditions.len());
+    for (name, spec) in designs {
+        let on = OnRig::new(&LoopSetup {
+            seat: Seat::On,
+            compensator: spec.clone(),
+            ..base.clone()
+        })?;
+        let twin = twin(spec.kind()).map(|k| default_spec(k, &base.plant));
+        for &condition in conditions {
+            let rig = condition.apply(&base.plant)?;
+            let ms = bench(spec, condition)?;
+            let reduction = match &twin {
+                Some(t) => Some(100.0 * (1.0 - (ms / bench(t, condition)?).sqrt())),
+                None => None,
+            };
+            let max_stable_kbf = on.max_stable_kbf(rig, MAX_KBF)?;
+            rows.push(ConditionRow {
+                condition: condition.to_string(),
+                design: name.clone(),
+                f1_hz: rig.f1_hz,
+                f1_uncertainty: condition.uncertainty(),
+                ms_cab_accel: ms,
+                cab_accel_reduction_pct: reduction,
+                max_stable_kbf,
+                stable: max_stable_kbf.is_none_or(|m| m > k_bf),
+            });
+        }
+    }
+    Ok(ConditionTable {
+        signal: SignalKind::SweptSine.name(),
+        duration_s,
+        seed,
+        k_bf,
+        rows,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::params::{BodyModel, LoopParams, PlantParams};
+
+    fn base() -> LoopSetup {
+        let plant = PlantParams::default();
+        LoopSetup {
+            plant,
+            body: BodyModel::default(),
+            loop_params: LoopParams {
+                dt: 1e-3,
+                k_bf: 0.78,
+            },
+            seat: Seat::On,
+            compensator: default_spec(CompensatorKind::Pid, &plant),
+        }
+    }
+
+    #[test]
+    fn the_thesiss_rig_row_is_the_bench_and_the_analysis_of_today() {
+        let base = base();
+        let designs: Vec<_> = [CompensatorKind::PidNotch, CompensatorKind::LqrCabvel]
+            .into_iter()
+            .map(|k| (k.name().to_string(), default_spec(k, &base.plant)))
+            .collect();
+        let t = condition_table(&designs, &[MachineCondition::STILTS], &base, 1).unwrap();
+        for (row, (_, spec)) in t.rows.iter().zip(&designs) {
+            // The margin is `analyze`'s on the design's own rig.
+            let setup = LoopSetup {
+                compensator: spec.clone(),
+                ..base.clone()
+            };
+            let a = crate::analysis::analyze(&setup).unwrap();
+            match (row.max_stable_kbf, a.max_stable_kbf) {
+                (Some(m), Some(want)) => assert!((m - want).abs() < 1e-4, "{m} vs {want}"),
+                (got, want) => assert_eq!(got, want, "{}", row.design),
+            }
+            assert_eq!(row.stable, a.stable, "{}", row.design);
+            // Both designs cut the bench vibration of their twin on the rig they were made for.
+            assert!(row.cab_accel_reduction_pct.unwrap() > 20.0, "{row:?}");
+        }
+    }
+
+    #[test]
+    fn on_tires_the_fixed_notch_loses_reduction_and_the_first_mode_falls() {
+        let base = base();
+        let notch = vec![(
+            "pid-notch".to_string(),
+            default_spec(CompensatorKind::PidNotch, &base.plant),
+        )];
+        let tires: MachineCondition = "tires".parse().unwrap();
+        let t = condition_table(&notch, &[MachineCondition::STILTS, tires], &base, 1).unwrap();
+        let (home, field) = (&t.rows[0], &t.rows[1]);
+        assert!((field.f1_hz - 0.75 * home.f1_hz).abs() < 1e-9);
+        assert!(
+            field.cab_accel_reduction_pct.unwrap() < home.cab_accel_reduction_pct.unwrap(),
+            "{home:?} {field:?}"
+        );
+    }
+}
