@@ -62,6 +62,7 @@ fn record(i: u64, spec: MultisineSpec) -> (Vec<f32>, Vec<f32>) {
         max_cab_rms_mm_s2: DEFAULT_MAX_CAB_RMS_MM_S2,
         exposure_allowance: None,
         cancellation: None,
+        condition: Default::default(),
     };
     let (mut runner, _) = build_runner(&st, dt, false).unwrap();
     let (mut u, mut y) = (vec![], vec![]);

@@ -269,6 +269,7 @@ fn main() {
             operator: OperatorParams::default(),
             steps: StepParams::default(),
             max_cab_rms_mm_s2: None,
+            condition: Default::default(),
         };
         let ms = median(
             (0..RUNS)

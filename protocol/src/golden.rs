@@ -173,6 +173,7 @@ fn start_trial_validation_names_the_bad_field() {
         max_cab_rms_mm_s2: crate::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
         exposure_allowance: None,
         cancellation: None,
+        condition: Default::default(),
     };
     assert!(st.validate().unwrap_err().to_string().contains("k_bf"));
     let st = StartTrial {

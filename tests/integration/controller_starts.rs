@@ -48,6 +48,7 @@ pub(crate) fn synthetic_trial(
         max_cab_rms_mm_s2: bdft_protocol::server_to_controller::DEFAULT_MAX_CAB_RMS_MM_S2,
         exposure_allowance: None,
         cancellation: None,
+        condition: Default::default(),
     }
 }
 

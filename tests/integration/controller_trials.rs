@@ -40,6 +40,7 @@ fn offline(
         operator: OperatorParams::default(),
         steps: StepParams::default(),
         max_cab_rms_mm_s2: None,
+        condition: Default::default(),
     };
     simulate(&cfg, |_| {}).unwrap()
 }

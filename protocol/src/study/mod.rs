@@ -7,8 +7,8 @@ use serde::{Deserialize, Serialize};
 use crate::consent;
 pub use crate::consent::ConsentForm;
 use crate::params::{
-    BodyModel, CompensatorKind, CompensatorSpec, ParamError, PlantParams, PopulationParams, Seat,
-    check,
+    BodyModel, CompensatorKind, CompensatorSpec, MachineCondition, ParamError, PlantParams,
+    PopulationParams, Seat, check,
 };
 
 mod cancellation;
@@ -142,6 +142,14 @@ pub struct StudyParams {
     /// out of the JSON then, so the protocol hash of a study that predates it is unchanged.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cancellation: Option<CancellationParams>,
+    /// The machine's condition for every test on it (`params::MachineCondition`): on the
+    /// simulated rig, `plant` under the condition while the compensators stay designed for
+    /// `plant` — a fixed design meeting the field; on a real rig, what the lab declares it
+    /// stands on, recorded with every test. Default the thesis's rig (`stilts`), left out of
+    /// the JSON then, so the protocol hash of a study that predates it is unchanged.
+    #[serde(default, skip_serializing_if = "MachineCondition::is_default")]
+    #[cfg_attr(feature = "openapi", schema(value_type = String, example = "tires+loaded"))]
+    pub condition: MachineCondition,
 }
 
 fn default_budget_a8() -> f64 {
@@ -194,6 +202,7 @@ impl StudyParams {
                 return invalid("controllers", format!("{} is listed twice", c.kind()));
             }
         }
+        self.condition.apply(&self.plant)?;
         let mut stations = self.seats.clone();
         stations.sort_by_key(|s| s.as_str());
         if stations != [Seat::Off, Seat::On] {

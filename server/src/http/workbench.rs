@@ -11,7 +11,8 @@ use utoipa_axum::routes;
 use super::error::{ApiResult, AppJson};
 use super::extract::{AppPath, AppQuery, Experimenter};
 use crate::engine::machine::workbench_analysis::{
-    FrequencyReport, RobustnessQuery, RobustnessReport, frequency_report, robustness_report,
+    ConditionTable, ConditionsQuery, FrequencyReport, RobustnessQuery, RobustnessReport,
+    conditions_report, frequency_report, robustness_report,
 };
 use crate::state::AppState;
 
@@ -19,6 +20,7 @@ pub fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(frequency))
         .routes(routes!(robustness))
+        .routes(routes!(conditions))
 }
 
 #[derive(Debug, Deserialize, IntoParams)]
@@ -63,4 +65,20 @@ async fn robustness(
     AppQuery(q): AppQuery<RobustnessQuery>,
 ) -> ApiResult<RobustnessReport> {
     Ok(AppJson(robustness_report(&s.pool, id, q).await?))
+}
+
+/// Each of the study's designs, made for its rig, on the machine under each condition (on
+/// tires, outriggers down, a loaded bucket, the stick driven, …): its swept-sine bench
+/// cab-acceleration reduction against its twin and its largest stable K_BF with the body (as
+/// `bdft-controller conditions --json`).
+#[utoipa::path(get, path = "/api/studies/{id}/workbench/conditions", tag = "workbench",
+    params(("id" = i64, Path), ConditionsQuery),
+    responses((status = 200, body = Object, description = "the conditions table (bdft-controller conditions --json)")))]
+async fn conditions(
+    State(s): State<AppState>,
+    _who: Experimenter,
+    AppPath(id): AppPath<i64>,
+    AppQuery(q): AppQuery<ConditionsQuery>,
+) -> ApiResult<ConditionTable> {
+    Ok(AppJson(conditions_report(&s.pool, id, q).await?))
 }

@@ -28,6 +28,8 @@ pub struct BenchRun {
     pub finished_at: Option<i64>,
     /// The site whose machine ran it (a run on the real rig; none when simulated here).
     pub site: Option<String>,
+    /// The machine's condition it ran under (`MachineCondition`, migration 0032).
+    pub condition: String,
 }
 
 /// What a new run is.
@@ -40,6 +42,7 @@ pub struct NewRun<'a> {
     pub seed: u64,
     pub created_by: &'a str,
     pub site: Option<&'a str>,
+    pub condition: &'a str,
 }
 
 /// One compensator's result of a run.
@@ -83,8 +86,8 @@ pub struct NewResult<'a> {
 
 pub async fn insert_run(db: &mut AnyConnection, run: &NewRun<'_>) -> Result<i64> {
     let (id,): (i64,) = sqlx::query_as(
-        "INSERT INTO bench_runs (study_id, rig, signal_json, duration_s, seed, created_by, created_at, site) \
-         VALUES ($1, $2, $3, $4, $5, $6, $7, $8) RETURNING id",
+        "INSERT INTO bench_runs (study_id, rig, signal_json, duration_s, seed, created_by, created_at, site, condition) \
+         VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9) RETURNING id",
     )
     .bind(run.study_id)
     .bind(run.rig)
@@ -94,6 +97,7 @@ pub async fn insert_run(db: &mut AnyConnection, run: &NewRun<'_>) -> Result<i64>
     .bind(run.created_by)
     .bind(now_ms())
     .bind(run.site)
+    .bind(run.condition)
     .fetch_one(db)
     .await?;
     Ok(id)

@@ -200,14 +200,16 @@ pub struct NewTrial<'a> {
     pub target_std_mm: f64,
     pub target_ms_step_mm2: f64,
     pub protocol_hash: &'a str,
+    /// The machine's condition the test runs under (`MachineCondition`, as its name).
+    pub condition: String,
 }
 
 /// Stores a scheduled test; it is queued in schedule order.
 pub async fn insert(db: &mut AnyConnection, new: &NewTrial<'_>) -> Result<i64> {
     let t = new.test;
     Ok(sqlx::query_scalar::<_, i64>(
-        "INSERT INTO trials (subject_id, slot, phase, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order, cancellation) \
-         VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15, $16, $17, $18, $19) RETURNING id",
+        "INSERT INTO trials (subject_id, slot, phase, station, block, position, controller, blinded_label, compensator_json, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, queue_order, cancellation, condition) \
+         VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15, $16, $17, $18, $19, $20) RETURNING id",
     )
     .bind(new.subject_id)
     .bind(i64::from(t.slot))
@@ -228,6 +230,7 @@ pub async fn insert(db: &mut AnyConnection, new: &NewTrial<'_>) -> Result<i64> {
     .bind(new.protocol_hash)
     .bind(i64::from(t.queue_order))
     .bind(t.cancellation.as_str())
+    .bind(&new.condition)
     .fetch_one(db)
     .await?)
 }
@@ -250,8 +253,8 @@ pub async fn latest_attempt<'c>(db: impl AnyExecutor<'c>, trial: &Trial) -> Resu
 /// second re-queue fail.)
 pub async fn insert_next_attempt(db: &mut AnyConnection, trial_id: i64) -> Result<i64> {
     Ok(sqlx::query_scalar::<_, i64>(
-        "INSERT INTO trials (subject_id, slot, attempt, phase, station, block, position, controller, blinded_label, compensator_json, personalized, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, cancellation, cancellation_json, queue_order) \
-         SELECT subject_id, slot, attempt + 1, phase, station, block, position, controller, blinded_label, compensator_json, personalized, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, cancellation, cancellation_json, \
+        "INSERT INTO trials (subject_id, slot, attempt, phase, station, block, position, controller, blinded_label, compensator_json, personalized, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, cancellation, cancellation_json, condition, queue_order) \
+         SELECT subject_id, slot, attempt + 1, phase, station, block, position, controller, blinded_label, compensator_json, personalized, k_bf, duration_s, target_seed, target_levels_json, target_mean_mm, target_std_mm, target_ms_step_mm2, protocol_hash, cancellation, cancellation_json, condition, \
          CASE WHEN phase = 'identification' THEN queue_order ELSE (SELECT MAX(queue_order) + 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.block = t.block) END \
          FROM trials t WHERE id = $1 RETURNING id",
     )

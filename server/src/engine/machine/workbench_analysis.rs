@@ -1,7 +1,8 @@
 //! The workbench's analysis of a study's designs on its plant and body: frequency responses
 //! of every part and closed loop, the Nyquist view with the feedthrough opened, the pole
 //! tables in both views (`bdft_controller::analysis::frequency`), and robustness maps
-//! (`…::robustness`) over ranges the user sets.
+//! (`…::robustness`) over ranges the user sets, and the machine-conditions table
+//! (`bdft_controller::conditions`: each design on the rig under each condition).
 //!
 //! Each is seconds of CPU: they run off the async threads and one at a time with the other
 //! heavy reads (`engine::COMPUTE`); a robustness request's work is bounded (grid and
@@ -15,8 +16,10 @@ use bdft_controller::analysis::frequency;
 pub use bdft_controller::analysis::frequency::FrequencyReport;
 pub use bdft_controller::analysis::robustness::RobustnessReport;
 use bdft_controller::analysis::robustness::{Range, RobustnessSpec, robustness};
+pub use bdft_controller::conditions::ConditionTable;
+use bdft_controller::conditions::condition_table;
 use bdft_controller::error::DesignError;
-use bdft_protocol::params::{CompensatorSpec, MAX_KBF, check};
+use bdft_protocol::params::{CompensatorSpec, MAX_KBF, MachineCondition, check};
 use bdft_protocol::study::StudyParams;
 use serde::Deserialize;
 use sqlx::AnyPool;
@@ -272,4 +275,57 @@ pub async fn robustness_report(
     })
     .await
     .map_err(|e| anyhow::anyhow!("robustness task: {e}"))?
+}
+
+/// The most conditions one conditions table may ask for: every named one and as many more.
+pub const MAX_CONDITIONS: usize = 24;
+
+/// What the dashboard asks of the machine-conditions table.
+#[derive(Debug, Clone, Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
+pub struct ConditionsQuery {
+    /// Conditions, comma-separated (`tires,outriggers+loaded`, …) [default: every ground ×
+    /// empty or rated bucket × boom or stick].
+    pub conditions: Option<String>,
+    /// A subject of the study whose identified body replaces the study's [default: none].
+    pub subject: Option<i64>,
+}
+
+/// Every design of the study, made for its rig, on the rig under each condition: the bench
+/// reduction against its twin and the margin with the body (`bdft-controller conditions`).
+pub async fn conditions_report(
+    pool: &AnyPool,
+    study_id: i64,
+    q: ConditionsQuery,
+) -> Result<ConditionTable> {
+    let conditions = match q.conditions.as_deref() {
+        None | Some("") => MachineCondition::named(),
+        Some(list) => {
+            let names: Vec<&str> = list.split(',').map(str::trim).collect();
+            if names.len() > MAX_CONDITIONS {
+                return Err(AppError::BadRequest(format!(
+                    "conditions: {} given; at most {MAX_CONDITIONS}",
+                    names.len()
+                )));
+            }
+            names
+                .into_iter()
+                .map(|n| n.parse::<MachineCondition>())
+                .collect::<std::result::Result<Vec<_>, _>>()?
+        }
+    };
+    let study = store::studies::get(pool, study_id).await?;
+    let params = params_for(pool, &study, q.subject).await?;
+    let designs = designs(&params);
+    let Some((_, first)) = designs.first() else {
+        return Err(AppError::Conflict("the study has no compensators".into()));
+    };
+    let base = study_loop(&params, first);
+    let seed = 1;
+    let _turn = COMPUTE.acquire().await.expect("never closed");
+    tokio::task::spawn_blocking(move || {
+        condition_table(&designs, &conditions, &base, seed).map_err(design_error("conditions"))
+    })
+    .await
+    .map_err(|e| anyhow::anyhow!("conditions task: {e}"))?
 }

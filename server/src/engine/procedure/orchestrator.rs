@@ -129,5 +129,6 @@ pub fn start(params: &StudyParams, run: TestRun, operator: Operator) -> StartTri
         // Set by the start policy from the subject's day (`procedure::exposure`).
         exposure_allowance: None,
         cancellation: run.cancellation,
+        condition: params.condition,
     }
 }

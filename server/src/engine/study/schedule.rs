@@ -54,6 +54,7 @@ pub fn default_params() -> StudyParams {
         exposure_budget_vdv_m_s175: bdft_protocol::exposure::ACTION_VDV_M_S175,
         identification: None,
         cancellation: None,
+        condition: Default::default(),
     }
 }
 

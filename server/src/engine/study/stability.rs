@@ -1,5 +1,5 @@
 //! The stability gate: every compensator of a study analysed at the study's K_BF with its
-//! plant and body — on the machine (feedthrough loop closed) and off it — before a person
+//! plant (under the study's machine condition, the design made for the plant) and body — on the machine (feedthrough loop closed) and off it — before a person
 //! runs it. A study on the real machine whose on-machine design is unstable cannot be
 //! locked; a simulated one needs an explicit, audited acknowledgement. The off-machine
 //! verdict is also the gate of an identification test's disturbance: the multisine drives
@@ -14,9 +14,11 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
 use bdft_controller::analysis::LinearizedLoop;
+use bdft_controller::analysis::robustness::OnRig;
 use bdft_controller::closed_loop::LoopSetup;
 use bdft_protocol::params::{
-    BodyModel, CompensatorKind, CompensatorSpec, LoopParams, PlantParams, Seat,
+    BodyModel, CompensatorKind, CompensatorSpec, LoopParams, MAX_KBF, MachineCondition,
+    PlantParams, Seat,
 };
 use bdft_protocol::study::{RigKind, StudyParams};
 use serde::Serialize;
@@ -86,12 +88,30 @@ fn verdict(params: &StudyParams, spec: &bdft_protocol::params::CompensatorSpec) 
     let design = |e: bdft_controller::error::DesignError| {
         AppError::BadRequest(format!("{}: the design cannot be built: {e}", spec.kind()))
     };
-    let lin = LinearizedLoop::new(&setup).map_err(design)?;
-    let max_stable_kbf = lin.margin(&setup).map_err(design)?;
+    let (stable_on, stable_off, max_stable_kbf) = if params.condition.is_default() {
+        let lin = LinearizedLoop::new(&setup).map_err(design)?;
+        (
+            lin.is_stable(params.k_bf).map_err(design)?,
+            lin.is_stable(0.0).map_err(design)?,
+            lin.margin(&setup).map_err(design)?,
+        )
+    } else {
+        // The design made for the study's rig, judged on the machine under its condition.
+        let rig = params
+            .condition
+            .apply(&params.plant)
+            .map_err(|e| AppError::BadRequest(e.to_string()))?;
+        let on = OnRig::new(&setup).map_err(design)?;
+        (
+            on.is_stable(rig, params.k_bf).map_err(design)?,
+            on.is_stable(rig, 0.0).map_err(design)?,
+            on.max_stable_kbf(rig, MAX_KBF).map_err(design)?,
+        )
+    };
     Ok(Verdict {
         compensator: spec.kind(),
-        stable_on: lin.is_stable(params.k_bf).map_err(design)?,
-        stable_off: lin.is_stable(0.0).map_err(design)?,
+        stable_on,
+        stable_off,
         has_margin: max_stable_kbf.is_none_or(|k| k >= MARGIN * params.k_bf),
         max_stable_kbf,
     })
@@ -126,6 +146,8 @@ fn analyse(params: &StudyParams) -> Result<StabilityReport> {
 #[derive(Serialize)]
 struct AnalysisInput<'a> {
     plant: &'a PlantParams,
+    #[serde(skip_serializing_if = "MachineCondition::is_default")]
+    condition: MachineCondition,
     body: &'a BodyModel,
     k_bf: f64,
     controllers: &'a [CompensatorSpec],
@@ -136,6 +158,7 @@ struct AnalysisInput<'a> {
 pub fn analysis_key(params: &StudyParams, k_bf: f64) -> String {
     serde_json::to_string(&AnalysisInput {
         plant: &params.plant,
+        condition: params.condition,
         body: &params.body,
         k_bf,
         controllers: &params.compensators,

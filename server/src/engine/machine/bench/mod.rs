@@ -61,6 +61,8 @@ struct Started<'a> {
     study_id: Option<i64>,
     /// The site whose machine runs it (on the real rig).
     site: Option<&'a str>,
+    /// The machine's condition.
+    condition: &'a str,
 }
 
 /// What `bench.finish` and `bench.fail` record: why the run failed (null: it did not).
@@ -148,6 +150,7 @@ impl BenchJob {
             ));
         }
         let (target, duration_s) = target(req, seed)?;
+        let condition = req.condition.unwrap_or(params.condition);
         let signal = signal_kind(&target)?;
         let compensators = resolve(pool, &req.compensators, &params.plant).await?;
         let starts: Vec<StartTrial> = compensators
@@ -175,6 +178,7 @@ impl BenchJob {
                 // No person rides a bench run.
                 exposure_allowance: None,
                 cancellation: None,
+                condition,
             })
             .collect();
         for s in &starts {
@@ -194,6 +198,7 @@ impl BenchJob {
         }
         let guard = Running(Arc::clone(self));
         let signal_json = serde_json::to_string(&target).expect("targets serialize");
+        let condition = condition.to_string();
         let mut change = Change::begin(pool, actor).await?;
         let run_id = store::bench::insert_run(
             change.db(),
@@ -205,6 +210,7 @@ impl BenchJob {
                 seed,
                 created_by: actor,
                 site: rig.site(),
+                condition: &condition,
             },
         )
         .await?;
@@ -219,6 +225,7 @@ impl BenchJob {
                     seed,
                     study_id: req.study_id,
                     site: rig.site(),
+                    condition: &condition,
                 },
             )
             .await?;

@@ -4,7 +4,7 @@
 
 use bdft_controller::compensator::variants;
 use bdft_controller::signals::{StepParams, StepTarget, SweptSine, Trapezoid};
-use bdft_protocol::params::CompensatorSpec;
+use bdft_protocol::params::{CompensatorSpec, MachineCondition};
 use bdft_protocol::trial::{MAX_SAMPLES, TargetSpec};
 use serde::Deserialize;
 use sqlx::AnyPool;
@@ -49,6 +49,11 @@ pub struct BenchRequest {
     pub duration_s: Option<f64>,
     /// Seed of the accelerometer noise (and of the steps) [default 1, as `simulate`].
     pub seed: Option<u64>,
+    /// The machine's condition the simulated rig runs under (`tires`, `outriggers+loaded`,
+    /// …; the designs stay made for the study's rig) [default: the study's, `stilts`].
+    #[serde(default)]
+    #[schema(value_type = Option<String>, example = "tires")]
+    pub condition: Option<MachineCondition>,
     /// The site whose machine a run on the real rig uses (`serve --site`) [default: the
     /// server's first].
     #[serde(default)]

@@ -438,6 +438,12 @@ pub fn trials(survey: &SurveyParams) -> Vec<Column> {
         num(3),
         "when cancellation's guard turned it off for the rest of the test, which went on uncancelled (its output past the model's limit_mm); empty when it never did",
     ));
+    c.push(col(
+        "condition",
+        "",
+        TEXT,
+        "the machine's condition the test ran under: stilts (the thesis's rig), or a ground (tires, outriggers), loaded or loaded:FILL (the bucket's fill of its rated load) and stick (the stick cylinder driven), joined by '+'; on the simulated rig the designs stay made for the study's rig and the rig is scaled by the rules of docs/machine-conditions.md; on a real rig it is what the lab declared",
+    ));
     c
 }
 

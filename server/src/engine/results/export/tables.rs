@@ -192,6 +192,7 @@ pub fn trial_cells(r: &TrialExportRow) -> Vec<Cell<'_>> {
     ]);
     cells.push(test_only(p, Cell::text(r.cancellation.as_str())));
     cells.push(Cell::Num(r.cancellation_off_at_s));
+    cells.push(Cell::text(r.condition.as_str()));
     cells
 }
 
