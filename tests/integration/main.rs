@@ -32,6 +32,7 @@ mod identification_study;
 mod isolation;
 mod lab_pages;
 mod lsl;
+mod machine_conditions;
 mod practice_and_consent;
 mod protocol_package;
 mod replay;

@@ -1,0 +1,222 @@
+//! Machine conditions (issue 41) through the real server and its controller: a study fixed
+//! on a condition, its stability gate, its pilot's tests and export; a bench run on a
+//! condition checked against the `bdft-controller simulate --condition` process; the
+//! workbench's conditions table against `bdft-controller conditions`.
+
+use std::time::Duration;
+
+use bdft_tests::controller;
+use bdft_tests::server::{Api, Server, eventually, run_pilot};
+use serde_json::{Value, json};
+
+fn study_on(api: &Api, condition: &str) -> (u16, Value) {
+    let (_, mut params) = api.get("/api/defaults");
+    params["condition"] = json!(condition);
+    params["trial_s"] = json!(6.0);
+    params["practice_s"] = json!(3.0);
+    api.create_study(&format!("on {condition}"), &params)
+}
+
+fn cli(args: &[&str]) -> Value {
+    let out = controller(args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+#[test]
+fn a_study_on_tires_is_gated_run_and_exported_under_its_condition() {
+    let server = Server::start("conditions-study");
+    let api = server.experimenter();
+    // Refused with the condition named, nothing created.
+    for (bad, says) in [
+        ("stilts+tires", "one ground"),
+        ("loaded:2", "validity"),
+        ("mud", "unknown part"),
+    ] {
+        let (status, body) = study_on(&api, bad);
+        assert_eq!(status, 422, "{bad}: {body}");
+        let msg = body["error"].as_str().unwrap_or_default();
+        assert!(
+            msg.contains("condition") && msg.contains(says),
+            "{bad}: {msg}"
+        );
+    }
+    let (_, studies) = api.get("/api/studies");
+    assert_eq!(studies.as_array().map_or(0, Vec::len), 0, "{studies}");
+
+    let (status, created) = study_on(&api, "tires");
+    assert_eq!(status, 200, "{created}");
+    let study = created["id"].as_i64().unwrap();
+    let (_, stored) = api.get(&format!("/api/studies/{study}"));
+    assert_eq!(stored["params"]["condition"], "tires", "{stored}");
+
+    // The gate judges the designs made for the thesis's rig on the rig on tires: what the
+    // workbench's table says of each design there (the gate's own path on stilts is the
+    // sampled loop's; the table's is the design judged on another rig — they agree on
+    // stilts, so the gate is not merely the table again).
+    let (_, gate) = api.get(&format!("/api/studies/{study}/stability"));
+    let (_, table) = api.get(&format!(
+        "/api/studies/{study}/workbench/conditions?conditions=stilts,tires"
+    ));
+    let row = |design: &str, condition: &str| -> Value {
+        table["rows"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|r| r["design"] == design && r["condition"] == condition)
+            .cloned()
+            .unwrap_or_else(|| panic!("{design} on {condition}: {table}"))
+    };
+    let (_, home) = study_on(&api, "stilts");
+    let (_, home_gate) = api.get(&format!(
+        "/api/studies/{}/stability",
+        home["id"].as_i64().unwrap()
+    ));
+    let close = |a: &Value, b: &Value| match (a.as_f64(), b.as_f64()) {
+        (Some(a), Some(b)) => (a - b).abs() < 1e-3,
+        _ => a == b,
+    };
+    let mut moved = 0;
+    for (on_tires, on_stilts) in gate["verdicts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(home_gate["verdicts"].as_array().unwrap())
+    {
+        let design = on_tires["controller"].as_str().unwrap();
+        let tires = row(design, "tires");
+        let stilts = row(design, "stilts");
+        assert!(
+            close(&on_tires["max_stable_kbf"], &tires["max_stable_kbf"]),
+            "{design}: gate {on_tires} vs table {tires}"
+        );
+        assert!(
+            close(&on_stilts["max_stable_kbf"], &stilts["max_stable_kbf"]),
+            "{design}: gate {on_stilts} vs table {stilts}"
+        );
+        assert_eq!(on_tires["stable_on"], tires["stable"], "{design}");
+        if !close(&on_tires["max_stable_kbf"], &on_stilts["max_stable_kbf"]) {
+            moved += 1;
+        }
+        assert!((tires["f1_hz"].as_f64().unwrap() - 3.0).abs() < 1e-9);
+    }
+    assert!(moved >= 3, "the condition moved few margins: {gate}");
+
+    // On tires some design made for the stilts is no longer stable with the body: the
+    // pilot is refused until that is acknowledged, as for any unstable design.
+    let refused = run_pilot(&api, study, 1);
+    assert!(
+        refused["error"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("unstable"),
+        "{refused}"
+    );
+    // The pilot's dry-run copy is the study that needs the acknowledgement.
+    let copy = refused["study_id"].as_i64().unwrap();
+    api.ok(
+        &format!("/api/studies/{copy}/acknowledge-instability"),
+        json!({ "reason": "the designs made for the stilts, run on tires in simulation" }),
+    );
+    // A pilot runs every test on tires, and the export says so.
+    let status = run_pilot(&api, study, 1);
+    assert_eq!(
+        status["report"]["study_id"], copy,
+        "the pilot did not run: {status}"
+    );
+    let (header, rows) = api.get_csv(&format!("/api/studies/{copy}/export/trials"));
+    let col = header.iter().position(|h| h == "condition").unwrap();
+    assert!(!rows.is_empty());
+    assert!(rows.iter().all(|r| r[col] == "tires"), "{rows:?}");
+    let (_, codebook) = api.get_text(&format!("/api/studies/{copy}/export/codebook"));
+    assert!(codebook.contains("the machine's condition"), "{codebook}");
+}
+
+#[test]
+fn a_bench_run_on_a_condition_is_the_simulate_command_on_it() {
+    let server = Server::start("conditions-bench");
+    let api = server.experimenter();
+    let run = api.ok(
+        "/api/bench",
+        json!({
+            "compensators": [{"design": "pid"}, {"design": "pid-notch"}],
+            "signal": {"kind": "swept-sine"},
+            "duration_s": 10,
+            "condition": "tires+loaded"
+        }),
+    )["run_id"]
+        .as_i64()
+        .unwrap();
+    let v = eventually(Duration::from_secs(300), || {
+        let (_, v) = api.get(&format!("/api/bench/runs/{run}"));
+        (v["run"]["status"] != "running").then_some(v)
+    });
+    assert_eq!(v["run"]["status"], "done", "{v}");
+    assert_eq!(v["run"]["condition"], "tires+loaded", "{v}");
+    for r in v["results"].as_array().unwrap() {
+        let design = r["label"].as_str().unwrap();
+        let sim = cli(&[
+            "simulate",
+            "--compensator",
+            design,
+            "--signal",
+            "swept-sine",
+            "--duration",
+            "10",
+            "--condition",
+            "tires+loaded",
+            "--json",
+        ]);
+        let (got, want) = (
+            r["ms_cab_accel"].as_f64().unwrap(),
+            sim["ms_cab_accel"].as_f64().unwrap(),
+        );
+        assert!((got / want - 1.0).abs() < 1e-9, "{design}: {got} vs {want}");
+    }
+    // A condition the rig cannot take is refused naming it; nothing runs.
+    let (status, body) = api.post(
+        "/api/bench",
+        json!({"compensators": [{"design": "pid"}], "signal": {"kind": "trapezoid"},
+               "condition": "tires+outriggers"}),
+    );
+    assert_eq!(status, 422, "{body}");
+    assert!(
+        body["error"].as_str().unwrap().contains("one ground"),
+        "{body}"
+    );
+    // The table the workbench answers is the CLI's.
+    let (_, defaults) = api.get("/api/defaults");
+    let study = api.create_study("home", &defaults).1["id"]
+        .as_i64()
+        .unwrap();
+    let (_, table) = api.get(&format!(
+        "/api/studies/{study}/workbench/conditions?conditions=outriggers,stick"
+    ));
+    let want = cli(&[
+        "conditions",
+        "pid-notch",
+        "pid-shaper",
+        "--conditions",
+        "outriggers,stick",
+        "--json",
+    ]);
+    for w in want["rows"].as_array().unwrap() {
+        let got = table["rows"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|r| r["design"] == w["design"] && r["condition"] == w["condition"])
+            .unwrap_or_else(|| panic!("{w} missing from {table}"));
+        // The study's designs are tuned for people (slow PID), the CLI's the bench's: the
+        // rig is the same, so the first mode agrees; the reductions need not.
+        assert_eq!(got["f1_hz"], w["f1_hz"]);
+    }
+    let (status, body) = api.get(&format!(
+        "/api/studies/{study}/workbench/conditions?conditions=stilts+stilts"
+    ));
+    assert_eq!(status, 422, "{body}");
+}
