@@ -61,6 +61,8 @@ async function start() {
   const d = $('bench-duration').value.trim();
   if (d && kind !== 'csv') body.duration_s = Number(d);
   if ($('bench-on-study').checked && S.studyId) body.study_id = S.studyId;
+  const condition = $('bench-condition').value.trim();
+  if (condition) body.condition = condition;
   $('bench-run').disabled = true;
   const r = await act(`Bench run of ${compensators.length} compensator(s)`, $('bench-status'), () => post('/api/bench', body),
     (v) => `run #${v.run_id} started`);
@@ -101,7 +103,7 @@ async function loadRuns() {
   const r = await get('/api/bench/runs');
   if (!r.ok) return;
   $('bench-runs').replaceChildren(
-    ...r.data.map((run) => el('option', { value: run.id }, `#${run.id} ${JSON.parse(run.signal_json).kind} ${run.duration_s} s, ${run.rig}, ${run.status} (${when(run.created_at)})`)),
+    ...r.data.map((run) => el('option', { value: run.id }, `#${run.id} ${JSON.parse(run.signal_json).kind} ${run.duration_s} s, ${run.rig} (${run.condition}), ${run.status} (${when(run.created_at)})`)),
   );
   if (r.data.length) show(r.data[0].id);
 }

@@ -22,6 +22,7 @@ const FIELDS = [
   { id: 'p-survey_scale_points', path: ['survey', 'scale_points'], int: true },
   { id: 'p-display_shake_gain', path: ['display_shake_gain'] },
   { id: 'p-rig', path: ['rig'], text: true },
+  { id: 'p-condition', path: ['condition'], text: true, fallback: 'stilts' },
 ];
 
 /**

@@ -9,6 +9,7 @@ import * as stations from './dashboard-stations.js';
 import * as monitor from './dashboard-monitor.js';
 import * as results from './dashboard-results.js';
 import * as workbench from './dashboard-workbench.js';
+import * as conditions from './dashboard-conditions.js';
 import * as audit from './dashboard-audit.js';
 import * as pilot from './dashboard-pilot.js';
 import * as plan from './dashboard-plan.js';
@@ -56,6 +57,7 @@ async function showApp(me) {
     monitor.init();
     results.init();
     workbench.init();
+    conditions.init();
     audit.init();
     pilot.init();
     plan.init();

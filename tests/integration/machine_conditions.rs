@@ -5,8 +5,9 @@
 
 use std::time::Duration;
 
-use bdft_tests::controller;
 use bdft_tests::server::{Api, Server, eventually, run_pilot};
+use bdft_tests::webdriver::Driver;
+use bdft_tests::{TempDir, controller};
 use serde_json::{Value, json};
 
 fn study_on(api: &Api, condition: &str) -> (u16, Value) {
@@ -216,7 +217,54 @@ fn a_bench_run_on_a_condition_is_the_simulate_command_on_it() {
         assert_eq!(got["f1_hz"], w["f1_hz"]);
     }
     let (status, body) = api.get(&format!(
-        "/api/studies/{study}/workbench/conditions?conditions=stilts+stilts"
+        "/api/studies/{study}/workbench/conditions?conditions=stilts%2Bstilts"
     ));
     assert_eq!(status, 422, "{body}");
+    assert!(body["error"].as_str().unwrap().contains("twice"), "{body}");
+}
+
+/// The dashboard offers the conditions: the study form shows and keeps a study's, and the
+/// workbench draws the table the server answers, an unstable row marked.
+#[test]
+fn in_chromium_the_study_form_and_the_workbench_offer_the_conditions() {
+    let server = Server::start("conditions-dashboard");
+    let api = server.experimenter();
+    let (status, created) = study_on(&api, "tires+loaded");
+    assert_eq!(status, 200, "{created}");
+    let study = created["id"].as_i64().unwrap();
+    let downloads = TempDir::new("conditions-dashboard");
+    let driver = Driver::start();
+    let dash = driver.dashboard_on(downloads.path(), &server.base, study);
+    let shown = dash.wait_until(
+        "const v = document.querySelector('#p-condition').value; return v || null;",
+        json!([]),
+    );
+    assert_eq!(shown, "tires+loaded");
+    dash.type_into("#wb-conditions", "stilts,tires+loaded");
+    dash.click("#wb-conditions-form button[type=submit]");
+    let rows = dash.wait_until(
+        "const t = document.querySelector('#wb-conditions-table'); \
+         return t ? [...t.tBodies[0].rows].map((r) => [r.className, ...[...r.cells].map((c) => c.textContent)]) : null;",
+        json!([]),
+    );
+    let (_, table) = api.get(&format!(
+        "/api/studies/{study}/workbench/conditions?conditions=stilts,tires%2Bloaded"
+    ));
+    let want = table["rows"].as_array().unwrap();
+    let rows = rows.as_array().unwrap();
+    assert_eq!(rows.len(), want.len(), "{rows:?}");
+    assert_eq!(rows.len(), 10, "five designs on two conditions: {rows:?}");
+    for (got, w) in rows.iter().zip(want) {
+        assert_eq!(got[2], w["condition"], "{got:?}");
+        let stable = w["stable"].as_bool().unwrap();
+        assert_eq!(got[0] == "bad", !stable, "{got:?} {w}");
+        assert_eq!(got[7], if stable { "yes" } else { "NO" });
+        if let Some(m) = w["max_stable_kbf"].as_f64() {
+            assert_eq!(got[6], format!("{m:.3}"), "{got:?}");
+        }
+    }
+    assert!(
+        rows.iter().any(|r| r[0] == "bad"),
+        "on tires with a load some design is unstable: {rows:?}"
+    );
 }

@@ -22,6 +22,7 @@
 //!   `dashboard-monitor-actions.js`; `dashboard-accounts.js` accounts and what the role shows;
 //!   `dashboard-confirm.js` the confirmation of irreversible actions; `dashboard-workbench.js` the
 //!   Workbench's analysis in `#wb-analysis`, drawn on canvases from the server's numbers;
+//!   `dashboard-conditions.js` its machine-conditions table;
 //!   `dashboard-configs.js` and `dashboard-bench.js` its configuration versions and bench runs,
 //!   plots drawn as SVG from the stored traces; `dashboard-plan.js` the power planner;
 //!   `dashboard-backups.js` the admins' Backups panel; `dashboard-erasure.js` an admin's erasure
