@@ -3,10 +3,13 @@
 use std::path::PathBuf;
 
 use super::{newest_study, open_store, read_params};
+use bdft_protocol::params::MachineCondition;
 use bdft_protocol::study::{CancellationArm, CancellationParams, ModelError, StudyParams};
 
 use crate::config::DbConfig;
 use crate::engine::dry_runs::pilot;
+use crate::engine::study::stability::StabilityCache;
+use crate::engine::study::{dry_run, studies};
 use crate::store;
 
 #[derive(Debug, clap::Args)]
@@ -46,6 +49,16 @@ pub struct Args {
     /// The wrong arm's phase lag at 2 Hz (degrees) [default: 0].
     #[arg(long)]
     wrong_phase_lag_deg: Option<f64>,
+    /// The machine's condition of the study the pilot creates (stilts, tires, outriggers,
+    /// loaded[:FILL], stick, joined by '+'; docs/machine-conditions.md); a study given with
+    /// --study keeps its own.
+    #[arg(long)]
+    condition: Option<MachineCondition>,
+    /// Run the pilot although a design is unstable with the body (in simulation only),
+    /// acknowledged on the study it runs in with this reason (audited), as the study page's
+    /// acknowledgement does.
+    #[arg(long, value_name = "REASON")]
+    acknowledge_instability: Option<String>,
 }
 
 fn parse_arm(s: &str) -> Result<CancellationArm, String> {
@@ -69,6 +82,8 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         cancellation,
         wrong_gain,
         wrong_phase_lag_deg,
+        condition,
+        acknowledge_instability,
     } = args;
     let pool = open_store(&db).await?;
     let identification = identification || personalized || !cancellation.is_empty();
@@ -82,7 +97,17 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     if wrong.is_none() && (wrong_gain.is_some() || wrong_phase_lag_deg.is_some()) {
         anyhow::bail!("--wrong-gain and --wrong-phase-lag-deg go with --cancellation ...,wrong");
     }
-    let with_identification = |mut p: StudyParams| {
+    if condition.is_some() && study.is_some() {
+        anyhow::bail!(
+            "--condition: study {} keeps its own condition; give --condition to a pilot that creates its study",
+            study.unwrap_or_default()
+        );
+    }
+    // The study the pilot creates, with what the flags add to it.
+    let prepared = |mut p: StudyParams| {
+        if let Some(c) = condition {
+            p.condition = c;
+        }
         if identification && p.identification.is_none() {
             p.identification = Some(Default::default());
         }
@@ -100,16 +125,21 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     };
     let study = match (params, study) {
         (Some(path), _) => {
-            Some(pilot::new_study(&pool, &with_identification(read_params(&path)?), seed).await?)
+            Some(pilot::new_study(&pool, &prepared(read_params(&path)?), seed).await?)
         }
-        (None, None) if identification && store::studies::all(&pool).await?.is_empty() => Some(
-            pilot::new_study(
-                &pool,
-                &with_identification(crate::engine::study::schedule::default_params()),
-                seed,
+        (None, None)
+            if (identification || condition.is_some())
+                && store::studies::all(&pool).await?.is_empty() =>
+        {
+            Some(
+                pilot::new_study(
+                    &pool,
+                    &prepared(crate::engine::study::schedule::default_params()),
+                    seed,
+                )
+                .await?,
             )
-            .await?,
-        ),
+        }
         (None, study) => {
             if identification {
                 let s = newest_study(&pool, study).await?;
@@ -133,6 +163,18 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
             study
         }
     };
+    if let Some(reason) = acknowledge_instability {
+        let target = newest_study(&pool, study).await?;
+        let runs_in = dry_run::for_pilot(&pool, pilot::COMMAND_LINE, target).await?;
+        studies::acknowledge_instability(
+            &pool,
+            &StabilityCache::default(),
+            pilot::COMMAND_LINE,
+            runs_in,
+            &reason,
+        )
+        .await?;
+    }
     let started = std::time::Instant::now();
     let report = pilot::run(&pool, study, subjects, seed).await?;
     println!("{}", serde_json::to_string(&report)?);

@@ -21,7 +21,7 @@ use crate::store::records::Record;
 use crate::store::{self, Change};
 
 /// Who the audit log names for starting a pilot from the command line.
-const COMMAND_LINE: &str = "system:pilot-command";
+pub const COMMAND_LINE: &str = "system:pilot-command";
 
 /// What `pilot.process` records: the process that runs the pilot.
 #[derive(Debug, Serialize)]
