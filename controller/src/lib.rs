@@ -90,6 +90,7 @@
 //! (the libc calls: the monotonic clock, SCHED_FIFO, mlockall, affinity) and `alloc_check` (the
 //! test binary's counting allocator).
 
+pub mod adaptive;
 pub mod analysis;
 pub mod batch;
 pub mod cancellation;

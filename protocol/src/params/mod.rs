@@ -2,11 +2,13 @@
 //! server, sent to the controller. Each has the documented default and a `validate` that
 //! names the parameter and its allowed range.
 
+mod adapt;
 mod compensator;
 mod experiment;
 mod population;
 mod rig;
 
+pub use adapt::*;
 pub use compensator::*;
 pub use experiment::*;
 pub use population::*;
