@@ -34,7 +34,11 @@ fn analyze_reports_every_compensator_with_the_documented_fields() {
             "pid-shaper",
             "lqr",
             "lqr-cabvel",
-            "lqr-cabacc"
+            "lqr-cabacc",
+            // Analysed frozen at their design's mode (r = 1), as their fixed counterparts.
+            "pid-notch-adaptive",
+            "pid-shaper-adaptive",
+            "lqr-cabvel-scheduled"
         ]
     );
     for c in comps {

@@ -3,8 +3,10 @@
 //! a fixed notch or zero-vibration shaper loses most of its reduction.
 //!
 //! Files: `estimator`: the online estimate of the mode (frequency, damping, confidence) from
-//! the seat accelerometer alone — anti-alias, decimation to 100 Hz, band-limiting, RLS with
-//! forgetting on an AR(4), gated on excitation (its doc says why each). `schedule`: the grid
+//! the seat accelerometer, with the cylinder position as the structure's known input —
+//! engine notch, anti-alias, decimation to 100 Hz, high-pass, a bank of the structure's
+//! model over the ratio range and their residuals with forgetting, gated on excitation (its
+//! doc says why each). `schedule`: the grid
 //! of ratios r = estimate / design frequency the designs are prepared for, the decision once a
 //! retune period (a confident estimate → the nearest design; none → the fixed design, r = 1,
 //! counted as a fallback), and the crossfade. `designs`: the prepared designs — notch filters
@@ -42,8 +44,6 @@ pub struct Adaptive {
     estimator: ModeEstimator,
     schedule: Schedule,
     designs: Designs,
-    /// The first-mode frequency of the plant designed for (Hz): r = estimate / this.
-    design_f1_hz: f64,
     dt: f64,
     ticks: u64,
     confident_since_s: Option<f64>,
@@ -65,7 +65,6 @@ impl Adaptive {
             estimator: ModeEstimator::new(plant, adapt, dt),
             designs: Designs::new(spec, plant, dt, schedule.ratios())?,
             schedule,
-            design_f1_hz: plant.f1_hz,
             dt,
             ticks: 0,
             confident_since_s: None,
@@ -76,7 +75,7 @@ impl Adaptive {
     /// active design (crossfaded with the old one while blending) gives the valve command.
     #[inline]
     pub fn step(&mut self, r_c: f64, m: Measurement) -> f64 {
-        self.estimator.step(m.cab_accel);
+        self.estimator.step(m.cab_accel, m.y);
         self.ticks += 1;
         let confident = self.estimator.confident();
         if confident && self.confident_since_s.is_none() {
@@ -86,7 +85,7 @@ impl Adaptive {
             .estimator
             .estimate()
             .filter(|_| confident)
-            .map(|e| e.f_hz / self.design_f1_hz);
+            .map(|e| e.ratio);
         if let Some(switch) = self.schedule.tick(ratio) {
             self.designs.hand_over(switch);
         }

@@ -35,7 +35,7 @@ impl Default for AdaptParams {
         Self {
             range: 0.3,
             memory_s: 4.0,
-            max_rel_std: 0.02,
+            max_rel_std: 0.05,
             retune_period_s: 1.0,
             blend_s: 0.5,
         }
