@@ -23,8 +23,8 @@
 //! noise sits in the regressors and biases the poles (−15 % at r = 1.3, measured); the output
 //! error of a model driven by the clean position is unbiased for that noise. The cost is
 //! that the mode's shape is the design's: both modes move together by r (the field
-//! variation the schedule follows) and the damping reported is the design's, scaled by
-//! nothing — the grid does not estimate it.
+//! variation the schedule follows), and the damping reported is the design's: the bank does
+//! not estimate damping.
 //!
 //! Updates (the residual sums) are made only while the filtered acceleration's energy (mean
 //! square over half a second) exceeds `EXCITATION_RATIO` times what the accelerometer's white
@@ -35,8 +35,8 @@
 //! squares var(r*) = σ²/(½J″) with σ² = J*/n, n the independent samples in the memory (the
 //! forgetting's 1/(1 − λ), at most the updates made, times 2·corner·T for the band-limited
 //! noise's correlation). Confident when √var/r* ≤ `max_rel_std` and at least a tenth of a
-//! memory of updates was made. Noise alone never opens the gate; an unexcited cab keeps the
-//! last estimate.
+//! memory of updates was made. Noise alone does not open the gate (the floor errs high; no
+//! update in 30 s of it, tested); an unexcited cab keeps the last estimate.
 
 use crate::filters::Biquad;
 use bdft_protocol::params::{AdaptParams, PlantParams};
@@ -283,7 +283,8 @@ impl ModeEstimator {
         );
         let h = self.ratios[1] - self.ratios[0];
         let curvature = (j0 - 2.0 * j1 + j2) / (h * h);
-        if !(curvature > 0.0) {
+        // Flat or concave (no minimum between the neighbours), or not a number.
+        if curvature.is_nan() || curvature <= 0.0 {
             return None;
         }
         let offset = ((j0 - j2) / (2.0 * curvature * h)).clamp(-h, h);

@@ -84,9 +84,10 @@ fn reductions(kind: CompensatorKind, twin: CompensatorKind, scale: f64) -> (f64,
     (1.0 - mine.0 / theirs.0, 1.0 - mine.1 / theirs.1)
 }
 
-/// Tolerance and time of convergence, as documented in `docs` (system-model §3's first mode
-/// moved by ±30 %): within 2 % of the true first mode, confident, no later than 5 s into the
-/// bench trapezoid (its first corners), and within 2 % from then on.
+/// Tolerance and time of convergence (system-model §3's first mode moved by ±30 %): confident
+/// no later than 5 s into the bench trapezoid (its first corners), and from then on within
+/// 2 % of the true first mode. Measured (seed 1): confident at 0.60 s (×0.7) and 0.56 s
+/// (×1.3); largest error after 5 s 0.00 % (2.80 Hz) and 1.04 % (5.15–5.20 Hz for 5.20 Hz).
 const CONVERGED_WITHIN: f64 = 0.02;
 const CONVERGED_BY_S: f64 = 5.0;
 
@@ -113,9 +114,6 @@ fn the_estimate_converges_to_the_moved_first_mode_on_the_bench_trapezoid() {
             },
         );
         let first = first.expect("confident at some time");
-        println!(
-            "x{scale}: confident at {first:.2} s, worst error after {CONVERGED_BY_S} s {worst_after:.4}"
-        );
         assert!(
             first <= CONVERGED_BY_S,
             "x{scale}: first confident at {first} s"
@@ -129,6 +127,8 @@ fn a_retune_crossfades_without_a_jump_in_the_command() {
     // Mid-run (10 s, on the trapezoid's ramp) each design is sent from r = 1 to r = 1.3; the
     // command's largest change a tick during the blend may not exceed the largest change a
     // tick of the same run without the retune (its own trapezoid corners), plus 1 %.
+    // Measured: notch 0.0041 against 0.1665, shaper 0.0033 against 0.0495, scheduled LQR
+    // 0.350 against 0.398 (valve units a tick).
     for kind in [
         CompensatorKind::PidNotchAdaptive,
         CompensatorKind::PidShaperAdaptive,
@@ -157,7 +157,6 @@ fn a_retune_crossfades_without_a_jump_in_the_command() {
         };
         let (steady, _) = steps(false);
         let (_, blending) = steps(true);
-        println!("{kind}: largest change a tick {steady:.4}, during the blend {blending:.4}");
         assert!(blending <= 1.01 * steady, "{kind}: {blending} vs {steady}");
     }
 }
@@ -219,14 +218,12 @@ fn the_gate_passes_at_every_frozen_ratio_at_the_studys_kbf() {
             seat: Seat::On,
             compensator: crate::compensator::study_spec(kind, &plant),
         };
+        // Margins measured (largest stable K_BF at r = 0.7 … 1.3): notch 6.26 … 3.28, shaper
+        // 8.31 … 4.22, scheduled LQR 1.43 (r 0.7), 2.46, 2.73, 2.64 (r 1), 2.42, 2.19, 1.97.
         let gate = adaptive_gate(&setup, GATE_POINTS).unwrap();
         assert_eq!(gate.len(), GATE_POINTS);
         assert!((gate[GATE_POINTS / 2].ratio - 1.0).abs() < 1e-12);
         for v in &gate {
-            println!(
-                "{kind} r {:.2}: stable {} margin {:?}",
-                v.ratio, v.stable, v.max_stable_kbf
-            );
             assert!(v.stable, "{kind} at r {}: {v:?}", v.ratio);
         }
     }
@@ -269,17 +266,9 @@ fn moved_modes_cost_the_fixed_designs_reduction_and_not_the_adaptive_ones() {
         (LqrCabvel, LqrCabvelScheduled, Lqr),
     ] {
         let nominal = reductions(fixed, twin, 1.0);
-        println!(
-            "{fixed} x1.0: true {:.3}, measured {:.4}",
-            nominal.0, nominal.1
-        );
         for scale in [0.7, 1.3] {
             let f = reductions(fixed, twin, scale);
             let a = reductions(adaptive_kind, twin, scale);
-            println!(
-                "x{scale}: {fixed} true {:.3} measured {:.4}; {adaptive_kind} true {:.3} measured {:.4}",
-                f.0, f.1, a.0, a.1
-            );
             if scale < 1.0 {
                 assert!(
                     a.0 >= 0.8 * nominal.0,

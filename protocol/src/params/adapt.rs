@@ -65,7 +65,8 @@ impl AdaptParams {
 pub struct AdaptationStatus {
     /// The estimated mode frequency (Hz); absent before the estimator has seen a mode.
     pub f_hz: Option<f64>,
-    /// The estimated mode's damping ratio; absent with `f_hz`.
+    /// The mode's damping ratio as the estimator models it (the controller's bank of
+    /// structure models keeps the design's); absent with `f_hz`.
     pub zeta: Option<f64>,
     /// The estimate is trusted now.
     pub confident: bool,
