@@ -292,3 +292,64 @@ fn moved_modes_cost_the_fixed_designs_reduction_and_not_the_adaptive_ones() {
         }
     }
 }
+
+#[test]
+fn retuning_and_blending_never_allocate_and_reset_forgets_them() {
+    use crate::alloc_check::allocations_during;
+    use crate::closed_loop::Drive;
+    let trapezoid = Trapezoid::bench();
+    let ticks = 20_000;
+    for kind in [
+        CompensatorKind::PidNotchAdaptive,
+        CompensatorKind::PidShaperAdaptive,
+        CompensatorKind::LqrCabvelScheduled,
+    ] {
+        let setup = LoopSetup {
+            plant: PlantParams::default(),
+            body: BodyModel::default(),
+            loop_params: LoopParams::default(),
+            seat: Seat::Off,
+            compensator: spec(kind),
+        };
+        // The modes at 1.3×: the design retunes by itself, then is sent to 0.7 and back
+        // to 1 mid-blend.
+        let mut lp = ClosedLoop::new(&setup, 1)
+            .unwrap()
+            .with_rig(rig(1.3), 1)
+            .unwrap();
+        let fresh = lp.compensator().clone();
+        let mut inputs = Vec::with_capacity(ticks);
+        let mut commands = Vec::with_capacity(ticks);
+        let forced = |k: usize| match k {
+            12_000 => Some(0.7),
+            12_200 => Some(1.0),
+            _ => None,
+        };
+        let n = allocations_during(|| {
+            for k in 0..ticks {
+                if let Some(r) = forced(k) {
+                    adaptive(&mut lp).retune_to(r);
+                }
+                let rec = lp.tick(Drive::Reference(trapezoid.at(k as f64 * DT)));
+                inputs.push((rec.r_c, lp.last_measurement()));
+                commands.push(rec.valve);
+            }
+        });
+        assert_eq!(n, 0, "{kind}: {n} allocations");
+        let status = lp.compensator().adaptation().unwrap();
+        assert!(
+            status.retunes >= 3 && status.confident,
+            "{kind}: {status:?}"
+        );
+        // Reset: the same status and, on the same inputs, the same commands as when new.
+        let mut c = lp.compensator().clone();
+        c.reset();
+        assert_eq!(c.adaptation(), fresh.adaptation(), "{kind}");
+        for (k, &(r_c, m)) in inputs.iter().enumerate() {
+            if let Some(r) = forced(k) {
+                c.as_adaptive_mut().unwrap().retune_to(r);
+            }
+            assert_eq!(c.step(r_c, m), commands[k], "{kind} at tick {k}");
+        }
+    }
+}
