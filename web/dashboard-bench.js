@@ -12,6 +12,7 @@ const $ = (id) => document.getElementById(id);
 /** The designs the server knows by name (as `robustness` takes them). */
 const DESIGNS = [
   'pid', 'pid-notch', 'pid-shaper', 'lqr', 'lqr-cabvel', 'lqr-cabacc',
+  'pid-notch-adaptive', 'pid-shaper-adaptive', 'lqr-cabvel-scheduled',
   'pid-shaper:zvd', 'pid-shaper:ei', 'pid-shaper:two-hump-ei', 'lqr:kalman', 'lqr-cabvel:kalman', 'lqr-cabacc:kalman',
 ];
 const COLORS = ['#1f77b4', '#d62728', '#2ca02c', '#9467bd', '#ff7f0e', '#8c564b', '#e377c2', '#17becf'];

@@ -164,6 +164,9 @@ export const COMPENSATOR_NAME = {
   lqr: 'LQR',
   'lqr-cabvel': 'LQR + cab velocity',
   'lqr-cabacc': 'LQR + cab acceleration',
+  'pid-notch-adaptive': 'PID + adaptive notch',
+  'pid-shaper-adaptive': 'PID + adaptive input shaper',
+  'lqr-cabvel-scheduled': 'LQR + cab velocity, scheduled on the mode',
 };
 
 /** How the test ran: the station's display and input, the controller's timing. */

@@ -21,6 +21,9 @@ const TWINS = [
   ['pid-shaper', 'pid'],
   ['lqr-cabvel', 'lqr'],
   ['lqr-cabacc', 'lqr'],
+  ['pid-notch-adaptive', 'pid'],
+  ['pid-shaper-adaptive', 'pid'],
+  ['lqr-cabvel-scheduled', 'lqr'],
 ];
 
 let lastSummary = '';

@@ -10,7 +10,10 @@
 //!   (`cargo bench -p bdft-controller --bench tick -- loop` runs only this part);
 //! - the power planner's batched trials (`batch::metrics`, `LANES` subjects per batch)
 //!   against the same trials one at a time (`runtime::local::metrics`), per compensator
-//!   (`-- batch` runs only this part); `-- cancellation` runs only the cancellation's cost.
+//!   (`-- batch` runs only this part); `-- cancellation` runs only the cancellation's cost;
+//! - what the adaptive designs' estimator, schedule and crossfade add to a tick: each adaptive
+//!   design's tick against its fixed counterpart's in the same run (`-- adaptive` runs only
+//!   this part; issue 41's budget: 200 ns).
 //!
 //! Medians over repeated runs: the machines are shared and noisy.
 
@@ -227,14 +230,44 @@ fn cancellation_cost(report: &mut serde_json::Map<String, serde_json::Value>) {
     );
 }
 
+/// Each adaptive design's tick against its fixed counterpart's, in the same run: the
+/// estimator, the schedule and (while blending) the second design.
+fn adaptive_cost(report: &mut serde_json::Map<String, serde_json::Value>) {
+    println!("adaptive designs: tick (station on, noise on), median of {RUNS} × 200,000 ticks");
+    let mut rows = serde_json::Map::new();
+    for kind in CompensatorKind::ALL.into_iter().filter(|k| k.is_adaptive()) {
+        let fixed = kind
+            .fixed_counterpart()
+            .expect("an adaptive design has one");
+        let mut with = ClosedLoop::new(&setup(kind, true), 1).expect("design");
+        let mut without = ClosedLoop::new(&setup(fixed, true), 1).expect("design");
+        let (a, f) = (
+            time_ticks(&mut with, 200_000),
+            time_ticks(&mut without, 200_000),
+        );
+        println!(
+            "  {:<21} {a:6.1} ns, {:<11} {f:6.1} ns: +{:.1} ns",
+            kind.name(),
+            fixed.name(),
+            a - f
+        );
+        rows.insert(
+            kind.name().into(),
+            serde_json::json!({ "adaptive": a, "fixed": f, "added": a - f }),
+        );
+    }
+    report.insert("adaptive_tick_ns".into(), rows.into());
+}
+
 fn main() {
     let mut report = serde_json::Map::new();
     let only = std::env::args()
         .skip(1)
-        .find(|a| a == "loop" || a == "batch" || a == "cancellation");
+        .find(|a| a == "loop" || a == "batch" || a == "cancellation" || a == "adaptive");
     match only.as_deref() {
         Some("loop") => loop_cost(&mut report),
         Some("batch") => batch_cost(&mut report),
+        Some("adaptive") => adaptive_cost(&mut report),
         Some(_) => cancellation_cost(&mut report),
         None => {}
     }
@@ -257,6 +290,7 @@ fn main() {
     report.insert("tick_ns".into(), ticks.into());
 
     cancellation_cost(&mut report);
+    adaptive_cost(&mut report);
 
     let mut trial = serde_json::Map::new();
     println!("140 s trial (steps, synthetic operator, station on), median of {RUNS}");

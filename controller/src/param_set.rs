@@ -97,7 +97,7 @@ mod tests {
         assert_eq!(partial.plant.k_s, 0.3);
         assert_eq!(partial.plant.k_vc, 22.0);
         assert_eq!(partial.body, BodyModel::RigidMass { k_h: 0.4 });
-        assert_eq!(partial.compensators.len(), 6);
+        assert_eq!(partial.compensators.len(), CompensatorKind::ALL.len());
     }
 
     #[test]

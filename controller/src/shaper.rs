@@ -167,45 +167,45 @@ pub fn design(params: &ShaperParams, dt: f64) -> Vec<(usize, f64)> {
         .fold(vec![(0, 1.0)], |acc, s| convolve(&acc, &s))
 }
 
-/// The shaper running on a reference signal: a ring buffer of past inputs, sized once.
+/// The past inputs of a shaper: a ring buffer sized once, newest at `head` while a tick
+/// reads it. Shared by the fixed shaper and the adaptive one, whose tap sets all read one
+/// history (so a retuned shaper's output is valid from its first tick).
 #[derive(Debug, Clone)]
-pub struct Shaper {
-    taps: Vec<(usize, f64)>,
+pub struct DelayLine {
     buf: Vec<f64>,
     head: usize,
 }
 
-impl Shaper {
-    pub fn new(params: &ShaperParams, dt: f64) -> Self {
-        let taps = design(params, dt);
-        let len = taps.last().map_or(0, |t| t.0) + 1;
+impl DelayLine {
+    /// A line long enough for delays of up to `max_delay` samples.
+    pub fn new(max_delay: usize) -> Self {
         Self {
-            taps,
-            buf: vec![0.0; len],
+            buf: vec![0.0; max_delay + 1],
             head: 0,
         }
     }
 
-    /// (delay in samples, amplitude) of each impulse.
-    pub fn taps(&self) -> &[(usize, f64)] {
-        &self.taps
-    }
-
-    /// The delay the shaper adds: the time of its last impulse (s).
-    pub fn duration(&self, dt: f64) -> f64 {
-        self.taps.last().map_or(0.0, |t| t.0 as f64 * dt)
-    }
-
+    /// Stores this tick's input.
     #[inline]
-    pub fn step(&mut self, r: f64) -> f64 {
-        let len = self.buf.len();
+    pub fn push(&mut self, r: f64) {
         self.buf[self.head] = r;
+    }
+
+    /// Σ aᵢ·r[k − dᵢ] over `taps` (delay in samples, amplitude) for this tick.
+    #[inline]
+    pub fn sum(&self, taps: &[(usize, f64)]) -> f64 {
+        let len = self.buf.len();
         let mut out = 0.0;
-        for &(d, a) in &self.taps {
+        for &(d, a) in taps {
             out += a * self.buf[(self.head + len - d) % len];
         }
-        self.head = (self.head + 1) % len;
         out
+    }
+
+    /// Ends the tick.
+    #[inline]
+    pub fn advance(&mut self) {
+        self.head = (self.head + 1) % self.buf.len();
     }
 
     pub fn reset(&mut self) {
@@ -214,7 +214,7 @@ impl Shaper {
     }
 }
 
-impl LinearState for Shaper {
+impl LinearState for DelayLine {
     /// The state is the last `len − 1` inputs, newest first.
     fn state_len(&self) -> usize {
         self.buf.len() - 1
@@ -230,6 +230,55 @@ impl LinearState for Shaper {
         for (j, v) in s[..len - 1].iter().enumerate() {
             self.buf[(self.head + len - 1 - j) % len] = *v;
         }
+    }
+}
+
+/// The shaper running on a reference signal.
+#[derive(Debug, Clone)]
+pub struct Shaper {
+    taps: Vec<(usize, f64)>,
+    line: DelayLine,
+}
+
+impl Shaper {
+    pub fn new(params: &ShaperParams, dt: f64) -> Self {
+        let taps = design(params, dt);
+        let line = DelayLine::new(taps.last().map_or(0, |t| t.0));
+        Self { taps, line }
+    }
+
+    /// (delay in samples, amplitude) of each impulse.
+    pub fn taps(&self) -> &[(usize, f64)] {
+        &self.taps
+    }
+
+    /// The delay the shaper adds: the time of its last impulse (s).
+    pub fn duration(&self, dt: f64) -> f64 {
+        self.taps.last().map_or(0.0, |t| t.0 as f64 * dt)
+    }
+
+    #[inline]
+    pub fn step(&mut self, r: f64) -> f64 {
+        self.line.push(r);
+        let out = self.line.sum(&self.taps);
+        self.line.advance();
+        out
+    }
+
+    pub fn reset(&mut self) {
+        self.line.reset();
+    }
+}
+
+impl LinearState for Shaper {
+    fn state_len(&self) -> usize {
+        self.line.state_len()
+    }
+    fn read_state(&self, out: &mut [f64]) {
+        self.line.read_state(out);
+    }
+    fn write_state(&mut self, s: &[f64]) {
+        self.line.write_state(s);
     }
 }
 

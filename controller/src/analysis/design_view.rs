@@ -160,9 +160,11 @@ pub fn compare(setup: &LoopSetup) -> Result<ModelComparison, DesignError> {
 }
 
 fn lqr_of(setup: &LoopSetup) -> Result<Option<Lqr>, DesignError> {
-    match Compensator::build(&setup.compensator, &setup.plant, setup.loop_params.dt)? {
+    // An adaptive design is analysed frozen at r = 1, as everywhere (`linear_setup`).
+    let spec = setup.compensator.frozen_at(1.0);
+    match Compensator::build(&spec, &setup.plant, setup.loop_params.dt)? {
         Compensator::Lqr(l) => Ok(Some(*l)),
-        Compensator::Pid { .. } => Ok(None),
+        Compensator::Pid { .. } | Compensator::Adaptive(_) => Ok(None),
     }
 }
 

@@ -154,7 +154,9 @@ fn body_kind(setup: &LoopSetup) -> String {
 
 /// The compensator's map from [reference, y, cab acceleration] to the valve command.
 pub fn compensator_map(setup: &LoopSetup) -> Result<StateSpace, DesignError> {
-    let mut c = Compensator::build(&setup.compensator, &setup.plant, setup.loop_params.dt)?;
+    // An adaptive design's map is its fixed design's (frozen at r = 1, `linear_setup`).
+    let spec = setup.compensator.frozen_at(1.0);
+    let mut c = Compensator::build(&spec, &setup.plant, setup.loop_params.dt)?;
     Ok(probe(&mut c, 3, 1, |c, u, v| {
         v[0] = c.step(
             u[0],
@@ -218,7 +220,7 @@ pub fn report(
 pub fn inner_loop_map(setup: &LoopSetup) -> Option<StateSpace> {
     let (CompensatorSpec::Lqr { lqr }
     | CompensatorSpec::LqrCabvel { lqr }
-    | CompensatorSpec::LqrCabacc { lqr }) = &setup.compensator
+    | CompensatorSpec::LqrCabacc { lqr }) = &setup.compensator.frozen_at(1.0)
     else {
         return None;
     };

@@ -29,6 +29,10 @@
 //! verdict Z = P − N from the same crossings. The shaper designs' margins (analyze, robustness)
 //! come from here, the others' from eigenvalues.
 //!
+//! `adaptive_gate`: an adaptive design's stability gate — its design frozen at every ratio of a
+//! grid over its range, each analysed as above. Everywhere else an adaptive design is analysed
+//! frozen at r = 1 (`linear_setup`).
+//!
 //! *Invariant:* the Nyquist verdict equals the sampled loop's eigenvalue verdict (tested per
 //! design, below and above each margin, and on robustness map cells).
 
@@ -39,7 +43,9 @@ use crate::closed_loop::{ClosedLoop, Drive, LoopSetup};
 use crate::error::DesignError;
 use crate::linalg::{eigenvalues, spectral_radius};
 use crate::params::{MAX_KBF, Seat, check};
+pub use adaptive_gate::{FrozenVerdict, GATE_POINTS, adaptive_gate};
 
+mod adaptive_gate;
 pub mod design_view;
 pub mod frequency;
 pub mod nyquist;
@@ -222,9 +228,12 @@ impl LinearizedLoop {
 }
 
 /// The setup as the analysis linearizes it: station on (feedthrough closed), no
-/// accelerometer noise, no dead-band.
+/// accelerometer noise, no dead-band, and an adaptive design frozen at r = 1 — its fixed
+/// design, what it runs while not confident (the estimator and the schedule are not
+/// linear; [`adaptive_gate`] judges the design frozen at every r of its range).
 pub fn linear_setup(setup: &LoopSetup) -> LoopSetup {
     let mut setup = setup.clone();
+    setup.compensator = setup.compensator.frozen_at(1.0);
     setup.seat = Seat::On;
     setup.plant = linear_rig(setup.plant);
     setup

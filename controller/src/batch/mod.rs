@@ -56,7 +56,8 @@ pub(crate) const ZERO: Lanes = [0.0; LANES];
 /// one batch — consecutive runs of `LANES` — must share design, plant, seat, K_BF, length
 /// and interlock limit) without records, and returns each one's metrics in order: None
 /// where the cab-vibration interlock stopped it, as `runtime::local::metrics`. Runs the
-/// widest build this CPU has.
+/// widest build this CPU has. Trials of an adaptive design run one at a time (each
+/// trial's estimate retunes its own design, so the lanes would not share one).
 pub fn metrics(starts: &[StartTrial], dt: f64) -> Result<Vec<Option<Metrics>>, String> {
     Ok(metrics_with(Build::widest(), starts, dt)?.unwrap_or_default())
 }
@@ -73,6 +74,12 @@ pub fn metrics_with(
     }
     let mut out = Vec::with_capacity(starts.len());
     for chunk in starts.chunks(LANES) {
+        if chunk[0].compensator.kind().is_adaptive() {
+            for st in chunk {
+                out.push(crate::runtime::local::metrics(st, dt)?);
+            }
+            continue;
+        }
         // A short last batch fills its spare lanes with its last trial and drops them.
         let lanes = std::array::from_fn(|l| &chunk[l.min(chunk.len() - 1)]);
         let (mut batch, mut deviates) = trial::BatchTrial::build(&lanes, dt)?;

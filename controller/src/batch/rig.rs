@@ -488,9 +488,10 @@ pub(crate) enum CompensatorLanes {
 }
 
 impl CompensatorLanes {
-    /// From one lane's compensator: every lane runs the same design, from its state.
-    pub(crate) fn new(c: &Compensator) -> Self {
-        match c {
+    /// From one lane's compensator: every lane runs the same design, from its state. An
+    /// adaptive design is refused: its estimate, and so its design, is each trial's own.
+    pub(crate) fn new(c: &Compensator) -> Result<Self, String> {
+        Ok(match c {
             Compensator::Pid { pre, pid } => Self::Pid {
                 pre: match pre {
                     Prefilter::None => PrefilterLanes::None,
@@ -500,7 +501,10 @@ impl CompensatorLanes {
                 pid: PidLanes::new(pid),
             },
             Compensator::Lqr(q) => Self::Lqr(LqrLanes::new(q)),
-        }
+            Compensator::Adaptive(_) => {
+                return Err("an adaptive design's trials run one at a time, not batched".into());
+            }
+        })
     }
 
     /// `Compensator::step`: cylinder references and measurements → saturated commands.

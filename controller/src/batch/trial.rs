@@ -233,7 +233,7 @@ impl BatchTrial {
             targets: Targets::new(lanes.iter().map(|l| l.runner.signal.clone()).collect()),
             plant: PlantLanes::new(&std::array::from_fn(|l| &each(l).rig.plant))?,
             body,
-            compensator: CompensatorLanes::new(&lanes[0].rig.compensator),
+            compensator: CompensatorLanes::new(&lanes[0].rig.compensator)?,
             operator: OperatorLanes::new(&std::array::from_fn(|l| each(l).operator)),
             interlock: InterlockLanes::new(interlock),
             k_bf: std::array::from_fn(|l| each(l).rig.k_bf),

@@ -17,8 +17,8 @@ pub(super) struct FrequencyArgs {
     /// JSON file of parameters (as printed by `defaults`).
     #[arg(long)]
     params: Option<PathBuf>,
-    /// A design to report (repeatable; names as for `robustness`) [default: the six
-    /// compensators].
+    /// A design to report (repeatable; names as for `robustness`) [default: every
+    /// compensator; an adaptive one as its design frozen at r = 1].
     #[arg(long = "compensator")]
     compensators: Vec<String>,
     /// K_BF at which the loops are closed and the Nyquist curve is drawn.

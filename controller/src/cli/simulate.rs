@@ -21,7 +21,8 @@ pub(super) struct SimulateArgs {
     /// JSON file of parameters (as printed by `defaults`; keys left out keep their default).
     #[arg(long)]
     params: Option<PathBuf>,
-    /// pid, pid-notch, pid-shaper, lqr, lqr-cabvel or lqr-cabacc.
+    /// pid, pid-notch, pid-shaper, lqr, lqr-cabvel, lqr-cabacc, pid-notch-adaptive,
+    /// pid-shaper-adaptive or lqr-cabvel-scheduled.
     #[arg(long)]
     compensator: CompensatorKind,
     /// swept-sine (0.01→8 Hz, 5 mm) and trapezoid (±25 mm, 6 s) drive the cylinder

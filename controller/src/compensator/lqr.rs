@@ -46,7 +46,13 @@ pub struct LqrDesign {
 }
 
 impl LqrDesign {
+    /// The design on `plant` with its structure modes scaled by `p.design_mode_scale`.
     pub fn new(p: &LqrParams, plant: &PlantParams) -> Result<Self, DesignError> {
+        let plant = &PlantParams {
+            f1_hz: plant.f1_hz * p.design_mode_scale,
+            f2_hz: plant.f2_hz * p.design_mode_scale,
+            ..*plant
+        };
         let (a, b) = design_model(plant, p.inner_loop_gain);
         let a = DMatrix::from_column_slice(7, 7, a.as_slice());
         let b = DMatrix::from_column_slice(7, 1, b.as_slice());

@@ -1,4 +1,4 @@
-//! The six compensators behind one interface: one `step` per tick from the cylinder
+//! The nine compensators behind one interface: one `step` per tick from the cylinder
 //! reference and the measurements to a saturated valve command, a `reset`, and the
 //! parameters they were built from (recorded with every trial).
 //!
@@ -11,7 +11,8 @@
 //! Ziegler–Nichols from the ultimate gain, the notch. `lqr`: LQR + observer (Luenberger with placed
 //! poles, or the steady-state Kalman filter from the dual Riccati equation, `ObserverDesign`) + N̄
 //! scaling, cab velocity from high-pass + leaky integrator. `variants`: the workbench's design
-//! names (`pid-shaper:zvd`, `lqr-cabacc:kalman`, …).
+//! names (`pid-shaper:zvd`, `lqr-cabacc:kalman`, …). The three adaptive designs are
+//! `crate::adaptive`'s, built here from their specs.
 //!
 //! *Invariant:* `step` never allocates, locks, blocks or logs (checked by `alloc_check.rs`, a
 //! counting allocator in the test binary, for every variant); fixed-size nalgebra types only.
@@ -25,12 +26,14 @@ pub(crate) use lqr::CabSignal;
 pub use lqr::{CabOutput, Lqr, LqrDesign, LqrParams, ObserverDesign, kalman_gain};
 pub use pid::{NotchParams, Pid, PidParams, notch_filter, tyreus_luyben_pi, ziegler_nichols};
 
+use crate::adaptive::Adaptive;
 use crate::error::DesignError;
 use crate::filters::Biquad;
 use crate::model::Measurement;
 use crate::params::PlantParams;
 use crate::shaper::{Shaper, ShaperParams};
 use crate::state::LinearState;
+pub use bdft_protocol::params::{AdaptParams, AdaptationStatus};
 
 /// The documented default design of `kind` for this plant (PID tuned by Ziegler–Nichols
 /// from the plant's ultimate gain): the bench design, and the one the published stability
@@ -66,6 +69,20 @@ fn spec_with_pid(kind: CompensatorKind, pid: PidParams) -> CompensatorSpec {
         CompensatorKind::LqrCabacc => CompensatorSpec::LqrCabacc {
             lqr: LqrParams::for_output(CabOutput::Acceleration, 0.05),
         },
+        CompensatorKind::PidNotchAdaptive => CompensatorSpec::PidNotchAdaptive {
+            pid,
+            notch: NotchParams::default(),
+            adapt: AdaptParams::default(),
+        },
+        CompensatorKind::PidShaperAdaptive => CompensatorSpec::PidShaperAdaptive {
+            pid,
+            shaper: ShaperParams::default(),
+            adapt: AdaptParams::default(),
+        },
+        CompensatorKind::LqrCabvelScheduled => CompensatorSpec::LqrCabvelScheduled {
+            lqr: LqrParams::for_output(CabOutput::Velocity, 2.0),
+            adapt: AdaptParams::default(),
+        },
     }
 }
 
@@ -80,8 +97,13 @@ pub enum Prefilter {
 /// A compensator ready to run.
 #[derive(Debug, Clone)]
 pub enum Compensator {
-    Pid { pre: Prefilter, pid: Pid },
+    Pid {
+        pre: Prefilter,
+        pid: Pid,
+    },
     Lqr(Box<Lqr>),
+    /// Estimator, schedule and prepared designs of an adaptive spec.
+    Adaptive(Box<Adaptive>),
 }
 
 impl Compensator {
@@ -93,6 +115,9 @@ impl Compensator {
     ) -> Result<Self, DesignError> {
         spec.validate()?;
         plant.validate()?;
+        if let Some(a) = Adaptive::new(spec, plant, dt)? {
+            return Ok(Self::Adaptive(Box::new(a)));
+        }
         Ok(match spec {
             CompensatorSpec::Pid { pid } => Self::Pid {
                 pre: Prefilter::None,
@@ -109,7 +134,28 @@ impl Compensator {
             CompensatorSpec::Lqr { lqr }
             | CompensatorSpec::LqrCabvel { lqr }
             | CompensatorSpec::LqrCabacc { lqr } => Self::Lqr(Box::new(Lqr::new(lqr, plant, dt)?)),
+            CompensatorSpec::PidNotchAdaptive { .. }
+            | CompensatorSpec::PidShaperAdaptive { .. }
+            | CompensatorSpec::LqrCabvelScheduled { .. } => {
+                unreachable!("adaptive specs are built above")
+            }
         })
+    }
+
+    /// What an adaptive design reports (its estimate, confidence and retunes); None for the
+    /// fixed designs.
+    pub fn adaptation(&self) -> Option<AdaptationStatus> {
+        match self {
+            Self::Adaptive(a) => Some(a.status()),
+            Self::Pid { .. } | Self::Lqr(_) => None,
+        }
+    }
+
+    pub fn as_adaptive_mut(&mut self) -> Option<&mut Adaptive> {
+        match self {
+            Self::Adaptive(a) => Some(a),
+            Self::Pid { .. } | Self::Lqr(_) => None,
+        }
     }
 
     /// One tick: cylinder reference r_c (mm) and measurements → valve command, saturated.
@@ -125,6 +171,7 @@ impl Compensator {
                 pid.step(r - m.y)
             }
             Self::Lqr(l) => l.step(r_c, m),
+            Self::Adaptive(a) => a.step(r_c, m),
         }
     }
 
@@ -140,19 +187,18 @@ impl Compensator {
                 pid.reset();
             }
             Self::Lqr(l) => l.reset(),
+            Self::Adaptive(a) => a.reset(),
         }
     }
 
     /// True if the reference path contains pure delays (the shaper): its discrete
     /// closed-loop eigenvalues then include the delay line's, which are not poles in rad/s.
     pub fn has_delays(&self) -> bool {
-        matches!(
-            self,
-            Self::Pid {
-                pre: Prefilter::Shaper(_),
-                ..
-            }
-        )
+        match self {
+            Self::Pid { pre, .. } => matches!(pre, Prefilter::Shaper(_)),
+            Self::Lqr(_) => false,
+            Self::Adaptive(a) => a.has_delays(),
+        }
     }
 
     /// The delay an input shaper adds (s), if the design has one.
@@ -162,6 +208,7 @@ impl Compensator {
                 pre: Prefilter::Shaper(s),
                 ..
             } => Some(s.duration(dt)),
+            Self::Adaptive(a) => a.shaper_duration(),
             _ => None,
         }
     }
@@ -182,6 +229,7 @@ impl LinearState for Compensator {
                 Self::prefilter_state(pre).map_or(0, |p| p.state_len()) + pid.state_len()
             }
             Self::Lqr(l) => l.state_len(),
+            Self::Adaptive(a) => a.state_len(),
         }
     }
     fn read_state(&self, out: &mut [f64]) {
@@ -194,6 +242,7 @@ impl LinearState for Compensator {
                 pid.read_state(&mut out[n..]);
             }
             Self::Lqr(l) => l.read_state(out),
+            Self::Adaptive(a) => a.read_state(out),
         }
     }
     fn write_state(&mut self, s: &[f64]) {
@@ -213,6 +262,7 @@ impl LinearState for Compensator {
                 pid.write_state(&s[n..]);
             }
             Self::Lqr(l) => l.write_state(s),
+            Self::Adaptive(a) => a.write_state(s),
         }
     }
 }

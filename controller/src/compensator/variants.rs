@@ -20,7 +20,7 @@ pub const OPTIONS: [(CompensatorKind, &str); 9] = [
     (CompensatorKind::LqrCabacc, "kalman"),
 ];
 
-/// Every variant name: the six compensators, then each option.
+/// Every variant name: every compensator (`CompensatorKind::ALL`), then each option.
 pub fn names() -> Vec<String> {
     CompensatorKind::ALL
         .iter()

@@ -3,7 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{ParamError, check};
+use super::{AdaptParams, ParamError, check};
 
 /// The compensators, by the names used everywhere (CLI, protocol, database, exports).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
@@ -16,17 +16,24 @@ pub enum CompensatorKind {
     Lqr,
     LqrCabvel,
     LqrCabacc,
+    PidNotchAdaptive,
+    PidShaperAdaptive,
+    LqrCabvelScheduled,
 }
 
 impl CompensatorKind {
-    /// All six, the five of the human-subject study first.
-    pub const ALL: [Self; 6] = [
+    /// All nine: the five of the human-subject study first, then cab acceleration feedback,
+    /// then the three adaptive designs (issue 41).
+    pub const ALL: [Self; 9] = [
         Self::Pid,
         Self::PidNotch,
         Self::PidShaper,
         Self::Lqr,
         Self::LqrCabvel,
         Self::LqrCabacc,
+        Self::PidNotchAdaptive,
+        Self::PidShaperAdaptive,
+        Self::LqrCabvelScheduled,
     ];
     /// The five compared in the human-subject study.
     pub const STUDY: [Self; 5] = [
@@ -45,13 +52,38 @@ impl CompensatorKind {
             Self::Lqr => "lqr",
             Self::LqrCabvel => "lqr-cabvel",
             Self::LqrCabacc => "lqr-cabacc",
+            Self::PidNotchAdaptive => "pid-notch-adaptive",
+            Self::PidShaperAdaptive => "pid-shaper-adaptive",
+            Self::LqrCabvelScheduled => "lqr-cabvel-scheduled",
         }
     }
 
     /// The state-feedback designs (an LQR with or without cab feedback): the ones a
-    /// personalized study tunes to each subject.
+    /// personalized study tunes to each subject. The scheduled LQR is not among them:
+    /// personalization tunes one design's weights, the schedule holds seven designs.
     pub fn is_lqr(self) -> bool {
         matches!(self, Self::Lqr | Self::LqrCabvel | Self::LqrCabacc)
+    }
+
+    /// The designs that retune themselves from an online estimate of the cab mode.
+    pub fn is_adaptive(self) -> bool {
+        self.fixed_counterpart().is_some()
+    }
+
+    /// The fixed design an adaptive one retunes (and falls back to when its estimate is not
+    /// confident); none for the fixed designs.
+    pub fn fixed_counterpart(self) -> Option<Self> {
+        match self {
+            Self::PidNotchAdaptive => Some(Self::PidNotch),
+            Self::PidShaperAdaptive => Some(Self::PidShaper),
+            Self::LqrCabvelScheduled => Some(Self::LqrCabvel),
+            Self::Pid
+            | Self::PidNotch
+            | Self::PidShaper
+            | Self::Lqr
+            | Self::LqrCabvel
+            | Self::LqrCabacc => None,
+        }
     }
 }
 
@@ -109,6 +141,20 @@ pub enum CompensatorSpec {
     LqrCabacc {
         lqr: LqrParams,
     },
+    PidNotchAdaptive {
+        pid: PidParams,
+        notch: NotchParams,
+        adapt: AdaptParams,
+    },
+    PidShaperAdaptive {
+        pid: PidParams,
+        shaper: ShaperParams,
+        adapt: AdaptParams,
+    },
+    LqrCabvelScheduled {
+        lqr: LqrParams,
+        adapt: AdaptParams,
+    },
 }
 
 impl CompensatorSpec {
@@ -120,6 +166,9 @@ impl CompensatorSpec {
             Self::Lqr { .. } => CompensatorKind::Lqr,
             Self::LqrCabvel { .. } => CompensatorKind::LqrCabvel,
             Self::LqrCabacc { .. } => CompensatorKind::LqrCabacc,
+            Self::PidNotchAdaptive { .. } => CompensatorKind::PidNotchAdaptive,
+            Self::PidShaperAdaptive { .. } => CompensatorKind::PidShaperAdaptive,
+            Self::LqrCabvelScheduled { .. } => CompensatorKind::LqrCabvelScheduled,
         }
     }
 
@@ -129,6 +178,76 @@ impl CompensatorSpec {
             Self::PidNotch { pid, notch } => pid.validate().and(notch.validate()),
             Self::PidShaper { pid, shaper } => pid.validate().and(shaper.validate()),
             Self::Lqr { lqr } | Self::LqrCabvel { lqr } | Self::LqrCabacc { lqr } => lqr.validate(),
+            Self::PidNotchAdaptive { pid, notch, adapt } => {
+                pid.validate().and(notch.validate()).and(adapt.validate())
+            }
+            Self::PidShaperAdaptive { pid, shaper, adapt } => {
+                pid.validate().and(shaper.validate()).and(adapt.validate())
+            }
+            Self::LqrCabvelScheduled { lqr, adapt } => lqr.validate().and(adapt.validate()),
+        }
+    }
+
+    /// The adaptation parameters of an adaptive design.
+    pub fn adapt(&self) -> Option<&AdaptParams> {
+        match self {
+            Self::PidNotchAdaptive { adapt, .. }
+            | Self::PidShaperAdaptive { adapt, .. }
+            | Self::LqrCabvelScheduled { adapt, .. } => Some(adapt),
+            Self::Pid { .. }
+            | Self::PidNotch { .. }
+            | Self::PidShaper { .. }
+            | Self::Lqr { .. }
+            | Self::LqrCabvel { .. }
+            | Self::LqrCabacc { .. } => None,
+        }
+    }
+
+    /// The fixed design frozen at the mode-frequency ratio `r` (estimate / design
+    /// frequency): the notch's centre and the shaper's modes at `r` times theirs, an LQR
+    /// designed on the plant with both structure modes scaled by `r` (its
+    /// `design_mode_scale` multiplied by `r`). An adaptive design becomes its fixed
+    /// counterpart (`frozen_at(1.0)` is what it runs when not confident, and what the
+    /// analysis judges); a design without a mode-dependent part (PID) is returned as is.
+    pub fn frozen_at(&self, r: f64) -> CompensatorSpec {
+        let notch_at = |n: &NotchParams| NotchParams {
+            f_hz: n.f_hz * r,
+            ..*n
+        };
+        let shaper_at = |s: &ShaperParams| ShaperParams {
+            modes: s
+                .modes
+                .iter()
+                .map(|m| Mode {
+                    f_hz: m.f_hz * r,
+                    ..*m
+                })
+                .collect(),
+            ..s.clone()
+        };
+        let lqr_at = |l: &LqrParams| LqrParams {
+            design_mode_scale: l.design_mode_scale * r,
+            ..*l
+        };
+        match self {
+            Self::Pid { pid } => Self::Pid { pid: *pid },
+            Self::PidNotch { pid, notch } | Self::PidNotchAdaptive { pid, notch, .. } => {
+                Self::PidNotch {
+                    pid: *pid,
+                    notch: notch_at(notch),
+                }
+            }
+            Self::PidShaper { pid, shaper } | Self::PidShaperAdaptive { pid, shaper, .. } => {
+                Self::PidShaper {
+                    pid: *pid,
+                    shaper: shaper_at(shaper),
+                }
+            }
+            Self::Lqr { lqr } => Self::Lqr { lqr: lqr_at(lqr) },
+            Self::LqrCabvel { lqr } | Self::LqrCabvelScheduled { lqr, .. } => {
+                Self::LqrCabvel { lqr: lqr_at(lqr) }
+            }
+            Self::LqrCabacc { lqr } => Self::LqrCabacc { lqr: lqr_at(lqr) },
         }
     }
 }
@@ -390,6 +509,19 @@ pub struct LqrParams {
     /// Leak (rad/s) of the integrator turning acceleration into velocity; far below the
     /// structure modes (25 and 39 rad/s) so that it integrates there, yet cannot drift.
     pub cab_leak_w: f64,
+    /// The design is made on the plant with both structure mode frequencies scaled by this
+    /// (1 = the identified modes; left out of the JSON at 1): how a scheduled LQR holds its
+    /// designs for modes that moved.
+    #[serde(default = "unit_scale", skip_serializing_if = "is_unit_scale")]
+    pub design_mode_scale: f64,
+}
+
+fn unit_scale() -> f64 {
+    1.0
+}
+
+fn is_unit_scale(v: &f64) -> bool {
+    *v == 1.0
 }
 
 impl LqrParams {
@@ -404,6 +536,7 @@ impl LqrParams {
             rate_filter_w: 2.0 * std::f64::consts::PI * 50.0,
             cab_highpass_w: 0.5,
             cab_leak_w: 0.5,
+            design_mode_scale: 1.0,
         }
     }
 
@@ -414,6 +547,7 @@ impl LqrParams {
         check("lqr.rate_filter_w", self.rate_filter_w, 1.0, 1e4)?;
         check("lqr.cab_highpass_w", self.cab_highpass_w, 1e-3, 100.0)?;
         check("lqr.cab_leak_w", self.cab_leak_w, 1e-3, 100.0)?;
+        check("lqr.design_mode_scale", self.design_mode_scale, 0.2, 5.0)?;
         self.observer.validate()?;
         for p in self.observer_poles {
             check("lqr.observer_poles", p, -1e4, -1e-3)?;

@@ -2,12 +2,14 @@
 //! server, sent to the controller. Each has the documented default and a `validate` that
 //! names the parameter and its allowed range.
 
+mod adapt;
 mod compensator;
 mod condition;
 mod experiment;
 mod population;
 mod rig;
 
+pub use adapt::*;
 pub use compensator::*;
 pub use condition::*;
 pub use experiment::*;

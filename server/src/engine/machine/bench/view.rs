@@ -13,12 +13,18 @@ use crate::store;
 use crate::store::bench::{BenchResult, BenchRun};
 
 /// The uncompensated design a compensated one is measured against: PID for the notch and the
-/// shaper, LQR for the cab-velocity and cab-acceleration feedback; none for PID and LQR.
+/// shaper (fixed or adaptive), LQR for the cab-velocity (fixed or scheduled) and
+/// cab-acceleration feedback; none for PID and LQR.
 pub fn twin(kind: CompensatorKind) -> Option<CompensatorKind> {
     match kind {
         CompensatorKind::Pid | CompensatorKind::Lqr => None,
-        CompensatorKind::PidNotch | CompensatorKind::PidShaper => Some(CompensatorKind::Pid),
-        CompensatorKind::LqrCabvel | CompensatorKind::LqrCabacc => Some(CompensatorKind::Lqr),
+        CompensatorKind::PidNotch
+        | CompensatorKind::PidShaper
+        | CompensatorKind::PidNotchAdaptive
+        | CompensatorKind::PidShaperAdaptive => Some(CompensatorKind::Pid),
+        CompensatorKind::LqrCabvel
+        | CompensatorKind::LqrCabacc
+        | CompensatorKind::LqrCabvelScheduled => Some(CompensatorKind::Lqr),
     }
 }
 
@@ -177,6 +183,9 @@ mod tests {
         assert_eq!(twin(PidShaper), Some(Pid));
         assert_eq!(twin(LqrCabvel), Some(Lqr));
         assert_eq!(twin(LqrCabacc), Some(Lqr));
+        assert_eq!(twin(PidNotchAdaptive), Some(Pid));
+        assert_eq!(twin(PidShaperAdaptive), Some(Pid));
+        assert_eq!(twin(LqrCabvelScheduled), Some(Lqr));
         assert_eq!(twin(Pid), None);
         assert_eq!(twin(Lqr), None);
     }

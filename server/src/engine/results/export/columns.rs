@@ -154,7 +154,7 @@ const CONTROLLER: Column = col(
     "controller",
     "",
     TEXT,
-    "the compensator (pid, pid-notch, pid-shaper, lqr, lqr-cabvel, lqr-cabacc); empty for practice",
+    "the compensator (pid, pid-notch, pid-shaper, lqr, lqr-cabvel, lqr-cabacc, pid-notch-adaptive, pid-shaper-adaptive, lqr-cabvel-scheduled); empty for practice",
 );
 /// The seat and compensator under their clear names, and their old names kept beside them
 /// for a release (the old column first, the clear one last in the export, so no column
@@ -175,7 +175,7 @@ const COMPENSATOR: Column = col(
     "compensator",
     "",
     TEXT,
-    "the compensator (pid, pid-notch, pid-shaper, lqr, lqr-cabvel, lqr-cabacc); empty for practice; controller is its old name",
+    "the compensator (pid, pid-notch, pid-shaper, lqr, lqr-cabvel, lqr-cabacc, pid-notch-adaptive, pid-shaper-adaptive, lqr-cabvel-scheduled); empty for practice; controller is its old name",
 );
 const CONTROLLER_ALIAS: Column = col(
     "controller",

@@ -203,7 +203,9 @@ fn design_cells(r: &TrialExportRow) -> [Cell<'_>; 3] {
         Ok(
             CompensatorSpec::Lqr { lqr }
             | CompensatorSpec::LqrCabvel { lqr }
-            | CompensatorSpec::LqrCabacc { lqr },
+            | CompensatorSpec::LqrCabacc { lqr }
+            // The scheduled LQR's weights are those of each of its designs.
+            | CompensatorSpec::LqrCabvelScheduled { lqr, .. },
         ) => Some(lqr),
         _ => None,
     };

@@ -1,0 +1,78 @@
+//! The stability gate of an adaptive design: the design frozen at every mode-frequency
+//! ratio r of a grid over its range, each closed through the feedthrough on the setup's
+//! plant and body, as the analysis judges a fixed design. An estimate anywhere in the range
+//! — right or wrong — then leaves a loop whose stability was checked before the trial.
+
+use serde::{Deserialize, Serialize};
+
+use super::{LinearizedLoop, linear_setup, nyquist};
+use crate::closed_loop::LoopSetup;
+use crate::compensator::Compensator;
+use crate::error::{DesignError, ParamError};
+use crate::params::{MAX_KBF, check};
+
+/// The gate's grid: seven ratios (the scheduled LQR's own designs), r = 1 among them.
+pub const GATE_POINTS: usize = 7;
+
+/// The design frozen at one ratio.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FrozenVerdict {
+    /// Mode-frequency ratio r the design is frozen at.
+    pub ratio: f64,
+    /// Stable for every K_BF in [0, the setup's K_BF].
+    pub stable: bool,
+    /// Largest K_BF with the loop stable on all of [0, K]; `null` = up to MAX_KBF (as
+    /// `CompensatorAnalysis::max_stable_kbf`).
+    pub max_stable_kbf: Option<f64>,
+}
+
+/// The verdicts of `setup.compensator` (an adaptive design) frozen at `points` ratios
+/// evenly over its range (at least `GATE_POINTS`, odd so that r = 1 is one of them), at
+/// the setup's K_BF. The margin comes from the same route as `analyze`'s (`margin`: the
+/// Nyquist crossings for the shaper, eigenvalues otherwise).
+pub fn adaptive_gate(setup: &LoopSetup, points: usize) -> Result<Vec<FrozenVerdict>, DesignError> {
+    let k_bf = setup.loop_params.k_bf;
+    check("kbf", k_bf, 0.0, MAX_KBF)?;
+    let Some(adapt) = setup.compensator.adapt() else {
+        return Err(ParamError::Invalid {
+            name: "compensator",
+            message: format!(
+                "{} is not adaptive; the gate judges an adaptive design's range",
+                setup.compensator.kind()
+            ),
+        }
+        .into());
+    };
+    if points < GATE_POINTS || points % 2 == 0 {
+        return Err(ParamError::Invalid {
+            name: "points",
+            message: format!("{points} ratios; an odd number of at least {GATE_POINTS}"),
+        }
+        .into());
+    }
+    let (lo, hi) = adapt.ratio_bounds();
+    (0..points)
+        .map(|i| {
+            let ratio = lo + (hi - lo) * i as f64 / (points - 1) as f64;
+            let frozen = LoopSetup {
+                compensator: setup.compensator.frozen_at(ratio),
+                ..setup.clone()
+            };
+            let lin = linear_setup(&frozen);
+            let delays =
+                Compensator::build(&lin.compensator, &lin.plant, lin.loop_params.dt)?.has_delays();
+            // The shaper's loop by its frequency response: its delay line's eigenvalues
+            // would cost seconds a ratio and give the same first loss of stability.
+            let max_stable_kbf = if delays {
+                nyquist::OpenLoop::new(&frozen)?.max_stable_up_to(MAX_KBF)
+            } else {
+                LinearizedLoop::new(&frozen)?.max_stable_kbf()?
+            };
+            Ok(FrozenVerdict {
+                ratio,
+                stable: max_stable_kbf.is_none_or(|m| m > k_bf),
+                max_stable_kbf,
+            })
+        })
+        .collect()
+}
