@@ -20,13 +20,19 @@ use crate::params::{MAX_KBF, MachineCondition, Seat};
 use crate::signals::StepParams;
 use crate::simulate::{SignalKind, SimConfig, simulate};
 
-/// The uncompensated design a compensator's reduction is measured against: the PID for the
-/// prefilters, the LQR without cab feedback for the cab-feedback designs.
+/// The uncompensated design a compensator's reduction is measured against (here and in the
+/// server's bench runs): the PID for the prefilters, fixed or adaptive; the LQR without cab
+/// feedback for the cab-feedback designs, fixed or scheduled; none for those two.
 pub fn twin(kind: CompensatorKind) -> Option<CompensatorKind> {
     match kind {
-        CompensatorKind::PidNotch | CompensatorKind::PidShaper => Some(CompensatorKind::Pid),
-        CompensatorKind::LqrCabvel | CompensatorKind::LqrCabacc => Some(CompensatorKind::Lqr),
         CompensatorKind::Pid | CompensatorKind::Lqr => None,
+        CompensatorKind::PidNotch
+        | CompensatorKind::PidShaper
+        | CompensatorKind::PidNotchAdaptive
+        | CompensatorKind::PidShaperAdaptive => Some(CompensatorKind::Pid),
+        CompensatorKind::LqrCabvel
+        | CompensatorKind::LqrCabacc
+        | CompensatorKind::LqrCabvelScheduled => Some(CompensatorKind::Lqr),
     }
 }
 

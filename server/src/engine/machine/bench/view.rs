@@ -1,7 +1,6 @@
 //! A bench run read back: its results with their reductions against each compensated
 //! design's uncompensated twin, and the stored traces.
 
-use bdft_protocol::params::CompensatorKind;
 use bdft_protocol::trial::record_channel;
 use serde::{Deserialize, Serialize};
 use sqlx::AnyPool;
@@ -12,21 +11,7 @@ use crate::error::{AppError, Result};
 use crate::store;
 use crate::store::bench::{BenchResult, BenchRun};
 
-/// The uncompensated design a compensated one is measured against: PID for the notch and the
-/// shaper (fixed or adaptive), LQR for the cab-velocity (fixed or scheduled) and
-/// cab-acceleration feedback; none for PID and LQR.
-pub fn twin(kind: CompensatorKind) -> Option<CompensatorKind> {
-    match kind {
-        CompensatorKind::Pid | CompensatorKind::Lqr => None,
-        CompensatorKind::PidNotch
-        | CompensatorKind::PidShaper
-        | CompensatorKind::PidNotchAdaptive
-        | CompensatorKind::PidShaperAdaptive => Some(CompensatorKind::Pid),
-        CompensatorKind::LqrCabvel
-        | CompensatorKind::LqrCabacc
-        | CompensatorKind::LqrCabvelScheduled => Some(CompensatorKind::Lqr),
-    }
-}
+pub use bdft_controller::conditions::twin;
 
 /// One compensator of a run: a design name (`pid`, `pid-shaper:zvd`, … as `robustness`
 /// design has no twin or the run has none).
