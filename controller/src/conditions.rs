@@ -154,6 +154,20 @@ mod tests {
     }
 
     #[test]
+    fn every_compensated_design_has_its_uncompensated_twin() {
+        use CompensatorKind::*;
+        assert_eq!(twin(PidNotch), Some(Pid));
+        assert_eq!(twin(PidShaper), Some(Pid));
+        assert_eq!(twin(LqrCabvel), Some(Lqr));
+        assert_eq!(twin(LqrCabacc), Some(Lqr));
+        assert_eq!(twin(PidNotchAdaptive), Some(Pid));
+        assert_eq!(twin(PidShaperAdaptive), Some(Pid));
+        assert_eq!(twin(LqrCabvelScheduled), Some(Lqr));
+        assert_eq!(twin(Pid), None);
+        assert_eq!(twin(Lqr), None);
+    }
+
+    #[test]
     fn the_thesiss_rig_row_is_the_bench_and_the_analysis_of_today() {
         let base = base();
         let designs: Vec<_> = [CompensatorKind::PidNotch, CompensatorKind::LqrCabvel]

@@ -160,18 +160,4 @@ mod tests {
             r#"{"cab_accel_mm_s2":[null],"cyl_pos_mm":[0.0],"dt_s":0.01,"target_mm":[0.10000000149011612]}"#
         );
     }
-
-    #[test]
-    fn every_compensated_design_has_its_uncompensated_twin() {
-        use CompensatorKind::*;
-        assert_eq!(twin(PidNotch), Some(Pid));
-        assert_eq!(twin(PidShaper), Some(Pid));
-        assert_eq!(twin(LqrCabvel), Some(Lqr));
-        assert_eq!(twin(LqrCabacc), Some(Lqr));
-        assert_eq!(twin(PidNotchAdaptive), Some(Pid));
-        assert_eq!(twin(PidShaperAdaptive), Some(Pid));
-        assert_eq!(twin(LqrCabvelScheduled), Some(Lqr));
-        assert_eq!(twin(Pid), None);
-        assert_eq!(twin(Lqr), None);
-    }
 }
