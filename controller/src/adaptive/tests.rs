@@ -220,7 +220,7 @@ fn the_gate_passes_at_every_frozen_ratio_at_the_studys_kbf() {
         };
         // Margins measured (largest stable K_BF at r = 0.7 … 1.3): notch 6.26 … 3.28, shaper
         // 8.31 … 4.22, scheduled LQR 1.43 (r 0.7), 2.46, 2.73, 2.64 (r 1), 2.42, 2.19, 1.97.
-        let gate = adaptive_gate(&setup, GATE_POINTS).unwrap();
+        let gate = adaptive_gate(&setup, GATE_POINTS, &setup.plant).unwrap();
         assert_eq!(gate.len(), GATE_POINTS);
         assert!((gate[GATE_POINTS / 2].ratio - 1.0).abs() < 1e-12);
         for v in &gate {
@@ -234,7 +234,9 @@ fn the_gate_passes_at_every_frozen_ratio_at_the_studys_kbf() {
         seat: Seat::On,
         compensator: spec(CompensatorKind::PidNotch),
     };
-    let err = adaptive_gate(&fixed, GATE_POINTS).unwrap_err().to_string();
+    let err = adaptive_gate(&fixed, GATE_POINTS, &fixed.plant)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("not adaptive"), "{err}");
 }
 

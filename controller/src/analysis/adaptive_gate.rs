@@ -5,11 +5,10 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{LinearizedLoop, linear_setup, nyquist};
+use super::robustness::OnRig;
 use crate::closed_loop::LoopSetup;
-use crate::compensator::Compensator;
 use crate::error::{DesignError, ParamError};
-use crate::params::{MAX_KBF, check};
+use crate::params::{MAX_KBF, PlantParams, check};
 
 /// The gate's grid: seven ratios (the scheduled LQR's own designs), r = 1 among them.
 pub const GATE_POINTS: usize = 7;
@@ -26,11 +25,16 @@ pub struct FrozenVerdict {
     pub max_stable_kbf: Option<f64>,
 }
 
-/// The verdicts of `setup.compensator` (an adaptive design) frozen at `points` ratios
-/// evenly over its range (at least `GATE_POINTS`, odd so that r = 1 is one of them), at
-/// the setup's K_BF. The margin comes from the same route as `analyze`'s (`margin`: the
-/// Nyquist crossings for the shaper, eigenvalues otherwise).
-pub fn adaptive_gate(setup: &LoopSetup, points: usize) -> Result<Vec<FrozenVerdict>, DesignError> {
+/// The verdicts of `setup.compensator` (an adaptive design, made for `setup.plant`) frozen
+/// at `points` ratios evenly over its range (at least `GATE_POINTS`, odd so that r = 1 is
+/// one of them), on `rig` (the setup's plant, or the machine under a condition) at the
+/// setup's K_BF. The margin is `OnRig`'s: the Nyquist crossings for the shaper, the sampled
+/// loop's eigenvalues otherwise, as `analyze`'s.
+pub fn adaptive_gate(
+    setup: &LoopSetup,
+    points: usize,
+    rig: &PlantParams,
+) -> Result<Vec<FrozenVerdict>, DesignError> {
     let k_bf = setup.loop_params.k_bf;
     check("kbf", k_bf, 0.0, MAX_KBF)?;
     let Some(adapt) = setup.compensator.adapt() else {
@@ -58,16 +62,7 @@ pub fn adaptive_gate(setup: &LoopSetup, points: usize) -> Result<Vec<FrozenVerdi
                 compensator: setup.compensator.frozen_at(ratio),
                 ..setup.clone()
             };
-            let lin = linear_setup(&frozen);
-            let delays =
-                Compensator::build(&lin.compensator, &lin.plant, lin.loop_params.dt)?.has_delays();
-            // The shaper's loop by its frequency response: its delay line's eigenvalues
-            // would cost seconds a ratio and give the same first loss of stability.
-            let max_stable_kbf = if delays {
-                nyquist::OpenLoop::new(&frozen)?.max_stable_up_to(MAX_KBF)
-            } else {
-                LinearizedLoop::new(&frozen)?.max_stable_kbf()?
-            };
+            let max_stable_kbf = OnRig::new(&frozen)?.max_stable_kbf(*rig, MAX_KBF)?;
             Ok(FrozenVerdict {
                 ratio,
                 stable: max_stable_kbf.is_none_or(|m| m > k_bf),

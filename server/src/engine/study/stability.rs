@@ -1,5 +1,7 @@
 //! The stability gate: every compensator of a study analysed at the study's K_BF with its
-//! plant (under the study's machine condition, the design made for the plant) and body — on the machine (feedthrough loop closed) and off it — before a person
+//! plant (under the study's machine condition, the design made for the plant) and body, an
+//! adaptive design at every frozen estimate of its range (`adaptive_gate`), on the machine
+//! (feedthrough loop closed) and off it, before a person
 //! runs it. A study on the real machine whose on-machine design is unstable cannot be
 //! locked; a simulated one needs an explicit, audited acknowledgement. The off-machine
 //! verdict is also the gate of an identification test's disturbance: the multisine drives
@@ -13,8 +15,8 @@
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
-use bdft_controller::analysis::LinearizedLoop;
 use bdft_controller::analysis::robustness::OnRig;
+use bdft_controller::analysis::{GATE_POINTS, LinearizedLoop, adaptive_gate};
 use bdft_controller::closed_loop::LoopSetup;
 use bdft_protocol::params::{
     BodyModel, CompensatorKind, CompensatorSpec, LoopParams, MAX_KBF, MachineCondition,
@@ -88,7 +90,27 @@ fn verdict(params: &StudyParams, spec: &bdft_protocol::params::CompensatorSpec) 
     let design = |e: bdft_controller::error::DesignError| {
         AppError::BadRequest(format!("{}: the design cannot be built: {e}", spec.kind()))
     };
-    let (stable_on, stable_off, max_stable_kbf) = if params.condition.is_default() {
+    let rig = params
+        .condition
+        .apply(&params.plant)
+        .map_err(|e| AppError::BadRequest(e.to_string()))?;
+    let (stable_on, stable_off, max_stable_kbf) = if spec.adapt().is_some() {
+        // An adaptive design may be frozen anywhere in its range by its estimate: the gate
+        // judges every ratio of it, and the design is as stable as its least stable ratio.
+        let gate = adaptive_gate(&setup, GATE_POINTS, &rig).map_err(design)?;
+        let least = gate
+            .iter()
+            .map(|v| v.max_stable_kbf.unwrap_or(f64::INFINITY))
+            .fold(f64::INFINITY, f64::min);
+        let nominal = study_loop(params, &spec.frozen_at(1.0));
+        (
+            gate.iter().all(|v| v.stable),
+            OnRig::new(&nominal)
+                .and_then(|on| on.is_stable(rig, 0.0))
+                .map_err(design)?,
+            least.is_finite().then_some(least),
+        )
+    } else if params.condition.is_default() {
         let lin = LinearizedLoop::new(&setup).map_err(design)?;
         (
             lin.is_stable(params.k_bf).map_err(design)?,
@@ -97,10 +119,6 @@ fn verdict(params: &StudyParams, spec: &bdft_protocol::params::CompensatorSpec) 
         )
     } else {
         // The design made for the study's rig, judged on the machine under its condition.
-        let rig = params
-            .condition
-            .apply(&params.plant)
-            .map_err(|e| AppError::BadRequest(e.to_string()))?;
         let on = OnRig::new(&setup).map_err(design)?;
         (
             on.is_stable(rig, params.k_bf).map_err(design)?,
