@@ -7,7 +7,9 @@
 //! on a machine that is no longer stable with them; one that keeps its margin but loses its
 //! reduction is a PID with a delay. The bench run has no operator (the signal drives the
 //! cylinder reference, as on the rig); the margin is the largest stable K_BF with the study's
-//! body, on the condition's rig linearized (`analysis::robustness::OnRig`).
+//! body, on the condition's rig linearized (`analysis::robustness::OnRig`); an adaptive
+//! design's margin is its design frozen at the rig's true mode ratio, where its estimate
+//! converges (its bench run adapts as it runs).
 
 use serde::Serialize;
 
@@ -98,12 +100,15 @@ pub fn condition_table(
     };
     let k_bf = base.loop_params.k_bf;
     let mut rows = Vec::with_capacity(designs.len() * conditions.len());
-    for (name, spec) in designs {
-        let on = OnRig::new(&LoopSetup {
+    let judged = |spec: &CompensatorSpec| {
+        OnRig::new(&LoopSetup {
             seat: Seat::On,
             compensator: spec.clone(),
             ..base.clone()
-        })?;
+        })
+    };
+    for (name, spec) in designs {
+        let fixed = judged(spec)?;
         let twin = twin(spec.kind()).map(|k| default_spec(k, &base.plant));
         for &condition in conditions {
             let rig = condition.apply(&base.plant)?;
@@ -112,7 +117,16 @@ pub fn condition_table(
                 Some(t) => Some(100.0 * (1.0 - (ms / bench(t, condition)?).sqrt())),
                 None => None,
             };
-            let max_stable_kbf = on.max_stable_kbf(rig, MAX_KBF)?;
+            // An adaptive design is judged as it converges: frozen at the rig's true ratio
+            // (clamped to its range), beside its fixed design's row.
+            let max_stable_kbf = match spec.adapt() {
+                Some(adapt) => {
+                    let (lo, hi) = adapt.ratio_bounds();
+                    let ratio = (rig.f1_hz / base.plant.f1_hz).clamp(lo, hi);
+                    judged(&spec.frozen_at(ratio))?.max_stable_kbf(rig, MAX_KBF)?
+                }
+                None => fixed.max_stable_kbf(rig, MAX_KBF)?,
+            };
             rows.push(ConditionRow {
                 condition: condition.to_string(),
                 design: name.clone(),
@@ -207,5 +221,42 @@ mod tests {
             field.cab_accel_reduction_pct.unwrap() < home.cab_accel_reduction_pct.unwrap(),
             "{home:?} {field:?}"
         );
+    }
+
+    /// The claim where it holds on the structure's vibration: with the modes 30 %
+    /// low, each adaptive design keeps at least 80 % of its fixed design's reduction on the
+    /// rig it was made for, and more than the fixed design keeps there. (With the modes 30 %
+    /// high the scheduled LQR keeps 76 %: docs/machine-conditions.md.)
+    #[test]
+    fn with_the_modes_low_the_adaptive_designs_keep_their_reduction() {
+        let base = base();
+        let low: MachineCondition = "modes:0.7".parse().unwrap();
+        for (fixed, adaptive) in [
+            (CompensatorKind::PidNotch, CompensatorKind::PidNotchAdaptive),
+            (
+                CompensatorKind::PidShaper,
+                CompensatorKind::PidShaperAdaptive,
+            ),
+            (
+                CompensatorKind::LqrCabvel,
+                CompensatorKind::LqrCabvelScheduled,
+            ),
+        ] {
+            let designs: Vec<_> = [fixed, adaptive]
+                .into_iter()
+                .map(|k| (k.name().to_string(), default_spec(k, &base.plant)))
+                .collect();
+            let t = condition_table(&designs, &[MachineCondition::STILTS, low], &base, 1).unwrap();
+            let r = |i: usize| t.rows[i].cab_accel_reduction_pct.unwrap();
+            let (nominal, fixed_low, adaptive_low) = (r(0), r(1), r(3));
+            assert!(
+                adaptive_low >= 0.8 * nominal,
+                "{adaptive}: {adaptive_low} vs {nominal}"
+            );
+            assert!(
+                adaptive_low > fixed_low,
+                "{adaptive}: {adaptive_low} vs fixed {fixed_low}"
+            );
+        }
     }
 }

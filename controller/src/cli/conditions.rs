@@ -16,11 +16,13 @@ use super::write_result;
 
 #[derive(Debug, clap::Args)]
 pub(super) struct ConditionsArgs {
-    /// Designs, as `robustness` takes them [default: pid-notch, pid-shaper, lqr-cabvel,
-    /// lqr-cabvel:kalman; each twin is run too].
+    /// Designs, as `robustness` takes them [default: the notch, the shaper and the
+    /// cab-velocity LQR, each fixed and adaptive, and the LQR's Kalman-observer variant; each
+    /// twin is run too].
     designs: Vec<String>,
-    /// Conditions, comma-separated (stilts, tires, outriggers, loaded[:FILL], stick joined by
-    /// '+') [default: every ground × empty or rated bucket × boom or stick].
+    /// Conditions, comma-separated (stilts, tires, outriggers, loaded[:FILL], stick, modes:R
+    /// joined by '+') [default: every ground × empty or rated bucket × boom or stick, and
+    /// the modes moved ±30 % (modes:0.7, modes:1.3)].
     #[arg(long, value_delimiter = ',')]
     conditions: Vec<MachineCondition>,
     /// JSON file of parameters (as printed by `defaults`): its plant is the rig the designs
@@ -38,7 +40,15 @@ pub(super) struct ConditionsArgs {
     json: bool,
 }
 
-const DEFAULT_DESIGNS: [&str; 4] = ["pid-notch", "pid-shaper", "lqr-cabvel", "lqr-cabvel:kalman"];
+const DEFAULT_DESIGNS: [&str; 7] = [
+    "pid-notch",
+    "pid-notch-adaptive",
+    "pid-shaper",
+    "pid-shaper-adaptive",
+    "lqr-cabvel",
+    "lqr-cabvel-scheduled",
+    "lqr-cabvel:kalman",
+];
 
 pub(super) fn run(args: ConditionsArgs, out: &mut impl Write) -> anyhow::Result<()> {
     let params = load_params(args.params.as_ref())?;
@@ -52,7 +62,11 @@ pub(super) fn run(args: ConditionsArgs, out: &mut impl Write) -> anyhow::Result<
         .map(|n| Ok((n.clone(), design(&params, n)?)))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let conditions = if args.conditions.is_empty() {
-        MachineCondition::named()
+        let mut all = MachineCondition::named();
+        all.extend(
+            ["modes:0.7", "modes:1.3"].map(|m| m.parse::<MachineCondition>().expect("valid")),
+        );
+        all
     } else {
         args.conditions
     };

@@ -2,7 +2,8 @@
 //! stilts. A condition is a ground (`stilts`, `tires`, `outriggers`), a bucket (empty, or
 //! `loaded` with a fill), and the arm driven (the boom, or the `stick`), written as its
 //! parts joined by `+` (`tires+loaded`, `outriggers+loaded:0.6+stick`); the thesis's rig is
-//! `stilts`, the default, and changes nothing.
+//! `stilts`, the default, and changes nothing. `modes:R` scales both modes by R on top (a
+//! shift no rule names, or a robustness check: `modes:0.7`, `modes:1.3`).
 //!
 //! Each part changes the structure's modes and the valve/cylinder terms by a stated rule
 //! (`RULES`): a factor per parameter with its physical reason, its source and the relative
@@ -44,12 +45,16 @@ pub enum Arm {
 }
 
 /// A machine condition; `Default` is the thesis's rig.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MachineCondition {
     pub ground: Ground,
     /// Bucket fill as a fraction of its rated (struck) load; 0 = empty.
     pub bucket_fill: f64,
     pub arm: Arm,
+    /// Both structure modes' frequencies scaled by this on top of the rules (`modes:R`): a
+    /// machine whose modes moved for a reason no rule names (wear, a ground not listed), or
+    /// a robustness check; 1 = none.
+    pub mode_scale: f64,
 }
 
 /// One part's rule: the factors it applies to the rig and why.
@@ -100,6 +105,9 @@ impl Factors {
         }
     }
 }
+
+/// The range of `modes:R`: a mode moved by more than half is another machine.
+pub const MODE_SCALE_RANGE: (f64, f64) = (0.5, 1.5);
 
 /// The largest bucket fill the load rule holds for: a heaped bucket (SAE J296 rates heaped
 /// capacity at about 1.2 × struck); beyond it the load pressure nears relief.
@@ -205,12 +213,19 @@ fn rule(name: &str) -> &'static Rule {
         .expect("every part has a rule")
 }
 
+impl Default for MachineCondition {
+    fn default() -> Self {
+        Self::STILTS
+    }
+}
+
 impl MachineCondition {
     /// The thesis's rig.
     pub const STILTS: Self = Self {
         ground: Ground::Stilts,
         bucket_fill: 0.0,
         arm: Arm::Boom,
+        mode_scale: 1.0,
     };
 
     pub fn is_default(&self) -> bool {
@@ -227,6 +242,7 @@ impl MachineCondition {
                         ground,
                         bucket_fill,
                         arm,
+                        mode_scale: 1.0,
                     });
                 }
             }
@@ -256,7 +272,12 @@ impl MachineCondition {
             Arm::Boom => Factors::ONE,
             Arm::Stick => rule("stick").factors,
         };
-        ground.times(load).times(arm)
+        let moved = Factors {
+            f1: self.mode_scale,
+            f2: self.mode_scale,
+            ..Factors::ONE
+        };
+        ground.times(load).times(arm).times(moved)
     }
 
     /// Relative uncertainty (one standard deviation) of the combined frequency factors: the
@@ -291,6 +312,14 @@ impl MachineCondition {
                 "{self}: a bucket fill of {} is outside the load rule's validity, 0 to \
                  {MAX_BUCKET_FILL} of the rated load (a heaped bucket)",
                 self.bucket_fill
+            ));
+        }
+        let (lo, hi) = MODE_SCALE_RANGE;
+        if !(self.mode_scale.is_finite() && (lo..=hi).contains(&self.mode_scale)) {
+            return bad(format!(
+                "{self}: modes scaled by {} is outside {lo} to {hi}: a mode moved by more than \
+                 half is another machine",
+                self.mode_scale
             ));
         }
         Ok(())
@@ -342,6 +371,9 @@ impl fmt::Display for MachineCondition {
         if self.arm == Arm::Stick {
             parts.push("stick".into());
         }
+        if self.mode_scale != 1.0 {
+            parts.push(format!("modes:{}", self.mode_scale));
+        }
         if parts.is_empty() {
             return f.write_str("stilts");
         }
@@ -357,12 +389,12 @@ impl FromStr for MachineCondition {
             message,
         };
         const VALID: &str = "parts joined by '+': one ground (stilts, tires, outriggers), \
-                             loaded or loaded:FILL, stick";
+                             loaded or loaded:FILL, stick, modes:R";
         if s.len() > 64 {
             return Err(bad(format!("{} characters; at most 64", s.len())));
         }
         let mut c = Self::STILTS;
-        let (mut ground, mut load, mut arm) = (None::<&str>, false, false);
+        let (mut ground, mut load, mut arm, mut moved) = (None::<&str>, false, false, false);
         for part in s.split('+') {
             let (name, value) = match part.split_once(':') {
                 Some((n, v)) => (n, Some(v)),
@@ -403,6 +435,17 @@ impl FromStr for MachineCondition {
                             "{s:?}: loaded:0 is an empty bucket; leave 'loaded' out"
                         )));
                     }
+                }
+                ("modes", Some(v)) => {
+                    if moved {
+                        return Err(dup("the modes' scale"));
+                    }
+                    moved = true;
+                    c.mode_scale = v.parse().map_err(|_| {
+                        bad(format!(
+                            "{v:?} in {s:?} is not a scale of the modes (a number)"
+                        ))
+                    })?;
                 }
                 ("stick", None) => {
                     if arm {
@@ -450,6 +493,10 @@ mod tests {
         assert_eq!(MachineCondition::named().len(), 12);
         let c: MachineCondition = "stick+loaded:0.5+outriggers".parse().unwrap();
         assert_eq!(c.to_string(), "outriggers+loaded:0.5+stick");
+        let moved: MachineCondition = "modes:1.3".parse().unwrap();
+        assert_eq!(moved.to_string(), "modes:1.3");
+        let rig = moved.apply(&plant).unwrap();
+        assert!((rig.f1_hz - 5.2).abs() < 1e-12 && (rig.f2_hz - 6.2 * 1.3).abs() < 1e-12);
     }
 
     #[test]
@@ -485,6 +532,9 @@ mod tests {
             ("loaded:-0.2", "validity"),
             ("loaded:x", "not a bucket fill"),
             ("loaded:0", "empty bucket"),
+            ("modes:2", "another machine"),
+            ("modes:x", "not a scale"),
+            ("modes:0.8+modes:0.9", "twice"),
             ("mud", "unknown part"),
             ("", "unknown part"),
         ] {
