@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use bdft_tests::server::{Api, Server, eventually, run_pilot};
 use bdft_tests::webdriver::Driver;
-use bdft_tests::{TempDir, controller};
+use bdft_tests::{TempDir, controller_json};
 use serde_json::{Value, json};
 
 fn study_on(api: &Api, condition: &str) -> (u16, Value) {
@@ -16,16 +16,6 @@ fn study_on(api: &Api, condition: &str) -> (u16, Value) {
     params["trial_s"] = json!(6.0);
     params["practice_s"] = json!(3.0);
     api.create_study(&format!("on {condition}"), &params)
-}
-
-fn cli(args: &[&str]) -> Value {
-    let out = controller(args);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
 }
 
 #[test]
@@ -160,7 +150,7 @@ fn a_bench_run_on_a_condition_is_the_simulate_command_on_it() {
     assert_eq!(v["run"]["condition"], "tires+loaded", "{v}");
     for r in v["results"].as_array().unwrap() {
         let design = r["label"].as_str().unwrap();
-        let sim = cli(&[
+        let sim = controller_json(&[
             "simulate",
             "--compensator",
             design,
@@ -197,7 +187,7 @@ fn a_bench_run_on_a_condition_is_the_simulate_command_on_it() {
     let (_, table) = api.get(&format!(
         "/api/studies/{study}/workbench/conditions?conditions=outriggers,stick"
     ));
-    let want = cli(&[
+    let want = controller_json(&[
         "conditions",
         "pid-notch",
         "pid-shaper",

@@ -633,13 +633,14 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
         col(&h, c);
     }
     assert_eq!(
-        h[h.len() - 5..],
+        h[h.len() - 6..],
         [
             "starting_seat",
             "seat",
             "compensator",
             "cancellation",
-            "cancellation_off_at_s"
+            "cancellation_off_at_s",
+            "condition"
         ],
         "the clear names come last, then the columns added after them"
     );

@@ -5,7 +5,7 @@
 
 use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, short_study};
 use bdft_tests::webdriver::{Driver, artifacts_dir};
-use bdft_tests::{TempDir, controller};
+use bdft_tests::{TempDir, controller_json};
 use serde_json::{Value, json};
 
 /// The study's rig, body and designs as a `--params` file of the controller's CLI.
@@ -17,16 +17,6 @@ fn params_file(dir: &TempDir, study: &Value) -> String {
     let path = dir.path().join("params.json");
     std::fs::write(&path, doc.to_string()).unwrap();
     path.to_str().unwrap().to_string()
-}
-
-fn cli_json(args: &[&str]) -> Value {
-    let out = controller(args);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
 }
 
 fn close(a: &Value, b: &Value, what: &str) {
@@ -75,7 +65,7 @@ fn a_studys_frequency_and_robustness_reports_match_the_cli_and_refuse_bad_input(
     for n in &names {
         args.extend(["--compensator", n.as_str()]);
     }
-    let cli = cli_json(&args);
+    let cli = controller_json(&args);
     close(&r["freqs_hz"], &cli["freqs_hz"], "grid");
     close(&r["parts"], &cli["parts"], "parts");
     let comps = r["compensators"].as_array().unwrap();
@@ -103,7 +93,7 @@ fn a_studys_frequency_and_robustness_reports_match_the_cli_and_refuse_bad_input(
     let (code, rob) = api.get(&format!("/api/studies/{id}/workbench/robustness?{q}"));
     assert_eq!(code, 200, "{rob}");
     let kbf = study["params"]["k_bf"].to_string();
-    let cli = cli_json(&[
+    let cli = controller_json(&[
         "robustness",
         "pid-notch",
         "--params",

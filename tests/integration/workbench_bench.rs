@@ -6,7 +6,7 @@ use std::time::Duration;
 use bdft_tests::controller_link::Proc;
 use bdft_tests::server::{ADMIN_PASSWORD, Api, Server, dry_run, eventually};
 use bdft_tests::webdriver::{Driver, artifacts_dir};
-use bdft_tests::{TempDir, controller};
+use bdft_tests::{TempDir, controller_json};
 use serde_json::{Value, json};
 
 /// Starts a bench run and waits for it to end; returns the stored run.
@@ -32,7 +32,7 @@ fn real_rig_study(api: &Api) -> i64 {
 
 /// `bdft-controller simulate … --json` as another tool calls it.
 fn simulate(compensator: &str, signal: &str, duration: &str) -> Value {
-    let out = controller(&[
+    controller_json(&[
         "simulate",
         "--compensator",
         compensator,
@@ -43,13 +43,7 @@ fn simulate(compensator: &str, signal: &str, duration: &str) -> Value {
         "--seed",
         "1",
         "--json",
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
+    ])
 }
 
 #[test]

@@ -108,6 +108,18 @@ pub fn controller(args: &[&str]) -> Output {
         .expect("spawn bdft-controller")
 }
 
+/// Runs `bdft-controller` with `args` (a command with `--json`), as another tool calls it,
+/// and returns the JSON it printed; panics with its standard error if it failed.
+pub fn controller_json(args: &[&str]) -> serde_json::Value {
+    let out = controller(args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("bdft-controller printed JSON")
+}
+
 /// `bdft-server` with `args`, not yet run: for a run that spawns, sets a directory or an
 /// environment, or adds a path (then [`succeeded`] runs it).
 pub fn server_cmd<I, S>(args: I) -> Command
