@@ -1,6 +1,7 @@
 //! Adaptive compensation (issue 41): designs that follow the structure's first mode when it
 //! moves in the field (load, tires or outriggers, arm configuration, wear: up to ±30 %), where
-//! a fixed notch or zero-vibration shaper loses most of its reduction.
+//! a fixed notch or shaper loses part of its reduction and margin (how much, and where the
+//! adaptive ones do better or worse: docs/machine-conditions.md).
 //!
 //! Files: `estimator`: the online estimate of the mode (frequency, damping, confidence) from
 //! the seat accelerometer, with the cylinder position as the structure's known input —
