@@ -31,13 +31,7 @@ fn bench(
     seed: u64,
     mut each: impl FnMut(&Sample, &mut ClosedLoop),
 ) -> Metrics {
-    let setup = LoopSetup {
-        plant: PlantParams::default(),
-        body: BodyModel::default(),
-        loop_params: LoopParams::default(),
-        seat: Seat::Off,
-        compensator: spec.clone(),
-    };
+    let setup = setup(spec.clone(), Seat::Off);
     let noise = Rng::derive(seed, Rng::ACCEL_NOISE).next_u64();
     let lp = ClosedLoop::new(&setup, noise)
         .unwrap()
@@ -59,6 +53,17 @@ fn bench(
 
 fn spec(kind: CompensatorKind) -> CompensatorSpec {
     default_spec(kind, &PlantParams::default())
+}
+
+/// The default rig, body and loop with `compensator` at `seat`.
+fn setup(compensator: CompensatorSpec, seat: Seat) -> LoopSetup {
+    LoopSetup {
+        plant: PlantParams::default(),
+        body: BodyModel::default(),
+        loop_params: LoopParams::default(),
+        seat,
+        compensator,
+    }
 }
 
 fn adaptive(lp: &mut ClosedLoop) -> &mut Adaptive {
@@ -165,19 +170,12 @@ fn a_retune_crossfades_without_a_jump_in_the_command() {
 fn without_excitation_there_is_no_estimate_and_the_fixed_design_runs() {
     // Station off, the reference held at 0: the accelerometer reads its noise and the
     // engine tone only. Every retune decision falls back (one a period), none retunes.
-    let plant = PlantParams::default();
     for kind in [
         CompensatorKind::PidNotchAdaptive,
         CompensatorKind::PidShaperAdaptive,
         CompensatorKind::LqrCabvelScheduled,
     ] {
-        let setup = LoopSetup {
-            plant,
-            body: BodyModel::default(),
-            loop_params: LoopParams::default(),
-            seat: Seat::Off,
-            compensator: spec(kind),
-        };
+        let setup = setup(spec(kind), Seat::Off);
         let mut lp = ClosedLoop::new(&setup, 7).unwrap();
         let seconds = 30.0;
         for _ in 0..(seconds / DT) as usize {
@@ -227,13 +225,7 @@ fn the_gate_passes_at_every_frozen_ratio_at_the_studys_kbf() {
             assert!(v.stable, "{kind} at r {}: {v:?}", v.ratio);
         }
     }
-    let fixed = LoopSetup {
-        plant,
-        body: BodyModel::default(),
-        loop_params: LoopParams::default(),
-        seat: Seat::On,
-        compensator: spec(CompensatorKind::PidNotch),
-    };
+    let fixed = setup(spec(CompensatorKind::PidNotch), Seat::On);
     let err = adaptive_gate(&fixed, GATE_POINTS, &fixed.plant)
         .unwrap_err()
         .to_string();
@@ -306,13 +298,7 @@ fn retuning_and_blending_never_allocate_and_reset_forgets_them() {
         CompensatorKind::PidShaperAdaptive,
         CompensatorKind::LqrCabvelScheduled,
     ] {
-        let setup = LoopSetup {
-            plant: PlantParams::default(),
-            body: BodyModel::default(),
-            loop_params: LoopParams::default(),
-            seat: Seat::Off,
-            compensator: spec(kind),
-        };
+        let setup = setup(spec(kind), Seat::Off);
         // The modes at 1.3×: the design retunes by itself, then is sent to 0.7 and back
         // to 1 mid-blend.
         let mut lp = ClosedLoop::new(&setup, 1)
