@@ -108,6 +108,11 @@ pub struct TrialResult {
     /// None when it never did or the test did not cancel (`docs/cancellation.md`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cancellation_off_at_s: Option<f64>,
+    /// What an adaptive compensator's estimator and schedule did over the test (its last
+    /// estimate, when it first trusted it, its retunes and its fallbacks to the fixed design);
+    /// None for a fixed design.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub adaptation: Option<crate::params::AdaptationStatus>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -344,6 +344,7 @@ fn trial_result_and_record_chunk() {
         record_chunks: 1,
         exposure: None,
         cancellation_off_at_s: None,
+        adaptation: None,
     }));
     assert_golden(
         &result,
@@ -359,6 +360,23 @@ fn trial_result_and_record_chunk() {
         r#"{"type":"record_chunk","trial_id":3,"index":0,"start_tick":0,"channels":[[1.5,-2.0]]}"#,
     );
     assert_golden(&Outcome::Complete, r#"{"status":"complete"}"#);
+    // An adaptive design's account of the test rides with its result.
+    let ControllerToServer::TrialResult(mut adapted) = result else {
+        unreachable!()
+    };
+    adapted.adaptation = Some(crate::params::AdaptationStatus {
+        f_hz: Some(3.25),
+        zeta: Some(0.05),
+        confident: true,
+        confident_since_s: Some(0.5),
+        ratio: 0.81,
+        retunes: 2,
+        fallbacks: 1,
+    });
+    assert_golden(
+        &ControllerToServer::TrialResult(adapted),
+        r#"{"type":"trial_result","trial_id":3,"outcome":{"status":"faulted","fault":"e-stop","message":"e-stop"},"metrics":{"ticks":2,"mse_tracking_mm2":1.5,"ms_cab_accel":4.0},"timing":{"ticks":2,"overruns":0,"wake_latency_us":{"p50":1.0,"p99":2.0,"max":3.0},"compute_us":{"p50":0.5,"p99":0.5,"max":0.5}},"dt":0.001,"record_chunks":1,"adaptation":{"f_hz":3.25,"zeta":0.05,"confident":true,"confident_since_s":0.5,"ratio":0.81,"retunes":2,"fallbacks":1}}"#,
+    );
 }
 
 #[test]

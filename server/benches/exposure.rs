@@ -56,6 +56,7 @@ fn main() {
             record_chunks: 0,
             exposure: None,
             cancellation_off_at_s: None,
+            adaptation: Default::default(),
         };
         let (mut without, mut with, mut compute) = (Vec::new(), Vec::new(), Vec::new());
         for _ in 0..runs {

@@ -258,3 +258,132 @@ fn in_chromium_the_study_form_and_the_workbench_offer_the_conditions() {
         "on tires with a load some design is unstable: {rows:?}"
     );
 }
+
+/// An adaptive design's account of a test — its estimate of the cab mode, its retunes and
+/// its fallbacks to the fixed design — is filed with the test's result: in the trials export
+/// and in the audit log's `trial.finish`; a fixed design's test has none.
+#[test]
+fn an_adaptive_designs_estimate_and_fallbacks_are_filed_with_its_test() {
+    let server = Server::start("conditions-adaptation");
+    let api = server.experimenter();
+    let (_, mut params) = api.get("/api/defaults");
+    let controllers = params["controllers"].as_array().unwrap().clone();
+    let spec = |kind: &str| {
+        controllers
+            .iter()
+            .find(|c| c["kind"] == kind)
+            .cloned()
+            .unwrap_or_else(|| panic!("{kind} in the defaults"))
+    };
+    let mut adaptive = spec("pid-shaper");
+    adaptive["kind"] = json!("pid-shaper-adaptive");
+    adaptive["adapt"] = json!({});
+    // An adaptive notch that never trusts its estimate (the strictest confidence allowed):
+    // every decision falls back to the fixed design.
+    let mut doubting = spec("pid-notch");
+    doubting["kind"] = json!("pid-notch-adaptive");
+    doubting["adapt"] = json!({ "max_rel_std": 1e-4 });
+    params["controllers"] = json!([spec("pid"), adaptive, doubting]);
+    // The modes 20 % below the design: the rule moves f₁ from 4.0 Hz to 3.2 Hz.
+    params["condition"] = json!("modes:0.8");
+    params["trial_s"] = json!(20.0);
+    params["practice_s"] = json!(3.0);
+    let (status, created) = api.create_study("adaptive on modes 0.8", &params);
+    assert_eq!(status, 200, "{created}");
+    let study = created["id"].as_i64().unwrap();
+    let mut run = run_pilot(&api, study, 1);
+    if let Some(copy) = run["study_id"]
+        .as_i64()
+        .filter(|_| run["error"].is_string())
+    {
+        // The PID made for the stilts may be unstable with the body on this rig: the
+        // acknowledgement any such study needs.
+        api.ok(
+            &format!("/api/studies/{copy}/acknowledge-instability"),
+            json!({ "reason": "fixed designs on a rig with its modes 20 % low, in simulation" }),
+        );
+        run = run_pilot(&api, study, 1);
+    }
+    let copy = run["report"]["study_id"]
+        .as_i64()
+        .unwrap_or_else(|| panic!("the pilot did not run: {run}"));
+    let (header, rows) = api.get_csv(&format!("/api/studies/{copy}/export/trials"));
+    let col = |c: &str| {
+        header
+            .iter()
+            .position(|h| h == c)
+            .unwrap_or_else(|| panic!("{c}"))
+    };
+    let num = |r: &Vec<String>, c: &str| r[col(c)].parse::<f64>().ok();
+    let complete = |r: &&Vec<String>| r[col("status")] == "complete" && r[col("phase")] == "test";
+    let adaptive: Vec<&Vec<String>> = rows
+        .iter()
+        .filter(complete)
+        .filter(|r| r[col("compensator")] == "pid-shaper-adaptive")
+        .collect();
+    let fixed: Vec<&Vec<String>> = rows
+        .iter()
+        .filter(|r| r[col("compensator")] == "pid")
+        .collect();
+    assert!(!adaptive.is_empty() && !fixed.is_empty(), "{rows:?}");
+    for r in &fixed {
+        for c in [
+            "adapt_f_hz",
+            "adapt_ratio",
+            "adapt_retunes",
+            "adapt_fallbacks",
+        ] {
+            assert_eq!(r[col(c)], "", "a fixed design's {c}: {r:?}");
+        }
+    }
+    let mut trials = Vec::new();
+    for r in &adaptive {
+        // Converged on the rig's first mode, and the design running is the one frozen
+        // nearest it (the shaper's grid is 1 %).
+        let f = num(r, "adapt_f_hz").unwrap_or_else(|| panic!("no estimate: {r:?}"));
+        assert!((f - 3.2).abs() < 0.1, "estimated {f} Hz against 3.2: {r:?}");
+        let ratio = num(r, "adapt_ratio").unwrap();
+        assert!((ratio - 0.8).abs() <= 0.03, "ratio {ratio}: {r:?}");
+        assert!(num(r, "adapt_retunes").unwrap() >= 1.0, "{r:?}");
+        let since = num(r, "adapt_confident_since_s").unwrap();
+        assert!(since > 0.0 && since < 20.0, "{r:?}");
+        assert_eq!(r[col("adapt_confident")], "1", "{r:?}");
+        // Each decision (once a second) before the estimate was trusted kept the fixed
+        // design, and is counted.
+        let fallbacks = num(r, "adapt_fallbacks").unwrap();
+        assert!(fallbacks >= since.floor(), "{r:?}");
+        trials.push((r[col("trial_id")].clone(), fallbacks));
+    }
+    let doubting: Vec<&Vec<String>> = rows
+        .iter()
+        .filter(complete)
+        .filter(|r| r[col("compensator")] == "pid-notch-adaptive")
+        .collect();
+    assert!(!doubting.is_empty(), "{rows:?}");
+    for r in doubting {
+        // Twenty decisions in 20 s, each a fallback; the fixed design ran throughout.
+        let fallbacks = num(r, "adapt_fallbacks").unwrap();
+        assert!((19.0..=20.0).contains(&fallbacks), "{r:?}");
+        assert_eq!(num(r, "adapt_ratio"), Some(1.0), "{r:?}");
+        assert_eq!(num(r, "adapt_retunes"), Some(0.0), "{r:?}");
+        assert_eq!(r[col("adapt_confident_since_s")], "", "{r:?}");
+        assert_eq!(r[col("adapt_confident")], "0", "{r:?}");
+        trials.push((r[col("trial_id")].clone(), fallbacks));
+    }
+    // The audit log's account of each test's end carries the same.
+    let (_, audit) = api.get("/api/audit?limit=10000");
+    for (trial, fallbacks) in trials {
+        let finish = audit
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|a| a["action"] == "trial.finish" && a["target"] == format!("trial:{trial}"))
+            .unwrap_or_else(|| panic!("no trial.finish for {trial}: {audit}"));
+        let details = &finish["detail"];
+        assert_eq!(
+            details["adaptation"]["fallbacks"].as_f64(),
+            Some(fallbacks),
+            "{finish}"
+        );
+    }
+}

@@ -633,14 +633,20 @@ fn a_pilot_of_two_subjects_checked_row_by_row() {
         col(&h, c);
     }
     assert_eq!(
-        h[h.len() - 6..],
+        h[h.len() - 12..],
         [
             "starting_seat",
             "seat",
             "compensator",
             "cancellation",
             "cancellation_off_at_s",
-            "condition"
+            "condition",
+            "adapt_f_hz",
+            "adapt_confident_since_s",
+            "adapt_ratio",
+            "adapt_retunes",
+            "adapt_fallbacks",
+            "adapt_confident"
         ],
         "the clear names come last, then the columns added after them"
     );

@@ -72,6 +72,7 @@ fn finish(
         record_chunks: 0,
         exposure: Some(slot.runner.exposure().0),
         cancellation_off_at_s: slot.runner.cancellation_off_at_s(),
+        adaptation: slot.adaptation(),
     };
     (result, slot.record_channels(0, slot.record.len()))
 }

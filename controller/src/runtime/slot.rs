@@ -11,7 +11,7 @@ use super::histogram::Histogram;
 use super::rig_udp::Implausible;
 use crate::cancellation::{Cancelled, Canceller};
 use crate::closed_loop::{ClosedLoop, Drive, TickRecord, reference_from_device};
-use crate::compensator::Compensator;
+use crate::compensator::{AdaptationStatus, Compensator};
 use crate::interlock::WINDOW_S;
 use crate::model::{Measurement, saturate};
 use crate::runner::{Loop, Sample, TrialRunner};
@@ -208,6 +208,14 @@ impl TrialSlot {
             overruns: 0,
             end: None,
             rig_fault: None,
+        }
+    }
+
+    /// What the trial's adaptive compensator did (None for a fixed design).
+    pub fn adaptation(&self) -> Option<AdaptationStatus> {
+        match self.runner.loop_ref() {
+            SlotLoop::Sim(l) => l.compensator().adaptation(),
+            SlotLoop::Rig(l) => l.compensator.adaptation(),
         }
     }
 

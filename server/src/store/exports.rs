@@ -76,6 +76,9 @@ pub struct TrialExportRow {
     pub cancellation_off_at_s: Option<f64>,
     /// The machine's condition it ran under (migration 0032).
     pub condition: String,
+    /// What an adaptive design did over the test (`AdaptationStatus` as JSON; migration
+    /// 0033); none for a fixed design.
+    pub adaptation_json: Option<String>,
 }
 
 const TRIALS_SQL: &str = "SELECT s.study_id, t.id AS trial_id, s.code, s.enrol_index, s.synthetic, s.starting_station, t.station, t.block, t.position, t.slot, t.attempt, \
@@ -83,7 +86,7 @@ const TRIALS_SQL: &str = "SELECT s.study_id, t.id AS trial_id, s.code, s.enrol_i
      t.mse_tracking_mm2, t.ms_cab_accel, t.cab_aw_m_s2, t.cab_vdv_m_s175, v.accuracy, v.speed, v.smoothness, v.controllability, v.comment, t.protocol_hash, t.started_at, t.finished_at, s.consent_version, \
      t.client_timing_json, t.timing_json, t.accepted_reason, \
      NOT EXISTS (SELECT 1 FROM trials u WHERE u.subject_id = t.subject_id AND u.slot = t.slot AND u.attempt > t.attempt) AS latest, \
-     c.name || ' v' || c.version AS config_version, t.personalized, t.compensator_json, t.site, t.cancellation, t.cancellation_off_at_s, t.condition \
+     c.name || ' v' || c.version AS config_version, t.personalized, t.compensator_json, t.site, t.cancellation, t.cancellation_off_at_s, t.condition, t.adaptation_json \
      FROM trials t JOIN subjects s ON s.id = t.subject_id LEFT JOIN surveys v ON v.trial_id = t.id \
      LEFT JOIN compensator_configs c ON c.id = t.config_id \
      WHERE s.study_id = $1 AND ($2 OR s.withdrawn_at IS NULL) ORDER BY s.enrol_index, t.slot, t.attempt";

@@ -42,7 +42,7 @@ pub async fn file_result(
     let filed: Option<(String, Option<String>)> = sqlx::query_as(
         "UPDATE trials SET status = CASE WHEN invalid_reason IS NULL THEN $1 ELSE 'invalid' END, status_reason = COALESCE(invalid_reason, $2), \
          finished_at = CASE WHEN COALESCE(started_at, 0) > $3 THEN COALESCE(started_at, 0) ELSE $3 END, mse_tracking_mm2 = $4, ms_cab_accel = $5, timing_json = $6, \
-         cab_aw_m_s2 = $8, cab_vdv_m_s175 = $9, exposure_s = $10, cancellation_off_at_s = NULLIF($11, -1.0) WHERE id = $7 AND status = 'running' \
+         cab_aw_m_s2 = $8, cab_vdv_m_s175 = $9, exposure_s = $10, cancellation_off_at_s = NULLIF($11, -1.0), adaptation_json = NULLIF($12, '') WHERE id = $7 AND status = 'running' \
          RETURNING status, status_reason",
     )
     .bind(status.as_str())
@@ -59,6 +59,13 @@ pub async fn file_result(
     // its first binding, and PostgreSQL then refuses a number where a NULL's type was
     // declared. A trip time is never negative, so −1 stands for none.
     .bind(result.cancellation_off_at_s.unwrap_or(-1.0))
+    // Empty for none, as above.
+    .bind(
+        result
+            .adaptation
+            .map(|a| serde_json::to_string(&a).expect("status serializes"))
+            .unwrap_or_default(),
+    )
     .fetch_optional(&mut *db)
     .await?;
     let Some((status, reason)) = filed else {

@@ -117,6 +117,7 @@ impl Io {
             record_chunks: n_chunks as u32,
             exposure: Some(slot.runner.exposure().0),
             cancellation_off_at_s: slot.runner.cancellation_off_at_s(),
+            adaptation: slot.adaptation(),
         };
         msgs.push(ControllerToServer::TrialResult(Box::new(result)));
         (entry.map(|e| e.conn), msgs)

@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use bdft_protocol::controller_to_server::TrialResult;
 use bdft_protocol::exposure::{ACTION_A8_M_S2, ACTION_VDV_M_S175, DoseSum};
-use bdft_protocol::params::Seat;
+use bdft_protocol::params::{AdaptationStatus, Seat};
 use bdft_protocol::records::{TestPhase, TrialStatus};
 use bdft_protocol::trial::{FaultKind, Metrics, Outcome};
 use serde::Serialize;
@@ -42,7 +42,8 @@ pub fn filing(outcome: &Outcome) -> (TrialStatus, Option<String>) {
 }
 
 /// What `trial.finish` records: how the trial was filed, its metrics, the attempt that
-/// re-queued it (if it failed), and when cancellation's guard turned it off (if it did).
+/// re-queued it (if it failed), when cancellation's guard turned it off (if it did), and what an
+/// adaptive design did (its fallbacks to the fixed design among it).
 #[derive(Debug, Serialize)]
 struct Finished<'a> {
     status: TrialStatus,
@@ -52,6 +53,9 @@ struct Finished<'a> {
     /// When cancellation's guard turned it off for the rest of the test (s into it).
     #[serde(skip_serializing_if = "Option::is_none")]
     cancellation_off_at_s: Option<f64>,
+    /// What an adaptive design did: its estimate, retunes and fallbacks to the fixed design.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    adaptation: Option<AdaptationStatus>,
 }
 
 /// Files a finished trial's result and record with its audit row. `false` when the trial
@@ -85,6 +89,14 @@ pub async fn file_result(
             "cancellation's guard turned it off; the test went on uncancelled"
         );
     }
+    if let Some(a) = result.adaptation.filter(|a| a.fallbacks > 0) {
+        tracing::info!(
+            trial_id = result.trial_id,
+            fallbacks = a.fallbacks,
+            confident_since_s = a.confident_since_s,
+            "the adaptive design fell back to its fixed design without a trusted estimate"
+        );
+    }
     let requeued = requeue_failed(change.db(), result.trial_id as i64).await?;
     audit_action_values(&mut change, result).await?;
     change
@@ -97,6 +109,7 @@ pub async fn file_result(
                 metrics: &result.metrics,
                 requeued,
                 cancellation_off_at_s: result.cancellation_off_at_s,
+                adaptation: result.adaptation,
             },
         )
         .await?;

@@ -345,6 +345,7 @@ mod tests {
             record_chunks: 0,
             exposure: None,
             cancellation_off_at_s: None,
+            adaptation: None,
         }
     }
 

@@ -444,6 +444,44 @@ pub fn trials(survey: &SurveyParams) -> Vec<Column> {
         TEXT,
         "the machine's condition the test ran under: stilts (the thesis's rig), or a ground (tires, outriggers), loaded or loaded:FILL (the bucket's fill of its rated load) and stick (the stick cylinder driven), joined by '+'; on the simulated rig the designs stay made for the study's rig and the rig is scaled by the rules of docs/machine-conditions.md; on a real rig it is what the lab declared",
     ));
+    c.extend([
+        col(
+            "adapt_f_hz",
+            "Hz",
+            num(3),
+            "an adaptive design's last estimate of the cab's first mode (empty: a fixed design, or no estimate by the test's end)",
+        ),
+        col(
+            "adapt_confident_since_s",
+            "s",
+            num(3),
+            "when the adaptive design's estimate was first trusted, s into the test (empty: never, or a fixed design)",
+        ),
+        col(
+            "adapt_ratio",
+            "1",
+            num(3),
+            "the mode-frequency ratio of the design running at the test's end (1 = the fixed design; empty: a fixed design)",
+        ),
+        col(
+            "adapt_retunes",
+            "",
+            INT,
+            "how often the adaptive design changed (each a crossfade to the design frozen at the estimate)",
+        ),
+        col(
+            "adapt_fallbacks",
+            "",
+            INT,
+            "retune decisions taken without a trusted estimate, each keeping or restoring the fixed design (also in the audit log's trial.finish)",
+        ),
+        col(
+            "adapt_confident",
+            "",
+            FLAG,
+            "1 when the adaptive design's estimate was trusted at the test's end",
+        ),
+    ]);
     c
 }
 

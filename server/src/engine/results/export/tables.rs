@@ -4,6 +4,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use bdft_protocol::identification::BodyFit;
+use bdft_protocol::params::AdaptationStatus;
 use bdft_protocol::records::TestPhase;
 use bdft_protocol::study::SurveyParams;
 use sqlx::AnyPool;
@@ -193,7 +194,27 @@ pub fn trial_cells(r: &TrialExportRow) -> Vec<Cell<'_>> {
     cells.push(test_only(p, Cell::text(r.cancellation.as_str())));
     cells.push(Cell::Num(r.cancellation_off_at_s));
     cells.push(Cell::text(r.condition.as_str()));
+    cells.extend(adaptation_cells(r));
     cells
+}
+
+/// What an adaptive design did over the test (`columns::trials`' adapt_ columns); empty for
+/// a fixed design.
+fn adaptation_cells(r: &TrialExportRow) -> [Cell<'static>; 6] {
+    // Written by the store from the controller's result: a row it cannot read is one this
+    // server did not write, and it exports empty rather than failing the whole export.
+    let a = r
+        .adaptation_json
+        .as_deref()
+        .and_then(|j| serde_json::from_str::<AdaptationStatus>(j).ok());
+    [
+        Cell::Num(a.and_then(|a| a.f_hz)),
+        Cell::Num(a.and_then(|a| a.confident_since_s)),
+        Cell::Num(a.map(|a| a.ratio)),
+        Cell::Int(a.map(|a| i64::from(a.retunes))),
+        Cell::Int(a.map(|a| i64::from(a.fallbacks))),
+        Cell::Int(a.map(|a| i64::from(a.confident))),
+    ]
 }
 
 /// Whether the trial's design was the subject's own, and its LQR weights as run.
