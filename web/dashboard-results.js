@@ -89,7 +89,9 @@ function compensatorOrder(stats) {
 
 function renderAverages(stats) {
   const t = $('averages');
-  const find = (c, s, v) => stats.find((x) => x.controller === c && x.station === s && x.variable === v);
+  // A study with a condition factor has a row per condition (the summary's groups).
+  const conditions = [...new Set(stats.map((x) => x.condition))];
+  const find = (c, s, v, k) => stats.find((x) => x.controller === c && x.station === s && x.variable === v && x.condition === k);
   const head = el(
     'thead',
     {},
@@ -108,9 +110,9 @@ function renderAverages(stats) {
     body.append(el('tr', {}, el('td', { colspan: 2 + VARIABLES.length, class: 'muted' }, 'No completed test yet.')));
   }
   for (const c of stats.length ? compensatorOrder(stats) : []) {
-    for (const s of SEATS) {
+    for (const [k, s] of conditions.flatMap((k) => SEATS.map((s) => [k, s]))) {
       const cells = VARIABLES.map(([v]) => {
-        const x = find(c, s, v);
+        const x = find(c, s, v, k);
         if (!x) return el('td', { class: 'muted' }, '—');
         return el(
           'td',
@@ -125,9 +127,9 @@ function renderAverages(stats) {
       body.append(
         el(
           'tr',
-          { 'data-controller': c, 'data-station': s, class: `station-${s}` },
+          { 'data-controller': c, 'data-station': s, 'data-condition': k, class: `station-${s}` },
           el('th', { scope: 'row', class: 'nowrap', title: c }, COMPENSATOR_NAME[c] || c),
-          el('td', { class: 'nowrap' }, s === 'on' ? 'on machine' : 'off (desk)'),
+          el('td', { class: 'nowrap' }, (s === 'on' ? 'on machine' : 'off (desk)') + (conditions.length > 1 ? ` · ${k}` : '')),
           ...cells,
         ),
       );
@@ -137,8 +139,10 @@ function renderAverages(stats) {
 }
 
 function renderComparisons(stats) {
+  // Within the first condition a study's summary lists (its only one without the factor).
+  const first = stats.length ? stats[0].condition : null;
   const mean = (c, v) => {
-    const x = stats.find((s) => s.controller === c && s.station === 'on' && s.variable === v);
+    const x = stats.find((s) => s.controller === c && s.station === 'on' && s.variable === v && s.condition === first);
     return x ? x : null;
   };
   const rows = [];

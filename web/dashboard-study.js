@@ -7,7 +7,7 @@ const $ = (id) => document.getElementById(id);
 
 /**
  * Form fields and where they live in StudyParams. `int` fields must be whole numbers, `bool`
- * ones are yes/no selects; `fallback` is shown when the parameters leave the key out (the
+ * ones are yes/no selects, `list` ones hold a list separated by commas; `fallback` is shown when the parameters leave the key out (the
  * server leaves the design aids out at their defaults, so old studies keep their hash).
  */
 const FIELDS = [
@@ -23,6 +23,7 @@ const FIELDS = [
   { id: 'p-display_shake_gain', path: ['display_shake_gain'] },
   { id: 'p-rig', path: ['rig'], text: true },
   { id: 'p-condition', path: ['condition'], text: true, fallback: 'stilts' },
+  { id: 'p-conditions', path: ['conditions'], list: true, fallback: [] },
 ];
 
 /**
@@ -261,7 +262,7 @@ function deletePath(obj, path) {
 function fillForm(params) {
   for (const f of FIELDS) {
     const v = getPath(params, f.path) ?? f.fallback;
-    $(f.id).value = v === undefined || v === null ? '' : String(v);
+    $(f.id).value = v === undefined || v === null ? '' : f.list ? v.join(', ') : String(v);
     $(f.id).classList.remove('invalid');
   }
   const rest = structuredClone(params);
@@ -475,6 +476,10 @@ function readParams() {
     }
     if (f.bool) {
       setPath(params, f.path, n.value === 'true');
+      continue;
+    }
+    if (f.list) {
+      setPath(params, f.path, n.value.split(',').map((x) => x.trim()).filter((x) => x));
       continue;
     }
     const v = Number(n.value);

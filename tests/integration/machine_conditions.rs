@@ -387,3 +387,130 @@ fn an_adaptive_designs_estimate_and_fallbacks_are_filed_with_its_test() {
         );
     }
 }
+
+/// A study that makes the condition a factor: refused with the field named when the levels
+/// are not a factor; its gate judges every design on every level (as the studies fixed on
+/// each judge it); the subjects take the levels in turn by enrolment, two each, every test
+/// of a subject under theirs; the summary has a group per level.
+#[test]
+fn a_study_compares_conditions_between_its_subjects() {
+    let server = Server::start("conditions-factor");
+    let api = server.experimenter();
+    let (_, defaults) = api.get("/api/defaults");
+    let with = |condition: &str, conditions: Value| {
+        let mut p = defaults.clone();
+        p["condition"] = json!(condition);
+        p["conditions"] = conditions;
+        p["trial_s"] = json!(6.0);
+        p["practice_s"] = json!(3.0);
+        p
+    };
+    for (condition, conditions, says) in [
+        ("stilts", json!(["tires"]), "2 to 6"),
+        ("stilts", json!(["tires", "tires"]), "listed twice"),
+        (
+            "tires",
+            json!(["stilts", "outriggers"]),
+            "one of condition and conditions",
+        ),
+        ("stilts", json!(["stilts", "loaded:2"]), "loaded:2"),
+    ] {
+        let (status, body) = api.create_study("bad factor", &with(condition, conditions.clone()));
+        assert_eq!(status, 422, "{conditions}: {body}");
+        let msg = body["error"].as_str().unwrap_or_default();
+        assert!(
+            msg.contains("conditions") && msg.contains(says),
+            "{conditions}: {msg}"
+        );
+    }
+    let (status, created) = api.create_study(
+        "stilts against tires",
+        &with("stilts", json!(["stilts", "tires"])),
+    );
+    assert_eq!(status, 200, "{created}");
+    let study = created["id"].as_i64().unwrap();
+    assert_eq!(
+        api.get(&format!("/api/studies/{study}")).1["params"]["conditions"],
+        json!(["stilts", "tires"])
+    );
+
+    // Each design is as stable as on the least stable level: what the studies fixed on each
+    // level say of it.
+    let gate_of = |condition: &str| {
+        let (_, s) = api.create_study(condition, &with(condition, json!([])));
+        api.get(&format!(
+            "/api/studies/{}/stability",
+            s["id"].as_i64().unwrap()
+        ))
+        .1
+    };
+    let (stilts, tires) = (gate_of("stilts"), gate_of("tires"));
+    let (_, gate) = api.get(&format!("/api/studies/{study}/stability"));
+    let kbf = |v: &Value| v["max_stable_kbf"].as_f64().unwrap_or(f64::INFINITY);
+    for (i, v) in gate["verdicts"].as_array().unwrap().iter().enumerate() {
+        let (a, b) = (&stilts["verdicts"][i], &tires["verdicts"][i]);
+        assert!(
+            (kbf(v) - kbf(a).min(kbf(b))).abs() < 1e-9,
+            "{v} against {a} and {b}"
+        );
+        let least = if kbf(b) < kbf(a) { "tires" } else { "stilts" };
+        assert_eq!(v["condition"], least, "{v}");
+        assert_eq!(
+            v["stable_on"].as_bool(),
+            Some(a["stable_on"] == true && b["stable_on"] == true),
+            "{v}"
+        );
+    }
+    assert!(
+        gate["verdicts"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|v| v["condition"] == "tires"),
+        "{gate}"
+    );
+
+    // Some design is unstable on tires: acknowledged, as any such study.
+    let refused = run_pilot(&api, study, 4);
+    let copy = refused["study_id"]
+        .as_i64()
+        .unwrap_or_else(|| panic!("{refused}"));
+    api.ok(
+        &format!("/api/studies/{copy}/acknowledge-instability"),
+        json!({ "reason": "the stilts' designs on tires, in simulation" }),
+    );
+    let status = run_pilot(&api, study, 4);
+    assert_eq!(status["report"]["study_id"], copy, "{status}");
+    let (header, rows) = api.get_csv(&format!("/api/studies/{copy}/export/trials"));
+    let col = |c: &str| header.iter().position(|h| h == c).unwrap();
+    for (subject, condition) in [
+        ("S01", "stilts"),
+        ("S02", "stilts"),
+        ("S03", "tires"),
+        ("S04", "tires"),
+    ] {
+        let theirs: Vec<&Vec<String>> = rows
+            .iter()
+            .filter(|r| r[col("subject_code")] == subject)
+            .collect();
+        assert!(!theirs.is_empty(), "{subject}: {rows:?}");
+        assert!(
+            theirs.iter().all(|r| r[col("condition")] == condition),
+            "{subject} not all on {condition}: {theirs:?}"
+        );
+    }
+    // The summary: a group per level, each of its own subjects.
+    let (header, rows) = api.get_csv(&format!("/api/studies/{copy}/export/summary"));
+    let col = |c: &str| header.iter().position(|h| h == c).unwrap();
+    for condition in ["stilts", "tires"] {
+        let of: Vec<&Vec<String>> = rows
+            .iter()
+            .filter(|r| r[col("condition")] == condition)
+            .collect();
+        assert!(!of.is_empty(), "no {condition} group: {rows:?}");
+        assert!(
+            of.iter().all(|r| r[col("n")].parse::<u32>().unwrap() <= 2),
+            "{condition}: {of:?}"
+        );
+    }
+}

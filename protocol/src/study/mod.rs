@@ -40,6 +40,9 @@ impl OrderDesign {
     }
 }
 
+/// Most levels of the condition factor: each needs its own subjects.
+pub const MAX_CONDITIONS: usize = 6;
+
 /// Whether trials run on the simulated rig or a real machine.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
@@ -150,6 +153,14 @@ pub struct StudyParams {
     #[serde(default, skip_serializing_if = "MachineCondition::is_default")]
     #[cfg_attr(feature = "openapi", schema(value_type = String, example = "tires+loaded"))]
     pub condition: MachineCondition,
+    /// The machine's condition as a factor between subjects: each subject runs every test
+    /// under one of these (`condition_of`: in turn by enrolment order), so one study compares
+    /// the machine on them. Empty when the study fixes `condition` (the default), and left out
+    /// of the JSON then. Between subjects because a machine's ground and load are set for a
+    /// session, not changed between one test and the next.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    #[cfg_attr(feature = "openapi", schema(value_type = Vec<String>, example = json!(["stilts", "tires"])))]
+    pub conditions: Vec<MachineCondition>,
 }
 
 fn default_budget_a8() -> f64 {
@@ -203,6 +214,7 @@ impl StudyParams {
             }
         }
         self.condition.apply(&self.plant)?;
+        self.check_conditions()?;
         let mut stations = self.seats.clone();
         stations.sort_by_key(|s| s.as_str());
         if stations != [Seat::Off, Seat::On] {
@@ -302,6 +314,61 @@ impl StudyParams {
         self.plant.validate()?;
         self.body.validate()?;
         self.population.validate()
+    }
+
+    /// The condition factor's levels: 2 to `MAX_CONDITIONS` different conditions the rig
+    /// can take, and not beside a fixed condition.
+    fn check_conditions(&self) -> Result<(), ParamError> {
+        if self.conditions.is_empty() {
+            return Ok(());
+        }
+        let invalid = |message: String| {
+            Err(ParamError::Invalid {
+                name: "conditions",
+                message,
+            })
+        };
+        if !self.condition.is_default() {
+            return invalid(format!(
+                "the study fixes the condition {} and makes it a factor; give one of condition and conditions",
+                self.condition
+            ));
+        }
+        if !(2..=MAX_CONDITIONS).contains(&self.conditions.len()) {
+            return invalid(format!(
+                "{} given; a factor has 2 to {MAX_CONDITIONS} conditions (one: give it as condition)",
+                self.conditions.len()
+            ));
+        }
+        for (i, c) in self.conditions.iter().enumerate() {
+            if self.conditions[..i].contains(c) {
+                return invalid(format!("{c} is listed twice"));
+            }
+            c.apply(&self.plant).map_err(|e| ParamError::Invalid {
+                name: "conditions",
+                message: format!("{c}: {e}"),
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Every condition the study's machine runs under: its factor's levels, or its one
+    /// condition.
+    pub fn machine_conditions(&self) -> Vec<MachineCondition> {
+        if self.conditions.is_empty() {
+            vec![self.condition]
+        } else {
+            self.conditions.clone()
+        }
+    }
+
+    /// The condition of every test of the subject enrolled `enrol_index`-th (from 0): the
+    /// factor's levels in turn, each for two consecutive subjects, so that each condition
+    /// has as many subjects starting on the machine as at the desk (the starting seat
+    /// alternates by enrolment, `schedule::starting_seat`).
+    pub fn condition_of(&self, enrol_index: u32) -> MachineCondition {
+        let levels = self.machine_conditions();
+        levels[(enrol_index as usize / 2) % levels.len()]
     }
 
     /// The cancellation arms each compensator runs on the machine: off alone without the

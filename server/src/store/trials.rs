@@ -83,6 +83,9 @@ pub struct Trial {
     /// The site whose machine ran it (`serve --site`), recorded as it started; none for a
     /// test not started yet or started before sites existed.
     pub site: Option<String>,
+    /// The machine's condition the test runs under (`MachineCondition`; migration 0032): the
+    /// study's, or the subject's level of its condition factor.
+    pub condition: String,
 }
 
 impl Trial {

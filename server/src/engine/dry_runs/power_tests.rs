@@ -130,6 +130,7 @@ fn a_cancellation_plan_compares_each_compensator_with_itself_cancelled_from_comp
                 ("pid+personal", "on", 45.0),
             ]),
         ],
+        conditions: Default::default(),
     };
     let rows = data.complete_rows(&columns, 0, "on");
     assert_eq!(

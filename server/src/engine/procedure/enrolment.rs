@@ -118,7 +118,7 @@ pub async fn enrol(
                 target_std_mm: std_mm,
                 target_ms_step_mm2: ms_step_mm2,
                 protocol_hash: &hash,
-                condition: study.params.condition.to_string(),
+                condition: study.params.condition_of(index).to_string(),
             },
         )
         .await?;

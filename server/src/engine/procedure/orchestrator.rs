@@ -3,7 +3,7 @@
 
 use bdft_controller::rng::Rng;
 use bdft_protocol::cancellation::CancellationModel;
-use bdft_protocol::params::{CompensatorSpec, Seat, SubjectDraw};
+use bdft_protocol::params::{CompensatorSpec, MachineCondition, ParamError, Seat, SubjectDraw};
 use bdft_protocol::records::TestPhase;
 use bdft_protocol::server_to_controller::StartTrial;
 use bdft_protocol::study::StudyParams;
@@ -43,6 +43,9 @@ pub struct TestRun {
     pub target_seed: u64,
     /// The model the test cancels with (none: uncancelled).
     pub cancellation: Option<CancellationModel>,
+    /// The machine's condition the test runs under (the study's, or the subject's level of
+    /// its condition factor).
+    pub condition: MachineCondition,
 }
 
 /// The controller message that runs `trial` of `study`.
@@ -81,6 +84,12 @@ pub fn start_message(study: &Study, trial: &Trial, operator: Operator) -> Result
         duration_s: trial.duration_s,
         target_seed: trial.target_seed as u64,
         cancellation: super::cancellation::model_of(trial)?,
+        condition: trial.condition.parse().map_err(|e: ParamError| {
+            AppError::Internal(anyhow::anyhow!(
+                "stored condition of trial {}: {e}",
+                trial.id
+            ))
+        })?,
     };
     Ok(start(&study.params, run, operator))
 }
@@ -129,6 +138,6 @@ pub fn start(params: &StudyParams, run: TestRun, operator: Operator) -> StartTri
         // Set by the start policy from the subject's day (`procedure::exposure`).
         exposure_allowance: None,
         cancellation: run.cancellation,
-        condition: params.condition,
+        condition: run.condition,
     }
 }

@@ -386,6 +386,7 @@ mod tests {
             arms: vec![],
             seats,
             subjects,
+            conditions: Default::default(),
         });
         let pairs: Vec<&StatsRow> = t
             .iter()
@@ -448,6 +449,7 @@ mod tests {
             arms: vec![CancellationArm::Personal],
             seats,
             subjects,
+            conditions: Default::default(),
         });
         let rows: Vec<&StatsRow> = t
             .iter()

@@ -20,6 +20,9 @@ pub struct Stats {
     /// What the tests cancelled the feedthrough with (`off` at the desk and without the
     /// factor).
     pub cancellation: String,
+    /// The machine's condition of the subjects summarised: the study's, or one level of its
+    /// condition factor (a group per level).
+    pub condition: String,
     pub variable: String,
     pub n: usize,
     pub mean: f64,
@@ -45,11 +48,21 @@ pub async fn group_values(pool: &AnyPool, study_id: i64) -> Result<GroupValues> 
     Ok(groups)
 }
 
-/// Per compensator × seat statistics: the numbers behind the box plots and the table of
-/// averages.
+/// Per compensator × seat statistics, and per machine condition in a study with a
+/// condition factor: the numbers behind the table of averages and the summary export.
 pub async fn summary_stats(pool: &AnyPool, study_id: i64) -> Result<Vec<Stats>> {
+    let data = StudyData::load(pool, study_id).await?;
+    let mut groups: std::collections::BTreeMap<_, Vec<[Option<f64>; 6]>> = Default::default();
+    for (subject, condition) in data.subjects.into_iter().zip(data.conditions) {
+        for ((key, seat), values) in subject {
+            groups
+                .entry((condition.clone(), key, seat))
+                .or_default()
+                .push(values);
+        }
+    }
     let mut out = Vec::new();
-    for ((key, seat), values) in group_values(pool, study_id).await? {
+    for ((condition, key, seat), values) in groups {
         let (controller, cancellation) = split_key(&key);
         for (i, variable) in SUMMARY_VARIABLES.iter().enumerate() {
             let mut xs: Vec<f64> = values.iter().filter_map(|v| v[i]).collect();
@@ -61,6 +74,7 @@ pub async fn summary_stats(pool: &AnyPool, study_id: i64) -> Result<Vec<Stats>> 
                 compensator: controller.to_string(),
                 seat: seat.clone(),
                 cancellation: cancellation.to_string(),
+                condition: condition.clone(),
                 variable: (*variable).into(),
                 n: xs.len(),
                 mean: xs.iter().sum::<f64>() / xs.len() as f64,

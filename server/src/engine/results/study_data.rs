@@ -63,6 +63,9 @@ pub struct StudyData {
     pub arms: Vec<CancellationArm>,
     pub seats: Vec<String>,
     pub subjects: Vec<Cells>,
+    /// Each subject's machine condition (as `subjects`): the study's, or their level of its
+    /// condition factor.
+    pub conditions: Vec<String>,
 }
 
 /// The attempts the analyses count (`counts`): of every scored test, the latest attempt,
@@ -75,10 +78,13 @@ impl StudyData {
     pub async fn load(pool: &AnyPool, study_id: i64) -> Result<Self> {
         let study = store::studies::get(pool, study_id).await?;
         let rows = store::exports::trial_rows(pool, study_id, Withdrawn::LeftOut).await?;
-        let mut subjects: BTreeMap<i64, Cells> = BTreeMap::new();
+        let mut subjects: BTreeMap<i64, (String, Cells)> = BTreeMap::new();
         for r in analysable(&rows) {
             let f = |v: Option<i64>| v.map(|x| x as f64);
-            subjects.entry(r.enrol_index).or_default().insert(
+            let subject = subjects
+                .entry(r.enrol_index)
+                .or_insert_with(|| (r.condition.clone(), Cells::new()));
+            subject.1.insert(
                 (
                     cancelled_key(r.controller.name(), r.cancellation),
                     r.station.as_str().into(),
@@ -111,7 +117,8 @@ impl StudyData {
                 .iter()
                 .map(|s| s.as_str().to_string())
                 .collect(),
-            subjects: subjects.into_values().collect(),
+            conditions: subjects.values().map(|s| s.0.clone()).collect(),
+            subjects: subjects.into_values().map(|s| s.1).collect(),
         })
     }
 

@@ -55,6 +55,7 @@ pub fn default_params() -> StudyParams {
         identification: None,
         cancellation: None,
         condition: Default::default(),
+        conditions: Vec::new(),
     }
 }
 

@@ -1,5 +1,5 @@
 //! The stability gate: every compensator of a study analysed at the study's K_BF with its
-//! plant (under the study's machine condition, the design made for the plant) and body, an
+//! plant (under each of the study's machine conditions, the design made for the plant) and body, an
 //! adaptive design at every frozen estimate of its range (`adaptive_gate`), on the machine
 //! (feedthrough loop closed) and off it, before a person
 //! runs it. A study on the real machine whose on-machine design is unstable cannot be
@@ -36,6 +36,10 @@ pub const MARGIN: f64 = 1.5;
 pub struct Verdict {
     #[serde(rename = "controller")]
     pub compensator: CompensatorKind,
+    /// In a study with a condition factor, the condition the verdict is on: the design's
+    /// least stable (its margin there; stable only if on every condition).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub condition: Option<String>,
     /// Stable on the machine at the study's K_BF (feedthrough closed).
     pub stable_on: bool,
     /// Stable off the machine (no feedthrough).
@@ -85,13 +89,37 @@ pub fn study_loop(
     }
 }
 
-fn verdict(params: &StudyParams, spec: &bdft_protocol::params::CompensatorSpec) -> Result<Verdict> {
+/// A design's verdict on every condition of the study's machine: as stable as on the least
+/// stable of them (a study with a condition factor runs it on each).
+fn verdict(params: &StudyParams, spec: &CompensatorSpec) -> Result<Verdict> {
+    let mut least: Option<Verdict> = None;
+    for condition in params.machine_conditions() {
+        let v = verdict_on(params, spec, condition)?;
+        let kbf = |v: &Verdict| v.max_stable_kbf.unwrap_or(f64::INFINITY);
+        least = Some(match least {
+            None => v,
+            Some(l) => Verdict {
+                stable_on: l.stable_on && v.stable_on,
+                stable_off: l.stable_off && v.stable_off,
+                has_margin: l.has_margin && v.has_margin,
+                ..if kbf(&v) < kbf(&l) { v } else { l }
+            },
+        });
+    }
+    Ok(least.expect("a study's machine has a condition"))
+}
+
+/// A design's verdict on the study's machine under `condition`.
+fn verdict_on(
+    params: &StudyParams,
+    spec: &CompensatorSpec,
+    condition: MachineCondition,
+) -> Result<Verdict> {
     let setup = study_loop(params, spec);
     let design = |e: bdft_controller::error::DesignError| {
         AppError::BadRequest(format!("{}: the design cannot be built: {e}", spec.kind()))
     };
-    let rig = params
-        .condition
+    let rig = condition
         .apply(&params.plant)
         .map_err(|e| AppError::BadRequest(e.to_string()))?;
     let (stable_on, stable_off, max_stable_kbf) = if spec.adapt().is_some() {
@@ -110,7 +138,7 @@ fn verdict(params: &StudyParams, spec: &bdft_protocol::params::CompensatorSpec) 
                 .map_err(design)?,
             least.is_finite().then_some(least),
         )
-    } else if params.condition.is_default() {
+    } else if condition.is_default() {
         let lin = LinearizedLoop::new(&setup).map_err(design)?;
         (
             lin.is_stable(params.k_bf).map_err(design)?,
@@ -128,6 +156,7 @@ fn verdict(params: &StudyParams, spec: &bdft_protocol::params::CompensatorSpec) 
     };
     Ok(Verdict {
         compensator: spec.kind(),
+        condition: (params.machine_conditions().len() > 1).then(|| condition.to_string()),
         stable_on,
         stable_off,
         has_margin: max_stable_kbf.is_none_or(|k| k >= MARGIN * params.k_bf),
@@ -166,6 +195,8 @@ struct AnalysisInput<'a> {
     plant: &'a PlantParams,
     #[serde(skip_serializing_if = "MachineCondition::is_default")]
     condition: MachineCondition,
+    #[serde(skip_serializing_if = "<[_]>::is_empty")]
+    conditions: &'a [MachineCondition],
     body: &'a BodyModel,
     k_bf: f64,
     controllers: &'a [CompensatorSpec],
@@ -177,6 +208,7 @@ pub fn analysis_key(params: &StudyParams, k_bf: f64) -> String {
     serde_json::to_string(&AnalysisInput {
         plant: &params.plant,
         condition: params.condition,
+        conditions: &params.conditions,
         body: &params.body,
         k_bf,
         controllers: &params.compensators,

@@ -83,6 +83,7 @@ pub(super) fn trial(
         target_seed: t.target_seed,
         // Calibration fits the uncancelled cells the published study ran.
         cancellation: None,
+        condition: params.condition_of(index),
     };
     Ok((
         start(params, run, Operator::Synthetic(Some(draw))),

@@ -714,6 +714,12 @@ pub fn summary() -> Vec<Column> {
             TEXT,
             "what the tests cancelled the feedthrough with (off, personal, generic, wrong: as the trials export's column)",
         ),
+        col(
+            "condition",
+            "",
+            TEXT,
+            "the machine's condition of the subjects summarised (as the trials export's column): the study's, or one level of its condition factor, each level a row of its own",
+        ),
     ]
 }
 

@@ -478,6 +478,7 @@ async fn summary<W: AsyncWrite + Unpin>(
             Cell::text(s.compensator),
             Cell::text(s.seat),
             Cell::text(s.cancellation),
+            Cell::text(s.condition),
         ])
         .await?;
     }
