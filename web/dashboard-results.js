@@ -193,6 +193,7 @@ const TEST_NAME = {
   wilcoxon: 'Wilcoxon (exact)',
   wilcoxon_on_off: 'Wilcoxon on vs off',
   rm_anova: 'RM-ANOVA (GG)',
+  kruskal_condition: 'Kruskal–Wallis across conditions',
 };
 
 const fmtP = (p) => (p === null || p === undefined ? '—' : p < 0.001 ? p.toExponential(2) : p.toFixed(4));
@@ -215,7 +216,7 @@ function renderStatistics() {
       { 'data-test': r.test, class: r.reachable ? '' : 'unreachable' },
       el('td', {}, TEST_NAME[r.test] || r.test),
       el('td', {}, r.station),
-      el('td', {}, r.test === 'rm_anova' ? r.a : r.b && r.a !== r.b ? `${compensatorName(r.a)} vs ${compensatorName(r.b)}` : compensatorName(r.a) || 'all'),
+      el('td', {}, r.test === 'rm_anova' || r.test === 'kruskal_condition' ? r.a : r.b && r.a !== r.b ? `${compensatorName(r.a)} vs ${compensatorName(r.b)}` : compensatorName(r.a) || 'all'),
       el('td', { class: 'num' }, String(r.n)),
       el('td', { class: 'num' }, num(r.statistic)),
       el('td', { class: 'num' }, fmtP(r.p_value)),

@@ -499,6 +499,23 @@ fn a_study_compares_conditions_between_its_subjects() {
             "{subject} not all on {condition}: {theirs:?}"
         );
     }
+    // The statistics compare the levels between subjects: per seat and metric, the
+    // Kruskal–Wallis test of two subjects per level (n 4, 1 degree of freedom).
+    let (header, rows) = api.get_csv(&format!("/api/studies/{copy}/export/stats"));
+    let col = |c: &str| header.iter().position(|h| h == c).unwrap();
+    let kw: Vec<&Vec<String>> = rows
+        .iter()
+        .filter(|r| r[col("test")] == "kruskal_condition")
+        .collect();
+    assert!(!kw.is_empty(), "{rows:?}");
+    for r in &kw {
+        assert_eq!(r[col("a")], "stilts,tires", "{r:?}");
+        assert!(r[col("n")].parse::<u32>().unwrap() <= 4, "{r:?}");
+        let h: f64 = r[col("statistic")].parse().unwrap();
+        let p: f64 = r[col("p_value")].parse().unwrap();
+        // Two groups of two: H ≤ 2.4 (ranks 1,2 against 3,4), and p = P(χ²₁ ≥ H).
+        assert!((0.0..=2.4 + 1e-9).contains(&h) && p > 0.1, "{r:?}");
+    }
     // The summary: a group per level, each of its own subjects.
     let (header, rows) = api.get_csv(&format!("/api/studies/{copy}/export/summary"));
     let col = |c: &str| header.iter().position(|h| h == c).unwrap();

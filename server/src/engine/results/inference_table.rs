@@ -3,7 +3,9 @@
 //! exact Wilcoxon with Holm's adjustment; per compensator and metric, on against off the
 //! machine; for the continuous metrics, the two-way RM-ANOVA (compensator × seat) on their
 //! logarithm; in a study with cancellation, per arm on the machine, each compensator
-//! uncancelled against cancelled and the RM-ANOVA compensator × cancellation. Each test's data are the latest attempt of every test when it is complete;
+//! uncancelled against cancelled and the RM-ANOVA compensator × cancellation; in a study
+//! with a condition factor, per seat and metric, Kruskal–Wallis across its levels. Each
+//! test's data are the latest attempt of every test when it is complete;
 //! subjects missing a cell are left out of that analysis (n says how many remain). Ratings
 //! are ordinal: rank tests only.
 
@@ -11,7 +13,7 @@ use serde::Serialize;
 use sqlx::AnyPool;
 
 use super::inference::bootstrap::median_interval;
-use super::inference::nonparametric::{friedman, holm, wilcoxon, wilcoxon_floor};
+use super::inference::nonparametric::{friedman, holm, kruskal_wallis, wilcoxon, wilcoxon_floor};
 use super::inference::rm_anova::{Effect, rm_anova2};
 use super::study_data::{Cells, SUMMARY_VARIABLES, StudyData, cancelled_key};
 use crate::error::Result;
@@ -27,7 +29,8 @@ const BOOTSTRAP_SEED: u64 = 0x5354_4154;
 
 /// One row of the table. Test names: `friedman`, `wilcoxon` (a pair at one seat),
 /// `wilcoxon_on_off` (one compensator, on against off), `rm_anova` (`a` the effect:
-/// `controller`, `station` or `controller:station`).
+/// `controller`, `station` or `controller:station`), `kruskal_condition` (`a` the
+/// condition factor's levels).
 #[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct StatsRow {
     pub test: String,
@@ -40,7 +43,7 @@ pub struct StatsRow {
     pub b: String,
     /// Subjects in the analysis.
     pub n: usize,
-    /// χ² (Friedman), min(R⁺, R⁻) (Wilcoxon), F (ANOVA).
+    /// χ² (Friedman), min(R⁺, R⁻) (Wilcoxon), F (ANOVA), H (Kruskal–Wallis).
     pub statistic: f64,
     /// Friedman and Wilcoxon: the test's p; ANOVA: Greenhouse–Geisser corrected.
     pub p_value: f64,
@@ -48,7 +51,7 @@ pub struct StatsRow {
     /// comparisons of one metric); empty for omnibus tests.
     pub p_adjusted: Option<f64>,
     pub effect_size: f64,
-    /// `kendall_w`, `rank_biserial` (of a − b) or `eta_g2`.
+    /// `kendall_w`, `rank_biserial` (of a − b), `eta_g2` or `epsilon2`.
     pub effect: String,
     /// Median of a − b and its 95 % bootstrap interval (Wilcoxon rows).
     pub median_diff: Option<f64>,
@@ -144,6 +147,7 @@ pub fn table(data: &StudyData) -> Vec<StatsRow> {
         for &arm in &data.arms {
             out.extend(cancellation_rows(data, m, metric, arm));
         }
+        out.extend(condition_rows(data, m, metric));
         // The continuous metrics: their logarithm is closer to normal (errors are ratios).
         if m < 2 && seats.len() >= 2 {
             let y: Vec<Vec<Vec<f64>>> = subjects
@@ -172,6 +176,65 @@ pub fn table(data: &StudyData) -> Vec<StatsRow> {
         }
     }
     out
+}
+
+/// The condition factor's rows for one metric, per seat: Kruskal–Wallis across its levels
+/// (the study's order) of each subject's mean over the compensators there (subjects with
+/// every compensator at the seat). Between subjects: each subject ran under one level.
+/// None without the factor.
+fn condition_rows(data: &StudyData, m: usize, metric: &str) -> Vec<StatsRow> {
+    let mut levels: Vec<&str> = Vec::new();
+    for c in &data.conditions {
+        if !levels.contains(&c.as_str()) {
+            levels.push(c);
+        }
+    }
+    if levels.len() < 2 {
+        return Vec::new();
+    }
+    data.seats
+        .iter()
+        .filter_map(|seat| {
+            let groups: Vec<Vec<f64>> = levels
+                .iter()
+                .map(|level| {
+                    data.subjects
+                        .iter()
+                        .zip(&data.conditions)
+                        .filter(|(_, c)| c == level)
+                        .filter_map(|(s, _)| {
+                            let v = data
+                                .compensators
+                                .iter()
+                                .map(|c| s.get(&(c.clone(), seat.clone()))?[m])
+                                .collect::<Option<Vec<f64>>>()?;
+                            Some(v.iter().sum::<f64>() / v.len() as f64)
+                        })
+                        .collect()
+                })
+                .collect();
+            let kw = kruskal_wallis(&groups)?;
+            let sizes: Vec<String> = groups.iter().map(|g| g.len().to_string()).collect();
+            let mut r = row(
+                "kruskal_condition",
+                metric,
+                seat,
+                &levels.join(","),
+                "",
+                kw.n,
+                kw.h,
+                kw.p_value,
+                kw.epsilon2,
+                "epsilon2",
+            );
+            r.df1 = Some((kw.k - 1) as f64);
+            r.note = format!(
+                "between subjects, each subject's mean over the compensators; {} subjects per condition; asymptotic χ², rough below 5 per condition",
+                sizes.join("/")
+            );
+            Some(r)
+        })
+        .collect()
 }
 
 /// The cancellation factor's rows for one metric and arm, on the machine (the desk has no

@@ -729,7 +729,7 @@ pub fn stats() -> Vec<Column> {
             "test",
             "",
             TEXT,
-            "friedman, wilcoxon, wilcoxon_on_off, wilcoxon_cancellation (a compensator on the machine uncancelled, a, against cancelled, b: pid+personal) or rm_anova",
+            "friedman, wilcoxon, wilcoxon_on_off, wilcoxon_cancellation (a compensator on the machine uncancelled, a, against cancelled, b: pid+personal), rm_anova, or kruskal_condition (a study's condition factor: its levels, a, compared between subjects)",
         ),
         col(
             "metric",
@@ -755,7 +755,7 @@ pub fn stats() -> Vec<Column> {
             "statistic",
             "1",
             STAT,
-            "χ² (Friedman), min(R⁺, R⁻) (Wilcoxon), F (ANOVA)",
+            "χ² (Friedman), min(R⁺, R⁻) (Wilcoxon), F (ANOVA), H (Kruskal–Wallis)",
         ),
         col(
             "p_value",
@@ -779,7 +779,7 @@ pub fn stats() -> Vec<Column> {
             "effect",
             "",
             TEXT,
-            "kendall_w, rank_biserial (of a − b) or eta_g2",
+            "kendall_w, rank_biserial (of a − b), eta_g2 or epsilon2 (Kruskal–Wallis: H / (n − 1))",
         ),
         col("median_diff", "of the metric", STAT, "median of a − b"),
         col(

@@ -1,6 +1,7 @@
 //! Rank tests for a within-subject design: Friedman's test across the compensators (with
 //! Kendall's W), the Wilcoxon signed-rank test of a pair (exact for n ≤ 25, with the
-//! matched-pairs rank-biserial correlation), and Holm's step-down adjustment. The
+//! matched-pairs rank-biserial correlation), and Holm's step-down adjustment; and for a
+//! factor between subjects (the machine's condition), the Kruskal–Wallis test. The
 //! conventions are scipy's and pingouin's, so that their numbers can check ours.
 
 use super::special::{chi2_sf, normal_sf};
@@ -189,6 +190,56 @@ pub fn wilcoxon_floor(n: usize) -> f64 {
     2.0 / 2f64.powi(n as i32)
 }
 
+/// The Kruskal–Wallis test of k independent groups.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct KruskalWallis {
+    /// Values in all groups.
+    pub n: usize,
+    pub k: usize,
+    /// The tie-corrected H (scipy's `kruskal`).
+    pub h: f64,
+    /// From χ² with k − 1 degrees of freedom (asymptotic, as scipy's).
+    pub p_value: f64,
+    /// ε² = H / (n − 1) (Tomczak & Tomczak 2014): the share of the ranks' variance between
+    /// the groups.
+    pub epsilon2: f64,
+}
+
+/// The Kruskal–Wallis test on `groups` (at least two non-empty, n ≥ 3 values in all);
+/// `None` when there is nothing to test.
+pub fn kruskal_wallis(groups: &[Vec<f64>]) -> Option<KruskalWallis> {
+    let k = groups.len();
+    let all: Vec<f64> = groups.iter().flatten().copied().collect();
+    let n = all.len();
+    if k < 2 || n < 3 || groups.iter().any(Vec::is_empty) {
+        return None;
+    }
+    let ranks = midranks(&all);
+    let nf = n as f64;
+    let mut at = 0;
+    let mut between = 0.0;
+    for g in groups {
+        let sum: f64 = ranks[at..at + g.len()].iter().sum();
+        between += sum * sum / g.len() as f64;
+        at += g.len();
+    }
+    let ties: f64 = tie_sizes(&all).iter().map(|t| t * t * t - t).sum();
+    let correction = 1.0 - ties / (nf * nf * nf - nf);
+    let h = if correction <= 0.0 {
+        // Every value equal: no evidence of any difference.
+        0.0
+    } else {
+        (12.0 / (nf * (nf + 1.0)) * between - 3.0 * (nf + 1.0)) / correction
+    };
+    Some(KruskalWallis {
+        n,
+        k,
+        h,
+        p_value: chi2_sf(h, (k - 1) as f64),
+        epsilon2: h / (nf - 1.0),
+    })
+}
+
 /// Holm's step-down adjustment of a family of p-values (returned in the given order).
 pub fn holm(p: &[f64]) -> Vec<f64> {
     let m = p.len();
@@ -243,6 +294,47 @@ mod tests {
         assert_eq!(w.p_value, wilcoxon_floor(8));
         assert_eq!(w.rank_biserial, 1.0);
         assert_eq!(w.statistic, 0.0);
+    }
+
+    #[test]
+    fn kruskal_wallis_is_the_analysis_of_variance_of_the_ranks() {
+        // With ties: H = (n − 1) · SS_between / SS_total of the midranks, an equivalent form
+        // that needs no tie correction.
+        let groups = vec![
+            vec![2.0, 3.5, 3.5, 7.0],
+            vec![1.0, 3.5, 5.0],
+            vec![6.0, 8.0, 9.0, 9.0, 10.0],
+        ];
+        let kw = kruskal_wallis(&groups).unwrap();
+        let ranks = midranks(&groups.concat());
+        let mean = ranks.iter().sum::<f64>() / ranks.len() as f64;
+        let total: f64 = ranks.iter().map(|r| (r - mean).powi(2)).sum();
+        let mut at = 0;
+        let mut between = 0.0;
+        for g in &groups {
+            let m = ranks[at..at + g.len()].iter().sum::<f64>() / g.len() as f64;
+            between += g.len() as f64 * (m - mean).powi(2);
+            at += g.len();
+        }
+        let h = (ranks.len() - 1) as f64 * between / total;
+        assert!((kw.h - h).abs() < 1e-12, "{} against {h}", kw.h);
+        assert_eq!((kw.n, kw.k), (12, 3));
+    }
+
+    #[test]
+    fn kruskal_wallis_of_two_groups_is_the_rank_sum_tests_z_squared() {
+        // Separated groups of three: rank sums 6 and 15, H = 12/42 · (36 + 225)/3 − 21 =
+        // 27/7, and with two groups H = z² of the Mann–Whitney normal approximation, so
+        // p = erfc(√(H/2)) = 2·Φ(−√H).
+        let kw = kruskal_wallis(&[vec![1.0, 2.0, 3.0], vec![4.0, 5.0, 6.0]]).unwrap();
+        assert!((kw.h - 27.0 / 7.0).abs() < 1e-12, "{}", kw.h);
+        let u: f64 = 0.0;
+        let z = (u - 9.0 / 2.0) / (9.0 * 7.0 / 12.0f64).sqrt();
+        assert!((kw.h - z * z).abs() < 1e-12);
+        assert!((kw.p_value - 2.0 * normal_sf(z.abs())).abs() < 1e-12);
+        assert!(kruskal_wallis(&[vec![1.0], vec![]]).is_none());
+        let tied = kruskal_wallis(&[vec![2.0, 2.0], vec![2.0]]).unwrap();
+        assert_eq!((tied.h, tied.p_value), (0.0, 1.0));
     }
 
     #[test]
