@@ -61,7 +61,8 @@ impl Adaptive {
         let Some(adapt) = spec.adapt() else {
             return Ok(None);
         };
-        let schedule = Schedule::new(adapt, designs::grid_half(spec.kind(), adapt), dt);
+        let bounds = adapt.retune_bounds(spec.kind());
+        let schedule = Schedule::new(adapt, bounds, designs::grid_half(spec.kind(), adapt), dt);
         Ok(Some(Self {
             estimator: ModeEstimator::new(plant, adapt, dt),
             designs: Designs::new(spec, plant, dt, schedule.ratios())?,
