@@ -228,7 +228,7 @@ mod tests {
     /// also reduces more than the fixed design keeps; high, the notch and the shaper run their
     /// fixed design (not retuned upward) and the scheduled LQR reduces more.
     /// Measured (reduction · max K_BF, fixed → adaptive): ×0.7 notch 50.5 % · 0.343 → 64.7 % ·
-    /// 0.522, shaper 75.3 % · 0.969 → 90.9 % · 3.751, LQR 23.6 % · 1.158 → 47.2 % · 1.486; ×1.3
+    /// 0.522, shaper 75.3 % · 0.969 → 90.9 % · 3.751, LQR 23.6 % · 1.158 → 46.1 % · 1.458; ×1.3
     /// notch 65.6 % · 2.899 → the same, shaper 85.4 % · 5.005 → the same, LQR 24.8 % · 4.958 →
     /// 50.5 % · 5.519 (nominal 61.5 %, 90.3 %, 41.3 %).
     #[test]
