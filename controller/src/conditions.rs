@@ -118,10 +118,9 @@ pub fn condition_table(
                 None => None,
             };
             // An adaptive design is judged as it converges: frozen at the rig's true ratio
-            // (clamped to its range), beside its fixed design's row.
-            let max_stable_kbf = match spec.adapt() {
-                Some(adapt) => {
-                    let (lo, hi) = adapt.ratio_bounds();
+            // (clamped to the range it is retuned to), beside its fixed design's row.
+            let max_stable_kbf = match spec.retune_bounds() {
+                Some((lo, hi)) => {
                     let ratio = (rig.f1_hz / base.plant.f1_hz).clamp(lo, hi);
                     judged(&spec.frozen_at(ratio))?.max_stable_kbf(rig, MAX_KBF)?
                 }
@@ -223,14 +222,19 @@ mod tests {
         );
     }
 
-    /// The claim where it holds on the structure's vibration: with the modes 30 %
-    /// low, each adaptive design keeps at least 80 % of its fixed design's reduction on the
-    /// rig it was made for, and more than the fixed design keeps there. (With the modes 30 %
-    /// high the scheduled LQR keeps 76 %: docs/machine-conditions.md.)
+    /// The claim on the structure's vibration, both ways: with the modes 30 % low and
+    /// 30 % high, each adaptive design keeps at least 80 % of its fixed design's reduction on
+    /// the rig it was made for, and its margin there is at least the fixed design's. Low, it
+    /// also reduces more than the fixed design keeps; high, the notch and the shaper run their
+    /// fixed design (not retuned upward) and the scheduled LQR reduces more.
+    /// Measured (reduction · max K_BF, fixed → adaptive): ×0.7 notch 50.5 % · 0.343 → 64.7 % ·
+    /// 0.522, shaper 75.3 % · 0.969 → 90.9 % · 3.751, LQR 23.6 % · 1.158 → 46.1 % · 1.458; ×1.3
+    /// notch 65.6 % · 2.899 → the same, shaper 85.4 % · 5.005 → the same, LQR 24.8 % · 4.958 →
+    /// 50.5 % · 5.519 (nominal 61.5 %, 90.3 %, 41.3 %).
     #[test]
-    fn with_the_modes_low_the_adaptive_designs_keep_their_reduction() {
+    fn with_the_modes_low_or_high_the_adaptive_designs_keep_their_reduction() {
         let base = base();
-        let low: MachineCondition = "modes:0.7".parse().unwrap();
+        let moved: [MachineCondition; 2] = ["modes:0.7", "modes:1.3"].map(|c| c.parse().unwrap());
         for (fixed, adaptive) in [
             (CompensatorKind::PidNotch, CompensatorKind::PidNotchAdaptive),
             (
@@ -246,16 +250,32 @@ mod tests {
                 .into_iter()
                 .map(|k| (k.name().to_string(), default_spec(k, &base.plant)))
                 .collect();
-            let t = condition_table(&designs, &[MachineCondition::STILTS, low], &base, 1).unwrap();
+            let conditions = [MachineCondition::STILTS, moved[0], moved[1]];
+            let t = condition_table(&designs, &conditions, &base, 1).unwrap();
+            // Rows: the fixed design on stilts, ×0.7, ×1.3, then the adaptive one.
             let r = |i: usize| t.rows[i].cab_accel_reduction_pct.unwrap();
-            let (nominal, fixed_low, adaptive_low) = (r(0), r(1), r(3));
+            let m = |i: usize| t.rows[i].max_stable_kbf.unwrap_or(f64::INFINITY);
+            let nominal = r(0);
+            for (i, condition) in moved.iter().enumerate() {
+                let (f, a) = (1 + i, 4 + i);
+                assert!(
+                    r(a) >= 0.8 * nominal,
+                    "{adaptive} on {condition}: {} vs nominal {nominal}",
+                    r(a)
+                );
+                assert!(
+                    m(a) >= m(f),
+                    "{adaptive} on {condition}: margin {} vs fixed {}",
+                    m(a),
+                    m(f)
+                );
+            }
+            assert!(r(4) > r(1), "{adaptive} low: {} vs fixed {}", r(4), r(1));
             assert!(
-                adaptive_low >= 0.8 * nominal,
-                "{adaptive}: {adaptive_low} vs {nominal}"
-            );
-            assert!(
-                adaptive_low > fixed_low,
-                "{adaptive}: {adaptive_low} vs fixed {fixed_low}"
+                r(5) >= r(2) - 0.5,
+                "{adaptive} high: {} vs fixed {}",
+                r(5),
+                r(2)
             );
         }
     }

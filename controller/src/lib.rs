@@ -29,9 +29,11 @@
 //!   shaper and its added delay (`duration`).
 //! - `compensator/` — the compensators behind one interface (`CompensatorKind`, `CompensatorSpec`,
 //!   `Compensator`).
-//! - `adaptive/` — the adaptive designs (issue 41): the mode estimator (accelerometer and
-//!   cylinder position → the first mode's frequency ratio and its confidence), the retune
-//!   schedule with its crossfade, the designs prepared at build on a grid of ratios.
+//! - `compensator/adaptive/` — the adaptive designs (issue 41; a submodule of `compensator`,
+//!   whose fixed designs it prepares, so the two do not import each other): the mode estimator
+//!   (accelerometer and cylinder position → the first mode's frequency ratio and its
+//!   confidence), the retune schedule with its crossfade over [1 − range, 1 + range_up], the
+//!   designs prepared at build on a grid of ratios.
 //!   *Invariant:* a design at ratio r is exactly `Compensator::build` of the spec `frozen_at(r)`.
 //! - `state` — `LinearState`: every per-tick block exposes its state as a flat vector.
 //! - `closed_loop` — `ClosedLoop::tick`: measure → body → feedthrough → (cancellation) →
@@ -45,7 +47,7 @@
 //!   and phase lag, and the guard that turns it off.
 //! - `analysis/` — stability, design view, robustness, frequency, Nyquist and personal designs, all
 //!   read off the code that runs; an adaptive design is analysed frozen at r = 1, and
-//!   `adaptive_gate` judges it frozen at every r of its range.
+//!   `adaptive_gate` judges it frozen at every r it can be retuned to.
 //! - `signals` — swept sine, smoothed trapezoid, and the protocol's random-step target (seeded;
 //!   mean exactly 0 and standard deviation exactly as asked, within range; matched targets also
 //!   have the mean-squared step change `ms_step` = 2·std², by mixing two seeded draws on either
@@ -99,7 +101,6 @@
 //! (the libc calls: the monotonic clock, SCHED_FIFO, mlockall, affinity) and `alloc_check` (the
 //! test binary's counting allocator).
 
-pub mod adaptive;
 pub mod analysis;
 pub mod batch;
 pub mod cancellation;

@@ -25,9 +25,29 @@ pub struct FrozenVerdict {
     pub max_stable_kbf: Option<f64>,
 }
 
+/// The ratios the gate judges: `points` (odd) over the retune range [lo, hi] ∋ 1, r = 1
+/// among them — half evenly each side of 1 when the range spans both, all evenly over it
+/// when one end is 1 (a design not retuned upward: [1 − range, 1]).
+pub fn gate_ratios((lo, hi): (f64, f64), points: usize) -> Vec<f64> {
+    let half = (points - 1) / 2;
+    if lo < 1.0 && hi > 1.0 {
+        (0..points)
+            .map(|i| match i.cmp(&half) {
+                std::cmp::Ordering::Less => 1.0 - (1.0 - lo) * (half - i) as f64 / half as f64,
+                std::cmp::Ordering::Equal => 1.0,
+                std::cmp::Ordering::Greater => 1.0 + (hi - 1.0) * (i - half) as f64 / half as f64,
+            })
+            .collect()
+    } else {
+        (0..points)
+            .map(|i| lo + (hi - lo) * i as f64 / (points - 1) as f64)
+            .collect()
+    }
+}
+
 /// The verdicts of `setup.compensator` (an adaptive design, made for `setup.plant`) frozen
-/// at `points` ratios evenly over its range (at least `GATE_POINTS`, odd so that r = 1 is
-/// one of them), on `rig` (the setup's plant, or the machine under a condition) at the
+/// at `points` ratios over the range it is retuned to (`CompensatorSpec::retune_bounds`;
+/// `gate_ratios`: at least `GATE_POINTS`, odd so that r = 1 is one of them), on `rig` (the setup's plant, or the machine under a condition) at the
 /// setup's K_BF. The margin is `OnRig`'s: the Nyquist crossings for the shaper, the sampled
 /// loop's eigenvalues otherwise, as `analyze`'s.
 pub fn adaptive_gate(
@@ -54,10 +74,10 @@ pub fn adaptive_gate(
         }
         .into());
     }
-    let (lo, hi) = adapt.ratio_bounds();
-    (0..points)
-        .map(|i| {
-            let ratio = lo + (hi - lo) * i as f64 / (points - 1) as f64;
+    let bounds = adapt.retune_bounds(setup.compensator.kind());
+    gate_ratios(bounds, points)
+        .into_iter()
+        .map(|ratio| {
             let frozen = LoopSetup {
                 compensator: setup.compensator.frozen_at(ratio),
                 ..setup.clone()

@@ -43,7 +43,7 @@ use crate::closed_loop::{ClosedLoop, Drive, LoopSetup};
 use crate::error::DesignError;
 use crate::linalg::{eigenvalues, spectral_radius};
 use crate::params::{MAX_KBF, Seat, check};
-pub use adaptive_gate::{FrozenVerdict, GATE_POINTS, adaptive_gate};
+pub use adaptive_gate::{FrozenVerdict, GATE_POINTS, adaptive_gate, gate_ratios};
 
 mod adaptive_gate;
 pub mod design_view;

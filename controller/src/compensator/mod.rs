@@ -11,28 +11,34 @@
 //! Ziegler–Nichols from the ultimate gain, the notch. `lqr`: LQR + observer (Luenberger with placed
 //! poles, or the steady-state Kalman filter from the dual Riccati equation, `ObserverDesign`) + N̄
 //! scaling, cab velocity from high-pass + leaky integrator. `variants`: the workbench's design
-//! names (`pid-shaper:zvd`, `lqr-cabacc:kalman`, …). The three adaptive designs are
-//! `crate::adaptive`'s, built here from their specs.
+//! names (`pid-shaper:zvd`, `lqr-cabacc:kalman`, …). `adaptive`: the three adaptive designs
+//! (estimator, schedule, and the fixed designs of this module prepared at a grid of ratios),
+//! built here from their specs; a submodule, so it uses this module's designs without the two
+//! importing each other.
 //!
 //! *Invariant:* `step` never allocates, locks, blocks or logs (checked by `alloc_check.rs`, a
 //! counting allocator in the test binary, for every variant); fixed-size nalgebra types only.
 
+pub mod adaptive;
 mod lqr;
 mod pid;
 pub mod variants;
 
 pub use bdft_protocol::params::{CompensatorKind, CompensatorSpec};
 pub(crate) use lqr::CabSignal;
-pub use lqr::{CabOutput, Lqr, LqrDesign, LqrParams, ObserverDesign, kalman_gain};
+pub use lqr::{
+    CabOutput, Lqr, LqrDesign, LqrParams, ObserverDesign, first_mode_damping, held_beta,
+    kalman_gain,
+};
 pub use pid::{NotchParams, Pid, PidParams, notch_filter, tyreus_luyben_pi, ziegler_nichols};
 
-use crate::adaptive::Adaptive;
 use crate::error::DesignError;
 use crate::filters::Biquad;
 use crate::model::Measurement;
 use crate::params::PlantParams;
 use crate::shaper::{Shaper, ShaperParams};
 use crate::state::LinearState;
+use adaptive::Adaptive;
 pub use bdft_protocol::params::{AdaptParams, AdaptationStatus};
 
 /// The documented default design of `kind` for this plant (PID tuned by Ziegler–Nichols

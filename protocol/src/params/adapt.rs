@@ -5,7 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{ParamError, check};
+use super::{CompensatorKind, ParamError, check};
 
 /// How an adaptive design follows the cab mode: the range its estimate may move over, the
 /// estimator's memory, when the estimate is trusted, and how often and how gently the
@@ -14,10 +14,20 @@ use super::{ParamError, check};
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct AdaptParams {
-    /// Half-width of the range of the mode-frequency ratio r (estimate / design frequency):
-    /// r is clamped to [1 − range, 1 + range]. Default 0.3: the ±30 % the modes move in the
+    /// Half-width of the range of the mode-frequency ratio r (estimate / design frequency)
+    /// the estimator covers, [1 − range, 1 + range], and the design's downward limit: a
+    /// design is retuned down to 1 − range. Default 0.3: the ±30 % the modes move in the
     /// field.
     pub range: f64,
+    /// How far above the design (r ≤ 1 + range_up) the design is retuned; an estimate above
+    /// keeps the design at 1 + range_up. Absent (the default): the kind's
+    /// (`default_range_up`) — 0 for the notch and the shaper, `range` for the scheduled LQR.
+    /// Why (docs/machine-conditions.md): the feedthrough loop's critical frequency sits
+    /// below the first mode, where it is set by the position loop, and does not rise with
+    /// the modes; a notch or shaper retuned upward passes more there and leaves the loop
+    /// less stable than the fixed design, which already keeps its reduction above.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub range_up: Option<f64>,
     /// The estimator's memory (s): the time constant of its exponential forgetting.
     pub memory_s: f64,
     /// The estimate is confident while the relative standard deviation of its frequency
@@ -34,6 +44,7 @@ impl Default for AdaptParams {
     fn default() -> Self {
         Self {
             range: 0.3,
+            range_up: None,
             memory_s: 4.0,
             max_rel_std: 0.05,
             retune_period_s: 1.0,
@@ -45,15 +56,38 @@ impl Default for AdaptParams {
 impl AdaptParams {
     pub fn validate(&self) -> Result<(), ParamError> {
         check("adapt.range", self.range, 0.01, 0.5)?;
+        if let Some(up) = self.range_up {
+            // The estimator covers ±range: a design above it would never be chosen.
+            check("adapt.range_up", up, 0.0, self.range)?;
+        }
         check("adapt.memory_s", self.memory_s, 0.2, 120.0)?;
         check("adapt.max_rel_std", self.max_rel_std, 1e-4, 0.5)?;
         check("adapt.retune_period_s", self.retune_period_s, 0.01, 600.0)?;
         check("adapt.blend_s", self.blend_s, 0.001, self.retune_period_s)
     }
 
-    /// The lowest and highest mode-frequency ratio the design can be retuned to.
+    /// The lowest and highest mode-frequency ratio the estimator reports.
     pub fn ratio_bounds(&self) -> (f64, f64) {
         (1.0 - self.range, 1.0 + self.range)
+    }
+
+    /// The upward limit of an adaptive design of `kind` when `range_up` is absent: 0 for
+    /// the notch and the shaper (measured: above the design their fixed filters keep their
+    /// reduction, and every upward retune costs margin with the body), `range` for the
+    /// scheduled LQR (its fixed design loses 40 % of its reduction with the modes 30 %
+    /// high, and its designs above keep the nominal damping of the mode and more margin).
+    pub fn default_range_up(&self, kind: CompensatorKind) -> f64 {
+        match kind {
+            CompensatorKind::PidNotchAdaptive | CompensatorKind::PidShaperAdaptive => 0.0,
+            _ => self.range,
+        }
+    }
+
+    /// The lowest and highest ratio an adaptive design of `kind` is retuned to:
+    /// [1 − range, 1 + range_up (or the kind's default)].
+    pub fn retune_bounds(&self, kind: CompensatorKind) -> (f64, f64) {
+        let up = self.range_up.unwrap_or_else(|| self.default_range_up(kind));
+        (1.0 - self.range, 1.0 + up)
     }
 }
 
@@ -154,6 +188,37 @@ mod tests {
     }
 
     #[test]
+    fn the_upward_limit_round_trips_and_defaults_per_kind() {
+        // Absent: left out of the JSON (older specs and their hashes read as before), and the
+        // kind's default applies — the prefilters are not retuned upward, the LQR is.
+        let json = serde_json::to_value(AdaptParams::default()).unwrap();
+        assert!(json.get("range_up").is_none(), "{json}");
+        let [notch, shaper, lqr] = adaptive_specs();
+        assert_eq!(notch.retune_bounds(), Some((0.7, 1.0)));
+        assert_eq!(shaper.retune_bounds(), Some((0.7, 1.0)));
+        assert_eq!(lqr.retune_bounds(), Some((0.7, 1.3)));
+        assert_eq!(CompensatorSpec::Pid { pid: PID }.retune_bounds(), None);
+        // Set: it round-trips and overrides the kind's default.
+        let spec = CompensatorSpec::PidNotchAdaptive {
+            pid: PID,
+            notch: NotchParams::default(),
+            adapt: AdaptParams {
+                range_up: Some(0.1),
+                ..AdaptParams::default()
+            },
+        };
+        spec.validate().unwrap();
+        let json = serde_json::to_value(&spec).unwrap();
+        assert_eq!(json["adapt"]["range_up"], 0.1);
+        let back: CompensatorSpec = serde_json::from_value(json).unwrap();
+        assert_eq!(back, spec);
+        let (lo, hi) = back.retune_bounds().unwrap();
+        assert!((lo - 0.7).abs() < 1e-12 && (hi - 1.1).abs() < 1e-12);
+        // The estimator's range stays symmetric.
+        assert_eq!(back.adapt().unwrap().ratio_bounds(), (0.7, 1.3));
+    }
+
+    #[test]
     fn frozen_at_scales_every_mode_dependent_frequency() {
         let [notch, shaper, lqr] = adaptive_specs().map(|s| s.frozen_at(1.3));
         let CompensatorSpec::PidNotch { notch, .. } = notch else {
@@ -191,6 +256,20 @@ mod tests {
                     ..AdaptParams::default()
                 },
                 "adapt.range",
+            ),
+            (
+                AdaptParams {
+                    range_up: Some(0.31),
+                    ..AdaptParams::default()
+                },
+                "adapt.range_up",
+            ),
+            (
+                AdaptParams {
+                    range_up: Some(-0.01),
+                    ..AdaptParams::default()
+                },
+                "adapt.range_up",
             ),
             (
                 AdaptParams {

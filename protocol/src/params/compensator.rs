@@ -203,6 +203,12 @@ impl CompensatorSpec {
         }
     }
 
+    /// The lowest and highest ratio an adaptive design is retuned to
+    /// (`AdaptParams::retune_bounds`); None for a fixed design.
+    pub fn retune_bounds(&self) -> Option<(f64, f64)> {
+        self.adapt().map(|a| a.retune_bounds(self.kind()))
+    }
+
     /// The fixed design frozen at the mode-frequency ratio `r` (estimate / design
     /// frequency): the notch's centre and the shaper's modes at `r` times theirs, an LQR
     /// designed on the plant with both structure modes scaled by `r` (its

@@ -1,6 +1,6 @@
 //! The stability gate: every compensator of a study analysed at the study's K_BF with its
 //! plant (under each of the study's machine conditions, the design made for the plant) and body, an
-//! adaptive design at every frozen estimate of its range (`adaptive_gate`), on the machine
+//! adaptive design at every frozen estimate of its retune range (`adaptive_gate`), on the machine
 //! (feedthrough loop closed) and off it, before a person
 //! runs it. A study on the real machine whose on-machine design is unstable cannot be
 //! locked; a simulated one needs an explicit, audited acknowledgement. The off-machine

@@ -8,10 +8,13 @@
 //! engine notch, anti-alias, decimation to 100 Hz, high-pass, a bank of the structure's
 //! model over the ratio range and their residuals with forgetting, gated on excitation (its
 //! doc says why each). `schedule`: the grid
-//! of ratios r = estimate / design frequency the designs are prepared for, the decision once a
-//! retune period (a confident estimate → the nearest design; none → the fixed design, r = 1,
-//! counted as a fallback), and the crossfade. `designs`: the prepared designs — notch filters
-//! and shaper tap sets on a 1 % grid, seven scheduled LQRs — each built by
+//! of ratios r = estimate / design frequency the designs are prepared for, over the retune
+//! range [1 − range, 1 + range_up] (`AdaptParams::retune_bounds`: the notch and the shaper
+//! are not retuned upward by default, the LQR is — docs/machine-conditions.md says why), the
+//! decision once a retune period (a confident estimate → the nearest design; none → the
+//! fixed design, r = 1, counted as a fallback), and the crossfade. `designs`: the prepared
+//! designs — notch filters and shaper tap sets on a 1 % grid, the scheduled LQRs on a 0.1
+//! grid (seven by default) — each built by
 //! `Compensator::build` from `CompensatorSpec::frozen_at(r)`, so a design at r is exactly the
 //! fixed design frozen there, and the step that runs the active one (and, while blending,
 //! the one it replaces).
@@ -61,7 +64,8 @@ impl Adaptive {
         let Some(adapt) = spec.adapt() else {
             return Ok(None);
         };
-        let schedule = Schedule::new(adapt, designs::grid_half(spec.kind(), adapt), dt);
+        let bounds = adapt.retune_bounds(spec.kind());
+        let schedule = Schedule::new(adapt, bounds, designs::grid_half(spec.kind(), adapt), dt);
         Ok(Some(Self {
             estimator: ModeEstimator::new(plant, adapt, dt),
             designs: Designs::new(spec, plant, dt, schedule.ratios())?,

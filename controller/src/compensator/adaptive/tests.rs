@@ -129,30 +129,39 @@ fn the_estimate_converges_to_the_moved_first_mode_on_the_bench_trapezoid() {
 
 #[test]
 fn a_retune_crossfades_without_a_jump_in_the_command() {
-    // Mid-run (10 s, on the trapezoid's ramp) each design is sent from r = 1 to r = 1.3; the
+    // Mid-run (10 s, on the trapezoid's ramp) each design is sent from r = 1 to the far end
+    // of the range it is retuned to (the notch and the shaper to 0.7, the LQR to 1.3); the
     // command's largest change a tick during the blend may not exceed the largest change a
-    // tick of the same run without the retune (its own trapezoid corners), plus 1 %.
-    // Measured: notch 0.0041 against 0.1665, shaper 0.0033 against 0.0495, scheduled LQR
-    // 0.350 against 0.398 (valve units a tick).
+    // tick of either design run alone (r = 1 throughout; the new design from the start: its
+    // own trapezoid corners and noise), plus 1 %. The LQR held at its nominal damping at 1.3
+    // has the rougher command (1.9 × β): a blend is measured against it too.
+    // Measured with the notch and the shaper sent to 1.3 before they stopped retuning
+    // upward: notch 0.0041 against 0.1665, shaper 0.0033 against 0.0495, scheduled LQR 0.350
+    // against 0.398 (valve units a tick; before the LQR held its damping).
     for kind in [
         CompensatorKind::PidNotchAdaptive,
         CompensatorKind::PidShaperAdaptive,
         CompensatorKind::LqrCabvelScheduled,
     ] {
         let blend = AdaptParams::default().blend_s;
-        let steps = |retune: bool| {
-            let mut last = None;
+        let (lo, hi) = spec(kind).retune_bounds().unwrap();
+        let to = if hi > 1.0 { hi } else { lo };
+        // Largest change a tick outside and inside the blend window after 10 s, the retune
+        // at `at` (s).
+        let steps = |at: Option<f64>| {
+            let (mut last, mut fired) = (None, false);
             let (mut steady, mut blending) = (0.0_f64, 0.0_f64);
             bench(&spec(kind), 1.0, 1, |s, lp| {
-                if retune && (s.t - 10.0).abs() < 0.5e-3 {
-                    adaptive(lp).retune_to(1.3);
-                    assert_eq!(adaptive(lp).ratio(), 1.3, "{kind}");
+                if !fired && at.is_some_and(|at| s.t >= at - 0.5e-3) {
+                    fired = true;
+                    adaptive(lp).retune_to(to);
+                    assert!((adaptive(lp).ratio() - to).abs() < 1e-9, "{kind}");
                 }
                 if let Some(v) = last {
                     let dv: f64 = s.valve - v;
                     if s.t > 10.0 && s.t <= 10.0 + blend {
                         blending = blending.max(dv.abs());
-                    } else {
+                    } else if s.t > 1.0 {
                         steady = steady.max(dv.abs());
                     }
                 }
@@ -160,9 +169,14 @@ fn a_retune_crossfades_without_a_jump_in_the_command() {
             });
             (steady, blending)
         };
-        let (steady, _) = steps(false);
-        let (_, blending) = steps(true);
-        assert!(blending <= 1.01 * steady, "{kind}: {blending} vs {steady}");
+        let (old, old_window) = steps(None);
+        let (new, new_window) = steps(Some(0.0));
+        let (_, blending) = steps(Some(10.0));
+        let alone = old.max(old_window).max(new).max(new_window);
+        assert!(
+            blending <= 1.01 * alone,
+            "{kind}: {blending} vs {old} (r = 1), {new} (r = {to})"
+        );
     }
 }
 
@@ -216,11 +230,15 @@ fn the_gate_passes_at_every_frozen_ratio_at_the_studys_kbf() {
             seat: Seat::On,
             compensator: crate::compensator::study_spec(kind, &plant),
         };
-        // Margins measured (largest stable K_BF at r = 0.7 … 1.3): notch 6.26 … 3.28, shaper
-        // 8.31 … 4.22, scheduled LQR 1.43 (r 0.7), 2.46, 2.73, 2.64 (r 1), 2.42, 2.19, 1.97.
+        // The notch and the shaper are judged over 0.7 … 1 (not retuned upward), the LQR over
+        // 0.7 … 1.3. Margins measured over ±30 % before that (largest stable K_BF at r = 0.7 …
+        // 1.3): notch 6.26 … 3.28, shaper 8.31 … 4.22, scheduled LQR 1.43 (r 0.7), 2.46, 2.73,
+        // 2.64 (r 1), 2.42, 2.19, 1.97.
         let gate = adaptive_gate(&setup, GATE_POINTS, &setup.plant).unwrap();
         assert_eq!(gate.len(), GATE_POINTS);
-        assert!((gate[GATE_POINTS / 2].ratio - 1.0).abs() < 1e-12);
+        assert!(gate.iter().any(|v| v.ratio == 1.0), "{kind}: {gate:?}");
+        let (lo, hi) = setup.compensator.retune_bounds().unwrap();
+        assert_eq!((gate[0].ratio, gate[GATE_POINTS - 1].ratio), (lo, hi));
         for v in &gate {
             assert!(v.stable, "{kind} at r {}: {v:?}", v.ratio);
         }
@@ -240,9 +258,13 @@ fn the_gate_passes_at_every_frozen_ratio_at_the_studys_kbf() {
 /// | shaper | 0.833 | 0.845 | 0.665 | 0.874 | 0.639 |
 /// | LQR cab velocity | 0.473 | 0.338 | 0.135 | 0.403 | 0.128 |
 ///
+/// (Measured before the notch and the shaper stopped retuning upward and the scheduled LQR
+/// held its first mode's damping: docs/machine-conditions.md.)
+///
 /// The claim (each adaptive design keeps ≥ 80 % of its fixed design's nominal reduction with
-/// the modes ±30 % off) holds at ×0.7 and does NOT hold at ×1.3, for any of the three, though
-/// the estimate is right there (5.2 Hz within 1 %) and the designs retune to r = 1.3. At ×1.3
+/// the modes ±30 % off) holds at ×0.7 and does NOT hold at ×1.3 on this trapezoid, for any of
+/// the three, though the estimate is right there (5.2 Hz within 1 %) and the designs retuned
+/// to r = 1.3. At ×1.3
 /// the trapezoid barely reaches the modes (the twin's mean square is 41 % of nominal), so the
 /// cab's acceleration is mostly the boom's own K_S·ÿ, which a design cuts by smoothing the
 /// reference: the fixed notch and shaper, tuned lower, smooth more than the ones moved up
@@ -250,9 +272,19 @@ fn the_gate_passes_at_every_frozen_ratio_at_the_studys_kbf() {
 /// Nor is it the estimator's or the schedule's doing: the fixed design frozen at the true
 /// ratio (no estimation at all) reaches 0.809 / 0.939 / 0.412 at ×0.7 and 0.486 / 0.611 /
 /// 0.140 at ×1.3 (notch / shaper / LQR); the adaptive ones lose against it at ×0.7 what the
-/// first trapezoid corner costs at r = 1 before the first estimate (0.6 s). The test asserts
-/// the claim where it holds and, at ×1.3, what was measured: the adaptive design within 0.05
-/// of the fixed one's reduction.
+/// first trapezoid corner costs at r = 1 before the first estimate (0.6 s).
+///
+/// Since then the notch and the shaper are not retuned upward (at ×1.3 they run their fixed
+/// design), and the scheduled LQR's designs above r = 1 hold the nominal damping of the
+/// first mode (`held_beta`: β 2 → 3.92 at 1.3). That wins the swept-sine bench at ×1.3
+/// (50.5 % against 31.3 % and the fixed 24.8 %, margin 5.52 against 4.96) and costs this
+/// trapezoid, which barely excites the mode there: the scheduled LQR's reduction at ×1.3 is
+/// 0.044 (fixed 0.135, before 0.128); after the first 5 s it leaves 14.5 % more mean-square
+/// cab acceleration than the plain LQR (the fixed design 0.1 % more): the doubled cab
+/// weight feeds the accelerometer's noise to the valve (largest command change a tick 0.97
+/// against 0.40). At ×0.7 it is unchanged (0.403). The test asserts the claim where it holds
+/// and, at ×1.3, what was measured: the notch and the shaper within 0.05 of the fixed one's
+/// reduction, the scheduled LQR still reducing against its twin.
 #[test]
 fn moved_modes_cost_the_fixed_designs_reduction_and_not_the_adaptive_ones() {
     // The bench trapezoid (30 s, seed 1) on the rig with both modes at 0.7× and 1.3×; each
@@ -275,9 +307,15 @@ fn moved_modes_cost_the_fixed_designs_reduction_and_not_the_adaptive_ones() {
                     nominal.0
                 );
             } else {
-                // The unmet claim (see above): what holds is that adapting costs little.
+                // The unmet claim (see above): what holds is that adapting the prefilters
+                // costs little, and that the scheduled LQR still reduces.
+                let floor = if adaptive_kind == LqrCabvelScheduled {
+                    0.0
+                } else {
+                    f.0 - 0.05
+                };
                 assert!(
-                    a.0 >= f.0 - 0.05,
+                    a.0 >= floor,
                     "{adaptive_kind} x{scale}: {:.3} vs {:.3}",
                     a.0,
                     f.0
@@ -299,18 +337,18 @@ fn retuning_and_blending_never_allocate_and_reset_forgets_them() {
         CompensatorKind::LqrCabvelScheduled,
     ] {
         let setup = setup(spec(kind), Seat::Off);
-        // The modes at 1.3×: the design retunes by itself, then is sent to 0.7 and back
-        // to 1 mid-blend.
+        // The modes at 0.7× (every design retunes downward): the design retunes by itself,
+        // then is sent to 1 and back to 0.7 mid-blend.
         let mut lp = ClosedLoop::new(&setup, 1)
             .unwrap()
-            .with_rig(rig(1.3), 1)
+            .with_rig(rig(0.7), 1)
             .unwrap();
         let fresh = lp.compensator().clone();
         let mut inputs = Vec::with_capacity(ticks);
         let mut commands = Vec::with_capacity(ticks);
         let forced = |k: usize| match k {
-            12_000 => Some(0.7),
-            12_200 => Some(1.0),
+            12_000 => Some(1.0),
+            12_200 => Some(0.7),
             _ => None,
         };
         let n = allocations_during(|| {
@@ -338,6 +376,53 @@ fn retuning_and_blending_never_allocate_and_reset_forgets_them() {
                 c.as_adaptive_mut().unwrap().retune_to(r);
             }
             assert_eq!(c.step(r_c, m), commands[k], "{kind} at tick {k}");
+        }
+    }
+}
+
+/// The "never less stable than the fixed design", where the design converges: on the
+/// rig with both modes scaled by r, the adaptive design frozen at r (clamped to the range it
+/// is retuned to) has at least the fixed design's margin (largest stable K_BF with the
+/// default body), at every ratio the gate judges and at the ±30 % the modes move (the LQR's
+/// 0.1 grid over 0.7 … 1.3). Why it holds (docs/machine-conditions.md): the feedthrough
+/// loop's critical frequency stays below the first mode (2.9–3.7 Hz for the PID designs,
+/// 3.9–4.5 Hz for the LQR) whatever the modes do; a notch or shaper moved down passes less
+/// there, moved up more, so they are not moved up; the scheduled LQR holds its mode's
+/// damping, which raises its margin above the nominal modes.
+#[test]
+fn an_adaptive_design_is_never_less_stable_than_its_fixed_design_where_it_converges() {
+    use crate::analysis::robustness::OnRig;
+    use crate::analysis::{GATE_POINTS, gate_ratios};
+    use crate::params::MAX_KBF;
+    let plant = PlantParams::default();
+    for kind in [
+        CompensatorKind::PidNotchAdaptive,
+        CompensatorKind::PidShaperAdaptive,
+        CompensatorKind::LqrCabvelScheduled,
+    ] {
+        for spec in [
+            default_spec(kind, &plant),
+            crate::compensator::study_spec(kind, &plant),
+        ] {
+            let (lo, hi) = spec.retune_bounds().unwrap();
+            let margin = |design: CompensatorSpec, r: f64| {
+                OnRig::new(&setup(design, Seat::On))
+                    .unwrap()
+                    .max_stable_kbf(rig(r), MAX_KBF)
+                    .unwrap()
+                    .unwrap_or(f64::INFINITY)
+            };
+            let mut ratios = gate_ratios((lo, hi), GATE_POINTS);
+            ratios.extend((7..=13).map(|i| i as f64 / 10.0));
+            for r in ratios {
+                let fixed = margin(spec.frozen_at(1.0), r);
+                let adaptive = margin(spec.frozen_at(r.clamp(lo, hi)), r);
+                assert!(
+                    adaptive >= fixed - 1e-9,
+                    "{kind} ({:?}) on modes x{r:.3}: {adaptive:.3} < fixed {fixed:.3}",
+                    spec.retune_bounds()
+                );
+            }
         }
     }
 }

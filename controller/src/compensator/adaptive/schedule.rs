@@ -27,12 +27,17 @@ pub struct Schedule {
 }
 
 impl Schedule {
-    /// `2·half + 1` designs evenly over the ratio range of `adapt`, decided every retune
-    /// period of loop period `dt`.
-    pub fn new(adapt: &AdaptParams, half: usize, dt: f64) -> Self {
-        let step = adapt.range / half as f64;
-        let ratios = (0..=2 * half)
-            .map(|i| 1.0 + (i as f64 - half as f64) * step)
+    /// Designs over the retune range [`lo`, `hi`] (lo ≤ 1 ≤ hi) of loop period `dt`:
+    /// `half` evenly below r = 1, r = 1, and above it as many as the same step needs to
+    /// reach `hi` (none when `hi` is 1: a design not retuned upward), decided every retune
+    /// period of `adapt`.
+    pub fn new(adapt: &AdaptParams, (lo, hi): (f64, f64), half: usize, dt: f64) -> Self {
+        let step = (1.0 - lo) / half as f64;
+        let up = ((hi - 1.0) / step - 1e-9).ceil().max(0.0) as usize;
+        let ratios = (0..half)
+            .map(|i| 1.0 - (half - i) as f64 * step)
+            .chain([1.0])
+            .chain((1..=up).map(|j| 1.0 + (hi - 1.0) * j as f64 / up as f64))
             .collect();
         let period_ticks = ((adapt.retune_period_s / dt).round() as u64).max(1);
         Self {
@@ -68,11 +73,15 @@ impl Schedule {
         self.fallbacks
     }
 
-    /// The design nearest `r` (clamped to the range).
+    /// The design nearest `r` (clamped to the range; the lower of two equally near).
     pub fn nearest(&self, r: f64) -> usize {
-        let step = self.ratios[1] - self.ratios[0];
-        let i = ((r - self.ratios[0]) / step).round();
-        i.clamp(0.0, (self.ratios.len() - 1) as f64) as usize
+        let mut best = 0;
+        for (i, q) in self.ratios.iter().enumerate() {
+            if (q - r).abs() < (self.ratios[best] - r).abs() {
+                best = i;
+            }
+        }
+        best
     }
 
     /// One tick: `ratio` is the confident estimate's ratio, or None. Decides once a period
@@ -92,11 +101,18 @@ impl Schedule {
         }
         let to = match ratio {
             // Hysteresis: stay unless the estimate is clearly nearer another design (3/4 of
-            // a grid step from the active one), so noise at a midpoint does not toggle.
+            // the grid step towards it from the active one), so noise at a midpoint does not
+            // toggle. At an end of the range the estimate is clamped there.
             Some(r) => {
-                let step = self.ratios[1] - self.ratios[0];
-                let r = r.clamp(self.ratios[0], self.ratios[self.ratios.len() - 1]);
-                if (r - self.ratios[self.active]).abs() > 0.75 * step {
+                let last = self.ratios.len() - 1;
+                let r = r.clamp(self.ratios[0], self.ratios[last]);
+                let at = self.ratios[self.active];
+                let step = if r > at {
+                    self.ratios[(self.active + 1).min(last)] - at
+                } else {
+                    at - self.ratios[self.active.saturating_sub(1)]
+                };
+                if (r - at).abs() > 0.75 * step {
                     self.nearest(r)
                 } else {
                     self.active
