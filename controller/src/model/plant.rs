@@ -155,6 +155,18 @@ impl Plant {
         &self.params
     }
 
+    /// The machine changing under a running loop (a load picked up mid-test): the same state,
+    /// noise and engine tone, the dynamics of `params` from the next step.
+    #[cfg(test)]
+    pub(crate) fn changed_to(&self, params: PlantParams) -> Result<Self, ParamError> {
+        Ok(Self {
+            x: self.x,
+            noise: self.noise,
+            engine_phase: self.engine_phase,
+            ..Self::new(params, self.dt, 0)?
+        })
+    }
+
     /// The sample period it was discretized at (s).
     pub fn dt(&self) -> f64 {
         self.dt
