@@ -434,6 +434,15 @@ fn a_study_compares_conditions_between_its_subjects() {
         json!(["stilts", "tires"])
     );
 
+    // The protocol package tells the board the factor and how subjects meet its levels.
+    let (status, _, html) = api.get_page(&format!("/api/studies/{study}/protocol.html"));
+    assert_eq!(status, 200);
+    assert!(
+        html.contains("Between subjects, the machine's condition: “stilts”, “tires”")
+            && html.contains("two subjects each"),
+        "{html}"
+    );
+
     // Each design is as stable as on the least stable level: what the studies fixed on each
     // level say of it.
     let gate_of = |condition: &str| {

@@ -325,12 +325,39 @@ fn schedule_design(d: &mut Doc, p: &StudyParams) {
     if let Some(c) = &p.cancellation {
         items.push(cancellation_design(p, c));
     }
+    if let Some(item) = condition_design(p) {
+        items.push(item);
+    }
     items.extend([
         format!(
             "A test that fails (stopped, faulted, or invalid for its display) is run again at the end of its block, at most {MAX_ATTEMPTS} attempts in all, unless the experimenter accepts it as incomplete (with a reason); no test is skipped silently."
         ),
     ]);
     d.list(items);
+}
+
+/// The machine's condition as the board reads it, when it is not the thesis's rig on stilts:
+/// the one the study fixes, or its factor's levels and how subjects are assigned to them.
+fn condition_design(p: &StudyParams) -> Option<String> {
+    let rig = match p.rig {
+        RigKind::Simulated => {
+            "the simulated machine is changed by the rules of docs/machine-conditions.md while the compensators stay designed for the rig on stilts"
+        }
+        RigKind::Real => "the lab sets the machine up so before the subject's session",
+    };
+    if !p.conditions.is_empty() {
+        let levels: Vec<String> = p.conditions.iter().map(|c| format!("“{c}”")).collect();
+        return Some(format!(
+            "Between subjects, the machine's condition: {}. Each subject runs every test under one of them, assigned in turn by the order of enrolment, two subjects each (so that each condition has subjects starting at both seats); {rig}. The stability of every compensator is checked on every condition before anyone runs it.",
+            levels.join(", ")
+        ));
+    }
+    (!p.condition.is_default()).then(|| {
+        format!(
+            "Every test runs with the machine in the condition “{}” (not the thesis's rig on stilts); {rig}. The stability of every compensator is checked on it before anyone runs it.",
+            p.condition
+        )
+    })
 }
 
 /// The cancellation factor as the board reads it: what each arm cancels with, how it is
