@@ -96,6 +96,25 @@ fn a_study_on_tires_is_gated_run_and_exported_under_its_condition() {
         assert!((tires["f1_hz"].as_f64().unwrap() - 3.0).abs() < 1e-9);
     }
     assert!(moved >= 3, "the condition moved few margins: {gate}");
+    // The workbench's frequency view is of the machine on tires: its Nyquist margins are
+    // the gate's there.
+    let (_, freq) = api.get(&format!("/api/studies/{study}/workbench/frequency"));
+    assert_eq!(freq["condition"], "tires", "{}", freq["condition"]);
+    for v in gate["verdicts"].as_array().unwrap() {
+        let design = v["controller"].as_str().unwrap();
+        let c = freq["compensators"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["name"] == design)
+            .unwrap_or_else(|| panic!("{design} in the frequency view"));
+        assert!(
+            close(&c["nyquist"]["max_stable_kbf"], &v["max_stable_kbf"]),
+            "{design}: Nyquist {} against the gate's {}",
+            c["nyquist"]["max_stable_kbf"],
+            v["max_stable_kbf"]
+        );
+    }
 
     // On tires some design made for the stilts is no longer stable with the body: the
     // pilot is refused until that is acknowledged, as for any unstable design.

@@ -12,7 +12,7 @@ use nalgebra::{Complex, DMatrix};
 use serde::{Deserialize, Serialize};
 
 use super::design_view::{ModelComparison, compare};
-use super::nyquist::{Nyquist, OpenLoop};
+use super::nyquist::{LoopParts, Nyquist};
 use super::state_space::{StateSpace, probe};
 use super::{linear_rig, linear_setup};
 use crate::closed_loop::{ClosedLoop, Drive, LoopSetup};
@@ -20,7 +20,7 @@ use crate::compensator::{Compensator, CompensatorSpec};
 use crate::error::DesignError;
 use crate::linalg::zoh;
 use crate::model::{Body, Measurement, Plant, design_model, idx};
-use crate::params::{MAX_KBF, Seat, check};
+use crate::params::{MAX_KBF, PlantParams, Seat, check};
 
 /// One response on the report's frequency grid.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -92,6 +92,10 @@ pub struct CompensatorFrequency {
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FrequencyReport {
+    /// The machine's condition the designs run on, when it is not the thesis's rig on
+    /// stilts they were made for (set by the caller that chose it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub condition: Option<String>,
     pub kbf: f64,
     pub dt: f64,
     pub freqs_hz: Vec<f64>,
@@ -168,14 +172,18 @@ pub fn compensator_map(setup: &LoopSetup) -> Result<StateSpace, DesignError> {
     }))
 }
 
-/// Cylinder position per cylinder reference of the closed loop at `seat`: on the machine the
-/// operator's device drives it (reference K_BF·p_h, feedthrough closed), off it the
-/// reference drives it directly.
-pub fn closed_loop_map(setup: &LoopSetup, seat: Seat) -> Result<StateSpace, DesignError> {
+/// Cylinder position per cylinder reference of the closed loop at `seat`, the design made
+/// for the setup's plant running on `rig`: on the machine the operator's device drives it
+/// (reference K_BF·p_h, feedthrough closed), off it the reference drives it directly.
+pub fn closed_loop_map(
+    setup: &LoopSetup,
+    seat: Seat,
+    rig: PlantParams,
+) -> Result<StateSpace, DesignError> {
     let mut s = linear_setup(setup);
     s.seat = seat;
     let k_bf = s.loop_params.k_bf;
-    let mut lp = ClosedLoop::new(&s, 0)?;
+    let mut lp = ClosedLoop::new(&s, 0)?.with_rig(linear_rig(rig), 0)?;
     Ok(probe(&mut lp, 1, 1, |lp, u, y| {
         let drive = if seat == Seat::On && k_bf > 0.0 {
             Drive::Hand(u[0] / k_bf)
@@ -186,11 +194,13 @@ pub fn closed_loop_map(setup: &LoopSetup, seat: Seat) -> Result<StateSpace, Desi
     }))
 }
 
-/// The whole report: the parts of `base` (its plant and body, at its loop period and K_BF)
-/// and each named design on them.
+/// The whole report: the parts of `rig` (the machine as it runs: `base`'s plant, or it under
+/// a condition) with `base`'s body, at its loop period and K_BF, and each named design, made
+/// for `base`'s plant, on them.
 pub fn report(
     base: &LoopSetup,
     designs: &[(String, CompensatorSpec)],
+    rig: PlantParams,
 ) -> Result<FrequencyReport, DesignError> {
     let freqs_hz = report_grid(base.loop_params.dt);
     let compensators = designs
@@ -202,14 +212,19 @@ pub fn report(
             };
             Ok(CompensatorFrequency {
                 name: name.clone(),
-                ..compensator_frequency(&setup, &freqs_hz)?
+                ..compensator_frequency(&setup, &freqs_hz, rig)?
             })
         })
         .collect::<Result<Vec<_>, DesignError>>()?;
+    let machine = LoopSetup {
+        plant: rig,
+        ..base.clone()
+    };
     Ok(FrequencyReport {
+        condition: None,
         kbf: base.loop_params.k_bf,
         dt: base.loop_params.dt,
-        parts: parts(base, &freqs_hz)?,
+        parts: parts(&machine, &freqs_hz)?,
         freqs_hz,
         compensators,
     })
@@ -235,10 +250,13 @@ pub fn inner_loop_map(setup: &LoopSetup) -> Option<StateSpace> {
     Some(StateSpace::new(ad, bd, c, DMatrix::zeros(1, 1)))
 }
 
-/// Everything for one compensator at the setup's K_BF.
+/// Everything for one compensator at the setup's K_BF, made for the setup's plant and run on
+/// `rig`: its closed loops and Nyquist view on the rig; the compensator itself, its inner
+/// loop and its pole comparison (design model against the code) as designed.
 pub fn compensator_frequency(
     setup: &LoopSetup,
     freqs_hz: &[f64],
+    rig: PlantParams,
 ) -> Result<CompensatorFrequency, DesignError> {
     let k_bf = setup.loop_params.k_bf;
     check("kbf", k_bf, 0.0, MAX_KBF)?;
@@ -279,8 +297,8 @@ pub fn compensator_frequency(
             |t| m.response(0, 0, t),
         )
     });
-    let on = closed_loop_map(setup, Seat::On)?;
-    let off = closed_loop_map(setup, Seat::Off)?;
+    let on = closed_loop_map(setup, Seat::On, rig)?;
+    let off = closed_loop_map(setup, Seat::Off, rig)?;
     Ok(CompensatorFrequency {
         name: setup.compensator.kind().name().to_string(),
         compensator,
@@ -299,7 +317,9 @@ pub fn compensator_frequency(
             dt,
             |t| off.response(0, 0, t),
         ),
-        nyquist: OpenLoop::new(setup)?.nyquist(k_bf)?,
+        nyquist: LoopParts::new(setup)?
+            .on_rig(linear_rig(rig))?
+            .nyquist(k_bf)?,
         poles: compare(setup)?,
     })
 }

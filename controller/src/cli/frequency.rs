@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use bdft_controller::analysis::frequency;
 use bdft_controller::compensator::CompensatorKind;
-use bdft_controller::params::{MAX_KBF, NOMINAL_KBF, Seat};
+use bdft_controller::params::{MAX_KBF, MachineCondition, NOMINAL_KBF, Seat};
 
 use super::params::{design, load_params};
 use super::values::parse_kbf;
@@ -24,6 +24,10 @@ pub(super) struct FrequencyArgs {
     /// K_BF at which the loops are closed and the Nyquist curve is drawn.
     #[arg(long, default_value_t = NOMINAL_KBF, value_parser = parse_kbf)]
     kbf: f64,
+    /// The machine's condition the designs, made for the thesis's rig, run on (as for
+    /// `simulate`): the parts, closed loops and Nyquist view are of the machine under it.
+    #[arg(long, default_value = "stilts")]
+    condition: MachineCondition,
     /// Print JSON instead of a summary.
     #[arg(long)]
     json: bool,
@@ -34,6 +38,7 @@ pub(super) fn run(args: FrequencyArgs, out: &mut impl Write) -> anyhow::Result<(
         params,
         compensators,
         kbf,
+        condition,
         json,
     } = args;
     let params = load_params(params.as_ref())?;
@@ -53,7 +58,11 @@ pub(super) fn run(args: FrequencyArgs, out: &mut impl Write) -> anyhow::Result<(
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     let base = params.setup(CompensatorKind::Pid, Seat::On, kbf);
-    let r = frequency::report(&base, &designs)?;
+    let rig = condition.apply(&base.plant)?;
+    let r = frequency::FrequencyReport {
+        condition: (!condition.is_default()).then(|| condition.to_string()),
+        ..frequency::report(&base, &designs, rig)?
+    };
     write_result(out, json, &r, |out, r| {
         writeln!(
             out,

@@ -1,5 +1,6 @@
 use super::*;
 use crate::analysis::LinearizedLoop;
+use crate::analysis::nyquist::OpenLoop;
 use crate::compensator::variants::variant;
 use crate::compensator::{CompensatorKind, NotchParams};
 use crate::param_set::ParamSet;
@@ -153,13 +154,17 @@ fn closed_loop_dc_gain_is_one_with_integral_action_and_analytic_on_a_rigid_body(
         CompensatorKind::PidShaper,
     ] {
         let s = setup(kind, 0.3);
-        let off = closed_loop_map(&s, Seat::Off).unwrap().response(0, 0, 0.0);
+        let off = closed_loop_map(&s, Seat::Off, s.plant)
+            .unwrap()
+            .response(0, 0, 0.0);
         assert!(
             (off - Complex::from(1.0)).norm() < 1e-9,
             "{kind} off: {off}"
         );
         // On the machine a rigid body feeds K_H·K_S·y back at DC: y/r = 1/(1 + K_BF·K_H·K_S).
-        let on = closed_loop_map(&s, Seat::On).unwrap().response(0, 0, 0.0);
+        let on = closed_loop_map(&s, Seat::On, s.plant)
+            .unwrap()
+            .response(0, 0, 0.0);
         let want = 1.0 / (1.0 + 0.3 * 0.56 * p.k_s);
         assert!(
             (on - Complex::from(want)).norm() < 1e-9,
@@ -174,7 +179,7 @@ fn closed_loop_dc_gain_is_one_with_integral_action_and_analytic_on_a_rigid_body(
             arm_f_hz: 7.0,
             arm_zeta: 0.25,
         };
-        let on = closed_loop_map(&seated, Seat::On)
+        let on = closed_loop_map(&seated, Seat::On, seated.plant)
             .unwrap()
             .response(0, 0, 0.0);
         assert!(
@@ -241,4 +246,60 @@ fn nyquist_verdict_agrees_with_the_closed_loop_eigenvalues() {
         }
     }
     assert!(flips >= 5, "most designs lose stability within the range");
+}
+
+#[test]
+fn under_a_condition_the_report_is_of_the_machine_as_it_runs_and_its_margins_the_gates() {
+    use crate::analysis::robustness::OnRig;
+    use crate::params::MachineCondition;
+    // On tires the first mode falls to 0.75 × 4.0 Hz; the designs stay made for the stilts.
+    let base = setup(CompensatorKind::Pid, 0.78);
+    let rig = "tires"
+        .parse::<MachineCondition>()
+        .unwrap()
+        .apply(&base.plant)
+        .unwrap();
+    let designs: Vec<(String, CompensatorSpec)> = [
+        CompensatorKind::PidNotch,
+        CompensatorKind::Lqr,
+        CompensatorKind::LqrCabvel,
+    ]
+    .iter()
+    .map(|&k| (k.name().to_string(), setup(k, 0.78).compensator))
+    .collect();
+    let r = report(&base, &designs, rig).unwrap();
+    let structure = r
+        .parts
+        .iter()
+        .find(|b| b.name.starts_with("structure"))
+        .unwrap();
+    let (peak, _) = r
+        .freqs_hz
+        .iter()
+        .zip(&structure.mag_db)
+        .filter(|(f, _)| (1.0..5.0).contains(*f))
+        .max_by(|a, b| a.1.total_cmp(b.1))
+        .unwrap();
+    assert!((peak / 3.0 - 1.0).abs() < 0.05, "structure peak {peak} Hz");
+    // Each design's Nyquist margin on tires is what the sampled loop's eigenvalues on tires
+    // say (`OnRig`, the gate's judge under a condition), not the stilts'.
+    for ((name, spec), c) in designs.iter().zip(&r.compensators) {
+        let s = LoopSetup {
+            compensator: spec.clone(),
+            ..base.clone()
+        };
+        let gate = OnRig::new(&s)
+            .unwrap()
+            .max_stable_kbf(rig, MAX_KBF)
+            .unwrap();
+        let stilts = LinearizedLoop::new(&s).unwrap().margin(&s).unwrap();
+        match (c.nyquist.max_stable_kbf, gate) {
+            (Some(n), Some(g)) => assert!((n / g - 1.0).abs() < 1e-3, "{name}: {n} vs {g}"),
+            (n, g) => assert_eq!(n, g, "{name}"),
+        }
+        assert_ne!(
+            c.nyquist.max_stable_kbf, stilts,
+            "{name}: the stilts' margin"
+        );
+    }
 }

@@ -161,8 +161,6 @@ const CACHE_ENTRIES: usize = 8;
 static REPORTS: LazyLock<Mutex<HashMap<String, Arc<FrequencyReport>>>> =
     LazyLock::new(Mutex::default);
 
-/// Frequency responses, Nyquist views and pole tables of every design of the study, at
-/// `kbf` (default the study's K_BF).
 /// The study's parameters with the body of `subject` (one of its subjects) as their latest
 /// identification test fitted it, or as they are without a subject: what the workbench and
 /// the per-subject stability analyse. A 409 when the subject has no fitted body yet.
@@ -200,6 +198,9 @@ pub async fn params_for(
     Ok(params)
 }
 
+/// Frequency responses, Nyquist views and pole tables of every design of the study, at
+/// `kbf` (default the study's K_BF), on the machine under the study's condition (with a
+/// condition factor, its first level).
 pub async fn frequency_report(
     pool: &AnyPool,
     study_id: i64,
@@ -232,8 +233,18 @@ pub async fn frequency_report(
     };
     let mut base = study_loop(&params, first);
     base.loop_params.k_bf = k_bf;
+    // The machine as the study runs it: under its condition (a factor's first level).
+    let condition = params.machine_conditions()[0];
+    let rig = condition
+        .apply(&params.plant)
+        .map_err(|e| AppError::BadRequest(e.to_string()))?;
     let report = tokio::task::spawn_blocking(move || {
-        frequency::report(&base, &designs).map_err(design_error("frequency"))
+        frequency::report(&base, &designs, rig)
+            .map(|r| FrequencyReport {
+                condition: (!condition.is_default()).then(|| condition.to_string()),
+                ..r
+            })
+            .map_err(design_error("frequency"))
     })
     .await
     .map_err(|e| anyhow::anyhow!("frequency task: {e}"))??;
