@@ -36,7 +36,7 @@ async function loadFrequency() {
   setStatus(status, 'busy', 'computing (seconds)…');
   const r = await get(`/api/studies/${S.studyId}/workbench/frequency${q}`);
   if (!r.ok) return setStatus(status, 'err', errText(r));
-  setStatus(status, 'ok', `K_BF ${r.data.kbf}: ${r.data.compensators.length} designs`);
+  setStatus(status, 'ok', `K_BF ${r.data.kbf}: ${r.data.compensators.length} designs${r.data.condition ? ` on the machine ${r.data.condition} (the designs made for the stilts)` : ''}`);
   renderFrequency(r.data);
 }
 
