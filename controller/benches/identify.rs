@@ -13,7 +13,7 @@ use std::time::Instant;
 use bdft_controller::analysis::personal::personalize;
 use bdft_controller::closed_loop::LoopSetup;
 use bdft_controller::compensator::{study_spec, variants};
-use bdft_controller::identification::{estimate, fit_record};
+use bdft_controller::identification::{BodyPrior, estimate, fit_record};
 use bdft_controller::population;
 use bdft_controller::runtime::setup::build_runner;
 use bdft_protocol::identification::{IdentificationTask, MultisineSpec};
@@ -78,14 +78,16 @@ fn main() {
     let dt = LoopParams::default().dt;
     let spec = MultisineSpec::default();
     let records: Vec<_> = (0..SUBJECTS).map(|i| record(i, spec)).collect();
+    let prior = BodyPrior::of(&PopulationParams::default());
     let (mut est_ms, mut fit_ms, mut total_ms) = (vec![], vec![], vec![]);
     for _ in 0..RUNS {
         for (u, y) in &records {
             let t0 = Instant::now();
             let points = estimate(&spec, dt, black_box(u), black_box(y)).unwrap();
             let t1 = Instant::now();
-            // What the server's filing runs: the fit with the jackknife over the record.
-            black_box(fit_record(&points, &spec, dt, u, y).unwrap());
+            // What the server's filing runs: the fit with the jackknife over the record and
+            // the population's prior.
+            black_box(fit_record(&points, &spec, dt, u, y, prior.as_ref()).unwrap());
             let t2 = Instant::now();
             est_ms.push((t1 - t0).as_secs_f64() * 1e3);
             fit_ms.push((t2 - t1).as_secs_f64() * 1e3);
@@ -108,7 +110,7 @@ fn main() {
         let mut ms = vec![];
         for (u, y) in &records {
             let points = estimate(&spec, dt, u, y).unwrap();
-            let fit = fit_record(&points, &spec, dt, u, y).unwrap();
+            let fit = fit_record(&points, &spec, dt, u, y, prior.as_ref()).unwrap();
             let setup = LoopSetup {
                 plant,
                 body: fit.body(),

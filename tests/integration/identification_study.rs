@@ -4,6 +4,7 @@
 //! Bode view carrying it, the stability of every design for the subject's own body, and the
 //! station's instructions for the test.
 
+use bdft_protocol::identification::BodyFit;
 use bdft_tests::TempDir;
 use bdft_tests::server::{Api, Server, assigned_station, pilot_copy, trial_rows, with_store};
 use bdft_tests::webdriver::{Driver, artifacts_dir};
@@ -68,6 +69,7 @@ fn a_pilot_measures_each_synthetic_subjects_feedthrough_and_the_exports_and_view
     let subjects = subjects.as_array().unwrap();
     assert_eq!(subjects.len(), 3);
     let mut truths_inside = 0;
+    let (mut compared, mut whole_subjects) = (0, Vec::new());
     for s in subjects {
         let id = s["subject"]["id"].as_i64().unwrap();
         let (_, detail) = api.get(&format!("/api/subjects/{id}"));
@@ -115,7 +117,12 @@ fn a_pilot_measures_each_synthetic_subjects_feedthrough_and_the_exports_and_view
         }
         let fit = &test["fit"];
         assert!(fit.is_object(), "{test}");
-        assert_eq!(view["fitted"].as_array().unwrap().len(), 60);
+        // The fitted curve is drawn for a body identified whole, none other.
+        let whole = BodyFit::PARAMETERS
+            .iter()
+            .all(|p| fit[*p]["not_identified"].is_null());
+        let curve = if whole { 60 } else { 0 };
+        assert_eq!(view["fitted"].as_array().unwrap().len(), curve, "{fit}");
         assert_eq!(view["population"].as_array().unwrap().len(), 60);
         // The body the synthetic subject drew is what the test measured (k_h and the
         // torso are not changed by the grip; the arm is, so it is not compared here).
@@ -123,7 +130,11 @@ fn a_pilot_measures_each_synthetic_subjects_feedthrough_and_the_exports_and_view
         for (key, truth) in [("k_h", "body_k_h"), ("torso_f_hz", "torso_f_hz")] {
             let truth = drawn[truth].as_f64().unwrap();
             let e = &fit[key];
-            let (lo, hi) = (e["lo"].as_f64().unwrap(), e["hi"].as_f64().unwrap());
+            let (Some(lo), Some(hi)) = (e["lo"].as_f64(), e["hi"].as_f64()) else {
+                assert!(e["not_identified"].is_string(), "{key}: {e}");
+                continue;
+            };
+            compared += 1;
             assert!(
                 truth > 0.7 * lo && truth < 1.3 * hi,
                 "{key}: drawn {truth}, fitted {e}"
@@ -133,8 +144,15 @@ fn a_pilot_measures_each_synthetic_subjects_feedthrough_and_the_exports_and_view
             }
         }
 
-        // Every design checked for this subject's own body, at the study's K_BF and another.
+        // Every design checked for this subject's own body, at the study's K_BF and another;
+        // a body not identified whole is no one's: refused naming what was not identified.
         let (code, st) = api.get(&format!("/api/subjects/{id}/stability"));
+        if !whole {
+            assert_eq!(code, 409, "{st}");
+            assert!(st.to_string().contains("not identified"), "{st}");
+            continue;
+        }
+        whole_subjects.push(id);
         assert_eq!(code, 200, "{st}");
         assert_eq!(st["body"]["k_h"], fit["k_h"]["value"]);
         assert_eq!(st["report"]["verdicts"].as_array().unwrap().len(), 5);
@@ -149,7 +167,10 @@ fn a_pilot_measures_each_synthetic_subjects_feedthrough_and_the_exports_and_view
     }
     // The workbench analyses a subject's own body when asked: another report than the
     // study's, and a subject of another study is refused naming the parameter.
-    let first = subjects[0]["subject"]["id"].as_i64().unwrap();
+    // Seeded: one of the three bodies is identified whole under the population's prior (the
+    // others have a resonance the data weigh less in than the population).
+    assert_eq!(whole_subjects.len(), 1, "{whole_subjects:?}");
+    let first = whole_subjects[0];
     let (code, own) = api.get(&format!(
         "/api/studies/{copy}/workbench/frequency?subject={first}"
     ));
@@ -162,11 +183,11 @@ fn a_pilot_measures_each_synthetic_subjects_feedthrough_and_the_exports_and_view
     ));
     assert_eq!(code, 422, "{refused}");
     assert!(refused.to_string().contains("subject"), "{refused}");
-    // 95 % intervals: most truths inside (6 comparisons; a miss or two is the intervals'
-    // own 5 %, the bound above catches a biased estimate).
+    // 95 % intervals: most truths inside (a miss or two is the intervals' own 5 %, the
+    // bound above catches a biased estimate).
     assert!(
-        truths_inside >= 4,
-        "{truths_inside} of 6 truths inside their intervals"
+        truths_inside + 2 >= compared && compared >= 4,
+        "{truths_inside} of {compared} truths inside their intervals"
     );
 
     // The trials export: the identification test unscored, without a compensator of its own.

@@ -5,12 +5,14 @@
 pub mod estimate;
 pub mod fit;
 pub mod multisine;
+pub mod prior;
 
 use thiserror::Error;
 
 pub use estimate::estimate;
 pub use fit::{fit_body, fit_record, identify};
 pub use multisine::Multisine;
+pub use prior::BodyPrior;
 
 /// Why a multisine cannot be built, or a record cannot be estimated or fitted.
 #[derive(Debug, Error, Clone, PartialEq)]

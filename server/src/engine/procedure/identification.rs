@@ -101,7 +101,7 @@ pub async fn measure(params: &StudyParams, trial: &Trial, record: &Record) -> Op
     let params = params.clone();
     // The estimate, fit and tuning take up to a few seconds: not on the async threads.
     let measured = tokio::task::spawn_blocking(move || {
-        use bdft_controller::identification::{estimate, fit_record};
+        use bdft_controller::identification::{BodyPrior, estimate, fit_record};
         let (points, fit) = match estimate(&excitation, dt, &cab, &device) {
             Err(e) => (
                 Vec::new(),
@@ -109,7 +109,8 @@ pub async fn measure(params: &StudyParams, trial: &Trial, record: &Record) -> Op
             ),
             Ok(points) => {
                 // With the record: the intervals are the jackknife's over its periods.
-                let fit = fit_record(&points, &excitation, dt, &cab, &device)
+                let prior = BodyPrior::of(&params.population);
+                let fit = fit_record(&points, &excitation, dt, &cab, &device, prior.as_ref())
                     .map(BodyFit::checked)
                     .map_err(|e| format!("the body fit failed: {e}"));
                 (points, fit)
