@@ -19,7 +19,10 @@
 //! right. (A log residual ln(G/Ĥ) is biased where the remnant is as large as the feedthrough;
 //! Ĥ is not.) A grid over both resonances in the plausible box (`PLAUSIBLE`), k_h profiled
 //! out, then Levenberg–Marquardt in the box from the best grid bodies (`global_minima`).
-//! T·A is symmetric in torso and arm, so the fit names the lower resonance the torso.
+//! With the study's population (`BodyPrior`) four more residuals, the resonances' distance
+//! from the population's medians in its standard deviations, make the cost a posterior's;
+//! the prior names torso and arm. Without it T·A is symmetric in torso and arm, so the fit
+//! names the lower resonance the torso.
 //!
 //! **Intervals.** The information matrix's θ̂ ± t(2(P − 1))·√diag((JᵀJ)⁻¹), scaled by any
 //! misfit beyond the points' variance; when the record is at hand (`identify`, `fit_record`
@@ -30,7 +33,9 @@
 //! back by exp; another local minimum the data cannot tell from the best widens them to hold
 //! it. A parameter is named in `unidentified` with why when its interval spans more than a
 //! factor of 10, the information matrix is singular along it, the fit ends at the plausible
-//! box's edge, its resonance is damped below any body's (`BODY_ZETA_MIN`: a machine's mode),
+//! box's edge, it is known to more than 1/√2 of the population's spread
+//! (`POPULATION_SHARE_MAX`), its resonance is damped below any body's (`BODY_ZETA_MIN`: a
+//! machine's mode),
 //! k_h when a resonance is so placed where no body has one, or the seated body does not
 //! describe the record (`MAX_LACK_OF_FIT`); the API and the
 //! exports report such a parameter with no value or interval (`BodyFit::report`).
