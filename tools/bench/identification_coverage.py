@@ -19,8 +19,10 @@ felt RMS cab acceleration (m/s^2) over those periods (the operator's grip is 1 +
 grip_stiffening x its running 1-s RMS of the true cab acceleration, `SyntheticOperator::hold`;
 the record's channel is the accelerometer's, so the accelerometer's white noise, the plant's
 accel_noise_std, and the engine's tone, engine_vibration_rms, are taken out of its mean square); relaxed, the grip stays 1. The seated
-body's feedthrough k_h(1 - T·A) is symmetric in torso and arm, and the fit names the lower
-resonance the torso: so does the truth (a subject whose gripped arm is below their torso is
+body's feedthrough k_h(1 - T·A) is symmetric in torso and arm: the data cannot tell which is
+which, and the fit names them by the population's prior, whose torso (1.1 Hz) is below its
+arm (2.0 Hz) — the lower one the torso, unless the two lie far apart on the same side. So the
+truth names the lower resonance the torso (a subject whose gripped arm is below their torso is
 compared resonance for resonance).
 
 A parameter the fit names "not identified" has no interval: it is counted apart (neither
@@ -128,7 +130,7 @@ def pilot(binary, params, seed, subjects, work, keep):
         truth = {p: float(r[DRAWN[p]]) for p in PARAMETERS}
         truth["arm_f_hz"] *= grip
         if truth["torso_f_hz"] > truth["arm_f_hz"]:
-            # 1 - T·A is symmetric in the two: the fit names the lower resonance the torso.
+            # 1 - T·A is symmetric in the two: the data cannot name them (module doc).
             truth["torso_f_hz"], truth["arm_f_hz"] = truth["arm_f_hz"], truth["torso_f_hz"]
             truth["torso_zeta"], truth["arm_zeta"] = truth["arm_zeta"], truth["torso_zeta"]
         fit = {}
