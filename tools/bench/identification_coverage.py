@@ -21,7 +21,7 @@ the record's channel is the accelerometer's, so the accelerometer's white noise,
 accel_noise_std, and the engine's tone, engine_vibration_rms, are taken out of its mean square); relaxed, the grip stays 1. The seated
 body's feedthrough k_h(1 - T·A) is symmetric in torso and arm: the data cannot tell which is
 which, and the fit names them by the population's prior, whose torso (1.1 Hz) is below its
-arm (2.0 Hz) — the lower one the torso, unless the two lie far apart on the same side. So the
+arm (2.0 Hz), at equal spreads — the lower one the torso (unless the dampings weigh the other way). So the
 truth names the lower resonance the torso (a subject whose gripped arm is below their torso is
 compared resonance for resonance).
 
