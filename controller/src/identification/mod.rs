@@ -1,6 +1,7 @@
 //! The identification test (`docs/identification.md`): the multisine that moves the cab
 //! ([`multisine`]), the feedthrough estimated from the record at its lines ([`estimate`])
-//! and the seated body fitted to it ([`fit`]).
+//! and the seated body fitted to it ([`fit`]), with the study's population as the prior on
+//! its resonances ([`prior`]).
 
 pub mod estimate;
 pub mod fit;
