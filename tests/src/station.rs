@@ -4,6 +4,7 @@
 
 use std::collections::VecDeque;
 use std::net::TcpStream;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use serde_json::{Value, json};
@@ -72,12 +73,40 @@ pub struct Fed {
 /// `seconds` + 10 s without one); times each input until the live sample whose `input_seq`
 /// covers it (client clock).
 pub fn feed(ws: &mut Socket, trial: i64, rate: f64, seconds: f64) -> Fed {
+    let began = Instant::now();
+    feed_while(ws, trial, rate, |started| match started {
+        Some(t) => t.elapsed() <= Duration::from_secs_f64(seconds),
+        None => began.elapsed() <= Duration::from_secs_f64(seconds + 10.0),
+    })
+}
+
+/// `feed`, until `stop` is set — by whoever watches the test end, so that a test slowed by a
+/// loaded machine is fed to its end (an unfed test stops as stale) — or `limit` passes.
+pub fn feed_until(
+    ws: &mut Socket,
+    trial: i64,
+    rate: f64,
+    stop: &AtomicBool,
+    limit: Duration,
+) -> Fed {
+    let began = Instant::now();
+    feed_while(ws, trial, rate, |_| {
+        !stop.load(Ordering::Relaxed) && began.elapsed() <= limit
+    })
+}
+
+/// The feeding itself, while `go_on(when the first echo came)`.
+fn feed_while(
+    ws: &mut Socket,
+    trial: i64,
+    rate: f64,
+    mut go_on: impl FnMut(Option<Instant>) -> bool,
+) -> Fed {
     // Short reads, so that sends keep their schedule; 0.2 ms is the timing's resolution.
     read_timeout(ws, Duration::from_micros(200));
     let period = Duration::from_secs_f64(1.0 / rate);
     let (mut seq, mut pending) = (0u64, VecDeque::<(u64, Instant)>::new());
     let mut fed = Fed::default();
-    let began = Instant::now();
     let mut started: Option<Instant> = None;
     let mut next = Instant::now();
     let mut last_send: Option<Instant> = None;
@@ -92,11 +121,7 @@ pub fn feed(ws: &mut Socket, trial: i64, rate: f64, seconds: f64) -> Fed {
         ws.send(msg).map_err(|e| e.to_string())
     };
     loop {
-        let over = match started {
-            Some(t) => t.elapsed() > Duration::from_secs_f64(seconds),
-            None => began.elapsed() > Duration::from_secs_f64(seconds + 10.0),
-        };
-        if over {
+        if !go_on(started) {
             break;
         }
         if last_display.is_none_or(|t| t.elapsed() >= Duration::from_millis(250)) {
