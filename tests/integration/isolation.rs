@@ -4,6 +4,8 @@
 //! which are told so — while all of them together are read no more than one station's
 //! budget. (The figures under load are `tests/benches/isolation.rs`'s.)
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use bdft_tests::server::{Server, eventually, short_study};
@@ -34,11 +36,15 @@ fn a_station_flooding_on_four_sockets_does_not_stop_another_stations_test() {
         let (code, body) = api.post(&format!("/api/trials/{t}/start"), json!({}));
         assert_eq!(code, 200, "{body}");
     }
-    // The other station's page feeds its test at 60 Hz past its end (its socket stays open
-    // until the thread is joined).
-    let feeding = std::thread::spawn(move || {
-        let fed = station::feed(&mut ws, trial, 60.0, 12.0);
-        (fed, ws)
+    // The other station's page feeds its test at 60 Hz until it has ended, however long a
+    // loaded machine makes it take (its socket stays open until the thread is joined).
+    let stop = Arc::new(AtomicBool::new(false));
+    let feeding = std::thread::spawn({
+        let stop = Arc::clone(&stop);
+        move || {
+            let fed = station::feed_until(&mut ws, trial, 60.0, &stop, Duration::from_secs(60));
+            (fed, ws)
+        }
     });
 
     // The flooding station opens four sockets one after the other (each is the station's
@@ -88,6 +94,7 @@ fn a_station_flooding_on_four_sockets_does_not_stop_another_stations_test() {
         (t["status"] != "running").then_some(t)
     });
     assert_eq!(row["status"], "complete", "{row}");
+    stop.store(true, Ordering::Relaxed);
     let (fed, _ws) = feeding.join().unwrap();
     assert!(fed.ended.is_none(), "{:?}", fed.ended);
     assert!(!fed.echo_ms.is_empty(), "echoed");

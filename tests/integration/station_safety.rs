@@ -4,6 +4,8 @@
 //! descriptors; the pairing codes are bounded; and, in Chromium, the E-stop shows "Stopped"
 //! on the station at once and keeps the experimenter's Start disabled until Reset.
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use bdft_tests::TempDir;
@@ -94,11 +96,21 @@ fn a_flooding_station_is_throttled_then_cut_off_while_another_runs_normally() {
         assert_eq!(code, 200, "{body}");
     }
 
-    // The calm station feeds its test at 100 Hz, as a page does, past its end.
-    // (The socket stays open until the thread is joined.)
-    let calm_thread = std::thread::spawn(move || {
-        let fed = station::feed(&mut calm_ws, calm_trial, 100.0, 10.0);
-        (fed, calm_ws)
+    // The calm station feeds its test at 100 Hz, as a page does, until it has ended, however
+    // long a loaded machine makes it take. (The socket stays open until the thread is joined.)
+    let stop = Arc::new(AtomicBool::new(false));
+    let calm_thread = std::thread::spawn({
+        let stop = Arc::clone(&stop);
+        move || {
+            let fed = station::feed_until(
+                &mut calm_ws,
+                calm_trial,
+                100.0,
+                &stop,
+                Duration::from_secs(60),
+            );
+            (fed, calm_ws)
+        }
     });
 
     // The other floods as fast as the server takes it.
@@ -143,6 +155,7 @@ fn a_flooding_station_is_throttled_then_cut_off_while_another_runs_normally() {
     let calm_view = socket_view(&api, calm);
     assert_eq!(calm_view["dropped"], 0, "{calm_view}");
     assert_eq!(calm_view["connected"], true, "{calm_view}");
+    stop.store(true, Ordering::Relaxed);
     let (fed, _calm_ws) = calm_thread.join().unwrap();
     assert_eq!(calm_row["status"], "complete", "{calm_row}");
     assert!(fed.ended.is_none(), "{:?}", fed.ended);
